@@ -1,0 +1,178 @@
+"""Boundary facets of a DOLFINx mesh as plain arrays, and MPI-consistent node updates.
+
+The snapping pipeline works on arrays over boundary facets; this module is the
+only place that reads DOLFINx topology for them.  Each exterior facet is
+handled by exactly one process: the one that owns its (single) cell, so a
+facet is never processed twice and ghost cells need no parent information.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+import dolfinx.la
+import dolfinx.mesh
+
+__all__ = [
+    "BoundaryFacets",
+    "boundary_facets",
+    "facet_nodes",
+    "tag_values",
+    "update_nodes",
+    "check_p1_simplex",
+]
+
+
+def check_p1_simplex(mesh: dolfinx.mesh.Mesh) -> None:
+    """Raise ``ValueError`` unless ``mesh`` is an affine triangle or tetrahedron mesh."""
+    ct = mesh.topology.cell_type
+    if ct not in (dolfinx.mesh.CellType.triangle, dolfinx.mesh.CellType.tetrahedron):
+        raise ValueError(
+            f"nagata_snap supports triangle and tetrahedron meshes, got {ct.name} cells"
+        )
+    if mesh.geometry.cmap.degree != 1:
+        raise ValueError(
+            f"nagata_snap refines affine meshes (coordinate degree 1), got degree "
+            f"{mesh.geometry.cmap.degree}"
+        )
+    if mesh.geometry.dim != mesh.topology.dim:
+        raise ValueError(
+            f"geometric dimension {mesh.geometry.dim} differs from topological dimension "
+            f"{mesh.topology.dim}: manifold meshes are not supported"
+        )
+
+
+@dataclass
+class BoundaryFacets:
+    """Exterior facets whose cell is owned by this process.
+
+    Attributes:
+        facets: ``(nf,)`` local facet indices.
+        cells: ``(nf,)`` local index of the owned cell of each facet.
+        nodes: ``(nf, nfv)`` local geometry-node indices of the facet vertices.
+        opposite: ``(nf,)`` geometry node of the cell vertex not on the facet.
+    """
+
+    facets: npt.NDArray[np.int32]
+    cells: npt.NDArray[np.int32]
+    nodes: npt.NDArray[np.int32]
+    opposite: npt.NDArray[np.int32]
+
+    def outward_normals(self, x: np.ndarray) -> np.ndarray:
+        """``(nf, 3)`` unit outward normals of the straight facets for coordinates ``x``."""
+        p = x[self.nodes]
+        if p.shape[1] == 2:
+            t = p[:, 1] - p[:, 0]
+            n = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
+        else:
+            n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        flip = np.einsum("ij,ij->i", n, x[self.opposite] - p[:, 0]) > 0
+        n[flip] *= -1
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def facet_nodes(mesh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]) -> np.ndarray:
+    """``(nf, nfv)`` geometry nodes of the vertices of ``facets`` (P1 geometry)."""
+    fdim = mesh.topology.dim - 1
+    if len(facets) == 0:
+        return np.zeros((0, fdim + 1), dtype=np.int32)
+    return dolfinx.mesh.entities_to_geometry(mesh, fdim, np.asarray(facets, dtype=np.int32))
+
+
+def boundary_facets(mesh: dolfinx.mesh.Mesh) -> BoundaryFacets:
+    """Exterior facets of ``mesh`` that belong to cells owned by this process."""
+    tdim = mesh.topology.dim
+    fdim = tdim - 1
+    top = mesh.topology
+    top.create_entities(fdim)
+    top.create_connectivity(fdim, tdim)
+    top.create_connectivity(tdim, fdim)
+    f2c = top.connectivity(fdim, tdim)
+    num_facets = top.index_map(fdim).size_local + top.index_map(fdim).num_ghosts
+    ncell_f = np.diff(f2c.offsets)[:num_facets]
+    cand = np.flatnonzero(ncell_f == 1).astype(np.int32)
+    # A facet with one local cell may still be interior across a process
+    # boundary.  DOLFINx's parallel-aware exterior set lists owned facets
+    # only; ghost facets get their owner's flag through a scatter.
+    ext_owned = dolfinx.mesh.exterior_facet_indices(top)
+    is_ext = np.zeros(num_facets, dtype=bool)
+    is_ext[ext_owned] = True
+    fmap = top.index_map(fdim)
+    if mesh.comm.size > 1:
+        vec = dolfinx.la.vector(fmap, 1)
+        vec.array[:] = 0.0
+        vec.array[: fmap.size_local] = is_ext[: fmap.size_local]
+        vec.scatter_forward()
+        is_ext = vec.array > 0.5
+    cand = cand[is_ext[cand]]
+    cells = f2c.array[f2c.offsets[cand]]
+    owned = cells < top.index_map(tdim).size_local
+    cand, cells = cand[owned], cells[owned].astype(np.int32)
+    nodes = facet_nodes(mesh, cand)
+    cell_nodes = mesh.geometry.dofmaps[0][cells]
+    on_facet = (cell_nodes[:, :, None] == nodes[:, None, :]).any(axis=2)
+    opposite = cell_nodes[~on_facet]
+    if opposite.shape[0] != len(cand):
+        raise RuntimeError("could not identify the cell vertex opposite to each boundary facet")
+    return BoundaryFacets(cand, cells, nodes.astype(np.int32), opposite.astype(np.int32))
+
+
+def tag_values(
+    facet_tags: dolfinx.mesh.MeshTags | None, facets: npt.NDArray[np.int32], default: int = -1
+) -> np.ndarray:
+    """Tag value of each facet in ``facets`` (``default`` where untagged)."""
+    out = np.full(len(facets), default, dtype=np.int64)
+    if facet_tags is None or len(facet_tags.indices) == 0:
+        return out
+    pos = np.searchsorted(facet_tags.indices, facets)
+    pos = np.minimum(pos, len(facet_tags.indices) - 1)
+    hit = facet_tags.indices[pos] == facets
+    out[hit] = facet_tags.values[pos[hit]]
+    return out
+
+
+def update_nodes(
+    mesh: dolfinx.mesh.Mesh, x: np.ndarray, nodes: np.ndarray, values: np.ndarray
+) -> np.ndarray:
+    """Write new positions of geometry nodes consistently across processes.
+
+    Every process passes the nodes it computed (owned or ghost, repeats
+    allowed; equal repeats up to round-off).  Owners receive the mean of all
+    contributions (one per contributing process), then ghosts receive the
+    owner's value, so all copies of a node agree exactly.
+
+    Args:
+        mesh: the mesh whose geometry index map numbers the nodes.
+        x: ``(n, 3)`` coordinates, modified in place and returned.
+        nodes: ``(k,)`` local geometry nodes.
+        values: ``(k, 3)`` new coordinates.
+
+    Returns:
+        ``(moved,)`` bool array over local nodes: True where a node received a value.
+    """
+    imap = mesh.geometry.index_map()
+    n_local = imap.size_local + imap.num_ghosts
+    uniq, first = np.unique(nodes, return_index=True)
+    if mesh.comm.size == 1:
+        x[uniq] = values[first]
+        moved = np.zeros(n_local, dtype=bool)
+        moved[uniq] = True
+        return moved
+    vec = dolfinx.la.vector(imap, 4)
+    a = vec.array.reshape(-1, 4)
+    a[:] = 0.0
+    a[uniq, :3] = values[first]
+    a[uniq, 3] = 1.0
+    vec.scatter_reverse(dolfinx.la.InsertMode.add)
+    own = a[: imap.size_local]
+    hit = own[:, 3] > 0
+    own[hit, :3] /= own[hit, 3:4]
+    own[hit, 3] = 1.0
+    own[~hit] = 0.0
+    vec.scatter_forward()
+    moved = a[:, 3] > 0
+    x[moved] = a[moved, :3]
+    return moved

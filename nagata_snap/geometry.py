@@ -1,0 +1,326 @@
+"""Nagata-mode geometry: curved patches over the coarse boundary, no CAD needed.
+
+:class:`NagataGeometry` is built once from the coarse mesh and its facet tags.
+It gathers the whole coarse boundary on every process in a canonical order
+(facets sorted by the input-global indices of their vertices), so patch data
+and therefore snapped coordinates are identical whatever the partition.
+
+A snapping geometry offers two methods used by :class:`nagata_snap.Snapper`:
+
+* ``attach(points, nodes) -> Records``: records of the coarse mesh's facets;
+* ``place(records, straight) -> (points, records, report)``: positions of the
+  facet vertices described by ``records``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Callable, Sequence
+
+import numpy as np
+import numpy.typing as npt
+from mpi4py import MPI
+
+import dolfinx.mesh
+
+from . import nagata
+from .boundary import boundary_facets, check_p1_simplex, tag_values
+from .normals import NormalsError, corner_normals
+from .records import Records
+
+__all__ = ["NagataGeometry", "NormalSource"]
+
+#: User normals: ``None`` (estimate), an array ``(num_nodes, gdim)`` over the
+#: coarse mesh's local geometry nodes, or a callable ``f(x) -> n`` mapping
+#: ``(k, 3)`` points to ``(k, 3)`` (or ``(k, gdim)``) normals.
+NormalSource = None | np.ndarray | Callable[[np.ndarray], np.ndarray]
+
+
+def _unit(n: np.ndarray, what: str) -> np.ndarray:
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    bad = ~(np.isfinite(n).all(axis=-1) & (norm[..., 0] > 1e-12))
+    if bad.any():
+        raise NormalsError(f"{int(bad.sum())} {what} normals are zero, NaN or infinite")
+    return n / norm
+
+
+def _gather(comm: MPI.Comm, *arrays: np.ndarray) -> list[np.ndarray]:
+    if comm.size == 1:
+        return list(arrays)
+    parts = comm.allgather(arrays)
+    return [np.concatenate([p[i] for p in parts]) for i in range(len(arrays))]
+
+
+class NagataGeometry:
+    """Nagata patches over the tagged boundary facets of a coarse mesh.
+
+    Args:
+        mesh: coarse affine triangle (2D) or tetrahedron (3D) mesh.
+        facet_tags: its facet tags.
+        tags: tag values whose facets are snapped (default: all tags present).
+        normals: vertex normals of the snapped surface: ``None`` to estimate
+            them (Max's MWSELR weighting, see :mod:`nagata_snap.normals`), an
+            array ``(num_geometry_nodes, gdim)`` on the coarse mesh's local
+            geometry nodes, or a callable of position ``f(x: (k, 3)) -> (k, 3)``
+            such as an analytic normal.  Corners where the supplied normal
+            differs from the estimated one by more than ``crease_angle`` (the
+            other side of a crease) keep the estimated normal.
+        crease_angle: dihedral angle (degrees) above which a boundary ridge is
+            sharp: a vertex there keeps one normal per smooth side and the
+            ridge uses the multi-normal coefficient (eqs. 20-32 of Nagata 2005).
+        split_tags: also treat ridges between facets of different tags as sharp.
+        eps: threshold of Nagata's singular-case rules.
+
+    Raises:
+        ValueError: unsupported mesh, unknown tags.
+        NormalsError: zero/NaN normals, or normals more than ~155 degrees apart
+            on one edge.
+        NonManifoldError: a boundary ridge shared by other than two facets.
+    """
+
+    def __init__(
+        self,
+        mesh: dolfinx.mesh.Mesh,
+        facet_tags: dolfinx.mesh.MeshTags,
+        tags: Sequence[int] | None = None,
+        *,
+        normals: NormalSource = None,
+        crease_angle: float = 60.0,
+        split_tags: bool = True,
+        eps: float = nagata.EPS,
+    ):
+        check_p1_simplex(mesh)
+        comm = mesh.comm
+        self.comm = comm
+        self.tdim = mesh.topology.dim
+        self.gdim = mesh.geometry.dim
+        present = np.unique(np.concatenate(comm.allgather(np.asarray(facet_tags.values))))
+        if tags is None:
+            tags = present.tolist()
+        tags = [int(t) for t in np.atleast_1d(tags)]
+        missing = sorted(set(tags) - set(present.tolist()))
+        if missing:
+            raise ValueError(
+                f"facet tags {missing} do not exist in the mesh's facet tags "
+                f"(present: {present.tolist()})"
+            )
+        self.tags = tags
+        self.crease_angle = float(crease_angle)
+        nfv = self.tdim
+        bf = boundary_facets(mesh)
+        x = mesh.geometry.x
+        gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)[bf.nodes]
+        coords = x[bf.nodes]
+        tag = tag_values(facet_tags, bf.facets)
+        fnorm = bf.outward_normals(x)
+        user = None
+        if normals is not None and not callable(normals):
+            arr = np.asarray(normals, dtype=float)
+            if arr.ndim != 2 or arr.shape[0] < x.shape[0] or arr.shape[1] not in (2, 3):
+                raise ValueError(
+                    f"normals array must have shape (num_geometry_nodes={x.shape[0]}, gdim), "
+                    f"got {arr.shape}"
+                )
+            user = np.zeros((x.shape[0], 3))
+            user[:, : arr.shape[1]] = arr[: x.shape[0]]
+            user = user[bf.nodes]
+        else:
+            user = np.zeros_like(coords)
+        # interior tagged facets are not boundary: snapping them makes no sense
+        interior = np.setdiff1d(
+            np.asarray(facet_tags.indices)[np.isin(facet_tags.values, tags)],
+            dolfinx.mesh.exterior_facet_indices(mesh.topology),
+        )
+        fmap = mesh.topology.index_map(self.tdim - 1)
+        interior = interior[interior < fmap.size_local]
+        n_int = comm.allreduce(len(interior))
+        if n_int:
+            raise ValueError(
+                f"{n_int} facets with snapped tags {tags} are interior facets; "
+                "only exterior boundary facets can be snapped"
+            )
+        gids, coords, tag, fnorm, user = _gather(comm, gids, coords, tag, fnorm, user)
+        # canonical order: vertex ids sorted within facets, facets sorted lexicographically
+        perm = np.argsort(gids, axis=1)
+        gids = np.take_along_axis(gids, perm, axis=1)
+        coords = np.take_along_axis(coords, perm[:, :, None], axis=1)
+        user = np.take_along_axis(user, perm[:, :, None], axis=1)
+        order = np.lexsort(gids.T[::-1])
+        gids, coords, tag, fnorm, user = gids[order], coords[order], tag[order], fnorm[order], user[order]
+        if not np.all(np.isfinite(coords)):
+            raise ValueError("the coarse mesh has NaN or infinite boundary coordinates")
+        if len(gids) > 1 and np.any(np.all(gids[1:] == gids[:-1], axis=1)):
+            raise ValueError("a boundary facet appears twice in the gathered coarse boundary")
+        _unit(fnorm, "facet (zero-area facets give undefined)")
+        vuniq, vid = np.unique(gids, return_inverse=True)
+        vid = vid.reshape(gids.shape)
+        # coincident distinct vertices make zero-length edges and undefined normals
+        self.ids = gids
+        self.x = coords
+        self.tag = tag
+        self.facet_normal = fnorm
+        cn = corner_normals(vid, coords, fnorm, tag, crease_angle, split_tags)
+        n = cn.normals.copy()
+        snap = np.isin(tag, tags)
+        self.snap = snap
+        if normals is not None:
+            if callable(normals):
+                pts = coords[snap].reshape(-1, 3)
+                val = np.asarray(normals(pts), dtype=float)
+                if val.shape != (len(pts), 3):
+                    if val.shape == (len(pts), 2):
+                        val = np.c_[val, np.zeros(len(pts))]
+                    else:
+                        raise ValueError(
+                            f"normals callable returned shape {val.shape}, expected ({len(pts)}, 3)"
+                        )
+                un = val.reshape(-1, nfv, 3)
+            else:
+                un = user[snap]
+            un = _unit(un, "user-supplied")
+            far = np.einsum("fvi,fvi->fv", un, n[snap]) < np.cos(np.radians(crease_angle))
+            if far.any():
+                warnings.warn(
+                    f"{int(far.sum())} supplied normals differ from the estimated normal of "
+                    f"their facet side by more than {crease_angle} deg (other side of a "
+                    "crease?); the estimated normal is kept there",
+                    stacklevel=2,
+                )
+            n[snap] = np.where(far[..., None], n[snap], un)
+        self.corner_normal = n
+        self.coef = self._edge_coefficients(cn, n, eps)
+
+    # ------------------------------------------------------------------
+    def _edge_coefficients(self, cn, n: np.ndarray, eps: float) -> np.ndarray:
+        x = self.x
+        F, nfv = self.ids.shape
+        if nfv == 2:
+            cos = np.einsum("fi,fi->f", n[:, 0], n[:, 1])
+            self._check_opposite(cos)
+            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps)[:, None, :]
+        local = nagata.LOCAL_EDGES[3]
+        a, b = local[:, 0], local[:, 1]
+        d = x[:, b] - x[:, a]  # (F, 3, 3)
+        n0, n1 = n[:, a], n[:, b]
+        cos = np.einsum("fei,fei->fe", n0, n1)
+        self._check_opposite(cos)
+        coef = nagata.curve_coefficient(d, n0, n1, eps)
+        # crease ridges: one coefficient from all normals of both facets (eq. 32)
+        cr = np.flatnonzero(cn.crease)
+        if len(cr):
+            rf = cn.ridge_facets[cr]  # (R, 2)
+            rv = cn.ridge_vertices[cr]  # (R, 2) vertex ids, sorted
+            vid = cn.vertex
+            # local positions of the ridge's two vertices in each of its facets
+            pos = np.stack(
+                [np.argmax(vid[rf[:, s]][:, :, None] == rv[:, None, :], axis=1) for s in (0, 1)],
+                axis=1,
+            )  # (R, 2 facets, 2 ends)
+            N0 = np.stack([n[rf[:, s], pos[:, s, 0]] for s in (0, 1)], axis=1)
+            N1 = np.stack([n[rf[:, s], pos[:, s, 1]] for s in (0, 1)], axis=1)
+            dr = x[rf[:, 0], pos[:, 0, 1]] - x[rf[:, 0], pos[:, 0, 0]]
+            cm = nagata.curve_coefficient_multi(dr, N0, N1, eps)
+            # write into the local edge slot of each facet
+            for s in (0, 1):
+                p = np.sort(pos[:, s], axis=1)
+                slot = np.where(
+                    (p[:, 0] == 0) & (p[:, 1] == 1), 0, np.where((p[:, 0] == 1) & (p[:, 1] == 2), 1, 2)
+                )
+                coef[rf[:, s], slot] = cm
+        return coef
+
+    @staticmethod
+    def _check_opposite(cos: np.ndarray) -> None:
+        bad = cos < -0.9
+        if bad.any():
+            raise NormalsError(
+                f"{int(bad.sum())} boundary edges have end normals more than "
+                f"{np.degrees(np.arccos(-0.9)):.0f} degrees apart (opposite normals on "
+                "neighbouring vertices); check the supplied normals or the crease angle"
+            )
+
+    # ------------------------------------------------------------------
+    @property
+    def num_patches(self) -> int:
+        """Number of coarse boundary facets (patches), over all processes."""
+        return int(self.ids.shape[0])
+
+    def find(self, gids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Canonical patch of facets given by input-global vertex ids.
+
+        Args:
+            gids: ``(nf, nfv)`` input-global vertex indices (any order per row).
+
+        Returns:
+            ``(patch, perm)``: ``(nf,)`` patch index (-1 if not a coarse
+            boundary facet) and ``(nf, nfv)`` position of each given vertex in
+            the patch's canonical vertex order.
+        """
+        perm = np.argsort(gids, axis=1)
+        key = np.take_along_axis(gids, perm, axis=1)
+        patch = _rows_searchsorted(self.ids, key)
+        inv = np.argsort(perm, axis=1)
+        return patch, inv
+
+    def attach(self, points: np.ndarray, nodes: np.ndarray | None = None) -> Records:
+        """Records of coarse-mesh facets: their own patch and vertex barycentrics.
+
+        Args:
+            points: ``(nf, nfv, 3)`` facet vertex coordinates (used to verify).
+            nodes: ``(nf, nfv)`` input-global vertex indices of the facets.
+
+        Returns:
+            :class:`Records` with ``params`` the permutation matrices that map
+            each local vertex to the patch's canonical vertex.
+        """
+        if nodes is None:
+            raise ValueError("NagataGeometry.attach needs the facets' input-global vertex ids")
+        patch, inv = self.find(np.asarray(nodes, dtype=np.int64))
+        if np.any(patch < 0):
+            raise ValueError(
+                f"{int(np.sum(patch < 0))} facets are not boundary facets of the mesh this "
+                "NagataGeometry was built on"
+            )
+        nfv = inv.shape[1]
+        params = np.eye(nfv)[inv]
+        if not np.allclose(points, self.x[patch][np.arange(len(patch))[:, None], inv], atol=0, rtol=0):
+            raise ValueError("facet coordinates differ from the mesh this geometry was built on")
+        return Records(patch.astype(np.int64), params)
+
+    def place(
+        self, records: Records, straight: np.ndarray | None = None
+    ) -> tuple[np.ndarray, Records, dict]:
+        """Evaluate each facet vertex on its coarse facet's Nagata patch.
+
+        Args:
+            records: records of ``nf`` facets (``params`` barycentric, ``(nf, nfv, nfv)``).
+            straight: unused (Nagata placement needs no projection).
+
+        Returns:
+            ``(points (nf, nfv, 3), records, report)``.
+        """
+        r = records.root
+        pts = nagata.evaluate(self.x[r], self.coef[r], records.params)
+        return pts, records, {"n_points": int(pts.shape[0] * pts.shape[1])}
+
+    def evaluate(self, patch: npt.ArrayLike, lam: np.ndarray) -> np.ndarray:
+        """Points on patches ``patch (P,)`` at barycentric ``lam (P, k, nfv)``: ``(P, k, 3)``."""
+        patch = np.asarray(patch)
+        return nagata.evaluate(self.x[patch], self.coef[patch], lam)
+
+
+def _rows_searchsorted(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Index of each row of ``rows`` in the lexicographically sorted ``table`` (-1 if absent)."""
+    if len(table) == 0:
+        return np.full(len(rows), -1)
+    t = np.ascontiguousarray(table)
+    r = np.ascontiguousarray(rows)
+    dt = np.dtype((np.void, t.dtype.itemsize * t.shape[1]))
+    # void-view comparison is bytewise, not numeric: sort a view of the table
+    tv = t.view(dt).ravel()
+    rv = r.view(dt).ravel()
+    order = np.argsort(tv)
+    pos = np.searchsorted(tv[order], rv)
+    pos = np.minimum(pos, len(tv) - 1)
+    hit = tv[order][pos] == rv
+    return np.where(hit, order[pos], -1)

@@ -1,0 +1,250 @@
+"""Nagata curves and triangular patches, vectorised over many edges/patches.
+
+All formulas are from T. Nagata, "Simple local interpolation of surfaces
+using normal vectors", CAGD 22 (2005) 327-347 (seed 002); equation numbers
+below refer to that paper.
+
+Edge curve (eq. 1), for end points ``x0, x1`` and unit normals ``n0, n1``::
+
+    x(xi) = x0 + (d - c) xi + c xi^2 = (1 - xi) x0 + xi x1 - c xi (1 - xi),   d = x1 - x0
+
+The curvature coefficient ``c`` is eq. (15) for one normal per end, or the
+generalized-inverse solution eq. (20) with eqs. (29)-(32) when an edge carries
+several normals per end (sharp edges, open boundaries).
+
+Triangular patch (eq. 44), written with barycentric coordinates
+``l1 = 1 - eta, l2 = eta - zeta, l3 = zeta``::
+
+    x = l1 x1 + l2 x2 + l3 x3 - c12 l1 l2 - c23 l2 l3 - c13 l1 l3
+
+with ``c12 = c(x2 - x1, n1, n2)`` etc. (eqs. 39a-39c).  The same barycentric
+form with a single edge is the curve (eq. 1), so :func:`evaluate` serves both.
+
+Arrays: ``(..., 3)`` vectors (a 2D mesh uses ``z = 0``), leading axes are
+edges or patches; nothing loops in Python over edges or points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "EPS",
+    "curve_coefficient",
+    "curve_coefficient_multi",
+    "curve",
+    "evaluate",
+    "patch_derivatives",
+    "patch_normal",
+    "patch_coefficients",
+    "LOCAL_EDGES",
+]
+
+#: Threshold epsilon of Nagata's singular-case rules (sec. 2.1.1 for
+#: ``Delta c``, sec. 2.1.2 for the determinant coefficients ``D^(k)``).
+#: Both quantities are dimensionless; neither seed gives a value.  1e-10
+#: corresponds to normals about 2e-5 rad apart.
+EPS = 1.0e-10
+
+#: Local vertex pairs of the edges of a facet with ``nfv`` vertices, in the
+#: order c1, c2, c3 of eq. (39): (v1,v2), (v2,v3), (v1,v3).
+LOCAL_EDGES = {2: np.array([[0, 1]]), 3: np.array([[0, 1], [1, 2], [0, 2]])}
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...i->...", a, b)
+
+
+def curve_coefficient(
+    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS
+) -> np.ndarray:
+    """Curvature coefficient ``c(d, n0, n1)`` of the Nagata curve, eq. (15).
+
+    With ``v = (n0 + n1)/2``, ``dv = (n0 - n1)/2`` (eq. 12), ``d = d.v``,
+    ``Dd = d.dv`` (eq. 13) and ``Dc = n0.dv`` (eq. 14b)::
+
+        c = Dd / (1 - Dc) v + d / Dc dv
+
+    Singular cases (sec. 2.1.1): the first term is dropped when
+    ``1 - Dc < eps`` and the second when ``Dc < eps``; parallel normals thus
+    give ``c = 0`` (a straight edge stays exactly straight).
+
+    Args:
+        d: ``(..., 3)`` edge vectors ``x1 - x0`` (length units).
+        n0, n1: ``(..., 3)`` unit normals at the two ends.
+        eps: dimensionless singularity threshold.
+
+    Returns:
+        ``(..., 3)`` coefficients ``c`` (length units).  The result is the
+        same for the reversed edge ``c(-d, n1, n0)``.
+    """
+    d = np.asarray(d, dtype=float)
+    n0 = np.asarray(n0, dtype=float)
+    n1 = np.asarray(n1, dtype=float)
+    v = 0.5 * (n0 + n1)
+    dv = 0.5 * (n0 - n1)
+    dd = _dot(d, v)
+    ddelta = _dot(d, dv)
+    dc = _dot(n0, dv)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(1.0 - dc < eps, 0.0, ddelta / (1.0 - dc))
+        b = np.where(dc < eps, 0.0, dd / dc)
+    return a[..., None] * v + b[..., None] * dv
+
+
+def curve_coefficient_multi(
+    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS
+) -> np.ndarray:
+    """Curvature coefficient for several normals per end, eqs. (20), (31), (32).
+
+    The orthogonality conditions ``n0k.(d - c) = 0`` and ``n1k.(d + c) = 0``
+    for all normals ``n0k`` at the first end and ``n1k`` at the second end
+    (eq. 32) are solved in the minimum-norm least-squares sense,
+    ``c = [n]^+ {d}`` (eq. 20), with the generalized inverse from eq. (31):
+    ``[s] = [n]^T [n]`` (eq. 33), ``a_i^(0) = s_j x s_k`` (26c),
+    ``a_i^(1) = s_j x e_k + e_j x s_k`` (26b), ``D^(2) = e_i.(s_i + a_i^(1))``,
+    ``D^(1) = s_i.a_i^(1) + e_i.a_i^(0)``, ``D^(0) = s_i.a_i^(0)`` (29), each
+    treated as zero below ``eps`` (sec. 2.1.2).
+
+    Zero rows are allowed as padding (they add nothing to ``[s]`` nor to
+    ``[n]^T{d}``), so edges with different numbers of normals share one array.
+
+    Args:
+        d: ``(E, 3)`` edge vectors.
+        n0: ``(E, p, 3)`` normals at the first end (unit, or zero padding).
+        n1: ``(E, q, 3)`` normals at the second end.
+        eps: dimensionless threshold for ``D^(k)``.
+
+    Returns:
+        ``(E, 3)`` coefficients.
+    """
+    d = np.asarray(d, dtype=float)
+    n0 = np.asarray(n0, dtype=float)
+    n1 = np.asarray(n1, dtype=float)
+    # [n]^T {d}: rows n0k with right-hand side n0k.d, rows n1k with -n1k.d (eq. 32)
+    rhs = np.einsum("epi,ep->ei", n0, _dot(n0, d[:, None, :])) - np.einsum(
+        "eqi,eq->ei", n1, _dot(n1, d[:, None, :])
+    )
+    s = np.einsum("epi,epj->eij", n0, n0) + np.einsum("eqi,eqj->eij", n1, n1)  # eq. (33)
+    e = np.eye(3)
+    # columns s_i of [s] (eq. 22); (i, j, k) cyclic
+    sc = np.moveaxis(s, 2, 1)  # sc[:, i] = s_i
+    ijk = [(0, 1, 2), (1, 2, 0), (2, 0, 1)]
+    a0 = np.stack([np.cross(sc[:, j], sc[:, k]) for i, j, k in ijk], axis=1)  # (26c)
+    a1 = np.stack(
+        [np.cross(sc[:, j], e[k]) + np.cross(e[j], sc[:, k]) for i, j, k in ijk], axis=1
+    )  # (26b)
+    d2 = sc[:, 0, 0] + a1[:, 0, 0]  # (29a) with i = 1
+    d1 = _dot(sc[:, 0], a1[:, 0]) + a0[:, 0, 0]  # (29b)
+    d0 = _dot(sc[:, 0], a0[:, 0])  # (29c)
+    c0 = np.einsum("eij,ej->ei", a0, rhs)
+    c1 = np.einsum("eij,ej->ei", a1, rhs)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(
+            (np.abs(d0) > eps)[:, None],
+            c0 / d0[:, None],
+            np.where(
+                (np.abs(d1) > eps)[:, None],
+                c1 / d1[:, None],
+                np.where((np.abs(d2) > eps)[:, None], rhs / d2[:, None], 0.0),
+            ),
+        )
+    return c
+
+
+def curve(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, xi: npt.ArrayLike) -> np.ndarray:
+    """Points of Nagata curves, eq. (1).
+
+    Args:
+        x0, x1: ``(E, 3)`` end points; c: ``(E, 3)`` coefficients.
+        xi: ``(E, k)`` or ``(k,)`` curve parameters in [0, 1].
+
+    Returns:
+        ``(E, k, 3)`` points.
+    """
+    xi = np.broadcast_to(np.asarray(xi, dtype=float), (x0.shape[0], np.shape(xi)[-1]))[..., None]
+    return (1.0 - xi) * x0[:, None] + xi * x1[:, None] - c[:, None] * (xi * (1.0 - xi))
+
+
+def evaluate(x: np.ndarray, c: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Evaluate Nagata curves (``nfv = 2``) or triangular patches (``nfv = 3``).
+
+    Eq. (44) in barycentric form: ``sum_i l_i x_i - sum_edges c_ab l_a l_b``,
+    edges ordered as :data:`LOCAL_EDGES`.  Vertices are reproduced exactly.
+
+    Args:
+        x: ``(P, nfv, 3)`` patch vertices.
+        c: ``(P, ne, 3)`` edge coefficients (``ne = 1`` or ``3``).
+        lam: ``(P, k, nfv)`` barycentric coordinates of the ``k`` points to
+            evaluate on each patch.
+
+    Returns:
+        ``(P, k, 3)`` points.
+    """
+    edges = LOCAL_EDGES[x.shape[1]]
+    lin = np.einsum("pkv,pvi->pki", lam, x)
+    quad = lam[:, :, edges[:, 0]] * lam[:, :, edges[:, 1]]  # (P, k, ne)
+    return lin - np.einsum("pke,pei->pki", quad, c)
+
+
+def patch_derivatives(
+    x: np.ndarray, c: np.ndarray, eta: np.ndarray, zeta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tangents ``x_eta``, ``x_zeta`` of triangular patches, eq. (45).
+
+    Args:
+        x: ``(P, 3, 3)`` vertices ``x00, x10, x11`` (eq. 35).
+        c: ``(P, 3, 3)`` edge coefficients ``c1, c2, c3`` (eq. 39).
+        eta, zeta: ``(P, k)`` parameters with ``0 <= zeta <= eta <= 1`` (eq. 34).
+
+    Returns:
+        ``x_eta``, ``x_zeta``, each ``(P, k, 3)``.
+    """
+    d1 = (x[:, 1] - x[:, 0])[:, None]
+    d2 = (x[:, 2] - x[:, 1])[:, None]
+    c1, c2, c3 = (c[:, i][:, None] for i in range(3))
+    eta = eta[..., None]
+    zeta = zeta[..., None]
+    x_eta = d1 + c1 * ((eta - zeta) - (1.0 - eta)) + (c3 - c2) * zeta  # (45a)
+    x_zeta = d2 + c2 * (zeta - (eta - zeta)) + (c1 - c3) * (1.0 - eta)  # (45b)
+    return x_eta, x_zeta
+
+
+def patch_normal(x: np.ndarray, c: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Unit normals ``x_eta x x_zeta / |.|`` of triangular patches at barycentric points.
+
+    Args:
+        x: ``(P, 3, 3)`` vertices; c: ``(P, 3, 3)`` edge coefficients.
+        lam: ``(P, k, 3)`` barycentric coordinates (``eta = 1 - l1``, ``zeta = l3``).
+
+    Returns:
+        ``(P, k, 3)`` unit normals, oriented like ``(x2 - x1) x (x3 - x1)``.
+    """
+    eta = 1.0 - lam[..., 0]
+    zeta = lam[..., 2]
+    xe, xz = patch_derivatives(x, c, eta, zeta)
+    n = np.cross(xe, xz)
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def patch_coefficients(x: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
+    """Monomial coefficients ``c00 .. c02`` of eq. (37) from eq. (43).
+
+    Args:
+        x: ``(P, 3, 3)`` vertices ``x00, x10, x11``; c: ``(P, 3, 3)`` ``c1, c2, c3``.
+
+    Returns:
+        dict of ``(P, 3)`` arrays keyed ``c00, c10, c01, c11, c20, c02``.
+    """
+    d1 = x[:, 1] - x[:, 0]
+    d2 = x[:, 2] - x[:, 1]
+    c1, c2, c3 = c[:, 0], c[:, 1], c[:, 2]
+    return {
+        "c00": x[:, 0].copy(),  # (43a)
+        "c10": d1 - c1,  # (43b)
+        "c01": d2 + c1 - c3,  # (43c)
+        "c11": c3 - c1 - c2,  # (43d)
+        "c20": c1.copy(),  # (43e)
+        "c02": c2.copy(),  # (43f)
+    }
