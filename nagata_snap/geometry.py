@@ -140,6 +140,60 @@ class NagataGeometry:
                 "only exterior boundary facets can be snapped"
             )
         gids, coords, tag, fnorm, user = _gather(comm, gids, coords, tag, fnorm, user)
+        self._build(gids, coords, tag, fnorm, user, normals, crease_angle, split_tags, eps)
+
+    @classmethod
+    def from_surface(
+        cls,
+        points: npt.ArrayLike,
+        facets: npt.ArrayLike,
+        facet_tags: npt.ArrayLike | None = None,
+        tags: Sequence[int] | None = None,
+        *,
+        normals: NormalSource = None,
+        crease_angle: float = 60.0,
+        split_tags: bool = True,
+        eps: float = nagata.EPS,
+    ) -> "NagataGeometry":
+        """Nagata patches over a closed polygon (2D) or closed triangulated surface (3D).
+
+        For use without a DOLFINx mesh (tests, benchmarks, surface studies).
+
+        Args:
+            points: ``(nv, 3)`` vertex coordinates (or ``(nv, 2)`` for polygons).
+            facets: ``(F, 2)`` segments or ``(F, 3)`` triangles, consistently
+                oriented (counter-clockwise polygon / outward winding).
+            facet_tags: ``(F,)`` tag per facet (default all 0).
+            tags: tags whose patches are flagged as snapped (default all).
+            normals: as for the constructor; an array is ``(nv, 3)`` per vertex.
+        """
+        pts = np.zeros((len(points), 3))
+        pts[:, : np.shape(points)[1]] = np.asarray(points, dtype=float)
+        fac = np.asarray(facets, dtype=np.int64)
+        tag = np.zeros(len(fac), dtype=np.int64) if facet_tags is None else np.asarray(facet_tags)
+        x = pts[fac]
+        if fac.shape[1] == 2:
+            t = x[:, 1] - x[:, 0]
+            fn = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
+        else:
+            fn = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+        fn = _unit(fn, "facet (zero-area facets give undefined)")
+        self = cls.__new__(cls)
+        self.comm = MPI.COMM_SELF
+        self.tdim = self.gdim = fac.shape[1]
+        self.tags = sorted(set(tag.tolist())) if tags is None else [int(t) for t in tags]
+        self.crease_angle = float(crease_angle)
+        user = np.zeros_like(x)
+        if normals is not None and not callable(normals):
+            arr = np.asarray(normals, dtype=float)
+            user[..., : arr.shape[1]] = arr[fac]
+        self._build(fac, x, tag, fn, user, normals, crease_angle, split_tags, eps)
+        return self
+
+    def _build(self, gids, coords, tag, fnorm, user, normals, crease_angle, split_tags, eps):
+        """Canonical ordering, corner normals and edge coefficients from gathered arrays."""
+        tags = self.tags
+        nfv = gids.shape[1]
         # canonical order: vertex ids sorted within facets, facets sorted lexicographically
         perm = np.argsort(gids, axis=1)
         gids = np.take_along_axis(gids, perm, axis=1)
@@ -152,9 +206,8 @@ class NagataGeometry:
         if len(gids) > 1 and np.any(np.all(gids[1:] == gids[:-1], axis=1)):
             raise ValueError("a boundary facet appears twice in the gathered coarse boundary")
         _unit(fnorm, "facet (zero-area facets give undefined)")
-        vuniq, vid = np.unique(gids, return_inverse=True)
+        _, vid = np.unique(gids, return_inverse=True)
         vid = vid.reshape(gids.shape)
-        # coincident distinct vertices make zero-length edges and undefined normals
         self.ids = gids
         self.x = coords
         self.tag = tag
@@ -167,24 +220,27 @@ class NagataGeometry:
             if callable(normals):
                 pts = coords[snap].reshape(-1, 3)
                 val = np.asarray(normals(pts), dtype=float)
+                if val.shape == (len(pts), 2):
+                    val = np.c_[val, np.zeros(len(pts))]
                 if val.shape != (len(pts), 3):
-                    if val.shape == (len(pts), 2):
-                        val = np.c_[val, np.zeros(len(pts))]
-                    else:
-                        raise ValueError(
-                            f"normals callable returned shape {val.shape}, expected ({len(pts)}, 3)"
-                        )
+                    raise ValueError(
+                        f"normals callable returned shape {val.shape}, expected ({len(pts)}, 3)"
+                    )
                 un = val.reshape(-1, nfv, 3)
             else:
                 un = user[snap]
             un = _unit(un, "user-supplied")
-            far = np.einsum("fvi,fvi->fv", un, n[snap]) < np.cos(np.radians(crease_angle))
+            # orientation is free (Nagata's c(d, n0, n1) is unchanged when both
+            # normals flip): align each with the outward estimate
+            dot = np.einsum("fvi,fvi->fv", un, n[snap])
+            un = np.where(dot[..., None] < 0, -un, un)
+            far = np.abs(dot) < np.cos(np.radians(crease_angle))
             if far.any():
                 warnings.warn(
                     f"{int(far.sum())} supplied normals differ from the estimated normal of "
                     f"their facet side by more than {crease_angle} deg (other side of a "
                     "crease?); the estimated normal is kept there",
-                    stacklevel=2,
+                    stacklevel=3,
                 )
             n[snap] = np.where(far[..., None], n[snap], un)
         self.corner_normal = n

@@ -1,0 +1,126 @@
+"""Triangulated surfaces with exact geometry, for Nagata accuracy tests and benchmarks.
+
+Each function returns ``(points (nv, 3), triangles (F, 3), exact)`` where
+``exact`` has ``normal(x)`` and ``distance(x)`` (unsigned distance to the exact
+surface).  Triangles are wound with outward normals.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+
+def _dedupe(points: np.ndarray, tris: np.ndarray, tol: float = 1e-12):
+    key = np.round(points / tol).astype(np.int64)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return points[first], inv.reshape(-1)[tris]
+
+
+def _subdivide(points: np.ndarray, tris: np.ndarray, project) -> tuple[np.ndarray, np.ndarray]:
+    a, b, c = tris.T
+    p = points
+    mab, mbc, mca = (p[a] + p[b]) / 2, (p[b] + p[c]) / 2, (p[c] + p[a]) / 2
+    n, F = len(p), len(tris)
+    pts = np.concatenate([p, mab, mbc, mca])
+    iab, ibc, ica = n + np.arange(F), n + F + np.arange(F), n + 2 * F + np.arange(F)
+    new = np.concatenate(
+        [np.c_[a, iab, ica], np.c_[iab, b, ibc], np.c_[ica, ibc, c], np.c_[iab, ibc, ica]]
+    )
+    pts, new = _dedupe(pts, new)
+    return project(pts), new
+
+
+def sphere_octahedron(level: int = 1, radius: float = 1.0):
+    """Octahedron inscribed in a sphere, each face split into ``4**level`` triangles.
+
+    ``level = 1`` is Neto's (2010) sphere mesh 1: 32 triangles, 18 nodes,
+    longest edge 1.00 (seed 000, Table 2).
+    """
+    p = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    t = np.array(
+        [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]
+    )
+
+    def project(x):
+        return radius * x / np.linalg.norm(x, axis=1, keepdims=True)
+
+    p = project(p)
+    for _ in range(level):
+        p, t = _subdivide(p, t, project)
+    exact = SimpleNamespace(
+        normal=lambda x: x / np.linalg.norm(x, axis=-1, keepdims=True),
+        distance=lambda x: np.abs(np.linalg.norm(x, axis=-1) - radius),
+    )
+    return p, t, exact
+
+
+def closed_cylinder(n_around: int, radius: float = 1.0, height: float = 1.0):
+    """Closed right cylinder (side and both discs), axis z, centred at the origin.
+
+    The side has ``n_around`` segments and ``ceil(n_around * height / (2 pi R))``
+    rows of quads split in two; each disc is a fan of ``n_around`` triangles
+    around its centre.  Returns tags too: ``(points, tris, exact, tags)`` with
+    tag 1 on the side and 2 on the discs.
+    """
+    n = n_around
+    rows = max(1, int(np.ceil(n * height / (2 * np.pi * radius))))
+    th = 2 * np.pi * np.arange(n) / n
+    z = np.linspace(-height / 2, height / 2, rows + 1)
+    ring = np.c_[radius * np.cos(th), radius * np.sin(th)]
+    side = np.concatenate([np.c_[ring, np.full(n, zz)] for zz in z])
+    idx = np.arange(n)
+    tris = []
+    for r in range(rows):
+        a = r * n + idx
+        b = r * n + (idx + 1) % n
+        c = (r + 1) * n + (idx + 1) % n
+        d = (r + 1) * n + idx
+        tris += [np.c_[a, b, c], np.c_[a, c, d]]
+    nside = len(side)
+    centres = np.array([[0, 0, -height / 2], [0, 0, height / 2]])
+    pts = np.concatenate([side, centres])
+    bottom = np.c_[np.full(n, nside), (idx + 1) % n, idx]
+    top = np.c_[np.full(n, nside + 1), rows * n + idx, rows * n + (idx + 1) % n]
+    tris = np.concatenate(tris + [bottom, top])
+    tags = np.r_[np.ones(2 * rows * n, int), np.full(2 * n, 2)]
+
+    def distance(x):
+        r = np.hypot(x[..., 0], x[..., 1])
+        q0, q1 = r - radius, np.abs(x[..., 2]) - height / 2
+        outside = np.hypot(np.maximum(q0, 0), np.maximum(q1, 0))
+        inside = np.minimum(np.maximum(q0, q1), 0)
+        return np.abs(outside + inside)
+
+    def normal(x):
+        r = np.hypot(x[..., 0], x[..., 1])
+        return np.stack([x[..., 0] / r, x[..., 1] / r, 0 * r], axis=-1)
+
+    return pts, tris, SimpleNamespace(normal=normal, distance=distance), tags
+
+
+def circle_polygon(n: int, radius: float = 1.0, centre=(0.0, 0.0), jitter: float = 0.0, seed: int = 0):
+    """Counter-clockwise ``n``-gon inscribed in a circle (optionally with angular jitter)."""
+    th = 2 * np.pi * np.arange(n) / n
+    if jitter:
+        th = th + jitter * (2 * np.pi / n) * np.random.default_rng(seed).uniform(-0.5, 0.5, n)
+    pts = np.c_[centre[0] + radius * np.cos(th), centre[1] + radius * np.sin(th)]
+    segs = np.c_[np.arange(n), (np.arange(n) + 1) % n]
+    c = np.asarray(centre, float)
+    exact = SimpleNamespace(
+        normal=lambda x: (x[..., :2] - c) / np.linalg.norm(x[..., :2] - c, axis=-1, keepdims=True),
+        distance=lambda x: np.abs(np.linalg.norm(x[..., :2] - c, axis=-1) - radius),
+    )
+    return pts, segs, exact
+
+
+def barycentric_grid(nfv: int, m: int) -> np.ndarray:
+    """``(k, nfv)`` barycentric sample points: ``m + 1`` per edge."""
+    if nfv == 2:
+        t = np.linspace(0, 1, m + 1)
+        return np.c_[1 - t, t]
+    i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
+    keep = i + j <= m
+    l2, l3 = i[keep] / m, j[keep] / m
+    return np.c_[1 - l2 - l3, l2, l3]

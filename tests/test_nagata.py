@@ -1,0 +1,172 @@
+"""Nagata curve and patch kernels against published numbers and exact geometry."""
+
+import numpy as np
+import pytest
+from surfaces import barycentric_grid, closed_cylinder, sphere_octahedron
+
+from nagata_snap import NagataGeometry, nagata
+
+
+def quarter_circle(ne):
+    th = np.linspace(0, np.pi / 2, ne + 1)
+    x = np.c_[np.cos(th), np.sin(th), 0 * th]
+    return x[:-1], x[1:]
+
+
+@pytest.mark.parametrize("ne, radial, normal_deg", [(2, 0.314, 0.703), (3, 0.060, 0.202), (1, None, 6.6)])
+def test_quarter_circle_matches_neto_table1(ne, radial, normal_deg):
+    """Seed 000, Table 1: quarter unit circle with exact normals."""
+    x0, x1 = quarter_circle(ne)
+    c = nagata.curve_coefficient(x1 - x0, x0, x1)
+    xi = np.linspace(0, 1, 4001)
+    p = nagata.curve(x0, x1, c, xi)
+    r = np.linalg.norm(p, axis=-1)
+    tangent = (x1 - x0)[:, None] + (2 * xi[None, :, None] - 1) * c[:, None]  # eq. (4)
+    tangent /= np.linalg.norm(tangent, axis=-1, keepdims=True)
+    ang = np.degrees(np.arcsin(np.clip(np.abs(np.einsum("eki,eki->ek", tangent, p / r[..., None])), 0, 1)))
+    if radial is not None:
+        assert 100 * (r.max() - 1) == pytest.approx(radial, abs=5e-4)
+        # the curve lies outside the circle, maximum at mid-edge
+        assert r.min() >= 1 - 1e-15
+        assert np.all(np.argmax(r, axis=1) == 2000)
+    assert ang.max() == pytest.approx(normal_deg, abs=5e-3 if ne > 1 else 0.05)
+
+
+def test_circle_error_formula_and_order():
+    """Max radial error ~ R (2 pi / N)^4 / 128, order 4 (seeds/README)."""
+    errs = []
+    for n in (16, 32, 64):
+        th = 2 * np.pi * np.arange(n + 1) / n
+        x = np.c_[np.cos(th), np.sin(th), 0 * th]
+        c = nagata.curve_coefficient(x[1:] - x[:-1], x[:-1], x[1:])
+        r = np.linalg.norm(nagata.curve(x[:-1], x[1:], c, [0.5]), axis=-1)
+        errs.append(r.max() - 1)
+        assert errs[-1] == pytest.approx((2 * np.pi / n) ** 4 / 128, rel=0.02)
+    assert np.log2(errs[0] / errs[1]) == pytest.approx(4, abs=0.05)
+
+
+def test_coefficient_symmetry_and_flat_edges():
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(50, 3))
+    n0 = rng.normal(size=(50, 3))
+    n1 = n0 + 0.3 * rng.normal(size=(50, 3))
+    n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+    n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
+    c = nagata.curve_coefficient(d, n0, n1)
+    np.testing.assert_allclose(nagata.curve_coefficient(-d, n1, n0), c, atol=1e-12)
+    # both normals flipped: same curve
+    np.testing.assert_allclose(nagata.curve_coefficient(d, -n0, -n1), c, atol=1e-12)
+    # eq. (6) holds: n0.(d - c) = 0, n1.(d + c) = 0
+    np.testing.assert_allclose(np.einsum("ei,ei->e", n0, d - c), 0, atol=1e-10)
+    np.testing.assert_allclose(np.einsum("ei,ei->e", n1, d + c), 0, atol=1e-10)
+    # parallel normals: exactly straight
+    assert np.all(nagata.curve_coefficient(d, n0, n0) == 0)
+
+
+def test_multi_normal_reduces_to_two_normal_and_keeps_planes():
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(20, 3))
+    n0 = rng.normal(size=(20, 3))
+    n1 = n0 + 0.2 * rng.normal(size=(20, 3))
+    n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+    n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
+    c2 = nagata.curve_coefficient(d, n0, n1)
+    cm = nagata.curve_coefficient_multi(d, n0[:, None], n1[:, None])
+    np.testing.assert_allclose(cm, c2, atol=1e-10)
+    # zero-padding rows change nothing
+    pad = np.zeros((20, 1, 3))
+    cmp = nagata.curve_coefficient_multi(d, np.concatenate([n0[:, None], pad], 1), n1[:, None])
+    np.testing.assert_allclose(cmp, c2, atol=1e-10)
+    # edge of a box (two planes meeting at 90 deg): straight, exactly
+    d = np.array([[0.0, 0.0, 1.0]])
+    ex, ey = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    c = nagata.curve_coefficient_multi(d, np.array([[ex, ey]]), np.array([[ex, ey]]))
+    assert np.all(np.abs(c) < 1e-15)
+    # rim of a cylinder: plane normal e_z plus two radial normals -> curve stays in the plane
+    a, b = np.array([1.0, 0, 0]), np.array([np.cos(0.5), np.sin(0.5), 0])
+    ez = np.array([0, 0, 1.0])
+    c = nagata.curve_coefficient_multi((b - a)[None], np.array([[a, ez]]), np.array([[b, ez]]))
+    assert abs(c[0, 2]) < 1e-15
+    np.testing.assert_allclose(c, nagata.curve_coefficient((b - a)[None], a[None], b[None]), atol=1e-14)
+
+
+def test_patch_reproduces_vertices_and_planes():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(10, 3, 3))
+    c = rng.normal(size=(10, 3, 3))
+    lam = np.broadcast_to(np.eye(3), (10, 3, 3))
+    assert np.array_equal(nagata.evaluate(x, c, lam), x)  # exact in floating point (Nagata, after eq. 44)
+    # a planar patch with its plane normal at every vertex is the flat triangle
+    n = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    edges = nagata.LOCAL_EDGES[3]
+    cc = nagata.curve_coefficient(x[:, edges[:, 1]] - x[:, edges[:, 0]], n[:, None], n[:, None])
+    g = np.broadcast_to(barycentric_grid(3, 6), (10, 28, 3))
+    np.testing.assert_array_equal(cc, 0)
+    np.testing.assert_allclose(nagata.evaluate(x, cc, g), np.einsum("pkv,pvi->pki", g, x), atol=1e-15)
+
+
+def test_patch_derivatives_match_finite_differences():
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(5, 3, 3))
+    c = 0.3 * rng.normal(size=(5, 3, 3))
+    eta = np.full((5, 1), 0.6)
+    zeta = np.full((5, 1), 0.25)
+
+    def pt(e, z):
+        lam = np.stack([1 - e, e - z, z], axis=-1)
+        return nagata.evaluate(x, c, lam)
+
+    h = 1e-6
+    xe, xz = nagata.patch_derivatives(x, c, eta, zeta)
+    np.testing.assert_allclose(xe, (pt(eta + h, zeta) - pt(eta - h, zeta)) / (2 * h), atol=1e-8)
+    np.testing.assert_allclose(xz, (pt(eta, zeta + h) - pt(eta, zeta - h)) / (2 * h), atol=1e-8)
+
+
+def test_sphere_mesh1_matches_neto_table2_and_appendix_d():
+    """Seed 000: sphere mesh 1 (32 triangles, 18 nodes); Table 2 radial error, App. D coefficients."""
+    p, t, exact = sphere_octahedron(1)
+    assert (len(t), len(p)) == (32, 18)
+    geo = NagataGeometry.from_surface(p, t, normals=exact.normal)
+    g = barycentric_grid(3, 40)
+    pts = geo.evaluate(np.arange(geo.num_patches), np.broadcast_to(g, (32, *g.shape)))
+    r = np.linalg.norm(pts, axis=-1)
+    assert 100 * (r.max() - 1) == pytest.approx(1.03, abs=0.01)
+    assert 100 * (r.min() - 1) == pytest.approx(-0.21, abs=0.01)
+    # Appendix D, patch 1: vertices x00 = (-1,0,0), x10 = (-.707,-.707,0), x11 = (-.707,0,.707)
+    s2 = np.sqrt(0.5)
+    xv = np.array([[[-1.0, 0, 0], [-s2, -s2, 0], [-s2, 0, s2]]])
+    edges = nagata.LOCAL_EDGES[3]
+    c = nagata.curve_coefficient(xv[:, edges[:, 1]] - xv[:, edges[:, 0]], xv[:, edges[:, 0]], xv[:, edges[:, 1]])
+    co = nagata.patch_coefficients(xv, c)
+    printed = {  # columns of App. D, patch 1 (x, y, z rows), printed to 3 digits
+        "c00": [-1.0, -0.612e-16, 0.0],
+        "c10": [-0.117e-7, -0.828, 0.250e-8],
+        "c01": [0.234e-7, 0.828, 0.828],
+        "c11": [-0.471, -0.357, 0.114],
+        "c20": [0.293, 0.121, -0.250e-8],
+        "c02": [0.471, 0.236, -0.236],
+    }
+    for k, v in printed.items():
+        np.testing.assert_allclose(co[k][0], v, atol=6e-4, err_msg=k)
+
+
+def test_convergence_orders_sphere_and_cylinder():
+    """Nagata 2005, Fig. 9: order ~4 for Nagata patches, 2 for flat facets."""
+    def errs(p, t, ex, tags=None, snap=None):
+        geo = NagataGeometry.from_surface(p, t, tags, snap, normals=ex.normal)
+        g = barycentric_grid(3, 12)
+        lam = np.broadcast_to(g, (geo.num_patches, *g.shape))
+        return ex.distance(geo.evaluate(np.arange(geo.num_patches), lam)).max(), ex.distance(
+            np.einsum("pkv,pvi->pki", lam, geo.x)
+        ).max()
+
+    s = [errs(*sphere_octahedron(k)) for k in (3, 4)]
+    assert np.log2(s[0][0] / s[1][0]) == pytest.approx(4, abs=0.2)
+    assert np.log2(s[0][1] / s[1][1]) == pytest.approx(2, abs=0.1)
+    cyl = []
+    for n in (16, 32):
+        p, t, ex, tg = closed_cylinder(n)
+        cyl.append(errs(p, t, ex, tg, [1]))
+    assert np.log2(cyl[0][0] / cyl[1][0]) == pytest.approx(4, abs=0.2)
+    assert np.log2(cyl[0][1] / cyl[1][1]) == pytest.approx(2, abs=0.1)
