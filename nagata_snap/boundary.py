@@ -33,10 +33,10 @@ def check_p1_simplex(mesh: dolfinx.mesh.Mesh) -> None:
         raise ValueError(
             f"nagata_snap supports triangle and tetrahedron meshes, got {ct.name} cells"
         )
-    if mesh.geometry.cmap.degree != 1:
+    if mesh.geometry.cmaps[0].degree != 1:
         raise ValueError(
             f"nagata_snap refines affine meshes (coordinate degree 1), got degree "
-            f"{mesh.geometry.cmap.degree}"
+            f"{mesh.geometry.cmaps[0].degree}"
         )
     if mesh.geometry.dim != mesh.topology.dim:
         raise ValueError(

@@ -1,0 +1,52 @@
+"""Snapping loop driver used by the MPI tests.
+
+Usage: python snap_loop.py {dfg|sphere} LEVELS {uniform|adaptive} OUT.npz
+Rank 0 writes, for every level, the gathered coordinates of all geometry
+nodes (owned nodes only, so each node once) and of the boundary vertices to OUT.npz.
+"""
+
+import os
+import sys
+
+import mpi4py.MPI as MPI
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
+import generate  # noqa: E402
+
+import dolfinx.mesh  # noqa: E402
+
+from nagata_snap import NagataGeometry, Snapper  # noqa: E402
+
+comm = MPI.COMM_WORLD
+case, levels, mode, out = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
+if case == "dfg":
+    md = generate.dfg_channel(comm, n_circle=16, h_far=0.1)
+    centre, tag = np.array([0.2, 0.2, 0.0]), generate.CYLINDER
+else:
+    md = generate.sphere_in_box(comm, h_sphere=0.35, h_box=0.6)
+    centre, tag = np.zeros(3), generate.SPHERE
+mesh, ft = md.mesh, md.facet_tags
+snapper = Snapper(mesh, ft, NagataGeometry(mesh, ft, tags=None if case == "dfg" else [tag]))
+result = {}
+for k in range(levels):
+    edges = None
+    if mode == "adaptive":
+        tdim = mesh.topology.dim
+        mid = dolfinx.mesh.compute_midpoints(
+            mesh, tdim, np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32)
+        )
+        cells = np.flatnonzero(np.linalg.norm(mid - centre, axis=1) < 0.15 if case == "dfg" else 0.8)
+        mesh.topology.create_connectivity(tdim, 1)
+        edges = dolfinx.mesh.compute_incident_entities(mesh.topology, cells.astype(np.int32), tdim, 1)
+    mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
+    n = mesh.geometry.index_map().size_local
+    xs = comm.gather(mesh.geometry.x[:n], root=0)
+    ext = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    bs = comm.gather(mesh.geometry.x[dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ext).ravel()], root=0)
+    if comm.rank == 0:
+        result[f"level{k + 1}"] = np.concatenate(xs)
+        result[f"boundary{k + 1}"] = np.unique(np.concatenate(bs), axis=0)
+if comm.rank == 0:
+    np.savez(out, **result)
+    print("done", comm.size, flush=True)
