@@ -1,0 +1,866 @@
+"""NURBS curves and surfaces: vectorised evaluation of points and derivatives.
+
+Everything here is evaluated for many parameter values at once (numpy arrays
+over the points); the only Python loops run over the degree and the
+derivative order.
+
+Formulas (quoted from the project's source documents):
+
+* B-spline basis, Cox--de Boor recurrence: Kadir (2010), Appendix A, eq. (A.3)
+  and Herrero Adan & Cardoso (2020), eqs. (5)-(6)::
+
+      N_{i,0}(u) = 1 if u_i <= u < u_{i+1}, else 0
+      N_{i,p}(u) = (u - u_i)/(u_{i+p} - u_i) N_{i,p-1}(u)
+                   + (u_{i+p+1} - u)/(u_{i+p+1} - u_{i+1}) N_{i+1,p-1}(u)
+
+  with the usual convention 0/0 := 0.  In the span ``[u_s, u_{s+1})`` only
+  ``N_{s-p,p} .. N_{s,p}`` are non-zero (Kadir, A.4), which is what is computed.
+* Basis derivatives: Neto (2010), Appendix C, eq. (46)::
+
+      N^{(k)}_{i,p} = p [ N^{(k-1)}_{i,p-1}/(u_{i+p} - u_i)
+                          - N^{(k-1)}_{i+1,p-1}/(u_{i+p+1} - u_{i+1}) ]
+
+* NURBS curve / surface: Kadir, Appendix A.5 (rational basis
+  ``R = N w / sum N w``) and Herrero Adan & Cardoso eqs. (1)-(4).
+* Rational derivatives: Neto (2010), Appendix C, eqs. (42)-(45), the quotient
+  rule for ``R = A / B``.  Because ``S = sum R_ij P_ij`` is linear in the
+  control points, summing (42)-(44) over the net gives, with the homogeneous
+  sums ``A(u,v) = sum N_i N_j w_ij P_ij`` and ``B(u,v) = sum N_i N_j w_ij``
+  (eq. 41) and their derivatives (eq. 45)::
+
+      S     = A / B
+      S_u   = (A_u  - B_u S) / B                                  (from 42)
+      S_uu  = (A_uu - 2 B_u S_u - B_uu S) / B                     (from 43)
+      S_uv  = (A_uv - B_u S_v - B_v S_u - B_uv S) / B             (from 44)
+
+  (the same with ``v`` for ``S_v``, ``S_vv``; the curve case drops ``v``).
+  Expanding ``S_u`` in the last lines reproduces (43)/(44) term by term; this
+  form needs one division per point instead of one per control point.
+
+Parameters outside the domain are wrapped modulo the period in closed
+directions and clamped in open ones (Kadir, Appendix B.1, last paragraph).
+The end of the knot range is evaluated with the last non-empty span, so
+``C(u_max)`` is the exact one-sided (left) limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "NurbsError",
+    "NurbsCurve",
+    "NurbsSurface",
+    "basis_functions",
+    "find_span",
+    "circle",
+    "cylinder",
+    "sphere",
+    "torus",
+]
+
+#: relative tolerance (to the control-polygon bounding-box diagonal) under
+#: which two boundary points are considered coincident (closedness tests).
+CLOSED_RTOL = 1e-9
+
+
+#: derivative orders (a, b) = (d/du)^a (d/dv)^b returned for nderiv = 0, 1, 2
+_ORDERS = {
+    0: [(0, 0)],
+    1: [(0, 0), (1, 0), (0, 1)],
+    2: [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)],
+}
+
+
+class NurbsError(ValueError):
+    """Invalid NURBS data (knots, weights, control points, degree)."""
+
+
+# ----------------------------------------------------------------------
+# knot vectors and basis functions
+# ----------------------------------------------------------------------
+def _check_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str) -> None:
+    if int(degree) != degree or degree < 1:
+        raise NurbsError(f"{what}: degree must be an integer >= 1, got {degree!r}")
+    if knots.ndim != 1:
+        raise NurbsError(f"{what}: knot vector must be 1-D, got shape {knots.shape}")
+    if n_ctrl < degree + 1:
+        raise NurbsError(
+            f"{what}: {n_ctrl} control points are too few for degree {degree} "
+            f"(need at least {degree + 1})"
+        )
+    m = knots.shape[0]
+    if m != n_ctrl + degree + 1:
+        raise NurbsError(
+            f"{what}: {m} knots given, but {n_ctrl} control points of degree {degree} "
+            f"need n + p + 1 = {n_ctrl + degree + 1}"
+        )
+    if not np.all(np.isfinite(knots)):
+        raise NurbsError(f"{what}: knot vector contains NaN or infinite values")
+    dk = np.diff(knots)
+    if np.any(dk < 0):
+        i = int(np.flatnonzero(dk < 0)[0])
+        raise NurbsError(
+            f"{what}: knot vector must be non-decreasing, but knot[{i}]={knots[i]!r} "
+            f"> knot[{i + 1}]={knots[i + 1]!r}"
+        )
+    # every basis function needs a non-empty support [u_i, u_{i+p+1})
+    supp = knots[degree + 1 :] - knots[: n_ctrl]
+    if np.any(supp <= 0):
+        i = int(np.flatnonzero(supp <= 0)[0])
+        raise NurbsError(
+            f"{what}: knot {knots[i]!r} has multiplicity > degree + 1 = {degree + 1} "
+            f"(basis function {i} would vanish identically)"
+        )
+    if not knots[degree] < knots[n_ctrl]:
+        raise NurbsError(
+            f"{what}: empty parameter domain [knot[p], knot[n]] = "
+            f"[{knots[degree]!r}, {knots[n_ctrl]!r}]"
+        )
+
+
+def _span_table(knots: np.ndarray, degree: int, n_ctrl: int) -> np.ndarray:
+    """``table[i]`` = largest non-empty span index ``s <= i`` with ``p <= s <= n-1``.
+
+    Used to map the (clipped) result of a ``searchsorted`` onto a non-empty
+    span, which makes the top end of the domain use the correct one-sided span.
+    """
+    m = knots.shape[0]
+    table = np.empty(m, dtype=np.int64)
+    nonempty = [s for s in range(degree, n_ctrl) if knots[s] < knots[s + 1]]
+    last = nonempty[0]  # exists: the domain is non-empty (checked before)
+    for i in range(m):  # loop over knots (tiny), not over points
+        if degree <= i <= n_ctrl - 1 and knots[i] < knots[i + 1]:
+            last = i
+        table[i] = last
+    return table
+
+
+def find_span(
+    knots: np.ndarray,
+    degree: int,
+    n_ctrl: int,
+    u: np.ndarray,
+    table: np.ndarray | None = None,
+) -> np.ndarray:
+    """Knot span index ``s`` with ``u_s <= u < u_{s+1}`` for each ``u`` (vectorised).
+
+    Args:
+        knots: ``(m,)`` knot vector, ``m = n_ctrl + degree + 1``.
+        degree: polynomial degree ``p``.
+        n_ctrl: number of control points ``n``.
+        u: ``(k,)`` parameters, assumed inside ``[u_p, u_n]``.
+        table: optional precomputed :func:`_span_table`.
+
+    Returns:
+        ``(k,)`` int64 span indices in ``[p, n-1]``; ``u == u_n`` (end of the
+        range) gets the last non-empty span, so the evaluation there is the
+        exact left limit.
+    """
+    if table is None:
+        table = _span_table(knots, degree, n_ctrl)
+    s = np.searchsorted(knots, u, side="right") - 1
+    np.clip(s, degree, n_ctrl - 1, out=s)
+    return table[s]
+
+
+def _basis_soa(
+    knots: np.ndarray, p: int, span: np.ndarray, u: np.ndarray, nderiv: int
+) -> np.ndarray:
+    """Non-zero basis functions and derivatives as ``(nderiv+1, p+1, k)`` (points last).
+
+    Eq. (A.3)/(6) and eq. (46) evaluated on ``(k,)`` vectors, looping only
+    over the degree.  With ``i = s - r + a`` (``s`` the span, ``a = 0..r``)
+    and the differences ``left[j] = u - u_{s+1-j}``, ``right[j] = u_{s+j} - u``,
+    the two coefficients of (A.3) read::
+
+        (u - u_i)/(u_{i+r} - u_i)             = left[r-a+1] / D_r[a-1]
+        (u_{i+r+1} - u)/(u_{i+r+1} - u_{i+1}) = right[a+1]  / D_r[a]
+
+    with ``D_r[a] = right[a+1] + left[r-a] = u_{s+a+1} - u_{s-r+a+1}``, so
+    neighbouring functions share one division.  In a non-empty span every
+    ``D_r[a]`` spans ``[u_s, u_{s+1})`` and is positive (no 0/0 case).  The
+    denominators of eq. (46) are the same ``D_r``::
+
+        N^{(d)}_{i,r} = r ( N^{(d-1)}_{i,r-1} / D_r[a-1] - N^{(d-1)}_{i+1,r-1} / D_r[a] ).
+    """
+    k = u.shape[0]
+    left: list = [None] * (p + 1)
+    right: list = [None] * (p + 1)
+    for j in range(1, p + 1):
+        left[j] = u - knots[span + 1 - j]
+        right[j] = knots[span + j] - u
+    N: list[list[np.ndarray]] = [[np.ones(k)]]
+    inv: list[list[np.ndarray]] = [[]]
+    for r in range(1, p + 1):
+        prev = N[r - 1]
+        cur: list[np.ndarray] = []
+        inv_r: list[np.ndarray] = []
+        saved = None
+        for a in range(r):
+            ia = 1.0 / (right[a + 1] + left[r - a])
+            inv_r.append(ia)
+            temp = prev[a] * ia
+            term = right[a + 1] * temp
+            cur.append(term if saved is None else saved + term)
+            saved = left[r - a] * temp
+        cur.append(saved)
+        N.append(cur)
+        inv.append(inv_r)
+    out = np.zeros((nderiv + 1, p + 1, k))
+    out[0] = N[p]
+    # D[r]: (d-1)-th derivatives of the r+1 non-zero degree-r functions
+    D: list = N
+    for d in range(1, min(nderiv, p) + 1):
+        newD: list = [None] * (p + 1)
+        for r in range(p - nderiv + d if p - nderiv + d > d else d, p + 1):
+            prev = D[r - 1]
+            cur = []
+            for a in range(r + 1):
+                val = None
+                if a >= 1:
+                    val = prev[a - 1] * inv[r][a - 1]
+                if a <= r - 1:
+                    t = prev[a] * inv[r][a]
+                    val = -t if val is None else val - t
+                cur.append(r * val)
+            newD[r] = cur
+        D = newD
+        out[d] = D[p]
+    return out  # derivatives of order > p stay zero
+
+
+def basis_functions(
+    knots: npt.ArrayLike,
+    degree: int,
+    u: npt.ArrayLike,
+    nderiv: int = 0,
+    *,
+    n_ctrl: int | None = None,
+    span: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Non-zero B-spline basis functions and their derivatives (vectorised).
+
+    Cox--de Boor recurrence, Kadir (2010) eq. (A.3) / Herrero Adan eqs. (5)-(6),
+    and the derivative recurrence of Neto (2010) eq. (46); see
+    :func:`_basis_soa` for the arrangement.
+
+    Args:
+        knots: ``(m,)`` non-decreasing knot vector.
+        degree: degree ``p >= 1``.
+        u: ``(k,)`` parameters inside the domain ``[u_p, u_{m-p-1}]``.
+        nderiv: highest derivative order wanted (any ``>= 0``).
+        n_ctrl: number of control points (default ``m - p - 1``).
+        span: optional precomputed spans (from :func:`find_span`).
+
+    Returns:
+        ``(span, N)``: ``span (k,)`` int64 knot-span indices and
+        ``N (nderiv+1, k, p+1)`` with ``N[d, j, a] = d^d/du^d N_{span_j - p + a, p}(u_j)``.
+    """
+    knots = np.asarray(knots, dtype=float)
+    u = np.atleast_1d(np.asarray(u, dtype=float))
+    p = int(degree)
+    if n_ctrl is None:
+        n_ctrl = knots.shape[0] - p - 1
+    if span is None:
+        span = find_span(knots, p, n_ctrl, u)
+    return span, _basis_soa(knots, p, span, u, int(nderiv)).transpose(0, 2, 1).copy()
+
+
+#: points per chunk in the evaluation kernels (keeps temporaries in cache)
+CHUNK = 4096
+
+
+
+# ----------------------------------------------------------------------
+# shared helpers
+# ----------------------------------------------------------------------
+def _as_float(a: npt.ArrayLike, name: str) -> np.ndarray:
+    try:
+        arr = np.array(a, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise NurbsError(f"{name} must be numeric: {exc}") from None
+    return arr
+
+
+def _freeze(obj, name: str, arr: np.ndarray) -> None:
+    arr = np.ascontiguousarray(arr)
+    arr.flags.writeable = False
+    object.__setattr__(obj, name, arr)
+
+
+def _wrap_or_clamp(u: np.ndarray, lo: float, hi: float, closed: bool) -> np.ndarray:
+    """Bring ``u`` into ``[lo, hi]``: modulo the period if closed, else clamp.
+
+    Values already inside are returned unchanged (so ``hi`` stays ``hi``).
+    """
+    if closed:
+        out = (u < lo) | (u > hi)
+        if np.any(out):
+            u = u.copy()
+            u[out] = lo + np.mod(u[out] - lo, hi - lo)
+        return u
+    return np.clip(u, lo, hi)
+
+
+def _check_nderiv(nderiv: int) -> int:
+    if int(nderiv) != nderiv or not 0 <= nderiv <= 2:
+        raise NurbsError(f"nderiv must be 0, 1 or 2, got {nderiv!r}")
+    return int(nderiv)
+
+
+def _bbox_size(points: np.ndarray) -> float:
+    pts = points.reshape(-1, 3)
+    return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+
+
+def _control_points(a: npt.ArrayLike, shape_prefix: tuple, what: str) -> np.ndarray:
+    cp = _as_float(a, f"{what}: control_points")
+    if cp.shape[:-1] != shape_prefix or cp.shape[-1] not in (2, 3):
+        raise NurbsError(
+            f"{what}: control_points must have shape {shape_prefix + (3,)}, got {cp.shape}"
+        )
+    if cp.shape[-1] == 2:  # planar data: z = 0
+        cp = np.concatenate([cp, np.zeros(cp.shape[:-1] + (1,))], axis=-1)
+    if not np.all(np.isfinite(cp)):
+        raise NurbsError(f"{what}: control points contain NaN or infinite values")
+    return cp
+
+
+def _weights(a: npt.ArrayLike, shape: tuple, what: str) -> np.ndarray:
+    w = _as_float(a, f"{what}: weights")
+    if w.shape != shape:
+        raise NurbsError(f"{what}: weights must have shape {shape}, got {w.shape}")
+    if not np.all(np.isfinite(w)) or np.any(w <= 0):
+        bad = np.flatnonzero(~(np.isfinite(w) & (w > 0)).ravel())[0]
+        raise NurbsError(
+            f"{what}: weights must be positive and finite, got {w.ravel()[bad]!r} "
+            f"at flat index {bad}"
+        )
+    return w
+
+
+# ----------------------------------------------------------------------
+# curves
+# ----------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class NurbsCurve:
+    """Rational B-spline (NURBS) curve in 3-D (planar curves have z = 0).
+
+    ``C(u) = sum_i N_{i,p}(u) w_i P_i / sum_i N_{i,p}(u) w_i`` (Kadir, A.5.1).
+
+    Attributes:
+        degree: polynomial degree ``p >= 1``.
+        knots: ``(m,)`` non-decreasing knot vector, ``m = n + p + 1``.
+        control_points: ``(n, 3)`` control points (``(n, 2)`` accepted, z = 0).
+        weights: ``(n,)`` positive weights.
+
+    Arrays are copied to float64 and made read-only.  Equality is identity.
+
+    Raises:
+        NurbsError: inconsistent sizes, decreasing knots, knot multiplicity
+            above ``p + 1``, non-positive or non-finite weights, non-finite
+            control points or knots.
+    """
+
+    degree: int
+    knots: np.ndarray
+    control_points: np.ndarray
+    weights: np.ndarray
+
+    #: number of parameters of the entity (1 for curves)
+    param_dim = 1
+
+    def __post_init__(self) -> None:
+        what = "NurbsCurve"
+        if isinstance(self.degree, bool) or int(self.degree) != self.degree:
+            raise NurbsError(f"{what}: degree must be an integer, got {self.degree!r}")
+        object.__setattr__(self, "degree", int(self.degree))
+        knots = _as_float(self.knots, f"{what}: knots")
+        cp = _as_float(self.control_points, f"{what}: control_points")
+        if cp.ndim != 2:
+            raise NurbsError(f"{what}: control_points must have shape (n, 3), got {cp.shape}")
+        n = cp.shape[0]
+        cp = _control_points(cp, (n,), what)
+        w = _weights(self.weights, (n,), what)
+        _check_knots(knots, self.degree, n, what)
+        _freeze(self, "knots", knots)
+        _freeze(self, "control_points", cp)
+        _freeze(self, "weights", w)
+        # homogeneous control points (w P, w) as (4, n), points last
+        _freeze(self, "_pwT", np.concatenate([cp * w[:, None], w[:, None]], axis=1).T)
+        _freeze(self, "_spans", _span_table(knots, self.degree, n))
+        object.__setattr__(self, "_size", _bbox_size(cp))
+        u0, u1 = self.domain
+        ends = self._evaluate_inside(np.array([u0, u1]), 0)[0]
+        closed = bool(np.linalg.norm(ends[0] - ends[1]) <= CLOSED_RTOL * max(self._size, 1e-300))
+        object.__setattr__(self, "_closed", closed)
+
+    # -- properties ----------------------------------------------------
+    @property
+    def n_ctrl(self) -> int:
+        """Number of control points ``n``."""
+        return int(self.control_points.shape[0])
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        """Parameter domain ``(u0, u1) = (knots[p], knots[-p-1])``."""
+        p = self.degree
+        return float(self.knots[p]), float(self.knots[-p - 1])
+
+    @property
+    def is_closed(self) -> bool:
+        """True if ``C(u0)`` and ``C(u1)`` coincide within 1e-9 x bounding-box size."""
+        return self._closed
+
+    @property
+    def bbox_size(self) -> float:
+        """Diagonal of the control points' bounding box (bounds the curve; length units)."""
+        return self._size
+
+    @property
+    def bbox(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo (3,), hi (3,))`` corners of the control points' bounding box (contains the curve)."""
+        return self.control_points.min(axis=0), self.control_points.max(axis=0)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """``(1, 2)`` parameter bounds, the generic form of :attr:`domain`."""
+        return np.array([self.domain])
+
+    @property
+    def closed(self) -> tuple[bool]:
+        """``(is_closed,)``, the generic per-direction form."""
+        return (self._closed,)
+
+    @property
+    def period(self) -> float | None:
+        """``u1 - u0`` if closed, else ``None``."""
+        u0, u1 = self.domain
+        return (u1 - u0) if self._closed else None
+
+    @property
+    def distinct_knots(self) -> np.ndarray:
+        """Distinct knot values inside the domain (span boundaries), ``(s+1,)``."""
+        u0, u1 = self.domain
+        k = np.unique(self.knots)
+        return k[(k >= u0) & (k <= u1)]
+
+    # -- evaluation ----------------------------------------------------
+    def wrap(self, u: npt.ArrayLike) -> np.ndarray:
+        """Parameters brought into the domain: modulo the period if closed, else clamped."""
+        u = np.atleast_1d(np.asarray(u, dtype=float))
+        u0, u1 = self.domain
+        return _wrap_or_clamp(u, u0, u1, self._closed)
+
+    def evaluate(self, u: npt.ArrayLike, nderiv: int = 0) -> np.ndarray:
+        """Points and derivatives of the curve, vectorised over ``u``.
+
+        Args:
+            u: ``(k,)`` parameters (a scalar is treated as ``k = 1``).  Outside
+                the domain they are wrapped (closed curve) or clamped (open).
+            nderiv: 0, 1 or 2.
+
+        Returns:
+            ``(nderiv+1, k, 3)``: ``C``, ``C'``, ``C''`` (length units, per
+            parameter unit to the power of the derivative order).  Rational
+            derivatives from Neto (2010) App. C eqs. (42)-(43), see module docs.
+        """
+        nderiv = _check_nderiv(nderiv)
+        return self._evaluate_inside(self.wrap(u), nderiv)
+
+    def _evaluate_inside(self, u: np.ndarray, nderiv: int) -> np.ndarray:
+        """``(nderiv+1, k, 3)`` at parameters already inside the domain."""
+        return self._eval_soa(u[None, :], nderiv).transpose(0, 2, 1)
+
+    def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
+        """Kernel: ``params (1, k)`` inside the domain -> ``(nderiv+1, 3, k)``.
+
+        Homogeneous sums ``A^{(d)} = sum N^{(d)}_i w_i P_i``, ``B^{(d)} = sum N^{(d)}_i w_i``
+        and the quotient rule of Neto (2010) eqs. (42)-(43) (see module docs).
+        """
+        u = params[0]
+        k = u.shape[0]
+        p = self.degree
+        out = np.empty((nderiv + 1, 3, k))
+        offs = np.arange(p + 1)[:, None]
+        for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
+            sl = slice(c0, min(k, c0 + CHUNK))
+            uc = u[sl]
+            span = find_span(self.knots, p, self.n_ctrl, uc, self._spans)
+            N = _basis_soa(self.knots, p, span, uc, nderiv)  # (nd+1, p+1, kc)
+            L = np.take(self._pwT, span[None, :] - p + offs, axis=1)  # (4, p+1, kc)
+            H = np.einsum("dik,cik->dck", N, L)  # (nd+1, 4, kc)
+            A, B = H[:, :3], H[:, 3]
+            o = out[:, :, sl]
+            o[0] = A[0] / B[0]
+            if nderiv >= 1:
+                o[1] = (A[1] - B[1] * o[0]) / B[0]
+            if nderiv >= 2:
+                o[2] = (A[2] - 2.0 * B[1] * o[1] - B[2] * o[0]) / B[0]
+        return out
+
+
+    def __repr__(self) -> str:
+        return (
+            f"NurbsCurve(degree={self.degree}, n_ctrl={self.n_ctrl}, domain={self.domain}, "
+            f"closed={self.is_closed})"
+        )
+
+
+# ----------------------------------------------------------------------
+# surfaces
+# ----------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class NurbsSurface:
+    """Tensor-product NURBS surface (Kadir, A.5.2; Herrero Adan eqs. (2), (4)).
+
+    ``S(u,v) = sum_ij N_{i,p}(u) N_{j,q}(v) w_ij P_ij / sum_ij N_{i,p}(u) N_{j,q}(v) w_ij``.
+
+    Attributes:
+        degree_u, degree_v: degrees ``p, q >= 1``.
+        knots_u: ``(mu,)`` knots, ``mu = nu + p + 1``.
+        knots_v: ``(mv,)`` knots, ``mv = nv + q + 1``.
+        control_points: ``(nu, nv, 3)`` control net, first index along ``u``.
+        weights: ``(nu, nv)`` positive weights.
+
+    Raises:
+        NurbsError: as for :class:`NurbsCurve`.
+    """
+
+    degree_u: int
+    degree_v: int
+    knots_u: np.ndarray
+    knots_v: np.ndarray
+    control_points: np.ndarray
+    weights: np.ndarray
+
+    #: number of parameters of the entity (2 for surfaces)
+    param_dim = 2
+
+    def __post_init__(self) -> None:
+        what = "NurbsSurface"
+        for name in ("degree_u", "degree_v"):
+            val = getattr(self, name)
+            if isinstance(val, bool) or int(val) != val:
+                raise NurbsError(f"{what}: {name} must be an integer, got {val!r}")
+            object.__setattr__(self, name, int(val))
+        ku = _as_float(self.knots_u, f"{what}: knots_u")
+        kv = _as_float(self.knots_v, f"{what}: knots_v")
+        cp = _as_float(self.control_points, f"{what}: control_points")
+        if cp.ndim != 3:
+            raise NurbsError(
+                f"{what}: control_points must have shape (nu, nv, 3), got {cp.shape}"
+            )
+        nu, nv = cp.shape[:2]
+        cp = _control_points(cp, (nu, nv), what)
+        w = _weights(self.weights, (nu, nv), what)
+        _check_knots(ku, self.degree_u, nu, f"{what} (u direction)")
+        _check_knots(kv, self.degree_v, nv, f"{what} (v direction)")
+        _freeze(self, "knots_u", ku)
+        _freeze(self, "knots_v", kv)
+        _freeze(self, "control_points", cp)
+        _freeze(self, "weights", w)
+        # homogeneous control net (w P, w) as (4, nu * nv), row-major over (i, j)
+        _freeze(
+            self, "_pwT", np.concatenate([cp * w[..., None], w[..., None]], axis=-1).reshape(-1, 4).T
+        )
+        _freeze(self, "_spans_u", _span_table(ku, self.degree_u, nu))
+        _freeze(self, "_spans_v", _span_table(kv, self.degree_v, nv))
+        object.__setattr__(self, "_size", _bbox_size(cp))
+        object.__setattr__(self, "_closed_u", self._boundaries_coincide(0))
+        object.__setattr__(self, "_closed_v", self._boundaries_coincide(1))
+
+    def _boundaries_coincide(self, direction: int) -> bool:
+        """Do the boundary curves at both ends of ``direction`` coincide?
+
+        Compared at the distinct knots of the other direction and at 7 points
+        inside each of its spans (a sampling test, exact for identical rows).
+        """
+        (u0, u1), (v0, v1) = self.domain_u, self.domain_v
+        other = self.knots_v if direction == 0 else self.knots_u
+        lo, hi = (v0, v1) if direction == 0 else (u0, u1)
+        k = np.unique(other)
+        k = k[(k >= lo) & (k <= hi)]
+        t = np.linspace(0.0, 1.0, 9)[:-1]
+        s = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), t)).ravel(), [hi]])
+        if direction == 0:
+            a = self._evaluate_inside(np.full_like(s, u0), s, 0)[0]
+            b = self._evaluate_inside(np.full_like(s, u1), s, 0)[0]
+        else:
+            a = self._evaluate_inside(s, np.full_like(s, v0), 0)[0]
+            b = self._evaluate_inside(s, np.full_like(s, v1), 0)[0]
+        gap = np.max(np.linalg.norm(a - b, axis=1))
+        return bool(gap <= CLOSED_RTOL * max(self._size, 1e-300))
+
+    # -- properties ----------------------------------------------------
+    @property
+    def n_ctrl(self) -> tuple[int, int]:
+        """``(nu, nv)`` control net size."""
+        return int(self.control_points.shape[0]), int(self.control_points.shape[1])
+
+    @property
+    def domain_u(self) -> tuple[float, float]:
+        """``(u0, u1) = (knots_u[p], knots_u[-p-1])``."""
+        p = self.degree_u
+        return float(self.knots_u[p]), float(self.knots_u[-p - 1])
+
+    @property
+    def domain_v(self) -> tuple[float, float]:
+        """``(v0, v1) = (knots_v[q], knots_v[-q-1])``."""
+        q = self.degree_v
+        return float(self.knots_v[q]), float(self.knots_v[-q - 1])
+
+    @property
+    def closed_u(self) -> bool:
+        """True if the boundary curves ``u = u0`` and ``u = u1`` coincide (1e-9 x bbox)."""
+        return self._closed_u
+
+    @property
+    def closed_v(self) -> bool:
+        """True if the boundary curves ``v = v0`` and ``v = v1`` coincide (1e-9 x bbox)."""
+        return self._closed_v
+
+    @property
+    def bbox_size(self) -> float:
+        """Diagonal of the control net's bounding box (bounds the surface; length units)."""
+        return self._size
+
+    @property
+    def bbox(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo (3,), hi (3,))`` corners of the control net's bounding box (contains the surface)."""
+        cp = self.control_points.reshape(-1, 3)
+        return cp.min(axis=0), cp.max(axis=0)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """``(2, 2)`` parameter bounds ``[[u0, u1], [v0, v1]]``."""
+        return np.array([self.domain_u, self.domain_v])
+
+    @property
+    def closed(self) -> tuple[bool, bool]:
+        """``(closed_u, closed_v)``."""
+        return (self._closed_u, self._closed_v)
+
+    @property
+    def distinct_knots_u(self) -> np.ndarray:
+        """Distinct ``u`` knots inside the domain."""
+        u0, u1 = self.domain_u
+        k = np.unique(self.knots_u)
+        return k[(k >= u0) & (k <= u1)]
+
+    @property
+    def distinct_knots_v(self) -> np.ndarray:
+        """Distinct ``v`` knots inside the domain."""
+        v0, v1 = self.domain_v
+        k = np.unique(self.knots_v)
+        return k[(k >= v0) & (k <= v1)]
+
+    # -- evaluation ----------------------------------------------------
+    def wrap(self, u: npt.ArrayLike, v: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """``(u, v)`` brought into the domain: wrapped in closed, clamped in open directions."""
+        u = np.atleast_1d(np.asarray(u, dtype=float))
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        (u0, u1), (v0, v1) = self.domain_u, self.domain_v
+        return (
+            _wrap_or_clamp(u, u0, u1, self._closed_u),
+            _wrap_or_clamp(v, v0, v1, self._closed_v),
+        )
+
+    def evaluate(self, u: npt.ArrayLike, v: npt.ArrayLike, nderiv: int = 0) -> np.ndarray:
+        """Points and partial derivatives, vectorised over ``k`` parameter pairs.
+
+        Args:
+            u, v: ``(k,)`` parameters (broadcast against each other).  Outside
+                the domain they are wrapped/clamped per direction.
+            nderiv: 0, 1 or 2.
+
+        Returns:
+            ``(1, k, 3)`` ``[S]`` for ``nderiv=0``; ``(3, k, 3)``
+            ``[S, Su, Sv]`` for 1; ``(6, k, 3)`` ``[S, Su, Sv, Suu, Suv, Svv]``
+            for 2.  Rational derivatives by Neto (2010) App. C eqs. (42)-(45).
+        """
+        nderiv = _check_nderiv(nderiv)
+        u, v = np.broadcast_arrays(
+            np.atleast_1d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(v, dtype=float))
+        )
+        u, v = self.wrap(u.ravel(), v.ravel())
+        return self._evaluate_inside(u, v, nderiv)
+
+    def _evaluate_inside(self, u: np.ndarray, v: np.ndarray, nderiv: int) -> np.ndarray:
+        """``(1|3|6, k, 3)`` at parameters already inside the domain."""
+        return self._eval_soa(np.stack([u, v]), nderiv).transpose(0, 2, 1)
+
+    def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
+        """Kernel: ``params (2, k)`` inside the domain -> ``(1|3|6, 3, k)``.
+
+        Homogeneous sums ``A_ab = sum_ij N^{(a)}_i(u) N^{(b)}_j(v) w_ij P_ij``
+        and ``B_ab`` (Neto 2010, eqs. (40)-(41), (45)) contracted first along
+        ``v`` then along ``u``; quotient rule eqs. (42)-(44) (see module docs).
+        """
+        u, v = params[0], params[1]
+        k = u.shape[0]
+        p, q = self.degree_u, self.degree_v
+        nu, nv = self.n_ctrl
+        orders = _ORDERS[nderiv]
+        out = np.empty((len(orders), 3, k))
+        offu = np.arange(p + 1)[:, None, None]
+        offv = np.arange(q + 1)[None, :, None]
+        for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
+            sl = slice(c0, min(k, c0 + CHUNK))
+            uc, vc = u[sl], v[sl]
+            kc = uc.shape[0]
+            su = find_span(self.knots_u, p, nu, uc, self._spans_u)
+            sv = find_span(self.knots_v, q, nv, vc, self._spans_v)
+            Nu = _basis_soa(self.knots_u, p, su, uc, nderiv)  # (nd+1, p+1, kc)
+            Nv = _basis_soa(self.knots_v, q, sv, vc, nderiv)  # (nd+1, q+1, kc)
+            flat = (su - p)[None, None, :] * nv + (offu * nv) + (sv - q)[None, None, :] + offv
+            L = np.take(self._pwT, flat, axis=1)  # (4, p+1, q+1, kc)
+            # along v: T[b] = sum_j N^{(b)}_j(v) Pw_ij  -> (nd+1, 4, p+1, kc)
+            T = np.empty((nderiv + 1, 4, p + 1, kc))
+            tmp = np.empty((4, p + 1, kc))
+            for b in range(nderiv + 1):
+                np.multiply(Nv[b, 0], L[:, :, 0], out=T[b])
+                for j in range(1, q + 1):
+                    np.multiply(Nv[b, j], L[:, :, j], out=tmp)
+                    T[b] += tmp
+            # along u: H_ab = sum_i N^{(a)}_i(u) T[b]_i -> (4, kc) per order
+            H = np.empty((len(orders), 4, kc))
+            tmp2 = np.empty((4, kc))
+            for n, (a, b) in enumerate(orders):
+                np.multiply(Nu[a, 0], T[b][:, 0], out=H[n])
+                for i in range(1, p + 1):
+                    np.multiply(Nu[a, i], T[b][:, i], out=tmp2)
+                    H[n] += tmp2
+            A, B = H[:, :3], H[:, 3]
+            o = out[:, :, sl]
+            iB = 1.0 / B[0]
+            o[0] = A[0] * iB
+            if nderiv >= 1:
+                o[1] = (A[1] - B[1] * o[0]) * iB  # S_u
+                o[2] = (A[2] - B[2] * o[0]) * iB  # S_v
+            if nderiv >= 2:
+                o[3] = (A[3] - 2.0 * B[1] * o[1] - B[3] * o[0]) * iB  # S_uu
+                o[4] = (A[4] - B[1] * o[2] - B[2] * o[1] - B[4] * o[0]) * iB  # S_uv
+                o[5] = (A[5] - 2.0 * B[2] * o[2] - B[5] * o[0]) * iB  # S_vv
+        return out
+
+
+    def __repr__(self) -> str:
+        return (
+            f"NurbsSurface(degree=({self.degree_u}, {self.degree_v}), n_ctrl={self.n_ctrl}, "
+            f"domain=({self.domain_u}, {self.domain_v}), closed=({self.closed_u}, {self.closed_v}))"
+        )
+
+
+# ----------------------------------------------------------------------
+# exact conic constructions (rational quadratic)
+# ----------------------------------------------------------------------
+#: knots of the 9-point rational quadratic full circle (four 90-degree arcs)
+CIRCLE_KNOTS = np.array([0, 0, 0, 0.25, 0.25, 0.5, 0.5, 0.75, 0.75, 1, 1, 1], dtype=float)
+#: its weights: 1 at the points on the circle, cos(45 deg) = sqrt(2)/2 at the square's corners
+CIRCLE_WEIGHTS = np.array([1, np.sqrt(0.5)] * 4 + [1], dtype=float)
+#: unit-square control polygon of the full circle, starting at angle 0, counter-clockwise
+_CIRCLE_NET = np.array(
+    [[1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0], [-1, -1], [0, -1], [1, -1], [1, 0]], dtype=float
+)
+#: half circle from angle -90 to +90 degrees (south to north pole): (radial, axial) net
+_HALF_NET = np.array([[0, -1], [1, -1], [1, 0], [1, 1], [0, 1]], dtype=float)
+_HALF_KNOTS = np.array([0, 0, 0, 0.5, 0.5, 1, 1, 1], dtype=float)
+_HALF_WEIGHTS = np.array([1, np.sqrt(0.5), 1, np.sqrt(0.5), 1], dtype=float)
+
+
+def _frame(axis: npt.ArrayLike, xaxis: npt.ArrayLike | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    z = np.asarray(axis, dtype=float)
+    z = z / np.linalg.norm(z)
+    if xaxis is None:
+        t = np.eye(3)[np.argmin(np.abs(z))]
+        xaxis = t - np.dot(t, z) * z
+    x = np.asarray(xaxis, dtype=float)
+    x = x - np.dot(x, z) * z
+    x = x / np.linalg.norm(x)
+    return x, np.cross(z, x), z
+
+
+def circle(
+    center: npt.ArrayLike = (0.0, 0.0, 0.0),
+    radius: float = 1.0,
+    axis: npt.ArrayLike = (0.0, 0.0, 1.0),
+    xaxis: npt.ArrayLike | None = (1.0, 0.0, 0.0),
+) -> NurbsCurve:
+    """Exact full circle: degree 2, 9 control points on a square, weights 1 and sqrt(2)/2.
+
+    The construction of Kadir (2010) App. C.3 (IGES File 1) with exact
+    weights.  ``C(0) = center + radius * xaxis``; counter-clockwise about
+    ``axis``; parameter domain ``[0, 1]`` (not proportional to the angle).
+    """
+    x, y, _ = _frame(axis, xaxis)
+    c = np.asarray(center, dtype=float)
+    P = c + radius * (_CIRCLE_NET[:, :1] * x + _CIRCLE_NET[:, 1:] * y)
+    return NurbsCurve(2, CIRCLE_KNOTS, P, CIRCLE_WEIGHTS)
+
+
+def cylinder(
+    center: npt.ArrayLike = (0.0, 0.0, 0.0),
+    radius: float = 1.0,
+    height: float = 1.0,
+    axis: npt.ArrayLike = (0.0, 0.0, 1.0),
+    xaxis: npt.ArrayLike | None = (1.0, 0.0, 0.0),
+) -> NurbsSurface:
+    """Exact cylinder side: ``u`` around the axis (closed circle), ``v`` along it (degree 1).
+
+    As Kadir (2010) App. C.3 (IGES File 2): the circle of :func:`circle`
+    extruded by ``height`` along ``axis`` from the base centre ``center``.
+    """
+    x, y, z = _frame(axis, xaxis)
+    c = np.asarray(center, dtype=float)
+    ring = radius * (_CIRCLE_NET[:, :1] * x + _CIRCLE_NET[:, 1:] * y)
+    P = np.stack([c + ring, c + ring + height * z], axis=1)  # (9, 2, 3)
+    W = np.stack([CIRCLE_WEIGHTS, CIRCLE_WEIGHTS], axis=1)
+    return NurbsSurface(2, 1, CIRCLE_KNOTS, [0.0, 0.0, 1.0, 1.0], P, W)
+
+
+def sphere(
+    center: npt.ArrayLike = (0.0, 0.0, 0.0),
+    radius: float = 1.0,
+    axis: npt.ArrayLike = (0.0, 0.0, 1.0),
+    xaxis: npt.ArrayLike | None = (1.0, 0.0, 0.0),
+) -> NurbsSurface:
+    """Exact sphere: ``u`` the meridian half circle from the south to the north pole
+    (open, degenerate at both ends), ``v`` the longitude circle (closed).
+
+    Surface of revolution: control points ``(rho_i cos, rho_i sin, z_i)`` of
+    the two nets, weights the products of the two weight vectors.
+    """
+    x, y, z = _frame(axis, xaxis)
+    c = np.asarray(center, dtype=float)
+    rho, h = _HALF_NET[:, 0], _HALF_NET[:, 1]
+    ring = _CIRCLE_NET[:, :1] * x + _CIRCLE_NET[:, 1:] * y  # (9, 3)
+    P = c + radius * (rho[:, None, None] * ring[None] + h[:, None, None] * z)
+    W = np.outer(_HALF_WEIGHTS, CIRCLE_WEIGHTS)
+    return NurbsSurface(2, 2, _HALF_KNOTS, CIRCLE_KNOTS, P, W)
+
+
+def torus(
+    center: npt.ArrayLike = (0.0, 0.0, 0.0),
+    major_radius: float = 2.0,
+    minor_radius: float = 1.0,
+    axis: npt.ArrayLike = (0.0, 0.0, 1.0),
+    xaxis: npt.ArrayLike | None = (1.0, 0.0, 0.0),
+) -> NurbsSurface:
+    """Exact torus: ``u`` around the tube (closed), ``v`` around the axis (closed).
+
+    The tube circle (radius ``minor_radius`` about ``major_radius`` from the
+    axis) revolved about ``axis``; weights are products.
+    """
+    x, y, z = _frame(axis, xaxis)
+    c = np.asarray(center, dtype=float)
+    rho = major_radius + minor_radius * _CIRCLE_NET[:, 0]
+    h = minor_radius * _CIRCLE_NET[:, 1]
+    ring = _CIRCLE_NET[:, :1] * x + _CIRCLE_NET[:, 1:] * y
+    P = c + rho[:, None, None] * ring[None] + h[:, None, None] * z
+    W = np.outer(CIRCLE_WEIGHTS, CIRCLE_WEIGHTS)
+    return NurbsSurface(2, 2, CIRCLE_KNOTS, CIRCLE_KNOTS, P, W)

@@ -1,0 +1,751 @@
+"""Closest-point projection onto NURBS curves and surfaces (vectorised Newton).
+
+Newton iteration of Kadir (2010), Appendix B (after Piegl & Tiller 1996):
+
+* curves, eq. (B.1)::
+
+      u_{i+1} = u_i - C'(u_i).(C(u_i) - P) / ( C''(u_i).(C(u_i) - P) + |C'(u_i)|^2 )
+
+* surfaces, eq. (B.2): with ``r = S(u, v) - P`` solve ``f = r.S_u = 0``,
+  ``g = r.S_v = 0`` by ``J_i delta_i = kappa_i`` where::
+
+      J = [[|S_u|^2 + r.S_uu,  S_u.S_v + r.S_uv],
+           [S_u.S_v + r.S_vu,  |S_v|^2 + r.S_vv]],   kappa = -[f, g]
+
+  (identical to Neto (2010), App. B, eqs. (32)-(36)).
+
+Convergence (Kadir, App. B.1/B.2), per point; converged points are frozen:
+
+1. point coincidence ``|S - P| <= zero_tol``;
+2. insignificant parameter change ``|(u_{i+1}-u_i) S_u + (v_{i+1}-v_i) S_v| <= tol``;
+3. zero cosine ``|S_a . r| / (|S_a| |r|) <= cos_tol`` for every direction ``a``.
+
+Two refinements of criterion 2 (not in the seed):
+
+* the last, tiny Newton step is still applied, to first order:
+  ``S(p + delta) = S(p) + S_a delta_a + O(|delta|^2)``, which costs no
+  evaluation and leaves an error far below rounding;
+* it is accepted only if a true Newton step (``J`` positive definite) and if
+  the error predicted after it, ``C s^2`` with the quadratic-rate estimate
+  ``C = s / s_prev^2`` from the last two step lengths, is below ``acc_tol``.
+  This matters where the parameterisation degenerates (next to a pole the
+  rate constant is ~1/(distance to the axis)); for well-seeded points it
+  changes nothing.
+
+An iteration is one Newton update; the final first-order update counts as
+one (as in Kadir's counting, the step that meets criterion 2 is an
+iteration).  With neighbour seeds (parametric midpoints of the parent edge)
+most points converge in 2 iterations, cf. Kadir Table 4.2.
+
+Parameters leaving the domain are clamped in open directions and wrapped
+modulo the period in closed ones (Kadir, App. B.1, last paragraph).
+
+Safeguards not in the seed (they are inactive for well-seeded points and do
+not change the iteration there): where ``J`` is not positive definite (far
+from a minimum, e.g. near a maximum of the distance) the Gauss-Newton matrix
+``[S_a . S_b] + mu I`` replaces it; steps are capped to a quarter of the
+parameter domain; a step that increases ``|S - P|`` is halved (at most
+``max_halvings`` times).  A point clamped onto a collapsed boundary (the pole
+of a sphere, where ``S_v = 0`` and ``v`` cannot be corrected by Newton) with
+no descent into the domain is restarted from the ``v`` of steepest descent
+(:func:`_escape_collapsed_edges`).
+
+:func:`global_search` finds seeds without brute force: each entity is sampled
+once on a modest parameter grid, a KD-tree (``scipy.spatial.cKDTree``) of all
+samples gives the ``k_seeds`` nearest samples of every query point, Newton
+refines each, the best is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from .nurbs import NurbsCurve, NurbsSurface
+
+__all__ = [
+    "ProjectionResult",
+    "project_newton",
+    "GlobalSearcher",
+    "global_search",
+    "closest_point",
+    "sample_entity",
+    "normalize_params",
+    "evaluate_params",
+]
+
+Entity = NurbsCurve | NurbsSurface
+
+#: default step-length tolerance (criterion 2), relative to the entity's bbox size
+STEP_RTOL = 1e-9
+#: default point-coincidence tolerance (criterion 1), relative to the bbox size
+ZERO_RTOL = 1e-14
+#: default zero-cosine tolerance (criterion 3)
+COS_TOL = 1e-14
+#: default accuracy demanded of the error predicted after the last step, relative to the bbox size
+ACC_RTOL = 1e-14
+
+
+@dataclass
+class ProjectionResult:
+    """Result of :func:`project_newton` for ``k`` points.
+
+    Attributes:
+        params: ``(k,)`` (curves) or ``(k, 2)`` (surfaces) parameters of the
+            closest points, inside the domain (wrapped in closed directions).
+        points: ``(k, 3)`` closest points ``S(params)`` (length units).
+        distance: ``(k,)`` residual distance ``|S(params) - P|`` (length units).
+        iterations: ``(k,)`` int64, Newton updates applied per point (0 if
+            the seed already satisfied a convergence criterion).
+        converged: ``(k,)`` bool, a criterion of Kadir App. B was met.
+    """
+
+    params: np.ndarray
+    points: np.ndarray
+    distance: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+
+
+# ----------------------------------------------------------------------
+# generic helpers over curves (d = 1) and surfaces (d = 2)
+# ----------------------------------------------------------------------
+def _params_2d(entity: Entity, params: npt.ArrayLike, k: int | None = None) -> np.ndarray:
+    """Parameters as a ``(k, d)`` float array (accepts ``(k,)`` for curves)."""
+    d = entity.param_dim
+    p = np.asarray(params, dtype=float)
+    if d == 1 and p.ndim == 1:
+        p = p[:, None]
+    if p.ndim != 2 or p.shape[1] != d:
+        want = "(k,) or (k, 1)" if d == 1 else "(k, 2)"
+        raise ValueError(f"parameters for a {type(entity).__name__} must have shape {want}, got {p.shape}")
+    if k is not None and p.shape[0] != k:
+        raise ValueError(f"{p.shape[0]} parameter rows for {k} points")
+    return p
+
+
+def normalize_params(entity: Entity, params: npt.ArrayLike) -> np.ndarray:
+    """``(k, d)`` parameters wrapped (closed directions) or clamped (open), as a new array."""
+    p = np.array(_params_2d(entity, params), dtype=float)
+    b = entity.bounds
+    for a, closed in enumerate(entity.closed):
+        lo, hi = b[a]
+        col = p[:, a]
+        if closed:
+            out = (col < lo) | (col > hi)
+            col[out] = lo + np.mod(col[out] - lo, hi - lo)
+        else:
+            np.clip(col, lo, hi, out=col)
+    return p
+
+
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: int = 0):
+    """Evaluate at ``(k, d)`` parameters already inside the domain.
+
+    Returns ``S (k, 3)`` for ``nderiv=0``, else ``(S, T, H)`` with tangents
+    ``T (k, d, 3)`` (``T[:, a] = dS/dp_a``) and, for ``nderiv=2``, second
+    derivatives ``H (k, d, d, 3)`` (``H[:, a, b] = d2S/dp_a dp_b``).
+    """
+    if entity.param_dim == 1:
+        D = entity._evaluate_inside(params[:, 0], nderiv)
+        if nderiv == 0:
+            return D[0]
+        T = D[1][:, None, :]
+        if nderiv == 1:
+            return D[0], T
+        return D[0], T, D[2][:, None, None, :]
+    D = entity._evaluate_inside(params[:, 0], params[:, 1], nderiv)
+    if nderiv == 0:
+        return D[0]
+    T = np.stack([D[1], D[2]], axis=1)
+    if nderiv == 1:
+        return D[0], T
+    H = np.stack([np.stack([D[3], D[4]], axis=1), np.stack([D[4], D[5]], axis=1)], axis=1)
+    return D[0], T, H
+
+
+def _eval_soa(entity: Entity, P: np.ndarray, nderiv: int) -> np.ndarray:
+    """Kernel evaluation at ``P (d, k)`` inside the domain: ``(1|2|3|6, 3, k)``.
+
+    Order: curves ``[C, C', C'']``; surfaces ``[S, Su, Sv, Suu, Suv, Svv]``.
+    """
+    return entity._eval_soa(P, nderiv)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of ``(3, k)`` arrays."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _newton_system(E: np.ndarray, r: np.ndarray, d: int):
+    """Gradient ``g (d, k)`` and the matrices ``J`` (B.1/B.2) and ``G`` (Gauss-Newton).
+
+    ``J``/``G`` are returned as tuples of ``(k,)`` arrays: ``(J,)`` for curves,
+    ``(J_uu, J_uv, J_vv)`` for surfaces (symmetric since ``S_uv = S_vu``).
+    """
+    if d == 1:
+        C1, C2 = E[1], E[2]
+        g = _dot(C1, r)[None, :]  # f(u) of (B.1)
+        G = _dot(C1, C1)
+        return g, (G + _dot(C2, r),), (G,)
+    Su, Sv, Suu, Suv, Svv = E[1], E[2], E[3], E[4], E[5]
+    g = np.stack([_dot(r, Su), _dot(r, Sv)])  # f, g of (B.2)
+    Guu, Guv, Gvv = _dot(Su, Su), _dot(Su, Sv), _dot(Sv, Sv)
+    J = (Guu + _dot(r, Suu), Guv + _dot(r, Suv), Gvv + _dot(r, Svv))
+    return g, J, (Guu, Guv, Gvv)
+
+
+def _solve_step(g: np.ndarray, J: tuple, G: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Newton step ``-J^{-1} g`` (eq. B.1 / ``J delta = kappa`` of B.2), ``(d, k)``.
+
+    Where ``J`` is not (safely) positive definite the regularised
+    Gauss-Newton matrix ``G + mu I`` is used instead (a descent direction).
+    Returns ``(step, pd, psd)``: ``pd (k,)`` True where the Newton matrix was
+    used; ``psd (k,)`` True where ``J`` is positive semi-definite (up to
+    rounding), i.e. the iterate is not at a maximum or saddle of the distance.
+    """
+    tiny = np.finfo(float).tiny
+    if len(J) == 1:
+        j, gg = J[0], G[0]
+        pd = j > 1e-12 * gg
+        psd = j >= -1e-12 * gg
+        m = np.where(pd, j, gg * (1.0 + 1e-10) + tiny)
+        return -g / m, pd, psd
+    a, b, c = J
+    det = a * c - b * b
+    pd = (a > 0) & (c > 0) & (det > 1e-12 * a * c)
+    tr = G[0] + G[2]
+    psd = (a >= -1e-12 * tr) & (c >= -1e-12 * tr) & (det >= -1e-12 * tr * tr)
+    if not np.all(pd):
+        mu = 1e-10 * (G[0] + G[2]) + tiny
+        a = np.where(pd, a, G[0] + mu)
+        b = np.where(pd, b, G[1])
+        c = np.where(pd, c, G[2] + mu)
+        det = a * c - b * b
+    return np.stack([-(c * g[0] - b * g[1]) / det, -(a * g[1] - b * g[0]) / det]), pd, psd
+
+
+def _cosine(E: np.ndarray, g: np.ndarray, dist: np.ndarray, d: int) -> np.ndarray:
+    """Criterion 3: largest ``|S_a . r| / (|S_a| |r|)``; 0 for a zero tangent."""
+    cos = np.zeros_like(dist)
+    for a in range(d):
+        den = np.sqrt(_dot(E[1 + a], E[1 + a])) * dist
+        c = np.divide(np.abs(g[a]), den, out=np.zeros_like(den), where=den > 0)
+        np.maximum(cos, c, out=cos)
+    return cos
+
+
+def _apply_step(entity: Entity, P: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(new params, actual step)`` for ``(d, k)`` arrays: clamped in open, wrapped in closed directions."""
+    bnd = entity.bounds
+    new = P + step
+    actual = step
+    for a, closed in enumerate(entity.closed):
+        lo, hi = bnd[a]
+        row = new[a]
+        if closed:
+            out = (row < lo) | (row > hi)
+            if out.any():
+                row[out] = lo + np.mod(row[out] - lo, hi - lo)
+        else:
+            np.clip(row, lo, hi, out=row)
+            if actual is step:
+                actual = step.copy()
+            actual[a] = row - P[a]
+    return new, actual
+
+
+def _step_length(E: np.ndarray, actual: np.ndarray, d: int) -> np.ndarray:
+    """Criterion 2: ``|sum_a delta_a S_a|`` (physical length of the step)."""
+    v = E[1] * actual[0]
+    if d == 2:
+        v = v + E[2] * actual[1]
+    return np.sqrt(_dot(v, v))
+
+
+def _escape_collapsed_edges(
+    entity: NurbsSurface,
+    X: np.ndarray,
+    out_P: np.ndarray,
+    out_S: np.ndarray,
+    out_dist: np.ndarray,
+    iters: np.ndarray,
+    conv: np.ndarray,
+    max_iter: int,
+    tol: float,
+    zero_tol: float,
+    cos_tol: float,
+    acc_tol: float,
+) -> None:
+    """Restart points stuck on a collapsed boundary (a pole) with the wrong free parameter.
+
+    On a boundary ``u = u_b`` of an open direction where ``S_v = 0`` (the
+    edge collapses to a point: sphere pole, cone apex), ``S`` does not depend
+    on ``v``, so Newton cannot correct ``v``; if the meridian ``S_u(u_b, v)``
+    points away from ``P`` the clamped iteration stops at the pole although
+    interior points are closer.  For such points ``v`` is chosen with the
+    steepest inward descent, ``min_v s r.S_u(u_b, v)`` (``s`` the inward
+    sign) over a sample of ``v``, and Newton is restarted there.  Updates the
+    output arrays in place (``d = 2`` only).
+    """
+    bnd = entity.bounds
+    size = entity.bbox_size
+    for a in range(2):  # loop over the two parameter directions
+        if entity.closed[a]:
+            continue
+        o = 1 - a
+        knots_o = entity.distinct_knots_v if o == 1 else entity.distinct_knots_u
+        olen = bnd[o, 1] - bnd[o, 0]
+        for bound, s in ((bnd[a, 0], 1.0), (bnd[a, 1], -1.0)):
+            cand = np.flatnonzero((out_P[a] == bound) & (out_dist > zero_tol))
+            if cand.size == 0:
+                continue
+            E = _eval_soa(entity, out_P[:, cand], 1)
+            r = E[0] - X[cand].T
+            Ta, To = E[1 + a], E[1 + o]
+            degen = np.sqrt(_dot(To, To)) <= 1e-9 * size / olen
+            rate0 = s * _dot(r, Ta)
+            stuck = degen & (rate0 >= 0.0)
+            if not stuck.any():
+                continue
+            cand, r = cand[stuck], r[:, stuck]
+            vs = _direction_samples(knots_o, 8, 32)
+            nc, ns = cand.size, vs.size
+            P = np.empty((2, nc * ns))
+            P[a] = bound
+            P[o] = np.tile(vs, nc)
+            Ts = _eval_soa(entity, P, 1)[1 + a]
+            rate = (s * _dot(np.repeat(r, ns, axis=1), Ts)).reshape(nc, ns)
+            best = np.argmin(rate, axis=1)
+            go = rate[np.arange(nc), best] < 0.0
+            if not go.any():
+                continue
+            cand = cand[go]
+            seeds = np.empty((cand.size, 2))
+            seeds[:, a] = bound
+            seeds[:, o] = vs[best[go]]
+            res = project_newton(
+                entity, X[cand], seeds, max_iter, tol, zero_tol=zero_tol, cos_tol=cos_tol,
+                acc_tol=acc_tol, _escape=False,
+            )
+            better = res.distance < out_dist[cand]
+            c = cand[better]
+            out_P[:, c] = res.params[better].T
+            out_S[:, c] = res.points[better].T
+            out_dist[c] = res.distance[better]
+            conv[c] = res.converged[better]
+            iters[cand] += res.iterations
+
+
+# ----------------------------------------------------------------------
+# Newton projection
+# ----------------------------------------------------------------------
+def project_newton(
+    entity: Entity,
+    points: npt.ArrayLike,
+    seeds: npt.ArrayLike,
+    max_iter: int = 20,
+    tol: float | None = None,
+    *,
+    zero_tol: float | None = None,
+    cos_tol: float = COS_TOL,
+    acc_tol: float | None = None,
+    max_halvings: int = 12,
+    _escape: bool = True,
+) -> ProjectionResult:
+    """Closest points on one NURBS entity by seeded Newton iteration (vectorised).
+
+    Kadir (2010) App. B, eq. (B.1) for curves and (B.2) for surfaces; all
+    points iterate together, converged points are frozen (removed from the
+    active set, which is compacted every iteration).
+
+    Args:
+        entity: :class:`NurbsCurve` or :class:`NurbsSurface`.
+        points: ``(k, 3)`` points to project (``(k, 2)`` accepted, z = 0).
+        seeds: ``(k,)`` (curves) or ``(k, 2)`` (surfaces) start parameters;
+            wrapped/clamped into the domain first.
+        max_iter: maximum number of Newton updates per point.
+        tol: criterion 2, physical length of the last step (length units);
+            default ``1e-9 * entity.bbox_size``.
+        zero_tol: criterion 1, ``|S - P|`` (length units); default
+            ``1e-14 * entity.bbox_size``.
+        cos_tol: criterion 3, zero cosine between ``S - P`` and the tangents
+            (default 1e-14).
+        acc_tol: error predicted after the last step that criterion 2 accepts
+            (length units); default ``1e-14 * entity.bbox_size``.
+        max_halvings: step halvings allowed when a step increases ``|S - P|``.
+
+    Returns:
+        :class:`ProjectionResult` (params ``(k,)`` for curves, ``(k, 2)`` for
+        surfaces).  Points not converged after ``max_iter`` updates, or whose
+        step could not decrease the distance, have ``converged = False`` and
+        hold their best iterate.
+    """
+    X = np.asarray(points, dtype=float)
+    if X.ndim != 2 or X.shape[1] not in (2, 3):
+        raise ValueError(f"points must have shape (k, 3), got {X.shape}")
+    if X.shape[1] == 2:
+        X = np.c_[X, np.zeros(len(X))]
+    k = X.shape[0]
+    d = entity.param_dim
+    size = max(entity.bbox_size, np.finfo(float).tiny)
+    tol = STEP_RTOL * size if tol is None else float(tol)
+    zero_tol = ZERO_RTOL * size if zero_tol is None else float(zero_tol)
+    acc_tol = ACC_RTOL * size if acc_tol is None else float(acc_tol)
+    P0 = normalize_params(entity, _params_2d(entity, seeds, k))
+    max_step = 0.25 * np.diff(entity.bounds, axis=1)  # (d, 1)
+    slack = 4.0 * np.finfo(float).eps * size
+
+    # final results (filled as points finish)
+    out_P = np.ascontiguousarray(P0.T)  # (d, k)
+    out_S = np.empty((3, k))
+    out_dist = np.empty(k)
+    iters = np.zeros(k, dtype=np.int64)
+    conv = np.zeros(k, dtype=bool)
+
+    # active state, compacted as points finish
+    idx = np.arange(k)
+    Xa = np.ascontiguousarray(X.T)  # (3, k)
+    Pa = out_P.copy()
+    E = _eval_soa(entity, Pa, 2)
+    r = E[0] - Xa
+    dist = np.sqrt(_dot(r, r))
+    sprev = np.full(k, np.inf)  # length of the previous step (quadratic-rate estimate)
+
+    def finish(mask: np.ndarray, converged: bool | np.ndarray, P_, S_, d_) -> None:
+        ii = idx[mask]
+        out_P[:, ii] = P_[:, mask]
+        out_S[:, ii] = S_[:, mask]
+        out_dist[ii] = d_[mask]
+        conv[ii] = converged if np.ndim(converged) == 0 else converged[mask]
+
+    for it in range(max_iter + 1):
+        if idx.size == 0:
+            break
+        g, J, G = _newton_system(E, r, d)
+        step, pd, psd = _solve_step(g, J, G)
+        step[:, ~np.all(np.isfinite(step), axis=0)] = 0.0
+        # cap to a quarter of the domain per direction (uniform scaling)
+        scale = np.min(np.minimum(1.0, max_step / np.maximum(np.abs(step), 1e-300)), axis=0)
+        step *= scale
+        new, actual = _apply_step(entity, Pa, step)
+        steplen = _step_length(E, actual, d)
+        # Kadir's criteria: 2 (insignificant change) for the Newton step just
+        # computed, with the error predicted after it, C s^2, C ~ s / s_prev^2
+        # (quadratic convergence; without a previous step: s itself); 1
+        # (coincidence) and 3 (zero cosine, only where J >= 0: not at a
+        # maximum of the distance) at the current iterate
+        pred = np.where(np.isfinite(sprev), steplen**3 / np.maximum(sprev * sprev, 1e-300), steplen)
+        small = pd & (steplen <= tol) & (pred <= acc_tol)
+        done = small | (dist <= zero_tol) | (psd & (_cosine(E, g, dist, d) <= cos_tol))
+        if it == max_iter:
+            done_all = np.ones(idx.size, dtype=bool)
+        else:
+            # a zero step that meets no criterion (a maximum, or clamped against
+            # a bound) cannot progress: stop, not converged
+            done_all = done | (steplen == 0.0)
+        if done_all.any():
+            # a converged point takes its last (tiny) Newton step to first order,
+            # S(p + delta) = S + S_a delta_a + O(|delta|^2): no re-evaluation
+            lin = done_all & small
+            Pf = np.where(lin[None, :], new, Pa)
+            Sf = E[0] + np.where(lin[None, :], np.einsum("ak,ack->ck", actual, E[1 : 1 + d]), 0.0)
+            rf = Sf - Xa
+            df = np.sqrt(_dot(rf, rf))
+            iters[idx[lin & (steplen > zero_tol)]] += 1
+            finish(done_all, done, Pf, Sf, df)
+            keep = ~done_all
+            if not keep.any():
+                idx = idx[:0]
+                break
+            idx, Xa, Pa, E, r, dist = idx[keep], Xa[:, keep], Pa[:, keep], E[:, :, keep], r[:, keep], dist[keep]
+            step, new, actual, steplen = step[:, keep], new[:, keep], actual[:, keep], steplen[keep]
+            sprev = sprev[keep]
+        En = _eval_soa(entity, new, 2)
+        rn = En[0] - Xa
+        dn = np.sqrt(_dot(rn, rn))
+        # backtracking where the distance grew (inactive for well-seeded points)
+        worse = np.flatnonzero(dn > dist + slack)
+        alpha = 1.0
+        for _h in range(max_halvings):
+            if worse.size == 0:
+                break
+            alpha *= 0.5
+            nw, aw = _apply_step(entity, Pa[:, worse], alpha * step[:, worse])
+            Ew = _eval_soa(entity, nw, 2)
+            rw = Ew[0] - Xa[:, worse]
+            dw = np.sqrt(_dot(rw, rw))
+            new[:, worse], En[:, :, worse], rn[:, worse], dn[worse] = nw, Ew, rw, dw
+            steplen[worse] = _step_length(E[:, :, worse], aw, d)
+            worse = worse[dw > dist[worse] + slack]
+        stalled = np.zeros(idx.size, dtype=bool)
+        stalled[worse] = True
+        if stalled.any():  # could not decrease: keep the old iterate, not converged
+            finish(stalled, False, Pa, E[0], dist)
+        ok = ~stalled
+        iters[idx[ok]] += 1
+        Pa, E, r, dist, sprev = new, En, rn, dn, steplen
+        if not ok.all():
+            idx, Xa, Pa, E, r, dist = idx[ok], Xa[:, ok], Pa[:, ok], E[:, :, ok], r[:, ok], dist[ok]
+            sprev = sprev[ok]
+
+    if d == 2 and _escape:
+        _escape_collapsed_edges(
+            entity, X, out_P, out_S, out_dist, iters, conv, max_iter, tol, zero_tol, cos_tol, acc_tol
+        )
+
+    params = out_P[0].copy() if d == 1 else np.ascontiguousarray(out_P.T)
+    return ProjectionResult(params, np.ascontiguousarray(out_S.T), out_dist, iters, conv)
+
+
+# ----------------------------------------------------------------------
+# sampling and global search
+# ----------------------------------------------------------------------
+def _direction_samples(knots: np.ndarray, per_span: int, min_total: int) -> np.ndarray:
+    nsp = len(knots) - 1
+    n = max(per_span, int(np.ceil(min_total / nsp)))
+    t = np.linspace(0.0, 1.0, n + 1)[:-1]
+    return np.concatenate([(knots[:-1, None] + np.outer(np.diff(knots), t)).ravel(), knots[-1:]])
+
+
+def sample_entity(
+    entity: Entity, per_span: int | None = None, min_per_direction: int = 16
+) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter grid of an entity: ``per_span`` samples in each knot span.
+
+    Args:
+        entity: curve or surface.
+        per_span: samples per knot span and direction (default 8 for curves,
+            6 for surfaces).
+        min_per_direction: at least this many samples per direction.
+
+    Returns:
+        ``(params (s, d), points (s, 3))``.
+    """
+    if entity.param_dim == 1:
+        per_span = 8 if per_span is None else per_span
+        u = _direction_samples(entity.distinct_knots, per_span, min_per_direction)
+        P = u[:, None]
+    else:
+        per_span = 6 if per_span is None else per_span
+        u = _direction_samples(entity.distinct_knots_u, per_span, min_per_direction)
+        v = _direction_samples(entity.distinct_knots_v, per_span, min_per_direction)
+        uu, vv = np.meshgrid(u, v, indexing="ij")
+        P = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    return P, evaluate_params(entity, P, 0)
+
+
+def _best_per_point(n: int, pt: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Index (into the pair arrays) of the smallest distance of each point ``0..n-1``."""
+    order = np.lexsort((dist, pt))
+    first = np.searchsorted(pt[order], np.arange(n))
+    return order[first]
+
+
+class GlobalSearcher:
+    """KD-tree of parameter-grid samples of several entities, for seeding Newton.
+
+    Built once per geometry and reused for every search.
+
+    Args:
+        entities: curves or surfaces (all of the same kind).
+        per_span: samples per knot span and direction (see :func:`sample_entity`).
+        k_seeds: nearest samples used as Newton seeds per point.
+        max_iter: Newton iterations per seed.
+    """
+
+    def __init__(
+        self,
+        entities: Sequence[Entity],
+        *,
+        per_span: int | None = None,
+        k_seeds: int = 6,
+        max_iter: int = 30,
+    ):
+        entities = list(entities)
+        if not entities:
+            raise ValueError("no entities given")
+        dims = {e.param_dim for e in entities}
+        if len(dims) != 1:
+            raise ValueError("entities must be all curves or all surfaces")
+        self.entities = entities
+        self.param_dim = dims.pop()
+        self.k_seeds = int(k_seeds)
+        self.max_iter = int(max_iter)
+        params, pts, ent = [], [], []
+        for i, e in enumerate(entities):  # loop over entities (patch count)
+            P, X = sample_entity(e, per_span)
+            params.append(P)
+            pts.append(X)
+            ent.append(np.full(len(P), i, dtype=np.int64))
+        self._offsets = np.cumsum([0] + [len(P) for P in params])
+        self.sample_params = np.concatenate(params)
+        self.sample_points = np.concatenate(pts)
+        self.sample_entity = np.concatenate(ent)
+        self.tree = cKDTree(self.sample_points)
+        self._trees: dict[int, cKDTree] = {}
+        lo = np.array([e.bbox[0] for e in entities])
+        hi = np.array([e.bbox[1] for e in entities])
+        self.bbox_lo, self.bbox_hi = lo, hi
+        self.size = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
+
+    def _entity_tree(self, e: int) -> cKDTree:
+        if e not in self._trees:
+            a, b = self._offsets[e], self._offsets[e + 1]
+            self._trees[e] = cKDTree(self.sample_points[a:b])
+        return self._trees[e]
+
+    def refine(
+        self,
+        pt: np.ndarray,
+        ent: np.ndarray,
+        seeds: np.ndarray,
+        points: np.ndarray,
+        max_iter: int | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Newton from given ``(point, entity, seed)`` triples, grouped by entity.
+
+        Args:
+            pt: ``(n,)`` row of ``points`` of each triple.
+            ent: ``(n,)`` entity index of each triple.
+            seeds: ``(n, d)`` start parameters.
+            points: ``(N, 3)`` points.
+            max_iter: Newton iterations (default: the searcher's).
+
+        Returns:
+            ``(params (n, d), proj (n, 3), dist (n,), iterations (n,), converged (n,))``.
+        """
+        max_iter = self.max_iter if max_iter is None else int(max_iter)
+        seeds = np.asarray(seeds, dtype=float).reshape(len(pt), self.param_dim)
+        n = len(pt)
+        d = self.param_dim
+        params = np.zeros((n, d))
+        proj = np.zeros((n, 3))
+        dist = np.full(n, np.inf)
+        its = np.zeros(n, dtype=np.int64)
+        conv = np.zeros(n, dtype=bool)
+        for e in np.unique(ent):  # loop over entities, vectorised inside
+            sel = np.flatnonzero(ent == e)
+            res = project_newton(self.entities[e], points[pt[sel]], seeds[sel], max_iter)
+            params[sel] = res.params.reshape(len(sel), d)
+            proj[sel], dist[sel], its[sel], conv[sel] = res.points, res.distance, res.iterations, res.converged
+        return params, proj, dist, its, conv
+
+    def search(
+        self, points: npt.ArrayLike, k_seeds: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest point over all entities; see :func:`global_search`."""
+        X = _points3(points)
+        n = len(X)
+        if n == 0:
+            return np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0)
+        pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
+        best = _best_per_point(n, pt, dist)
+        return ent[best], params[best], dist[best]
+
+    def search_all(
+        self, points: npt.ArrayLike, k_seeds: int | None = None
+    ) -> tuple[np.ndarray, ...]:
+        """All Newton results from the ``k_seeds`` nearest samples of each point.
+
+        Returns ``(pt, ent, params (n, d), proj (n, 3), dist, converged)`` with
+        one row per (point, seed) pair; rows of the same point and entity may
+        repeat.
+        """
+        X = _points3(points)
+        k = min(self.k_seeds if k_seeds is None else int(k_seeds), len(self.sample_points))
+        _, idx = self.tree.query(X, k=k)
+        idx = idx.reshape(len(X), k)
+        pt = np.repeat(np.arange(len(X)), k)
+        s = idx.ravel()
+        ent = self.sample_entity[s]
+        params, proj, dist, _, conv = self.refine(pt, ent, self.sample_params[s], X)
+        return pt, ent, params, proj, dist, conv
+
+    def search_on(
+        self, points: npt.ArrayLike, ent: npt.ArrayLike, k_seeds: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest point of each point on a *given* entity (per-entity KD-tree seeds).
+
+        Args:
+            points: ``(n, 3)``.
+            ent: ``(n,)`` entity index per point.
+
+        Returns:
+            ``(params (n, d), proj (n, 3), dist (n,))``.
+        """
+        X = _points3(points)
+        ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        n = len(X)
+        if ent.shape[0] != n:
+            raise ValueError(f"{ent.shape[0]} entity indices for {n} points")
+        if n == 0:
+            return np.zeros((0, self.param_dim)), np.zeros((0, 3)), np.zeros(0)
+        kk = self.k_seeds if k_seeds is None else int(k_seeds)
+        pts, ents, seeds = [], [], []
+        for e in np.unique(ent):  # loop over entities
+            sel = np.flatnonzero(ent == e)
+            a = self._offsets[e]
+            ke = min(kk, self._offsets[e + 1] - a)
+            _, idx = self._entity_tree(e).query(X[sel], k=ke)
+            idx = idx.reshape(len(sel), ke) + a
+            pts.append(np.repeat(sel, ke))
+            ents.append(np.full(len(sel) * ke, e))
+            seeds.append(self.sample_params[idx.ravel()])
+        pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
+        params, proj, dist, _, _ = self.refine(pt, en, sd, X)
+        best = _best_per_point(n, pt, dist)
+        return params[best], proj[best], dist[best]
+
+
+def _points3(points: npt.ArrayLike) -> np.ndarray:
+    X = np.asarray(points, dtype=float)
+    if X.ndim == 1 and X.shape[0] in (2, 3):
+        X = X[None, :]
+    if X.ndim != 2 or X.shape[1] not in (2, 3):
+        raise ValueError(f"points must have shape (k, 3), got {X.shape}")
+    if X.shape[1] == 2:
+        X = np.c_[X, np.zeros(len(X))]
+    return X
+
+
+def global_search(
+    entities: Sequence[Entity] | Entity,
+    points: npt.ArrayLike,
+    *,
+    k_seeds: int = 6,
+    per_span: int | None = None,
+    max_iter: int = 30,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest point on a set of curves or surfaces (patches), seeded by a KD-tree.
+
+    Each entity is sampled once on a parameter grid (``per_span`` samples per
+    knot span and direction, see :func:`sample_entity`); the ``k_seeds``
+    nearest samples of each point (``scipy.spatial.cKDTree``) seed Newton
+    (:func:`project_newton`); the closest result is kept (ties: lowest entity
+    index).  This is Kadir's "evaluate at equally spaced parameters, start from
+    the closest" (App. B.1), without the per-point scan of the whole grid.
+
+    Args:
+        entities: list of :class:`NurbsCurve` or of :class:`NurbsSurface`
+            (a single entity is accepted).
+        points: ``(k, 3)`` points.
+
+    Returns:
+        ``(entity_index (k,) int64, params (k, d), distance (k,))`` with
+        ``d = 1`` for curves and ``2`` for surfaces.
+    """
+    if isinstance(entities, (NurbsCurve, NurbsSurface)):
+        entities = [entities]
+    return GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds, max_iter=max_iter).search(points)
+
+
+def closest_point(
+    entities: Sequence[Entity] | Entity, points: npt.ArrayLike, **kwargs
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Alias of :func:`global_search`."""
+    return global_search(entities, points, **kwargs)

@@ -1,0 +1,334 @@
+"""CadGeometry.attach/place (Kadir 2010, ch. 2) on synthetic boundary meshes.
+
+Refinement is emulated with numpy: every facet is split at its edge
+midpoints, a new vertex gets the straight midpoint as position and the
+parametric midpoint of the edge's end parameters (from the parent facet's
+unwrapped records) as seed, as the lead's generic refine step does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nagata_snap.cad import CadError, CadGeometry
+from nagata_snap.nurbs import NurbsCurve, circle, cylinder, sphere
+from nagata_snap.records import Records
+
+S2 = np.sqrt(0.5)
+
+
+# ----------------------------------------------------------------------
+# refinement emulation
+# ----------------------------------------------------------------------
+def split_segments(x: np.ndarray, rec: Records) -> tuple[np.ndarray, Records]:
+    """Each segment (a, b) -> (a, m), (m, b); m straight, params midpoint."""
+    m = x.mean(axis=1)
+    pm = rec.params.mean(axis=1)
+    st = np.concatenate([np.stack([x[:, 0], m], 1), np.stack([m, x[:, 1]], 1)])
+    pr = np.concatenate([np.stack([rec.params[:, 0], pm], 1), np.stack([pm, rec.params[:, 1]], 1)])
+    return st, Records(np.concatenate([rec.root, rec.root]), pr)
+
+
+def split_triangles(x: np.ndarray, rec: Records) -> tuple[np.ndarray, Records]:
+    """Each triangle (a, b, c) -> 4 children through its edge midpoints."""
+    a, b, c = x[:, 0], x[:, 1], x[:, 2]
+    pa, pb, pc = rec.params[:, 0], rec.params[:, 1], rec.params[:, 2]
+    mab, mbc, mca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+    qab, qbc, qca = (pa + pb) / 2, (pb + pc) / 2, (pc + pa) / 2
+    kids = [(a, mab, mca), (mab, b, mbc), (mca, mbc, c), (mab, mbc, mca)]
+    pk = [(pa, qab, qca), (qab, pb, qbc), (qca, qbc, pc), (qab, qbc, qca)]
+    st = np.concatenate([np.stack(k, 1) for k in kids])
+    pr = np.concatenate([np.stack(k, 1) for k in pk])
+    return st, Records(np.tile(rec.root, 4), pr)
+
+
+def same_vertex_agreement(straight: np.ndarray, pts: np.ndarray) -> float:
+    """Largest disagreement between slots holding the same straight vertex."""
+    flat_s, flat_p = straight.reshape(-1, 3), pts.reshape(-1, 3)
+    _, inv = np.unique(flat_s, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    ref = np.zeros((inv.max() + 1, 3))
+    ref[inv] = flat_p
+    return float(np.abs(flat_p - ref[inv]).max())
+
+
+def check_records(geo: CadGeometry, pts: np.ndarray, rec: Records, atol: float) -> None:
+    assert rec.root.dtype == np.int64 and rec.params.dtype == np.float64
+    np.testing.assert_allclose(geo.evaluate(rec.root, rec.params), pts, rtol=0, atol=atol)
+    # closed directions: the parameters of one facet never jump by a period
+    for e, ent in enumerate(geo.entities):
+        sel = rec.root == e
+        for a, closed in enumerate(ent.closed):
+            if closed and sel.any():
+                p = rec.params[sel][:, :, a]
+                period = np.diff(ent.bounds[a])[0]
+                assert np.ptp(p, axis=1).max() < 0.5 * period
+
+
+# ----------------------------------------------------------------------
+# 2D: polygon of a circle
+# ----------------------------------------------------------------------
+def circle_polygon(c, R, n, offset):
+    t = offset + np.linspace(0, 2 * np.pi, n + 1)[:-1]
+    x = c + R * np.c_[np.cos(t), np.sin(t), 0 * t]
+    return np.stack([x, np.roll(x, -1, axis=0)], axis=1)
+
+
+@pytest.mark.parametrize("offset", [0.3, 0.0])  # 0.0: a vertex exactly on the seam u = 0 = 1
+def test_circle_polygon_refinement(offset):
+    c, R = np.array([0.2, 0.2, 0.0]), 0.05  # the DFG / Kadir IGES File 1 cylinder
+    geo = CadGeometry([circle(c, R)])
+    facets = circle_polygon(c, R, 7, offset)
+    rec = geo.attach(facets)
+    assert rec.root.shape == (7,) and rec.params.shape == (7, 2, 1)
+    np.testing.assert_array_equal(rec.root, 0)
+    check_records(geo, facets, rec, 1e-15)
+    x = facets
+    for level in range(4):
+        st, rec = split_segments(x, rec)
+        pts, rec, report = geo.place(rec, st)
+        rad = np.linalg.norm(pts - c, axis=2)
+        np.testing.assert_allclose(rad, R, rtol=1e-12, atol=0)
+        # the new vertex is the radial projection of the straight midpoint
+        d = st - c
+        d[..., 2] = 0
+        np.testing.assert_allclose(pts, c + R * d / np.linalg.norm(d, axis=2)[..., None], rtol=0, atol=1e-12 * R)
+        assert same_vertex_agreement(st, pts) <= 1e-12 * R
+        check_records(geo, pts, rec, 1e-15)
+        assert report["n_points"] == st.shape[0] * 2 and report["n_fallback"] == 0
+        assert report["n_vertices"] == st.shape[0]
+        h = report["iterations_histogram"]
+        assert h.sum() == report["n_points"] and len(h) - 1 <= 7
+        # the old vertices are exact already: 0 iterations
+        assert h[0] >= st.shape[0]
+        np.testing.assert_allclose(report["max_residual"], np.max(np.linalg.norm(pts - st, axis=2)), rtol=1e-12)
+        x = pts
+
+
+def test_multiple_curves_and_shared_vertices():
+    """The unit circle as four quarter arcs; coarse vertices every 30 degrees,
+    so the patch junctions (0, 90, 180, 270 degrees) are mesh vertices."""
+    arcs = []
+    for k in range(4):
+        a0, a1 = k * np.pi / 2, (k + 1) * np.pi / 2
+        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0], [np.cos(a1), np.sin(a1), 0]]
+        arcs.append(NurbsCurve(2, [0, 0, 0, 1, 1, 1], P, [1, S2, 1]))
+    geo = CadGeometry(arcs)
+    facets = circle_polygon(np.zeros(3), 1.0, 12, 0.0)
+    rec = geo.attach(facets)
+    ang = np.arctan2(facets.mean(axis=1)[:, 1], facets.mean(axis=1)[:, 0]) % (2 * np.pi)
+    np.testing.assert_array_equal(rec.root, (ang // (np.pi / 2)).astype(int))
+    check_records(geo, facets, rec, 1e-15)
+    x = facets
+    for _ in range(3):
+        st, rec = split_segments(x, rec)
+        pts, rec, report = geo.place(rec, st)
+        np.testing.assert_allclose(np.linalg.norm(pts, axis=2), 1.0, rtol=1e-12, atol=0)
+        assert same_vertex_agreement(st, pts) == 0.0
+        assert report["n_fallback"] == 0 and report["n_off_root"] == 0
+        check_records(geo, pts, rec, 1e-15)
+        x = pts
+
+
+def test_attach_rejects_facets_off_the_geometry():
+    c, R = np.zeros(3), 1.0
+    geo = CadGeometry([circle(c, R)])
+    facets = circle_polygon(c, R, 8, 0.1)
+    facets[3, 1] *= 1.05  # 5 % of the radius off the circle (facet 3 and 4 share it)
+    facets[4, 0] = facets[3, 1]
+    with pytest.raises(CadError, match=r"facet (3|4).*from the nearest entity") as info:
+        geo.attach(facets)
+    assert "2 of 8" in str(info.value)
+    # a generous tolerance accepts it
+    CadGeometry([circle(c, R)], tol_factor=0.2).attach(facets)
+
+
+def test_place_fallback_from_bad_seeds():
+    c, R = np.zeros(3), 1.0
+    geo = CadGeometry([circle(c, R)])
+    facets = circle_polygon(c, R, 10, 0.2)
+    rec = geo.attach(facets)
+    st, rec = split_segments(facets, rec)
+    d = st.copy()
+    d[..., 2] = 0
+    truth = R * d / np.linalg.norm(d, axis=2)[..., None]
+    # seeds half a period off: the safeguarded Newton still finds the right point
+    bad = rec.params.copy()
+    bad[:3, 1, 0] += 0.5
+    pts, rec2, report = geo.place(Records(rec.root, bad), st)
+    np.testing.assert_allclose(pts, truth, rtol=0, atol=1e-12)
+    # seeds exactly at the antipodes: a stationary point (the farthest point),
+    # where Kadir's zero-cosine criterion stops Newton; the result jumps by
+    # ~2R > edge length, so the fallbacks must take over
+    anti = geo.searcher.search(-st[:3, 1])[1]
+    bad = rec.params.copy()
+    bad[:3, 1] = anti
+    pts, rec2, report = geo.place(Records(rec.root, bad), st)
+    assert report["n_fallback"] == 3 and report["n_unresolved"] == 0
+    np.testing.assert_allclose(pts, truth, rtol=0, atol=1e-12)
+    check_records(geo, pts, rec2, 1e-15)
+
+
+def test_place_input_checks():
+    geo = CadGeometry([circle()])
+    facets = circle_polygon(np.zeros(3), 1.0, 6, 0.1)
+    rec = geo.attach(facets)
+    with pytest.raises(ValueError, match="do not match"):
+        geo.place(Records(rec.root[:-1], rec.params[:-1]), facets)
+    with pytest.raises(ValueError, match="entities"):
+        geo.place(Records(rec.root + 3, rec.params), facets)
+    with pytest.raises(ValueError, match="all NurbsCurve or all NurbsSurface"):
+        CadGeometry([circle(), sphere()])
+    empty = geo.attach(np.zeros((0, 2, 3)))
+    assert empty.root.shape == (0,) and empty.params.shape == (0, 2, 1)
+
+
+# ----------------------------------------------------------------------
+# 3D: triangulated cylinder and sphere
+# ----------------------------------------------------------------------
+def cylinder_triangles(c, R, H, nt, nz, offset):
+    t = offset + 2 * np.pi * np.arange(nt) / nt
+    z = np.linspace(0, H, nz + 1)
+    X = c + np.stack(np.broadcast_arrays(R * np.cos(t)[:, None], R * np.sin(t)[:, None], z[None, :]), -1)
+    tri = []
+    for i in range(nt):
+        i1 = (i + 1) % nt
+        for j in range(nz):
+            tri.append([X[i, j], X[i1, j], X[i1, j + 1]])
+            tri.append([X[i, j], X[i1, j + 1], X[i, j + 1]])
+    return np.array(tri)
+
+
+@pytest.mark.parametrize("offset", [0.1, 0.0])
+def test_cylinder_triangulation_refinement(offset):
+    c, R, H = np.array([0.55, 0.5, 0.0]), 0.05, 0.4  # Kadir IGES File 2 cylinder
+    geo = CadGeometry([cylinder(c, R, H)])
+    facets = cylinder_triangles(c, R, H, 10, 4, offset)
+    rec = geo.attach(facets)
+    assert rec.params.shape == (80, 3, 2)
+    check_records(geo, facets, rec, 1e-15)
+    x = facets
+    for level in range(2):
+        st, rec = split_triangles(x, rec)
+        pts, rec, report = geo.place(rec, st)
+        rad = np.hypot(pts[..., 0] - c[0], pts[..., 1] - c[1])
+        np.testing.assert_allclose(rad, R, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(pts[..., 2], st[..., 2], rtol=0, atol=1e-12 * H)  # radial projection
+        assert same_vertex_agreement(st, pts) <= 1e-12 * R
+        check_records(geo, pts, rec, 1e-15)
+        assert report["n_fallback"] == 0
+        assert len(report["iterations_histogram"]) - 1 <= 7
+        x = pts
+
+
+def octahedron_sphere(level):
+    """Octahedron (vertices include both poles) split ``level`` times, on the unit sphere."""
+    V = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+    F = [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [1, 0, 5], [2, 1, 5], [3, 2, 5], [0, 3, 5]]
+    T = V[np.array(F)]
+    for _ in range(level):
+        a, b, c = T[:, 0], T[:, 1], T[:, 2]
+        ab, bc, ca = [(p + q) / np.linalg.norm(p + q, axis=1)[:, None] for p, q in ((a, b), (b, c), (c, a))]
+        T = np.concatenate([np.stack(k, 1) for k in [(a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca)]])
+    return T
+
+
+def test_sphere_with_poles_refinement():
+    geo = CadGeometry([sphere()])
+    facets = octahedron_sphere(1)  # Neto's mesh 1 (32 triangles, 18 nodes)
+    rec = geo.attach(facets)
+    check_records(geo, facets, rec, 1e-15)
+    x = facets
+    for level in range(3):
+        st, rec = split_triangles(x, rec)
+        pts, rec, report = geo.place(rec, st)
+        np.testing.assert_allclose(np.linalg.norm(pts, axis=2), 1.0, rtol=1e-12, atol=0)
+        d = st / np.linalg.norm(st, axis=2)[..., None]
+        np.testing.assert_allclose(pts, d, rtol=0, atol=1e-12)
+        assert same_vertex_agreement(st, pts) <= 1e-12
+        check_records(geo, pts, rec, 1e-14)
+        assert report["n_unresolved"] == 0
+        assert len(report["iterations_histogram"]) - 1 <= 7
+        x = pts
+
+
+def test_attach_with_node_ids_and_2d_input():
+    geo = CadGeometry([circle()])
+    facets = circle_polygon(np.zeros(3), 1.0, 6, 0.1)
+    nodes = np.stack([np.arange(6), (np.arange(6) + 1) % 6], axis=1)
+    r1 = geo.attach(facets, nodes)
+    r2 = geo.attach(facets[..., :2])
+    np.testing.assert_array_equal(r1.root, r2.root)
+    np.testing.assert_allclose(r1.params, r2.params, atol=1e-15)
+
+
+# ----------------------------------------------------------------------
+# IGES input (nagata_snap.iges, written by another engineer)
+# ----------------------------------------------------------------------
+def test_from_iges_round_trip(tmp_path):
+    iges = pytest.importorskip("nagata_snap.iges")
+    c, R = np.array([0.2, 0.2, 0.0]), 0.05
+    path = tmp_path / "model.igs"
+    iges.write_iges(path, curves=[circle(c, R)], surfaces=[cylinder(np.array([0.55, 0.5, 0.0]), R, 0.4)])
+    g2 = CadGeometry.from_iges(path, dim=2)
+    g3 = CadGeometry.from_iges(path)  # surfaces preferred
+    assert g2.param_dim == 1 and g3.param_dim == 2
+    facets = circle_polygon(c, R, 8, 0.3)
+    st, rec = split_segments(facets, g2.attach(facets))
+    pts, _, _ = g2.place(rec, st)
+    np.testing.assert_allclose(np.linalg.norm(pts - c, axis=2), R, rtol=1e-12, atol=0)
+    only_curves = tmp_path / "c.igs"
+    iges.write_iges(only_curves, curves=[circle(c, R)])
+    with pytest.raises(CadError, match="no NURBS surfaces"):
+        CadGeometry.from_iges(only_curves, dim=3)
+
+
+def test_place_fallback_from_nan_seeds():
+    # a facet whose records are all NaN: the other-vertex seeds fail too, the
+    # KD-tree seeds on the facet's entity must find the points
+    c, R = np.zeros(3), 1.0
+    geo = CadGeometry([circle(c, R)])
+    facets = circle_polygon(c, R, 10, 0.2)
+    st, rec = split_segments(facets, geo.attach(facets))
+    params = rec.params.copy()
+    params[4] = np.nan
+    pts, rec2, report = geo.place(Records(rec.root, params), st)
+    d = st.copy()
+    d[..., 2] = 0
+    np.testing.assert_allclose(pts, R * d / np.linalg.norm(d, axis=2)[..., None], rtol=0, atol=1e-12)
+    assert report["n_fallback"] == 2 and report["n_unresolved"] == 0
+    assert np.all(np.isfinite(rec2.params))
+    check_records(geo, pts, rec2, 1e-15)
+
+
+def half_cylinder(c, R, H, start):
+    """Half of a cylinder side: angles [start, start + pi] (5-point half circle)."""
+    ang = start + np.arange(5) * np.pi / 4
+    rad = np.where(np.arange(5) % 2 == 1, R / np.cos(np.pi / 4), R)
+    ring = np.c_[rad * np.cos(ang), rad * np.sin(ang), np.zeros(5)]
+    P = np.stack([c + ring, c + ring + [0, 0, H]], axis=1)
+    w = np.array([1, S2, 1, S2, 1])
+    from nagata_snap.nurbs import NurbsSurface
+
+    return NurbsSurface(2, 1, [0, 0, 0, 0.5, 0.5, 1, 1, 1], [0, 0, 1, 1], P, np.stack([w, w], 1))
+
+
+def test_two_surface_patches():
+    c, R, H = np.zeros(3), 1.0, 2.0
+    geo = CadGeometry([half_cylinder(c, R, H, 0.0), half_cylinder(c, R, H, np.pi)])
+    assert not any(geo.entities[0].closed)
+    facets = cylinder_triangles(c, R, H, 8, 3, 0.0)  # vertices on both junction lines
+    rec = geo.attach(facets)
+    centroid = facets.mean(axis=1)
+    np.testing.assert_array_equal(rec.root, (centroid[:, 1] < 0).astype(int))
+    check_records(geo, facets, rec, 1e-15)
+    x = facets
+    for _ in range(2):
+        st, rec = split_triangles(x, rec)
+        pts, rec, report = geo.place(rec, st)
+        np.testing.assert_allclose(np.hypot(pts[..., 0], pts[..., 1]), R, rtol=1e-12, atol=0)
+        assert same_vertex_agreement(st, pts) == 0.0
+        assert report["n_fallback"] == 0
+        check_records(geo, pts, rec, 1e-15)
+        x = pts
