@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 import dolfinx.mesh
 
+from .cad import CadError
 from .boundary import BoundaryFacets, boundary_facets, check_p1_simplex, tag_values, update_nodes
 from .lineage import LineageError, child_facets
 from .records import Records, refine_records
@@ -186,6 +187,13 @@ class Snapper:
         x_ref = x.copy()
         nodes = ch.boundary.nodes[sel]
         pts, records, geo_report = self.geometry.place(records, x[nodes])
+        unresolved = self.comm.allreduce(int(geo_report.get("n_unresolved", 0)))
+        if unresolved:
+            raise CadError(
+                f"{unresolved} new boundary vertices at level {self.level + 1} have no acceptable "
+                "projection onto the CAD geometry (Newton and every fallback failed or landed "
+                "farther than the local edge length); nothing was returned"
+            )
         moved = update_nodes(mesh1, x, nodes.ravel(), pts.reshape(-1, 3))
         times["place"] = time.perf_counter() - t0
 

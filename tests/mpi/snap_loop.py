@@ -1,6 +1,6 @@
 """Snapping loop driver used by the MPI tests.
 
-Usage: python snap_loop.py {dfg|sphere} LEVELS {uniform|adaptive} OUT.npz
+Usage: python snap_loop.py {dfg|sphere|dfg_iges|cylinder_iges} LEVELS {uniform|adaptive} OUT.npz
 Rank 0 writes, for every level, the gathered coordinates of all geometry
 nodes (owned nodes only, so each node once) and of the boundary vertices to OUT.npz.
 """
@@ -13,21 +13,45 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
 import generate  # noqa: E402
+import make_iges  # noqa: E402
 
 import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
+from nagata_snap.cad import CadGeometry  # noqa: E402
+from nagata_snap.iges import write_iges  # noqa: E402
+from nagata_snap.nurbs import cylinder  # noqa: E402
 
 comm = MPI.COMM_WORLD
 case, levels, mode, out = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
-if case == "dfg":
+outdir = os.path.dirname(os.path.abspath(out))
+if case.startswith("dfg"):
     md = generate.dfg_channel(comm, n_circle=16, h_far=0.1)
     centre, tag = np.array([0.2, 0.2, 0.0]), generate.CYLINDER
-else:
+elif case == "sphere":
     md = generate.sphere_in_box(comm, h_sphere=0.35, h_box=0.6)
     centre, tag = np.zeros(3), generate.SPHERE
+else:
+    md = generate.cylinder_in_box(comm, h_cylinder=0.03, h_box=0.15)
+    centre, tag = np.array([*generate.KADIR_CYL_CENTER, 0.2]), generate.CIB_CYLINDER
 mesh, ft = md.mesh, md.facet_tags
-snapper = Snapper(mesh, ft, NagataGeometry(mesh, ft, tags=None if case == "dfg" else [tag]))
+if case == "dfg":
+    geometry = NagataGeometry(mesh, ft)
+elif case == "sphere":
+    geometry = NagataGeometry(mesh, ft, tags=[tag])
+elif case == "dfg_iges":
+    path = os.path.join(outdir, "dfg_circle.igs")
+    if comm.rank == 0:
+        make_iges.write_dfg_circle(outdir)
+    comm.barrier()
+    geometry = CadGeometry.from_iges(path)
+else:  # exact NURBS cylinder of Kadir's geometry, written by our IGES writer
+    path = os.path.join(outdir, "cylinder.igs")
+    if comm.rank == 0:
+        write_iges(path, surfaces=[cylinder((*generate.KADIR_CYL_CENTER, 0.0), generate.KADIR_CYL_RADIUS, 0.4)])
+    comm.barrier()
+    geometry = CadGeometry.from_iges(path)
+snapper = Snapper(mesh, ft, geometry, tags=[tag])
 result = {}
 for k in range(levels):
     edges = None
@@ -36,10 +60,12 @@ for k in range(levels):
         mid = dolfinx.mesh.compute_midpoints(
             mesh, tdim, np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32)
         )
-        cells = np.flatnonzero(np.linalg.norm(mid - centre, axis=1) < 0.15 if case == "dfg" else 0.8)
+        cells = np.flatnonzero(np.linalg.norm(mid - centre, axis=1) < (0.8 if case == "sphere" else 0.15))
         mesh.topology.create_connectivity(tdim, 1)
         edges = dolfinx.mesh.compute_incident_entities(mesh.topology, cells.astype(np.int32), tdim, 1)
     mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
+    snapped = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ft.find(tag)))
+    ss = comm.gather(mesh.geometry.x[snapped], root=0)
     n = mesh.geometry.index_map().size_local
     xs = comm.gather(mesh.geometry.x[:n], root=0)
     ext = dolfinx.mesh.exterior_facet_indices(mesh.topology)
@@ -47,6 +73,8 @@ for k in range(levels):
     if comm.rank == 0:
         result[f"level{k + 1}"] = np.concatenate(xs)
         result[f"boundary{k + 1}"] = np.unique(np.concatenate(bs), axis=0)
+        result[f"snapped{k + 1}"] = np.unique(np.concatenate(ss), axis=0)
+        result[f"iterations{k + 1}"] = np.asarray(rep.geometry.get("iterations_histogram", [0]))
 if comm.rank == 0:
     np.savez(out, **result)
     print("done", comm.size, flush=True)
