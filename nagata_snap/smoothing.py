@@ -1,0 +1,839 @@
+"""Interior smoothing after boundary snapping, and the inverted-cell guard.
+
+After ``dolfinx.mesh.refine`` the snapper moves new boundary nodes onto the
+true geometry. The interior must then follow, otherwise the first layer of
+cells can be crushed or inverted (Kadir 2010, section 3.4.1: smooth the
+interior, then check every cell and reject the mesh if one inverted).
+
+Two smoothers, both acting on the *displacement* ``d = x - x_ref`` relative
+to the straight refined mesh ``x_ref`` (so the straight mesh is a fixed
+point), both restricted to a *band* of cells around the moved nodes:
+
+``'elastic'`` (default)
+    Vector P1 finite element extension of the boundary displacement solved
+    with DOLFINx + PETSc on the reference (straight) configuration:
+    ``-div(E(K) sigma(d)) = 0`` (linear elasticity, or the vector Laplacian
+    with ``model='harmonic'``), with Dirichlet data ``d`` on all constrained
+    nodes. The stiffness ``E(K) = (V_max / |K|)^p`` (``|K|`` the reference
+    cell measure, ``V_max`` the largest one in the band, ``p`` =
+    ``exponent``) makes small cells nearly rigid, so they are translated
+    rather than squashed (Jacobian-based stiffening).
+
+``'laplace'``
+    Jacobi sweeps of graph-Laplacian averaging of the displacement over the
+    band (edge weight = number of cells sharing the edge), vectorised with a
+    ``scipy.sparse`` adjacency, MPI-consistent through ``dolfinx.la`` vector
+    scatters.
+
+``'none'``
+    Only the prescribed nodes move.
+
+The band
+    Cells within ``layers`` vertex-neighbour layers of the moved nodes (layer
+    1 = cells touching a moved node, layer ``j+1`` = cells touching a node of
+    layer ``j``). It is extracted with ``dolfinx.mesh.create_submesh``
+    (owned and ghost band cells), so the linear system only has band
+    unknowns and its cost follows the number of moved nodes, not the mesh.
+    Constrained (Dirichlet) nodes of the band problem: the moved nodes (their
+    prescribed displacement), the ``fixed`` nodes, the outer boundary of the
+    band and, with ``fix_boundary=True`` (default), every node on the
+    boundary of the band submesh, i.e. also every domain-boundary node in the
+    band that is not listed as moved. Constrained nodes keep their input
+    coordinates exactly.
+
+The only per-mesh (not per-band) work is the layer marking, a few numpy
+passes over the geometry dofmap, and the validity check.
+
+Parallel
+    Node masks and coordinates are kept ghost-consistent with
+    ``dolfinx.la.vector`` scatters over ``mesh.geometry.index_map()``; the
+    owner's coordinates of a node are authoritative. Results agree with the
+    serial run to round-off.
+
+:func:`repair` wraps :func:`smooth` in the guard: check, stiffen / widen,
+partial moves (per-vertex displacement fractions found by a blame-weighted
+bisection), and :class:`InvertedCellsError` if the required minimum
+displacement fraction cannot be met.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import time
+from typing import Any
+
+import mpi4py.MPI  # noqa: F401  (must precede dolfinx/petsc4py imports)
+import numpy as np
+import scipy.sparse as sp
+
+import dolfinx
+import dolfinx.fem
+import dolfinx.fem.petsc
+import dolfinx.la
+import dolfinx.mesh
+import ufl
+from petsc4py import PETSc
+
+from .quality import QualityReport, _inverted_mask, mean_ratio, signed_volumes
+
+__all__ = ["smooth", "repair", "RepairResult", "InvertedCellsError", "SMOOTH_DEFAULTS"]
+
+#: Default options of :func:`smooth` (``**opts``).
+SMOOTH_DEFAULTS: dict[str, Any] = {
+    "layers": 4,            # band width in vertex-neighbour layers (>= 1)
+    "exponent": 1.0,        # stiffening exponent p in E = (V_max/|K|)^p
+    "model": "elastic",     # 'elastic' (linear elasticity) or 'harmonic'
+    "nu": 0.3,              # Poisson ratio for model='elastic'
+    "solver": "mumps",      # 'mumps' (direct LU) or 'cg' (CG + GAMG)
+    "rtol": 1e-12,          # relative tolerance for solver='cg'
+    "petsc_options": None,  # extra/overriding KSP options (dict)
+    "sweeps": None,         # Jacobi sweeps for 'laplace' (default max(50, 4 layers^2))
+    "fix_boundary": True,   # hold all band-submesh boundary nodes not in `moved`
+}
+
+_counter = itertools.count()
+
+
+class InvertedCellsError(RuntimeError):
+    """Smoothing and repair could not produce a valid mesh.
+
+    Attributes:
+        cells: (m,) int64 global cell indices (``topology.index_map(tdim)``
+            numbering) of the offending cells, identical on all ranks.
+        count: global number of offending cells.
+    """
+
+    def __init__(self, message: str, cells: np.ndarray | None = None, count: int = 0):
+        super().__init__(message)
+        self.cells = np.asarray([] if cells is None else cells, dtype=np.int64)
+        self.count = int(count)
+
+
+# ---------------------------------------------------------------------------
+# MPI helpers on the geometry-node index map
+# ---------------------------------------------------------------------------
+
+
+class _NodeSync:
+    """Ghost-consistency helpers for arrays over the nodes of an index map."""
+
+    def __init__(self, imap):
+        self.imap = imap
+        self.n_owned = imap.size_local
+        self.n = imap.size_local + imap.num_ghosts
+        self.parallel = imap.comm.size > 1
+        self._vec: dict[int, Any] = {}
+
+    def _v(self, bs: int):
+        if bs not in self._vec:
+            self._vec[bs] = dolfinx.la.vector(self.imap, bs)
+        return self._vec[bs]
+
+    def any(self, mask: np.ndarray) -> np.ndarray:
+        """Collective OR: a node is True everywhere if True on any rank."""
+        if not self.parallel:
+            return np.asarray(mask, dtype=bool).copy()
+        v = self._v(1)
+        v.array[:] = np.asarray(mask, dtype=np.float64)
+        v.scatter_reverse(dolfinx.la.InsertMode.add)
+        v.scatter_forward()
+        return v.array > 0.5
+
+    def forward(self, a: np.ndarray) -> np.ndarray:
+        """Copy of ``a`` (n, bs) / (n,) with ghost rows replaced by the owner's."""
+        a = np.array(a, dtype=np.float64, copy=True)
+        if not self.parallel:
+            return a
+        bs = 1 if a.ndim == 1 else a.shape[1]
+        v = self._v(bs)
+        v.array[:] = a.reshape(-1)
+        v.scatter_forward()
+        return v.array.reshape(a.shape).copy()
+
+    def reverse_add(self, a: np.ndarray) -> np.ndarray:
+        """Sum of the rows of ``a`` over all ranks, valid on owned rows."""
+        a = np.asarray(a, dtype=np.float64)
+        if not self.parallel:
+            return a.copy()
+        bs = 1 if a.ndim == 1 else a.shape[1]
+        v = self._v(bs)
+        v.array[:] = a.reshape(-1)
+        v.scatter_reverse(dolfinx.la.InsertMode.add)
+        return v.array.reshape(a.shape).copy()
+
+
+def _mask(n: int, idx) -> np.ndarray:
+    m = np.zeros(n, dtype=bool)
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1)
+    if idx.size:
+        if idx.min() < 0 or idx.max() >= n:
+            raise IndexError("node index out of range of the local geometry nodes")
+        m[idx] = True
+    return m
+
+
+def _columns(cells: np.ndarray) -> list[np.ndarray]:
+    """Contiguous copies of the columns of a (nc, nv) cell array."""
+    return [np.ascontiguousarray(cells[:, k]) for k in range(cells.shape[1])]
+
+
+def _touching(mask: np.ndarray, cols: list[np.ndarray]) -> np.ndarray:
+    """(nc,) bool: cells with at least one node in ``mask`` (vectorised).
+
+    Column-wise ``take`` on a uint8 view: ~7x faster than ``mask[cells].any(1)``.
+    """
+    m8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    out = m8.take(cols[0])
+    for c in cols[1:]:
+        out |= m8.take(c)
+    return out.view(bool)
+
+
+def _expand(cells: np.ndarray, mark: np.ndarray, layers: int, sync: _NodeSync,
+            cols: list[np.ndarray] | None = None):
+    """Grow a node mask by ``layers`` cell layers (collective).
+
+    Returns (mark_k, mark_{k-1}, cells_in) with cells_in the cells touching a
+    node of mark_{k-1}.
+    """
+    cols = _columns(cells) if cols is None else cols
+    prev = mark
+    cin = np.zeros(cells.shape[0], dtype=bool)
+    for _ in range(layers):
+        cin = _touching(mark, cols)
+        new = mark.copy()
+        new[cells[cin].reshape(-1)] = True
+        new = sync.any(new)
+        prev, mark = mark, new
+    return mark, prev, cin
+
+
+# ---------------------------------------------------------------------------
+# Band (submesh) and smoothers
+# ---------------------------------------------------------------------------
+
+
+class _Band:
+    """Submesh of the cells within ``layers`` of the moved nodes (collective).
+
+    Attributes:
+        sub: the band submesh (geometry set to the reference coordinates).
+        gmap: (n_sub,) parent geometry node of every submesh node.
+        constrained: (n_sub,) bool, Dirichlet nodes of the band problem.
+        n_cells_global, n_nodes_global: band size.
+    """
+
+    def __init__(self, mesh, x_ref, moved_mask, fixed_mask, sync, layers, fix_boundary):
+        if layers < 1:
+            raise ValueError("layers must be >= 1")
+        tdim = mesh.topology.dim
+        cells = mesh.geometry.dofmaps[0]
+        mark, prev, cin = _expand(cells, moved_mask, layers, sync)
+        outer = mark & ~prev
+        band_cells = np.flatnonzero(cin).astype(np.int32)
+        sub, _emap, _vmap, gmap = dolfinx.mesh.create_submesh(mesh, tdim, band_cells)
+        gmap = np.asarray(gmap, dtype=np.int64)
+        sub.geometry.x[:] = np.asarray(x_ref)[gmap]
+        self.sub = sub
+        self.gmap = gmap
+        self.sync = _NodeSync(sub.geometry.index_map())
+        n_sub = self.sync.n
+        constrained = moved_mask[gmap] | fixed_mask[gmap] | outer[gmap]
+        if fix_boundary:
+            sub.topology.create_connectivity(tdim - 1, tdim)
+            ext = dolfinx.mesh.exterior_facet_indices(sub.topology)
+            bnodes = dolfinx.mesh.entities_to_geometry(sub, tdim - 1, ext)
+            constrained |= _mask(n_sub, bnodes)
+        self.constrained = self.sync.any(constrained)
+        self.moved = moved_mask[gmap]
+        cim = sub.topology.index_map(tdim)
+        self.n_owned_cells = cim.size_local
+        comm = mesh.comm
+        self.n_cells_global = cim.size_global
+        self.n_nodes_global = sub.geometry.index_map().size_global
+        self.n_free_global = comm.allreduce(
+            int(np.count_nonzero(~self.constrained[: self.sync.n_owned])))
+
+
+class _ElasticSolver:
+    """P1 elasticity / vector Laplace extension on a band (factorised once)."""
+
+    def __init__(self, band: _Band, gdim: int, exponent: float, model: str, nu: float,
+                 solver: str, rtol: float, petsc_options: dict | None):
+        sub = band.sub
+        comm = sub.comm
+        self.gdim = gdim
+        V = dolfinx.fem.functionspace(sub, ("Lagrange", 1, (gdim,)))
+        gdm = sub.geometry.dofmaps[0]
+        n_sub = band.sync.n
+        node_to_dof = np.empty(n_sub, dtype=np.int32)
+        node_to_dof[gdm.reshape(-1)] = V.dofmap.list.reshape(-1)
+        self.node_to_dof = node_to_dof
+
+        # cell stiffness from the reference cell measure
+        Q = dolfinx.fem.functionspace(sub, ("DG", 0))
+        vol = np.abs(signed_volumes(sub.geometry.x, gdm, gdim))
+        vmax = comm.allreduce(float(vol.max()) if vol.size else 0.0, op=mpi4py.MPI.MAX)
+        with np.errstate(divide="ignore"):
+            Ek = (vmax / np.maximum(vol, 1e-300)) ** float(exponent)
+        E = dolfinx.fem.Function(Q)
+        E.x.array[Q.dofmap.list.reshape(-1)] = Ek
+        u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+        if model == "harmonic":
+            a = E * ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx
+        elif model == "elastic":
+            mu = 1.0 / (2.0 * (1.0 + nu))
+            lmbda = nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+            def eps(w):
+                return ufl.sym(ufl.grad(w))
+
+            a = E * (2.0 * mu * ufl.inner(eps(u), eps(v))
+                     + lmbda * ufl.div(u) * ufl.div(v)) * ufl.dx
+        else:
+            raise ValueError(f"unknown model {model!r} (use 'elastic' or 'harmonic')")
+        self.a = dolfinx.fem.form(a)
+        dofs = node_to_dof[np.flatnonzero(band.constrained)].astype(np.int32)
+        self.ubc = dolfinx.fem.Function(V)
+        self.bc = dolfinx.fem.dirichletbc(self.ubc, dofs)
+        self.A = dolfinx.fem.petsc.assemble_matrix(self.a, bcs=[self.bc])
+        self.A.assemble()
+        self.b = dolfinx.fem.petsc.create_vector(V)
+        self.x = dolfinx.fem.petsc.create_vector(V)
+        self.u = dolfinx.fem.Function(V)
+        ksp = PETSc.KSP().create(comm)
+        ksp.setOperators(self.A)
+        prefix = f"nagata_smooth_{next(_counter)}_"
+        ksp.setOptionsPrefix(prefix)
+        if solver == "mumps":
+            popts = {"ksp_type": "preonly", "pc_type": "lu",
+                     "pc_factor_mat_solver_type": "mumps"}
+        elif solver == "cg":
+            popts = {"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": rtol,
+                     "ksp_atol": 0.0, "ksp_max_it": 5000}
+        else:
+            raise ValueError(f"unknown solver {solver!r} (use 'mumps' or 'cg')")
+        popts.update(petsc_options or {})
+        popts["ksp_error_if_not_converged"] = True
+        opts = PETSc.Options()
+        opts.prefixPush(prefix)
+        for k, val in popts.items():
+            opts[k] = val
+        ksp.setFromOptions()
+        for k in popts:
+            del opts[k]
+        opts.prefixPop()
+        self.ksp = ksp
+
+    def solve(self, d_sub: np.ndarray) -> np.ndarray:
+        """Displacement (n_sub, 3) from Dirichlet values ``d_sub`` (n_sub, 3)."""
+        g = self.gdim
+        arr = self.ubc.x.array.reshape(-1, g)
+        arr[self.node_to_dof] = d_sub[:, :g]
+        with self.b.localForm() as bl:
+            bl.set(0.0)
+        dolfinx.fem.petsc.apply_lifting(self.b, [self.a], bcs=[[self.bc]])
+        self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self.bc.set(self.b.array_w)
+        self.ksp.solve(self.b, self.x)
+        self.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        dolfinx.fem.petsc.assign(self.x, self.u)
+        out = np.zeros((d_sub.shape[0], 3))
+        out[:, :g] = self.u.x.array.reshape(-1, g)[self.node_to_dof]
+        return out
+
+    def destroy(self):
+        for obj in (self.ksp, self.A, self.b, self.x):
+            obj.destroy()
+
+
+class _LaplaceSolver:
+    """Jacobi graph-Laplacian averaging of the displacement over a band."""
+
+    def __init__(self, band: _Band, sweeps: int):
+        sub = band.sub
+        self.band = band
+        self.sweeps = int(sweeps)
+        sync = band.sync
+        cells = sub.geometry.dofmaps[0][: band.n_owned_cells]
+        nv = cells.shape[1]
+        ii, jj = np.nonzero(~np.eye(nv, dtype=bool))
+        rows = cells[:, ii].reshape(-1)
+        cols = cells[:, jj].reshape(-1)
+        n = sync.n
+        # edge weight = number of (owned, summed over ranks) cells sharing it
+        self.A = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        deg = sync.forward(sync.reverse_add(np.asarray(self.A.sum(axis=1)).reshape(-1)))
+        self.free = ~band.constrained
+        self.free_owned = np.flatnonzero(self.free[: sync.n_owned])
+        self.deg_free = deg[self.free_owned][:, None]
+
+    def solve(self, d_sub: np.ndarray) -> np.ndarray:
+        sync = self.band.sync
+        d = np.array(d_sub, dtype=np.float64, copy=True)
+        d[self.free] = 0.0
+        for _ in range(self.sweeps):
+            s = sync.reverse_add(self.A @ d)
+            d[self.free_owned] = s[self.free_owned] / self.deg_free
+            d = sync.forward(d)
+        return d
+
+    def destroy(self):
+        pass
+
+
+class _Smoother:
+    """Band + solver for one set of options; ``run`` maps prescribed to new x."""
+
+    def __init__(self, mesh, x_ref, moved_mask, fixed_mask, sync, method, opts, timings):
+        self.mesh = mesh
+        self.x_ref = x_ref
+        self.sync = sync
+        self.method = method
+        self.moved_mask = moved_mask
+        self.fixed_mask = fixed_mask
+        self.band = None
+        self.solver = None
+        self.timings = timings
+        if method not in ("elastic", "laplace", "none"):
+            raise ValueError(f"unknown method {method!r} (use 'elastic', 'laplace' or 'none')")
+        any_moved = mesh.comm.allreduce(bool(moved_mask[: sync.n_owned].any()),
+                                        op=mpi4py.MPI.LOR)
+        if method == "none" or not any_moved:
+            return
+        t0 = time.perf_counter()
+        self.band = _Band(mesh, x_ref, moved_mask, fixed_mask, sync, int(opts["layers"]),
+                          bool(opts["fix_boundary"]))
+        t1 = time.perf_counter()
+        _acc(timings, "band", t1 - t0)
+        gdim = mesh.geometry.dim
+        if method == "elastic":
+            self.solver = _ElasticSolver(self.band, gdim, opts["exponent"], opts["model"],
+                                         opts["nu"], opts["solver"], opts["rtol"],
+                                         opts["petsc_options"])
+        elif method == "laplace":
+            sweeps = opts["sweeps"]
+            if sweeps is None:
+                sweeps = max(50, 4 * int(opts["layers"]) ** 2)
+            self.solver = _LaplaceSolver(self.band, sweeps)
+        else:
+            raise ValueError(f"unknown method {method!r} (use 'elastic', 'laplace' or 'none')")
+        _acc(timings, "setup", time.perf_counter() - t1)
+
+    def run(self, x_cur: np.ndarray) -> np.ndarray:
+        """New coordinates (n, 3); constrained nodes keep ``x_cur`` exactly."""
+        x_new = np.array(x_cur, dtype=np.float64, copy=True)
+        if self.band is None:
+            return x_new
+        t0 = time.perf_counter()
+        b = self.band
+        d_sub = x_cur[b.gmap] - self.x_ref[b.gmap]
+        d_sub[~b.constrained] = 0.0
+        d = self.solver.solve(d_sub)
+        free = ~b.constrained
+        x_new[b.gmap[free]] = self.x_ref[b.gmap[free]] + d[free]
+        x_new = self.sync.forward(x_new)
+        _acc(self.timings, "solve", time.perf_counter() - t0)
+        return x_new
+
+    def destroy(self):
+        if self.solver is not None:
+            self.solver.destroy()
+
+
+def _acc(timings: dict | None, key: str, dt: float):
+    if timings is not None:
+        timings[key] = timings.get(key, 0.0) + dt
+
+
+def _prepare(mesh, x_ref, moved, fixed):
+    """Validate inputs, build masks (ghost-consistent) and the node sync."""
+    if mesh.geometry.cmaps[0].degree != 1:
+        raise ValueError("only P1 (affine) geometry is supported")
+    tdim = mesh.topology.dim
+    if tdim != mesh.geometry.dim or tdim not in (2, 3):
+        raise ValueError("only triangles in 2D and tetrahedra in 3D are supported")
+    sync = _NodeSync(mesh.geometry.index_map())
+    n = sync.n
+    x_ref = np.asarray(x_ref, dtype=np.float64)
+    if x_ref.shape != (n, 3):
+        raise ValueError(f"x_ref must have shape {(n, 3)}, got {x_ref.shape}")
+    moved_mask = sync.any(_mask(n, moved))
+    fixed_mask = sync.any(_mask(n, fixed)) & ~moved_mask
+    return sync, x_ref, moved_mask, fixed_mask
+
+
+def _options(opts: dict) -> dict:
+    unknown = set(opts) - set(SMOOTH_DEFAULTS) - {"info"}
+    if unknown:
+        raise TypeError(f"unknown smoothing options: {sorted(unknown)}")
+    o = dict(SMOOTH_DEFAULTS)
+    o.update({k: v for k, v in opts.items() if k != "info"})
+    return o
+
+
+# ---------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------
+
+
+def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
+           method: str = "elastic", **opts) -> np.ndarray:
+    """Move interior nodes to follow prescribed boundary displacements.
+
+    Collective on ``mesh.comm``. Does not modify ``mesh`` or any input array.
+
+    Args:
+        mesh: ``dolfinx.mesh.Mesh`` with P1 triangles (2D) or tetrahedra (3D)
+            whose ``geometry.x`` already holds the prescribed new positions of
+            the ``moved`` nodes (at least on the owning rank; the owner's value
+            is used for ghosts).
+        x_ref: (n, 3) float64 reference coordinates of all local geometry
+            nodes (owned + ghost) -- the straight refined mesh before
+            snapping. Length unit of the mesh.
+        moved: (k,) int32 local geometry-node indices with a prescribed new
+            position (listing a node on any rank that holds it is enough).
+        fixed: (m,) int32 local geometry-node indices that must not move
+            (other boundary nodes). A node in both lists counts as moved.
+        method: ``'elastic'`` (default), ``'laplace'`` or ``'none'``.
+        **opts: see :data:`SMOOTH_DEFAULTS`:
+
+            * ``layers`` (int, 4): band width in vertex-neighbour layers
+              (for ``'elastic'`` and ``'laplace'``);
+            * ``exponent`` (float, 1.0): stiffening exponent ``p`` of
+              ``E = (V_max/|K|)^p``;
+            * ``model`` ('elastic' | 'harmonic'), ``nu`` (Poisson ratio);
+            * ``solver`` ('mumps' | 'cg'), ``rtol``, ``petsc_options``;
+            * ``sweeps`` (int): Jacobi sweeps for ``'laplace'``;
+            * ``fix_boundary`` (bool, True): also hold every node on the band
+              submesh boundary (domain boundary nodes not listed as moved);
+            * ``info`` (dict): if given, filled with ``timings`` (stage ->
+              seconds), ``band_cells``, ``band_nodes``, ``band_free_nodes``
+              (global counts).
+
+    Returns:
+        (n, 3) float64 new coordinates of all local nodes (ghost rows equal
+        to the owner's). Moved and fixed nodes, and all nodes outside the
+        band, are bit-for-bit equal to ``mesh.geometry.x`` (owner's value).
+    """
+    info = opts.get("info")
+    o = _options(opts)
+    timings: dict[str, float] = {}
+    sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed)
+    x_cur = sync.forward(mesh.geometry.x)
+    sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
+    try:
+        x_new = sm.run(x_cur)
+    finally:
+        sm.destroy()
+    if info is not None:
+        info["timings"] = timings
+        if sm.band is not None:
+            info["band_cells"] = sm.band.n_cells_global
+            info["band_nodes"] = sm.band.n_nodes_global
+            info["band_free_nodes"] = sm.band.n_free_global
+    return x_new
+
+
+@dataclasses.dataclass
+class RepairResult:
+    """Outcome of :func:`repair` (a valid mesh; identical on all ranks).
+
+    Attributes:
+        x: (n, 3) new coordinates of all local geometry nodes.
+        fraction: (k,) fraction of its prescribed displacement reached by each
+            node of the input ``moved`` (same order); 1 = at the target.
+        shortfall: (k,) remaining distance to the target (length unit); 0 for
+            nodes that reached it.
+        stage: ``'smooth'`` (first attempt valid), ``'stiffen'`` (after
+            stronger stiffening / wider band) or ``'partial'`` (some nodes
+            moved only part of the way).
+        n_inverted_unsmoothed: global number of bad cells with the boundary
+            moved and no smoothing.
+        n_inverted_smoothed: global number of bad cells after the first
+            smoothing attempt.
+        attempts: log, one dict per smoothing run (stage, method, exponent,
+            layers, n_bad).
+        timings: stage -> seconds on this rank.
+        report: :class:`QualityReport` of the result (None if not requested).
+    """
+
+    x: np.ndarray
+    fraction: np.ndarray
+    shortfall: np.ndarray
+    stage: str
+    n_inverted_unsmoothed: int
+    n_inverted_smoothed: int
+    attempts: list[dict]
+    timings: dict[str, float]
+    report: QualityReport | None = None
+
+    @property
+    def n_shortfall(self) -> int:
+        """Local number of moved nodes that did not reach their target."""
+        return int(np.count_nonzero(self.shortfall > 0))
+
+
+def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
+           fixed: np.ndarray, method: str = "elastic", *,
+           rel_floor: float = 1e-12, min_quality: float = 0.01,
+           stiffen: tuple[tuple[float, int], ...] = ((1.0, 2), (2.0, 3)),
+           allow_partial: bool = True, min_fraction: float = 0.0,
+           bisection_steps: int = 8, implicate_layers: int = 1,
+           taper_layers: int | None = None, max_rounds: int = 4,
+           report: bool = True, **opts) -> RepairResult:
+    """Smooth, guard against inverted / degenerate cells, repair or fail.
+
+    Collective on ``mesh.comm``. Neither ``mesh`` nor any input array is
+    modified; the caller writes ``result.x`` into its mesh on success.
+
+    A cell ``K`` is *bad* if it is inverted or collapsed w.r.t. ``x_ref``
+    (:func:`~nagata_snap.quality.inverted_cells` with ``rel_floor``), or if its
+    mean ratio falls below ``min(min_quality, 0.5 * q_ref(K))`` (``q_ref`` its
+    mean ratio in the straight mesh, so cells that were already poor are only
+    blamed if they lose half their quality). Only cells with a node whose
+    coordinates differ from ``x_ref`` are examined (an unchanged cell cannot
+    have been made bad), so the check costs O(changed cells) after one
+    O(mesh) pass of numpy comparisons.
+
+    Steps:
+
+    0. ``smooth(method, **opts)``; done if no bad cell.
+    1. Stiffen: for each ``(dp, m)`` in ``stiffen`` re-solve with ``'elastic'``,
+       exponent ``p + dp`` and a band ``m`` times wider; done if no bad cell.
+    2. Partial move (``allow_partial``), with the last stiffened smoother
+       (factorised once, re-solved per trial): the moved nodes near the bad
+       cells get a *blame weight* ``w`` (1 within ``implicate_layers``
+       vertex layers of a bad cell, tapering linearly to 0 over
+       ``taper_layers`` further layers, default the band width), and their
+       displacement fractions become
+       ``alpha_i(t) = a_i - (1 - t) w_i (a_i - min_fraction)`` (``a`` the
+       fractions of the previous round, initially 1). ``bisection_steps``
+       bisections on ``t`` in [0, 1] keep the largest valid ``t``. If even
+       ``t = 0`` leaves bad cells (elsewhere), a new round blames those
+       with a wider radius, up to ``max_rounds``; the last round blames
+       every moved node. So every node gets its own fraction, and the
+       fraction field is smooth along the boundary: an independent
+       bisection per vertex (tried first) produced alternating fractions
+       (0 / 0.25 on neighbouring nodes) whose jagged boundary caused new
+       inversions. With ``min_fraction = 0`` the result is always valid
+       (``alpha = 0`` everywhere reproduces ``x_ref``).
+    3. If cells are still bad: raise :class:`InvertedCellsError` naming the
+       global indices of the first offending cells and their count.
+
+    Args:
+        mesh: P1 simplex ``dolfinx.mesh.Mesh`` (topology / parallel layout;
+            its coordinates are not read).
+        x_ref: (n, 3) straight reference coordinates (all local nodes).
+        x_target: (n, 3) coordinates with the moved nodes at their targets;
+            its other rows (fixed nodes, nodes outside the band) are kept.
+        moved, fixed: (k,), (m,) int32 local geometry-node indices, as in
+            :func:`smooth`.
+        method: first smoother, ``'elastic'``, ``'laplace'`` or ``'none'``.
+        rel_floor: relative volume floor for inversion.
+        min_quality: mean-ratio floor in [0, 1] (0 disables the quality
+            guard; 1 = equilateral).
+        stiffen: escalation schedule of (exponent increment, band multiplier).
+        allow_partial: allow partial moves; if False, step 2 is skipped.
+        min_fraction: smallest acceptable displacement fraction per node.
+        bisection_steps: bisection steps on ``t`` per round.
+        implicate_layers: moved nodes within this many vertex layers of a
+            bad cell get the full blame (>= 1); grows by the band width per
+            round.
+        taper_layers: layers over which the blame decays to 0 (default: the
+            band width of the last smoother).
+        max_rounds: number of blame rounds (the last blames all moved nodes).
+        report: build a :class:`QualityReport` (collective, O(mesh)).
+        **opts: smoothing options of :func:`smooth` (``layers``, ``exponent``,
+            ...).
+
+    Returns:
+        :class:`RepairResult`.
+
+    Raises:
+        InvertedCellsError: no valid mesh within the constraints.
+    """
+    t_start = time.perf_counter()
+    o = _options(opts)
+    timings: dict[str, float] = {}
+    comm = mesh.comm
+    gdim = mesh.geometry.dim
+    tdim = mesh.topology.dim
+    sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed)
+    x_target = np.asarray(x_target, dtype=np.float64)
+    if x_target.shape != x_ref.shape:
+        raise ValueError(f"x_target must have shape {x_ref.shape}, got {x_target.shape}")
+    moved_idx = np.asarray(moved, dtype=np.int64).reshape(-1)
+    x_tgt = sync.forward(x_target)  # owner-consistent copy
+    disp = np.where(moved_mask[:, None], x_tgt - x_ref, 0.0)
+    cells = mesh.geometry.dofmaps[0]
+    n_own_cells = mesh.topology.index_map(tdim).size_local
+    cols = _columns(cells)
+    v_ref = signed_volumes(x_ref, cells, gdim)
+    q_floor = (np.minimum(min_quality, 0.5 * mean_ratio(x_ref, cells, gdim))
+               if min_quality > 0 else None)
+    attempts: list[dict] = []
+
+    def bad_mask(x):
+        """Bad local cells (owned + ghost) and their global (owned) count.
+
+        Only cells with a node that differs from x_ref are examined; an
+        unchanged cell cannot have been made bad.
+        """
+        t0 = time.perf_counter()
+        changed = np.any(x != x_ref, axis=1)
+        cand = np.flatnonzero(_touching(changed, cols))
+        sub = cells[cand]
+        badc = _inverted_mask(signed_volumes(x, sub, gdim), v_ref[cand], rel_floor)
+        if q_floor is not None:
+            badc |= mean_ratio(x, sub, gdim) < q_floor[cand]
+        bad = np.zeros(cells.shape[0], dtype=bool)
+        bad[cand[badc]] = True
+        nbad = comm.allreduce(int(np.count_nonzero(bad[:n_own_cells])))
+        _acc(timings, "check", time.perf_counter() - t0)
+        return bad, nbad
+
+    def positions(alpha):
+        """Prescribed positions for displacement fractions alpha (n,)."""
+        x = x_tgt.copy()
+        part = moved_mask & (alpha < 1.0)
+        x[part] = x_ref[part] + alpha[part, None] * disp[part]
+        return x
+
+    def blame(bad, radius, taper):
+        """Blame weight (n,) in [0, 1] of the moved nodes for the bad cells.
+
+        1 within ``radius`` vertex layers of a bad cell, then decreasing
+        linearly to 0 over ``taper`` further layers (so the fraction field
+        stays smooth along the boundary).
+        """
+        mark = np.zeros(sync.n, dtype=bool)
+        mark[cells[bad].reshape(-1)] = True
+        mark = sync.any(mark)
+        w = mark.astype(np.float64)
+        for j in range(1, radius + taper + 1):
+            new, _, _ = _expand(cells, mark, 1, sync, cols)
+            val = 1.0 if j <= radius else 1.0 - (j - radius) / (taper + 1.0)
+            w[new & ~mark] = val
+            mark = new
+        return np.where(moved_mask, w, 0.0)
+
+    def finish(x, alpha, stage, n_unsm, n_sm):
+        frac = alpha[moved_idx] if moved_idx.size else np.zeros(0)
+        dist = np.linalg.norm(disp, axis=1)
+        short_all = np.where(moved_mask, (1.0 - alpha) * dist, 0.0)
+        shortfall = short_all[moved_idx] if moved_idx.size else np.zeros(0)
+        timings["total"] = time.perf_counter() - t_start
+        rep = None
+        if report:
+            t0 = time.perf_counter()
+            n_own = sync.n_owned
+            own_moved = np.flatnonzero(moved_mask[:n_own])
+            rep = QualityReport.from_mesh(
+                mesh, x, x_ref=x_ref, x_before=x_tgt, rel_floor=rel_floor,
+                timings=dict(timings), shortfall=short_all[own_moved])
+            timings["report"] = time.perf_counter() - t0
+            rep.timings["report"] = comm.allreduce(timings["report"], op=mpi4py.MPI.MAX)
+        return RepairResult(x=x, fraction=np.asarray(frac, dtype=np.float64),
+                            shortfall=np.asarray(shortfall, dtype=np.float64),
+                            stage=stage, n_inverted_unsmoothed=n_unsm,
+                            n_inverted_smoothed=n_sm, attempts=attempts,
+                            timings=timings, report=rep)
+
+    ones = np.ones(sync.n)
+    _, n_unsmoothed = bad_mask(x_tgt)
+
+    # -- step 0: requested smoother ---------------------------------------
+    sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
+    try:
+        x = sm.run(x_tgt)
+    finally:
+        sm.destroy()
+    bad, nbad = bad_mask(x)
+    n_smoothed = nbad
+    attempts.append({"stage": "smooth", "method": method, "exponent": o["exponent"],
+                     "layers": o["layers"], "n_bad": nbad})
+    if nbad == 0:
+        return finish(x, ones, "smooth", n_unsmoothed, n_smoothed)
+
+    # -- step 1: stiffen and widen -------------------------------------------
+    sm = None
+    try:
+        for dp, mult in stiffen:
+            if sm is not None:
+                sm.destroy()
+            os_ = dict(o, exponent=o["exponent"] + dp, layers=int(o["layers"]) * int(mult))
+            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, "elastic", os_, timings)
+            x = sm.run(x_tgt)
+            bad, nbad = bad_mask(x)
+            attempts.append({"stage": "stiffen", "method": "elastic",
+                             "exponent": os_["exponent"], "layers": os_["layers"],
+                             "n_bad": nbad})
+            if nbad == 0:
+                return finish(x, ones, "stiffen", n_unsmoothed, n_smoothed)
+        if sm is None:  # empty schedule
+            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
+        layers_used = int(attempts[-1]["layers"])
+
+        # -- step 2: partial moves, blame-weighted bisection ----------------
+        if allow_partial:
+            fmin = float(min_fraction)
+            r0 = max(1, int(implicate_layers))
+            taper = max(1, layers_used if taper_layers is None else int(taper_layers))
+            alpha = np.ones(sync.n)
+            for rnd in range(int(max_rounds)):
+                last = rnd == int(max_rounds) - 1
+                w = moved_mask.astype(np.float64) if last else \
+                    blame(bad, r0 + rnd * layers_used, taper)
+                w = np.where(alpha > fmin, w, 0.0)
+                if not comm.allreduce(bool(np.any(w > 0)), op=mpi4py.MPI.LOR):
+                    w = np.where(alpha > fmin, moved_mask.astype(np.float64), 0.0)
+                    if not comm.allreduce(bool(np.any(w > 0)), op=mpi4py.MPI.LOR):
+                        break  # every moved node already at min_fraction
+                base = alpha
+
+                def alpha_of(t, base=base, w=w):
+                    return base - (1.0 - t) * w * (base - fmin)
+
+                t_lo, t_hi = 0.0, 1.0
+                good = None
+                for _ in range(int(bisection_steps)):
+                    t = 0.5 * (t_lo + t_hi)
+                    a_t = alpha_of(t)
+                    x = sm.run(positions(a_t))
+                    bad_t, nbad = bad_mask(x)
+                    attempts.append({"stage": "bisect", "round": rnd, "t": t,
+                                     "method": sm.method, "layers": layers_used,
+                                     "n_bad": nbad})
+                    if nbad == 0:
+                        t_lo, good = t, (x, a_t)
+                    else:
+                        t_hi = t
+                if good is not None:
+                    return finish(good[0], good[1], "partial", n_unsmoothed, n_smoothed)
+                alpha = alpha_of(0.0)
+                x = sm.run(positions(alpha))
+                bad, nbad = bad_mask(x)
+                attempts.append({"stage": "partial", "round": rnd, "t": 0.0,
+                                 "method": sm.method, "layers": layers_used,
+                                 "n_bad": nbad})
+                if nbad == 0:
+                    return finish(x, alpha, "partial", n_unsmoothed, n_smoothed)
+    finally:
+        if sm is not None:
+            sm.destroy()
+
+    # -- step 3: give up -------------------------------------------------------
+    cim = mesh.topology.index_map(tdim)
+    own_bad = np.flatnonzero(bad[:n_own_cells]).astype(np.int32)
+    gbad = cim.local_to_global(own_bad) if own_bad.size else np.zeros(0, dtype=np.int64)
+    allbad = np.sort(np.concatenate(comm.allgather(np.asarray(gbad, dtype=np.int64))))
+    first = ", ".join(str(c) for c in allbad[:10])
+    more = " ..." if allbad.size > 10 else ""
+    why = ("partial moves disabled" if not allow_partial
+           else f"even with every implicated node moved only {min_fraction:g} of the way")
+    raise InvertedCellsError(
+        f"{allbad.size} cell(s) inverted or below the quality floor after smoothing "
+        f"and repair ({why}); global cell indices: [{first}{more}]",
+        cells=allbad[:100], count=allbad.size)

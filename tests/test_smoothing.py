@@ -1,0 +1,339 @@
+"""Tests of nagata_snap.smoothing: interior smoothing, guard and repair."""
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import mpi4py.MPI as MPI
+import numpy as np
+import pytest
+
+import dolfinx
+import dolfinx.mesh
+
+from nagata_snap.quality import inverted_cells, mean_ratio
+from nagata_snap.smoothing import InvertedCellsError, RepairResult, repair, smooth
+
+COMM = MPI.COMM_SELF
+REPO = pathlib.Path(__file__).resolve().parents[1]
+N = 16
+H = 1.0 / N
+TOL = 1e-12
+
+
+def n_inverted(msh, x, x_ref):
+    cells = msh.geometry.dofmaps[0]
+    return inverted_cells(x, x_ref, cells, msh.geometry.dim).size
+
+
+def square_push(amp, n=N, comm=COMM):
+    """Unit square; interior nodes of the left side pushed in by amp*sin(pi y)."""
+    msh = dolfinx.mesh.create_unit_square(comm, n, n)
+    x_ref = msh.geometry.x.copy()
+    x = x_ref
+    left = np.flatnonzero((x[:, 0] < TOL) & (x[:, 1] > TOL) & (x[:, 1] < 1 - TOL))
+    bnd = np.flatnonzero((x[:, 0] < TOL) | (x[:, 0] > 1 - TOL)
+                         | (x[:, 1] < TOL) | (x[:, 1] > 1 - TOL))
+    fixed = np.setdiff1d(bnd, left).astype(np.int32)
+    left = left.astype(np.int32)
+    msh.geometry.x[left, 0] += amp * np.sin(np.pi * x_ref[left, 1])
+    return msh, x_ref, left, fixed
+
+
+@pytest.fixture(scope="module")
+def pushed():
+    # 1.5 x the cell size at mid-side: the first columns of cells invert
+    return square_push(1.5 * H)
+
+
+@pytest.mark.parametrize("method", ["elastic", "laplace"])
+def test_smoothing_removes_inversions(pushed, method):
+    msh, x_ref, left, fixed = pushed
+    x_cur = msh.geometry.x.copy()
+    ref_copy, left_copy, fixed_copy = x_ref.copy(), left.copy(), fixed.copy()
+    assert n_inverted(msh, x_cur, x_ref) > 0  # the test is meaningful
+    x_none = smooth(msh, x_ref, left, fixed, method="none")
+    np.testing.assert_array_equal(x_none, x_cur)
+    info = {}
+    x_new = smooth(msh, x_ref, left, fixed, method=method, info=info)
+    assert n_inverted(msh, x_new, x_ref) == 0
+    assert mean_ratio(x_new, msh.geometry.dofmaps[0], 2).min() > 0.2
+    # prescribed and fixed nodes exactly where they were put
+    np.testing.assert_array_equal(x_new[left], x_cur[left])
+    np.testing.assert_array_equal(x_new[fixed], x_ref[fixed])
+    # interior actually moved, and only inside the band
+    assert np.abs(x_new - x_cur).max() > 0.5 * H
+    band_width = SMOOTH_LAYERS * H
+    far = x_ref[:, 0] > band_width + 1e-9
+    np.testing.assert_array_equal(x_new[far], x_ref[far])
+    assert info["band_free_nodes"] > 0 and info["band_cells"] < 2 * N * N
+    # inputs untouched
+    np.testing.assert_array_equal(msh.geometry.x, x_cur)
+    np.testing.assert_array_equal(x_ref, ref_copy)
+    np.testing.assert_array_equal(left, left_copy)
+    np.testing.assert_array_equal(fixed, fixed_copy)
+
+
+SMOOTH_LAYERS = 4
+
+
+def test_straight_mesh_is_fixed_point(pushed):
+    msh, x_ref, left, fixed = pushed
+    msh2 = dolfinx.mesh.create_unit_square(COMM, N, N)
+    for method in ("elastic", "laplace"):
+        x_new = smooth(msh2, x_ref, left, fixed, method=method)
+        np.testing.assert_allclose(x_new, x_ref, atol=1e-14)
+
+
+@pytest.mark.parametrize("model", ["elastic", "harmonic"])
+def test_translation_is_reproduced(model):
+    msh = dolfinx.mesh.create_unit_square(COMM, 12, 12)
+    x_ref = msh.geometry.x.copy()
+    x = x_ref
+    bnd = np.flatnonzero((x[:, 0] < TOL) | (x[:, 0] > 1 - TOL)
+                         | (x[:, 1] < TOL) | (x[:, 1] > 1 - TOL)).astype(np.int32)
+    t = np.array([0.0137, -0.0071, 0.0])
+    msh.geometry.x[bnd] += t
+    # band wide enough to contain the whole mesh
+    x_new = smooth(msh, x_ref, bnd, np.zeros(0, np.int32), method="elastic",
+                   model=model, layers=20)
+    np.testing.assert_allclose(x_new - x_ref, np.broadcast_to(t, x_ref.shape), atol=1e-10)
+    # with the default band, nodes beyond it stay (outer band boundary fixed)
+    x_b = smooth(msh, x_ref, bnd, np.zeros(0, np.int32), method="elastic", layers=2)
+    centre = np.flatnonzero(np.abs(x_ref[:, :2] - 0.5).max(axis=1) < 0.5 - 3.5 / 12)
+    assert centre.size > 0
+    np.testing.assert_array_equal(x_b[centre], x_ref[centre])
+
+
+def test_unlisted_boundary_nodes_are_held(pushed):
+    msh, x_ref, left, _ = pushed
+    # no fixed list at all: fix_boundary holds the other boundary nodes
+    x = x_ref
+    bnd = np.flatnonzero((x[:, 0] < TOL) | (x[:, 0] > 1 - TOL)
+                         | (x[:, 1] < TOL) | (x[:, 1] > 1 - TOL))
+    others = np.setdiff1d(bnd, left)
+    x_new = smooth(msh, x_ref, left, np.zeros(0, np.int32))
+    np.testing.assert_array_equal(x_new[others], x_ref[others])
+    x_free = smooth(msh, x_ref, left, np.zeros(0, np.int32), fix_boundary=False)
+    assert np.abs(x_free[others] - x_ref[others]).max() > 0  # slides if not held
+
+
+def circle_hole_mesh(n_refine=4, R=0.5, L=2.0):
+    """Square minus a hole meshed as an inscribed 8-gon, uniformly refined."""
+    import gmsh
+
+    import dolfinx.io.gmsh
+
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("hole8")
+        geo = gmsh.model.geo
+        lc_in = 2 * R * np.sin(np.pi / 8)
+        outer = [geo.addPoint(x, y, 0, 0.6) for x, y in [(-L, -L), (L, -L), (L, L), (-L, L)]]
+        ol = [geo.addLine(outer[i], outer[(i + 1) % 4]) for i in range(4)]
+        hp = [geo.addPoint(R * np.cos(t), R * np.sin(t), 0, lc_in)
+              for t in np.arange(8) * np.pi / 4]
+        hl = [geo.addLine(hp[i], hp[(i + 1) % 8]) for i in range(8)]
+        s = geo.addPlaneSurface([geo.addCurveLoop(ol), geo.addCurveLoop(hl)])
+        geo.synchronize()
+        gmsh.model.addPhysicalGroup(2, [s], 1)
+        gmsh.model.addPhysicalGroup(1, ol, 1)
+        gmsh.model.addPhysicalGroup(1, hl, 2)
+        gmsh.model.mesh.generate(2)
+        msh = dolfinx.io.gmsh.model_to_mesh(gmsh.model, COMM, 0, gdim=2).mesh
+    finally:
+        gmsh.finalize()
+    for _ in range(n_refine):
+        msh.topology.create_entities(1)
+        msh, _, _ = dolfinx.mesh.refine(msh)
+    x_ref = msh.geometry.x.copy()
+    msh.topology.create_connectivity(1, 2)
+    bf = dolfinx.mesh.exterior_facet_indices(msh.topology)
+    bnodes = np.unique(dolfinx.mesh.entities_to_geometry(msh, 1, bf))
+    r = np.linalg.norm(x_ref[bnodes, :2], axis=1)
+    hole = bnodes[r < R + 1e-9].astype(np.int32)
+    outer_nodes = bnodes[r >= R + 1e-9].astype(np.int32)
+    # snap the refined polygon nodes radially onto the true circle
+    rh = np.linalg.norm(x_ref[hole, :2], axis=1)
+    msh.geometry.x[hole, :2] *= (R / rh)[:, None]
+    return msh, x_ref, hole, outer_nodes
+
+
+@pytest.fixture(scope="module")
+def hole():
+    return circle_hole_mesh()
+
+
+@pytest.mark.parametrize("method", ["elastic", "laplace"])
+def test_circle_hole_snap(hole, method):
+    msh, x_ref, hole_nodes, outer_nodes = hole
+    x_cur = msh.geometry.x.copy()
+    assert n_inverted(msh, x_cur, x_ref) > 0
+    x_new = smooth(msh, x_ref, hole_nodes, outer_nodes, method=method)
+    assert n_inverted(msh, x_new, x_ref) == 0
+    np.testing.assert_array_equal(x_new[hole_nodes], x_cur[hole_nodes])
+    np.testing.assert_array_equal(x_new[outer_nodes], x_ref[outer_nodes])
+    r = np.linalg.norm(x_new[hole_nodes, :2], axis=1)
+    np.testing.assert_allclose(r, 0.5, rtol=1e-14)
+
+
+def test_box_3d_elastic():
+    n = 6
+    msh = dolfinx.mesh.create_unit_cube(COMM, n, n, n)
+    x_ref = msh.geometry.x.copy()
+    x = x_ref
+    bnd = np.flatnonzero(np.any((x < TOL) | (x > 1 - TOL), axis=1))
+    face = np.flatnonzero((x[:, 0] < TOL) & np.all((x[:, 1:] > TOL) & (x[:, 1:] < 1 - TOL),
+                                                   axis=1)).astype(np.int32)
+    fixed = np.setdiff1d(bnd, face).astype(np.int32)
+    bump = np.sin(np.pi * x_ref[face, 1]) * np.sin(np.pi * x_ref[face, 2])
+    msh.geometry.x[face, 0] += 1.6 / n * bump
+    assert n_inverted(msh, msh.geometry.x, x_ref) > 0
+    for method in ("elastic", "laplace"):
+        x_new = smooth(msh, x_ref, face, fixed, method=method)
+        assert n_inverted(msh, x_new, x_ref) == 0
+        np.testing.assert_array_equal(x_new[face], msh.geometry.x[face])
+
+
+def test_repair_accepts_valid_smoothing(pushed):
+    msh, x_ref, left, fixed = pushed
+    r = repair(msh, x_ref, msh.geometry.x, left, fixed)
+    assert isinstance(r, RepairResult)
+    assert r.stage == "smooth"
+    assert r.n_inverted_unsmoothed > 0 and r.n_inverted_smoothed == 0
+    np.testing.assert_array_equal(r.fraction, 1.0)
+    np.testing.assert_array_equal(r.shortfall, 0.0)
+    np.testing.assert_array_equal(r.x, smooth(msh, x_ref, left, fixed))
+    assert r.report.n_inverted_after == 0 and r.report.n_inverted_before > 0
+    assert r.report.n_shortfall == 0
+
+
+def test_repair_stiffens_when_band_too_narrow():
+    msh, x_ref, left, fixed = square_push(0.4)  # 6.4 h, beyond a 4-layer band
+    x_t = msh.geometry.x.copy()
+    assert n_inverted(msh, smooth(msh, x_ref, left, fixed), x_ref) > 0
+    r = repair(msh, x_ref, x_t, left, fixed)
+    assert r.stage == "stiffen"
+    assert n_inverted(msh, r.x, x_ref) == 0
+    np.testing.assert_array_equal(r.x[left], x_t[left])
+
+
+def test_repair_partial_move():
+    amp = 1.3  # would push the left side through the right one (x = 1)
+    msh, x_ref, left, fixed = square_push(amp)
+    x_t = msh.geometry.x.copy()
+    inputs = [a.copy() for a in (x_ref, x_t, left, fixed)]
+    r = repair(msh, x_ref, x_t, left, fixed)
+    assert r.stage == "partial"
+    cells = msh.geometry.dofmaps[0]
+    assert inverted_cells(r.x, x_ref, cells, 2).size == 0
+    assert mean_ratio(r.x, cells, 2).min() >= 0.01 - 1e-12  # quality floor honoured
+    assert np.all((r.fraction >= 0) & (r.fraction <= 1)) and r.fraction.min() < 1
+    assert r.fraction.min() > 0.2  # not a trivial "do nothing"
+    # moved nodes lie on the segment x_ref -> target at the reported fraction
+    d = x_t[left] - x_ref[left]
+    np.testing.assert_allclose(r.x[left], x_ref[left] + r.fraction[:, None] * d, atol=1e-15)
+    np.testing.assert_allclose(np.linalg.norm(x_t[left] - r.x[left], axis=1), r.shortfall,
+                               atol=1e-14)
+    # the fraction varies smoothly along the side (no jagged pattern)
+    order = np.argsort(x_ref[left, 1])
+    assert np.abs(np.diff(r.fraction[order])).max() < 0.15
+    assert r.report.n_shortfall == np.count_nonzero(r.shortfall > 0) > 0
+    assert r.report.max_shortfall == pytest.approx(r.shortfall.max())
+    assert r.report.n_inverted_after == 0
+    assert "not fully moved" in str(r.report)
+    np.testing.assert_array_equal(r.x[fixed], x_ref[fixed])
+    for a, b in zip(inputs, (x_ref, x_t, left, fixed)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_repair_impossible_raises():
+    msh, x_ref, left, fixed = square_push(0.0)
+    mid = left[np.argmin(np.abs(x_ref[left, 1] - 0.5))]
+    x_t = x_ref.copy()
+    x_t[mid, 0] = 1.5  # through the opposite (fixed) side x = 1
+    inputs = [a.copy() for a in (x_ref, x_t, left, fixed)]
+    geom = msh.geometry.x.copy()
+    with pytest.raises(InvertedCellsError) as err:
+        repair(msh, x_ref, x_t, np.array([mid], np.int32), fixed, min_fraction=0.9)
+    e = err.value
+    assert isinstance(e, RuntimeError)
+    assert e.count > 0 and e.cells.size == min(e.count, 100)
+    msg = str(e)
+    assert f"{e.count} cell(s)" in msg and str(int(e.cells[0])) in msg
+    # independent re-check: the named cells are bad when the node is moved
+    # min_fraction of the way with the strongest smoother of the schedule
+    # (exponent 1 + 2, band 4 * 3 layers)
+    msh_c, _, _, _ = square_push(0.0)
+    msh_c.geometry.x[mid] = x_ref[mid] + 0.9 * (x_t[mid] - x_ref[mid])
+    x_c = smooth(msh_c, x_ref, np.array([mid], np.int32), fixed, exponent=3.0, layers=12)
+    cells = msh.geometry.dofmaps[0]
+    q_ref = mean_ratio(x_ref, cells, 2)
+    bad = set(inverted_cells(x_c, x_ref, cells, 2).tolist())
+    bad |= set(np.flatnonzero(mean_ratio(x_c, cells, 2) < np.minimum(0.01, 0.5 * q_ref)).tolist())
+    assert sorted(bad) == e.cells.tolist()  # serial: global == local cell index
+    for a, b in zip(inputs, (x_ref, x_t, left, fixed)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(msh.geometry.x, geom)
+    # no partial moves allowed -> also an error
+    with pytest.raises(InvertedCellsError):
+        repair(msh, x_ref, x_t, np.array([mid], np.int32), fixed, allow_partial=False)
+    # default (min_fraction = 0): a valid, reported partial move
+    r = repair(msh, x_ref, x_t, np.array([mid], np.int32), fixed)
+    assert r.stage == "partial" and r.fraction[0] < 2 / 3  # cannot pass x = 1
+    assert inverted_cells(r.x, x_ref, msh.geometry.dofmaps[0], 2).size == 0
+
+
+def test_nothing_moved():
+    msh, x_ref, left, fixed = square_push(0.0)
+    empty = np.zeros(0, np.int32)
+    for method in ("elastic", "laplace", "none"):
+        np.testing.assert_array_equal(smooth(msh, x_ref, empty, fixed, method=method), x_ref)
+    r = repair(msh, x_ref, x_ref, empty, fixed)
+    assert r.stage == "smooth" and r.fraction.size == 0
+    np.testing.assert_array_equal(r.x, x_ref)
+
+
+def test_bad_inputs():
+    msh, x_ref, left, fixed = square_push(0.0)
+    with pytest.raises(ValueError):
+        smooth(msh, x_ref[:-1], left, fixed)
+    with pytest.raises(ValueError):
+        smooth(msh, x_ref, left, fixed, method="bogus")
+    with pytest.raises(TypeError):
+        smooth(msh, x_ref, left, fixed, layer=3)
+    with pytest.raises(IndexError):
+        smooth(msh, x_ref, np.array([x_ref.shape[0]], np.int32), fixed)
+
+
+@pytest.mark.mpi
+def test_mpi_matches_serial():
+    script = REPO / "tests" / "mpi" / "smooth_mpi.py"
+    bindir = pathlib.Path(sys.executable).parent
+    mpiexec = bindir / "mpiexec"
+    if not mpiexec.exists():
+        pytest.skip("mpiexec not found next to the interpreter")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([str(mpiexec), "-n", "2", sys.executable, str(script)],
+                          capture_output=True, text=True, timeout=600, env=env, cwd=REPO)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = [json.loads(ln) for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    assert "DONE" in proc.stdout
+    assert len(lines) == 10
+    for out in lines:
+        if out["case"].startswith("refined_"):
+            assert out["n"] == 33 ** 2 and out["n_inverted_unsmoothed"] > 0
+        else:
+            assert out["n"] == (N + 1) ** 2
+        assert out["maxdiff"] < 1e-10, out
+        assert out["ghost_ok"], out
+        assert out["n_inverted"] == 0, out
+        if "report_par" in out:
+            assert out["report_par"] == out["report_ser"]
+            assert out["report_maxdiff"] < 1e-10 and out["report_mean_ratio_diff"] < 1e-10
+            assert out["stage"] == ["partial", "partial"]
+            assert out["report_par"]["n_shortfall"] > 0
