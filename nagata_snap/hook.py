@@ -236,7 +236,7 @@ class Snapper:
             np.zeros(0, dtype=np.int32),
             method=self.smoothing,
             min_quality=self.min_quality,
-            stiffen=((1.0, 2), (2.0, 3)) if self.repair and self.smoothing != "none" else (),
+            stiffen=((0.0, 3), (1.0, 3), (1.0, 6)) if self.repair and self.smoothing != "none" else (),
             allow_partial=self.repair,
             min_fraction=self.min_fraction,
             report=self.quality_report,
