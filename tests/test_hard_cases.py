@@ -1,0 +1,71 @@
+"""Hard cases that invert cells when snapped without smoothing (issue: smoothing and guard).
+
+2D: DFG channel with the cylinder as an 8-gon and a graded boundary layer
+(first layer 4e-4, much thinner than the 8-gon's sagitta 3.8e-3).
+3D: sphere in a box whose first cell layer off the sphere is squeezed to a
+thin near-wall layer.  Without smoothing both raise InvertedCellsError; with
+the default elastic smoothing no cell inverts and the boundary is on the
+Nagata surface (no vertex reported as partially moved).
+"""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import dolfinx.mesh
+import generate
+from surfaces import barycentric_grid
+
+from nagata_snap import InvertedCellsError, NagataGeometry, Snapper
+
+
+def snapped_coords(mesh, ft, tag):
+    nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ft.find(tag)))
+    return mesh.geometry.x[nodes]
+
+
+def test_dfg_8gon_boundary_layer():
+    md = generate.dfg_channel(MPI.COMM_WORLD, n_circle=8, boundary_layer=True)
+    mesh, ft = md.mesh, md.facet_tags
+    x0 = mesh.geometry.x.copy()
+    geo = NagataGeometry(mesh, ft, tags=[generate.CYLINDER])
+    with pytest.raises(InvertedCellsError, match="inverted"):
+        Snapper(mesh, ft, geo, smoothing="none", repair=False).refine(mesh)
+    assert np.array_equal(mesh.geometry.x, x0)  # the user's mesh is untouched
+
+    R, n = generate.DFG_RADIUS, 8
+    bound = R * (2 * np.pi / n) ** 4 / 128  # Nagata error of an n-gon with exact normals
+    snapper = Snapper(mesh, ft, geo)
+    m = mesh
+    for level in range(3):
+        m, f, pc, pf, rep = snapper.refine(m)
+        assert rep.inverted_before_smoothing > 0  # the case is hard at every level
+        assert rep.inverted_after_smoothing == 0 and rep.partially_moved == 0
+        assert rep.quality.n_inverted_after == 0
+        assert rep.quality.min_angle.min > 0.0
+        x = snapped_coords(m, f, generate.CYLINDER)
+        assert np.abs(np.hypot(x[:, 0] - 0.2, x[:, 1] - 0.2) - R).max() < 1.1 * bound
+        assert "min angle" in str(rep.quality)  # printable table
+
+
+def test_sphere_with_thin_wall_layer():
+    md = generate.sphere_in_box(MPI.COMM_WORLD, h_sphere=0.25, h_box=0.5)
+    mesh, ft = md.mesh, md.facet_tags
+    x = mesh.geometry.x
+    r = np.linalg.norm(x, axis=1)
+    sel = (r > 0.5 + 1e-9) & (r < 0.8)
+    x[sel] *= ((0.5 + 0.15 * (r[sel] - 0.5)) / r[sel])[:, None]  # squeeze the wall layer
+    geo = NagataGeometry(mesh, ft, tags=[generate.SPHERE])
+    x0 = mesh.geometry.x.copy()
+    with pytest.raises(InvertedCellsError):
+        Snapper(mesh, ft, geo, smoothing="none", repair=False).refine(mesh)
+    assert np.array_equal(mesh.geometry.x, x0)
+    m, f, pc, pf, rep = Snapper(mesh, ft, geo).refine(mesh)
+    assert rep.inverted_before_smoothing > 0
+    assert rep.inverted_after_smoothing == 0 and rep.partially_moved == 0
+    # on the coarse Nagata surface: within its sampled distance from the sphere
+    g = barycentric_grid(3, 30)
+    sel = np.flatnonzero(geo.snap)
+    e_nagata = np.abs(np.linalg.norm(geo.evaluate(sel, np.broadcast_to(g, (len(sel), *g.shape))), axis=-1) - 0.5).max()
+    xs = snapped_coords(m, f, generate.SPHERE)
+    assert np.abs(np.linalg.norm(xs, axis=1) - 0.5).max() <= e_nagata * (1 + 1e-9)
