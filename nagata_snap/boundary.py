@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+import dolfinx.common
 import dolfinx.la
 import dolfinx.mesh
 
@@ -27,7 +28,8 @@ __all__ = [
 
 
 def check_p1_simplex(mesh: dolfinx.mesh.Mesh) -> None:
-    """Raise ``ValueError`` unless ``mesh`` is an affine triangle or tetrahedron mesh."""
+    """Raise ``ValueError`` unless ``mesh`` is an affine triangle or tetrahedron mesh
+    with finite coordinates (collective on ``mesh.comm``)."""
     ct = mesh.topology.cell_type
     if ct not in (dolfinx.mesh.CellType.triangle, dolfinx.mesh.CellType.tetrahedron):
         raise ValueError(
@@ -43,6 +45,13 @@ def check_p1_simplex(mesh: dolfinx.mesh.Mesh) -> None:
             f"geometric dimension {mesh.geometry.dim} differs from topological dimension "
             f"{mesh.topology.dim}: manifold meshes are not supported"
         )
+    # collective, so that every process raises (NaN on one process only)
+    x = mesh.geometry.x
+    bad = ~np.isfinite(x).all(axis=1)
+    n_bad = mesh.comm.allreduce(int(np.count_nonzero(bad[: mesh.geometry.index_map().size_local])))
+    if n_bad:
+        first = np.round(x[np.flatnonzero(bad)[0]], 6).tolist() if bad.any() else "another process"
+        raise ValueError(f"the mesh has {n_bad} nodes with NaN or infinite coordinates (first: {first})")
 
 
 @dataclass
@@ -125,7 +134,15 @@ def tag_values(
 ) -> np.ndarray:
     """Tag value of each facet in ``facets`` (``default`` where untagged)."""
     out = np.full(len(facets), default, dtype=np.int64)
-    if facet_tags is None or len(facet_tags.indices) == 0:
+    if facet_tags is None:
+        return out
+    if facet_tags.dim != facet_tags.topology.dim - 1:
+        raise ValueError(
+            f"facet_tags tag entities of dimension {facet_tags.dim}, but facets of this "
+            f"{facet_tags.topology.dim}D mesh have dimension {facet_tags.topology.dim - 1} "
+            "(cell tags passed as facet tags?)"
+        )
+    if len(facet_tags.indices) == 0:
         return out
     pos = np.searchsorted(facet_tags.indices, facets)
     pos = np.minimum(pos, len(facet_tags.indices) - 1)
@@ -135,7 +152,11 @@ def tag_values(
 
 
 def update_nodes(
-    mesh: dolfinx.mesh.Mesh, x: np.ndarray, nodes: np.ndarray, values: np.ndarray
+    mesh: dolfinx.mesh.Mesh,
+    x: np.ndarray,
+    nodes: np.ndarray,
+    values: np.ndarray,
+    index_map: dolfinx.common.IndexMap | None = None,
 ) -> np.ndarray:
     """Write new positions of geometry nodes consistently across processes.
 
@@ -145,15 +166,17 @@ def update_nodes(
     owner's value, so all copies of a node agree exactly.
 
     Args:
-        mesh: the mesh whose geometry index map numbers the nodes.
-        x: ``(n, 3)`` coordinates, modified in place and returned.
+        mesh: the mesh (its communicator; its geometry index map numbers the
+            nodes unless ``index_map`` is given).
+        x: ``(n, 3)`` coordinates, modified in place.
         nodes: ``(k,)`` local geometry nodes.
         values: ``(k, 3)`` new coordinates.
+        index_map: index map of the nodes (e.g. a degree-2 geometry's).
 
     Returns:
         ``(moved,)`` bool array over local nodes: True where a node received a value.
     """
-    imap = mesh.geometry.index_map()
+    imap = mesh.geometry.index_map() if index_map is None else index_map
     n_local = imap.size_local + imap.num_ghosts
     uniq, first = np.unique(nodes, return_index=True)
     if mesh.comm.size == 1:

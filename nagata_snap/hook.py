@@ -28,6 +28,7 @@ import dolfinx.mesh
 
 from .boundary import BoundaryFacets, boundary_facets, check_p1_simplex, tag_values, update_nodes
 from .cad import CadError
+from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, child_facets
 from .quality import QualityReport
 from .records import Records, refine_records
@@ -166,6 +167,20 @@ class Snapper:
     def mesh(self) -> dolfinx.mesh.Mesh:
         """The mesh of the current level (the one :meth:`refine` expects)."""
         return self._level.mesh
+
+    def curved_mesh(self, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
+        """Degree-2 version of the current level's mesh, boundary mid-nodes on the geometry.
+
+        The result shares the straight mesh's topology, so its facet tags and
+        ``parent_cell`` maps apply unchanged; keep refining the straight mesh.
+        See :func:`nagata_snap.curved.curved_mesh` (``kwargs``: ``min_ratio``,
+        ``max_bisections``).
+
+        Returns:
+            ``(mesh, info)``.
+        """
+        lv = self._level
+        return curved_mesh(lv.mesh, lv.boundary, lv.snapped, lv.records, self.geometry, **kwargs)
 
     def refine(
         self, mesh: dolfinx.mesh.Mesh, edges: npt.NDArray[np.int32] | None = None
