@@ -26,6 +26,7 @@ cells ``FLUID=1``.
 faces the hole passes through), ``CIB_CYLINDER=2`` (lateral surface of the
 hole) (cells ``VOLUME=1``).
 :func:`unit_disk`: ``DISK_BOUNDARY=1`` (cells ``VOLUME=1``).
+:func:`iges_solid`: one facet tag per CAD face (its gmsh face tag), cells ``VOLUME=1``.
 
 Run ``python meshes/generate.py`` to write the standard ``.msh`` files
 into ``meshes/``.
@@ -624,6 +625,118 @@ def cylinder_in_box(
     return _build_and_convert(
         comm, "cylinder_in_box", build, 3, msh_file=msh_file, verbose=verbose,
         root=root, partitioner=partitioner,
+    )
+
+
+#: healing tolerance used by :func:`import_iges_solid` (length units of the file)
+IGES_HEAL_TOLERANCE = 1e-4
+
+
+def import_iges_solid(path: str, heal_tolerance: float = IGES_HEAL_TOLERANCE) -> tuple[list[int], list[int]]:
+    """Import an IGES file into the current gmsh model (OCC) as one solid.
+
+    IGES carries faces, not solids: the faces are sewn and made a solid with
+    ``gmsh.model.occ.healShapes``.  OCC re-reading its own IGES gives the
+    faces of revolution model-space boundary curves ~1e-5 off their
+    neighbours' (e.g. ``occ_part.igs``: the hole's circles), so the default
+    sewing tolerance leaves them unsewn; ``heal_tolerance`` (1e-4) joins them.
+    Sewing changes the topology only: the face surfaces stay the file's.
+
+    Returns:
+        ``(volume tags, face tags)`` of the model after synchronisation.
+
+    Raises:
+        RuntimeError: no solid could be made.
+    """
+    occ = gmsh.model.occ
+    occ.importShapes(path)
+    occ.synchronize()
+    if not gmsh.model.getEntities(3):
+        occ.healShapes([], tolerance=heal_tolerance, sewFaces=True, makeSolids=True)
+        occ.synchronize()
+    if not gmsh.model.getEntities(3):  # sewn but not made a solid: close the shell
+        occ.addVolume([occ.addSurfaceLoop([t for _, t in gmsh.model.getEntities(2)])])
+        occ.synchronize()
+    vols = [t for _, t in gmsh.model.getEntities(3)]
+    if not vols:
+        raise RuntimeError(f"{path}: the IGES faces do not close into a solid "
+                           f"(sewing tolerance {heal_tolerance:g})")
+    return vols, _boundary_surfaces([(3, v) for v in vols])
+
+
+def iges_solid(
+    comm,
+    path: str,
+    h: float = 0.2,
+    *,
+    heal_tolerance: float = IGES_HEAL_TOLERANCE,
+    msh_file: str | None = None,
+    verbose: bool = False,
+    root: int = 0,
+    partitioner=None,
+) -> MeshData:
+    """Tetrahedral mesh, uniform size ``h``, of the solid bounded by an IGES file's faces.
+
+    The file is imported with :func:`import_iges_solid` (OCC kernel), e.g.
+    ``meshes/occ_part.igs`` (box with a cylindrical hole).
+
+    Returns:
+        MeshData with one facet tag per CAD face, equal to the gmsh face tag
+        (the faces in the file's order: ``1..n``), and cell tag VOLUME=1.
+    """
+
+    def build():
+        vols, faces = import_iges_solid(path, heal_tolerance)
+        fld = gmsh.model.mesh.field
+        f = fld.add("MathEval")
+        fld.setString(f, "F", repr(float(h)))
+        fld.setAsBackgroundMesh(f)
+        gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
+        for t in faces:
+            gmsh.model.addPhysicalGroup(2, [t], t, name=f"face{t}")
+        gmsh.model.mesh.generate(3)
+
+    return _build_and_convert(
+        comm, "iges_solid", build, 3, msh_file=msh_file, verbose=verbose, root=root,
+        partitioner=partitioner,
+    )
+
+
+def occ_features(
+    comm,
+    h: float = 0.1,
+    *,
+    msh_file: str | None = None,
+    verbose: bool = False,
+    root: int = 0,
+    partitioner=None,
+) -> MeshData:
+    """Tetrahedral mesh, uniform size ``h``, of ``make_iges.build_occ_features``'s part.
+
+    Built from the OCC construction itself (the model ``write_occ_features``
+    writes to IGES): OCC re-reading that IGES gives a shell gmsh cannot fill
+    with tetrahedra.
+
+    Returns:
+        MeshData with one facet tag per face (its gmsh face tag), cells VOLUME=1.
+    """
+    import make_iges
+
+    def build():
+        vols = make_iges.build_occ_features()
+        faces = _boundary_surfaces([(3, v) for v in vols])
+        fld = gmsh.model.mesh.field
+        f = fld.add("MathEval")
+        fld.setString(f, "F", repr(float(h)))
+        fld.setAsBackgroundMesh(f)
+        gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
+        for t in faces:
+            gmsh.model.addPhysicalGroup(2, [t], t, name=f"face{t}")
+        gmsh.model.mesh.generate(3)
+
+    return _build_and_convert(
+        comm, "occ_features", build, 3, msh_file=msh_file, verbose=verbose, root=root,
+        partitioner=partitioner,
     )
 
 

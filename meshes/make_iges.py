@@ -237,6 +237,74 @@ def write_occ_models(outdir: str | Path = HERE) -> list[Path]:
     return paths
 
 
+#: the features part of :func:`build_occ_features`: a slab [0,1]x[0,1]x[0,0.5] with
+#: a spherical dome, a countersunk hole and a toroidal groove
+OCC_FEATURES = {
+    "box": (0.0, 0.0, 0.0, 1.0, 1.0, 0.5),
+    "dome": (0.7, 0.5, 0.35, 0.25),  # sphere centre, radius: the cap above z = 0.5
+    "hole": (0.25, 0.5, -0.1, 0.0, 0.0, 0.7, 0.12),  # cylinder base, axis, radius
+    "sink": (0.25, 0.5, 0.35, 0.0, 0.0, 0.2, 0.0, 0.25),  # cone base, axis, radii
+    "groove": (0.7, 0.5, 0.0, 0.17, 0.06),  # torus centre, R, r: half of it cut from the bottom
+}
+
+
+def build_occ_features() -> list[int]:
+    """Build the features part in the current gmsh model (OCC kernel); returns its volume tags.
+
+    The slab ``[0,1] x [0,1] x [0,0.5]`` fused with a sphere of radius 0.25 at
+    (0.7, 0.5, 0.35) (a partial sphere face above the top), minus a hole of
+    radius 0.12 at (0.25, 0.5) with a conical countersink (radius 0.25 at the
+    top, a partial cone face) and minus a torus (R = 0.17, r = 0.06) centred
+    on the bottom face (half a torus face, a groove).  11 faces: 7 planes
+    (the top with two holes, the bottom with one, the disk inside the groove)
+    and partial sphere, cone, cylinder and torus faces; edges are circles
+    shared by curved faces and planes or by two curved faces (cone/cylinder).
+    """
+    import gmsh
+
+    occ = gmsh.model.occ
+    f = OCC_FEATURES
+    box = occ.addBox(*f["box"])
+    dome = occ.addSphere(*f["dome"])
+    hole = occ.addCylinder(*f["hole"])
+    sink = occ.addCone(*f["sink"])
+    groove = occ.addTorus(*f["groove"])
+    out, _ = occ.fuse([(3, box)], [(3, dome)])
+    out, _ = occ.cut(out, [(3, hole), (3, sink), (3, groove)])
+    occ.synchronize()
+    return [t for d, t in out if d == 3]
+
+
+def write_occ_features(outdir: str | Path = HERE) -> Path:
+    """Write ``occ_features.igs`` (:func:`build_occ_features`) with gmsh/OCC.
+
+    Not part of :func:`write_all`: tests write it where they need it.  gmsh is
+    initialised if needed and left as found.
+    """
+    import gmsh
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    was = gmsh.isInitialized()
+    if not was:
+        gmsh.initialize(interruptible=False)
+    terminal = gmsh.option.getNumber("General.Terminal")
+    gmsh.option.setNumber("General.Terminal", 0)
+    path = outdir / "occ_features.igs"
+    try:
+        gmsh.model.add("occ_features")
+        build_occ_features()
+        gmsh.write(str(path))
+        path.write_text(_fix_global(path.read_text()), newline="\n")
+        gmsh.model.remove()
+    finally:
+        if was:
+            gmsh.option.setNumber("General.Terminal", terminal)
+        else:
+            gmsh.finalize()
+    return path
+
+
 def write_kadir(outdir: str | Path = HERE) -> list[Path]:
     """Write ``kadir_circle.igs`` and ``kadir_cylinder.igs``."""
     outdir = Path(outdir)

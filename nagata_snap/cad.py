@@ -15,6 +15,20 @@
   entity, seeded with the parameters carried by the records (for a new vertex,
   the parametric midpoint of its parent edge).
 
+Trimmed faces (IGES 144/142, Kadir 2.3): with ``trim_loops``/``trim_holes``
+(:meth:`CadGeometry.from_iges` passes the file's) a projection counts only if
+its ``(u, v)`` lies inside the face's outer loop and outside its holes
+(:class:`TrimLoops`, within a small parametric band so that points on a face
+boundary shared with another face count on both).  The global searches of
+:meth:`~CadGeometry.attach`, :meth:`~CadGeometry.closest_point` and of the
+:meth:`~CadGeometry.place` fallbacks ignore results on a surface's extension
+beyond its face, and a seeded Newton result that leaves its facet's face
+falls back to the neighbouring faces.  A vertex shared by facets of several
+entities (a vertex on a CAD edge) is put onto all of them (Gauss-Newton onto
+the intersection of the surfaces), so that, e.g., a new vertex between two
+vertices on the rim of a hole lands on the rim, not on the plane inside the
+hole.
+
 Parameters in closed (periodic) directions are kept *unwrapped per facet*: the
 vertices of one facet never differ by a jump of a period, so parametric
 midpoints are correct across seams.  Evaluation wraps them.
@@ -56,17 +70,30 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .iges import points_in_polygon
 from .nurbs import NurbsCurve, NurbsSurface
 from .projection import GlobalSearcher, evaluate_params, normalize_params
 from .records import Records
 
-__all__ = ["CadError", "CadGeometry"]
+__all__ = ["CadError", "CadGeometry", "TrimLoops"]
 
 #: two facet vertices closer than this (relative to the model size) are one vertex
 MERGE_RTOL = 1e-10
 #: a parameter direction is degenerate at a point (pole) if ``|dS/dp|`` is below
 #: this fraction of the entity size (per unit parameter)
 DEGENERATE_RTOL = 1e-9
+#: default trimming tolerance: a projection whose ``(u, v)`` lies outside its face
+#: (outside the outer loop or inside a hole) by more than this fraction of the
+#: loop's parametric size (beyond the loop's sampling band) is rejected
+TRIM_RTOL = 1e-6
+#: turning angle (radians) above which a trimming-polygon vertex is a corner of the
+#: loop, not a sample of a smooth trimming curve
+CORNER_ANGLE = 0.35
+#: an edge vertex (on facets of several entities) counts as on all of them within
+#: this fraction of the model size
+EDGE_RTOL = 1e-14
+#: alternating-projection sweeps that bring an edge vertex onto all its entities
+EDGE_SWEEPS = 8
 
 
 class CadError(RuntimeError):
@@ -112,6 +139,142 @@ def _groups(points: np.ndarray, radius: float, nodes: np.ndarray | None = None) 
     return inv
 
 
+class TrimLoops:
+    """Trimmed faces in parameter space: is a surface point ``(u, v)`` on its face?
+
+    IGES 144/142 faces (Kadir 2010, sec. 2.3): per surface an outer loop and
+    holes, polygons in the surface's ``(u, v)`` NURBS parameters through points
+    of the true trimming curves (see :class:`nagata_snap.iges.IgesModel`).
+
+    Between two polygon vertices the true curve deviates from the chord by up
+    to its sagitta, estimated as ``L * phi / 8`` (``L`` the chord, ``phi`` the
+    larger turning angle at its ends; vertices turning by more than
+    :data:`CORNER_ANGLE` are corners of the loop, which add nothing).  A point
+    within twice that, plus ``rtol`` times the loop's parametric size, of a
+    segment counts as on the loop, so points on a trimming curve (a face
+    boundary shared with another face) are accepted by both faces.
+
+    Args:
+        entities: the surfaces.
+        outer: per surface the outer loop ``(k, 2)`` or ``None`` (untrimmed).
+        holes: per surface a list of inner loops ``(k, 2)`` (or ``None``).
+        rtol: parametric tolerance, relative to each loop's size.
+    """
+
+    def __init__(self, entities, outer=None, holes=None, rtol: float = TRIM_RTOL):
+        n = len(entities)
+        for name, arr in (("trim_loops", outer), ("trim_holes", holes)):
+            if arr is not None and len(arr) != n:
+                raise ValueError(f"{name} has {len(arr)} entries for {n} entities")
+        self.rtol = float(rtol)
+        self._loops: list[list[tuple]] = []
+        for e in range(n):  # loop over entities
+            loops = []
+            o = None if outer is None else outer[e]
+            hs = [] if holes is None or holes[e] is None else list(holes[e])
+            for k, (poly, hole) in enumerate([(o, False)] + [(h, True) for h in hs]):
+                if poly is None:
+                    continue
+                P = np.asarray(poly, dtype=float)
+                if P.ndim != 2 or P.shape[1] != 2 or not np.all(np.isfinite(P)):
+                    raise ValueError(f"entity {e}: trimming loop {k} must be a finite (k, 2) polygon, got {P.shape}")
+                if len(P) > 1 and np.array_equal(P[0], P[-1]):
+                    P = P[:-1]
+                if len(P) < 3:
+                    raise ValueError(f"entity {e}: trimming loop {k} has fewer than 3 vertices")
+                loops.append(self._prepare(P, hole))
+            self._loops.append(loops)
+        self.trimmed = np.array([bool(lp) for lp in self._loops])
+        self._period = np.full((n, 2), np.nan)
+        for e, ent in enumerate(entities):
+            if ent.param_dim == 2:
+                for a, closed in enumerate(ent.closed):
+                    if closed:
+                        self._period[e, a] = np.diff(ent.bounds[a])[0]
+        self.entities = list(entities)
+
+    def _prepare(self, P: np.ndarray, hole: bool) -> tuple:
+        seg = np.roll(P, -1, axis=0) - P
+        L = np.linalg.norm(seg, axis=1)
+        prev = np.roll(seg, 1, axis=0)
+        Lp = np.roll(L, 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = np.einsum("ij,ij->i", prev, seg) / (Lp * L)
+        phi = np.arccos(np.clip(np.nan_to_num(c, nan=1.0), -1.0, 1.0))  # turning angle at vertex i
+        phi[phi > CORNER_ANGLE] = 0.0
+        band = 2.0 * L * np.maximum(phi, np.roll(phi, -1)) / 8.0
+        size = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+        band += self.rtol * size
+        return P, seg, np.maximum(L * L, 1e-300), band, hole
+
+    @staticmethod
+    def _loop_excess(loop: tuple, q: np.ndarray) -> np.ndarray:
+        """Parametric distance outside the face beyond the band, ``(m,)``.
+
+        ``<= 0`` accepted; ``-inf`` on the face side of the polygon (no
+        distance computed there).
+        """
+        P, seg, L2, band, hole = loop
+        inside = points_in_polygon(P, q)
+        out_idx = np.flatnonzero(inside if hole else ~inside)
+        ex = np.full(len(q), -np.inf)
+        step = max(1, 400_000 // len(P))
+        for i in range(0, out_idx.size, step):  # chunks bound the (c, k) work arrays
+            sel = out_idx[i:i + step]
+            qq = q[sel, None, :] - P[None]  # (c, k, 2)
+            t = np.clip(np.einsum("ckj,kj->ck", qq, seg) / L2, 0.0, 1.0)
+            r = qq - t[:, :, None] * seg[None]
+            d = np.sqrt(np.einsum("ckj,ckj->ck", r, r))
+            ex[sel] = (d - band[None]).min(axis=1)
+        return ex
+
+    def excess(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:
+        """``(n,)`` parametric excess of ``params (n, 2)`` outside face ``ent (n,)``.
+
+        ``<= 0`` means on the face (``-inf`` well inside it or for untrimmed
+        surfaces); a positive value is the parametric distance to the nearest
+        loop beyond its tolerance band.  Closed directions are tested at the
+        wrapped parameter and, where that is outside, one period either side.
+        """
+        ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        params = np.asarray(params, dtype=float).reshape(len(ent), -1)
+        out = np.full(len(ent), -np.inf)
+        if len(ent) == 0 or not self.trimmed.any():
+            return out
+        for e in np.unique(ent[self.trimmed[ent]]):  # loop over trimmed entities
+            sel = np.flatnonzero(ent == e)
+            q0 = normalize_params(self.entities[e], params[sel])
+            shifts = [np.zeros(2)]
+            for a in range(2):
+                if not np.isnan(self._period[e, a]):
+                    d = np.zeros(2)
+                    d[a] = self._period[e, a]
+                    shifts = [s + k * d for s in shifts for k in (0.0, -1.0, 1.0)]
+            best = np.full(len(sel), np.inf)
+            todo = np.arange(len(sel))
+            for sh in shifts:  # at most 9 (both directions closed); the first is 0
+                q = q0[todo] + sh
+                ex = np.full(todo.size, -np.inf)
+                for loop in self._loops[e]:  # outer loop and holes
+                    np.maximum(ex, self._loop_excess(loop, q), out=ex)
+                best[todo] = np.minimum(best[todo], ex)
+                todo = todo[ex > 0]
+                if todo.size == 0:
+                    break
+            out[sel] = best
+        return out
+
+    def inside(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:
+        """``(n,)`` bool: ``params`` lies on face ``ent`` (within the tolerance band)."""
+        return self.excess(ent, params) <= 0.0
+
+    def loop_points(self, e: int) -> np.ndarray | None:
+        """All loop vertices of surface ``e`` ``(k, 2)``, or ``None`` if untrimmed."""
+        if not self._loops[e]:
+            return None
+        return np.concatenate([lp[0] for lp in self._loops[e]])
+
+
 class CadGeometry:
     """Snapping geometry from NURBS curves (2D meshes) or surfaces (3D meshes).
 
@@ -119,25 +282,43 @@ class CadGeometry:
         entities: the CAD entities, all :class:`~nagata_snap.nurbs.NurbsCurve`
             (2D: boundary segments are snapped to curves) or all
             :class:`~nagata_snap.nurbs.NurbsSurface` (3D: triangles to surfaces).
+        trim_loops: surfaces only: per entity the outer trimming loop, a
+            ``(k, 2)`` polygon in its ``(u, v)`` parameters, or ``None`` (the
+            whole surface is the face); e.g. ``IgesModel.trim_loops``.
+        trim_holes: surfaces only: per entity a list of inner loops
+            (``IgesModel.trim_holes``).
         tol_factor: :meth:`attach` accepts a facet if all its vertices are
             within ``tol_factor * h`` of one entity, ``h`` the facet's longest
             edge (dimensionless).
         k_seeds: nearest grid samples used as Newton seeds in global searches.
         max_iter: Newton iterations per projection in :meth:`place`.
         per_span: samples per knot span and direction of the search grid.
+        trim_rtol: parametric tolerance of the trimming test, relative to each
+            loop's parametric size (see :class:`TrimLoops`).
+
+    With trimming loops a projection counts only if its ``(u, v)`` lies on the
+    face (:class:`TrimLoops`): the global searches of :meth:`attach` and of the
+    :meth:`place` fallbacks ignore results on a surface's extension beyond its
+    face, and a seeded Newton result that leaves its facet's face falls back
+    to the neighbouring faces.  The search grid keeps only samples on the face
+    (plus the loop vertices).
 
     Raises:
-        ValueError: empty or mixed entity list.
+        ValueError: empty or mixed entity list, trimming loops for curves or of
+            the wrong count.
     """
 
     def __init__(
         self,
         entities: Sequence[NurbsCurve] | Sequence[NurbsSurface],
+        trim_loops: Sequence[np.ndarray | None] | None = None,
+        trim_holes: Sequence[Sequence[np.ndarray] | None] | None = None,
         *,
         tol_factor: float = 1e-2,
         k_seeds: int = 6,
         max_iter: int = 20,
         per_span: int | None = None,
+        trim_rtol: float = TRIM_RTOL,
     ):
         entities = list(entities)
         if not entities:
@@ -151,7 +332,23 @@ class CadGeometry:
         self.param_dim = entities[0].param_dim
         self.tol_factor = float(tol_factor)
         self.max_iter = int(max_iter)
-        self.searcher = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds)
+        for name, arr in (("trim_loops", trim_loops), ("trim_holes", trim_holes)):
+            if arr is not None and len(arr) != len(entities):
+                raise ValueError(f"{name} has {len(arr)} entries for {len(entities)} entities")
+        has_trim = any(t is not None for t in (trim_loops or [])) or any(h for h in (trim_holes or []))
+        if has_trim and self.param_dim != 2:
+            raise ValueError("trimming loops apply to surfaces only")
+        self.trims: TrimLoops | None = (
+            TrimLoops(entities, trim_loops, trim_holes, trim_rtol) if has_trim else None
+        )
+        if self.trims is not None:
+            self.searcher = GlobalSearcher(
+                entities, per_span=per_span, k_seeds=k_seeds,
+                sample_filter=lambda e, P: self.trims.inside(np.full(len(P), e), P),
+                extra_samples=[self.trims.loop_points(e) for e in range(len(entities))],
+            )
+        else:
+            self.searcher = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds)
         self.size = self.searcher.size
         d = self.param_dim
         self._period = np.full((len(entities), d), np.nan)
@@ -161,6 +358,18 @@ class CadGeometry:
                     lo, hi = e.bounds[a]
                     self._period[i, a] = hi - lo
 
+    @property
+    def _accept(self):
+        """``f(ent, params) -> bool`` (on the trimmed face), or ``None`` without trims."""
+        return None if self.trims is None else self.trims.inside
+
+    def inside(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:
+        """``(n,)`` bool: ``params (n, d)`` of entity ``ent (n,)`` lie on its (trimmed) face."""
+        ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        if self.trims is None:
+            return np.ones(len(ent), dtype=bool)
+        return self.trims.inside(ent, params)
+
     @classmethod
     def from_iges(
         cls, path: str | os.PathLike, *, dim: int | None = None, **kwargs
@@ -168,7 +377,9 @@ class CadGeometry:
         """Geometry from the NURBS entities of an IGES file.
 
         Uses :func:`nagata_snap.iges.read_iges`, whose result has ``.curves``
-        (type 126) and ``.surfaces`` (type 128).
+        and ``.surfaces`` (as NURBS) and, per surface, ``.trim_loops`` and
+        ``.trim_holes`` (144/142 trimming loops in parameter space), which are
+        passed on for the surfaces.
 
         Args:
             path: IGES file.
@@ -197,6 +408,11 @@ class CadGeometry:
                 f"{os.fspath(path)}: no NURBS {kind} found (the file has {len(curves)} "
                 f"curves and {len(surfaces)} surfaces)"
             )
+        if kind == "surfaces":
+            loops = list(getattr(model, "trim_loops", []) or [])
+            holes = list(getattr(model, "trim_holes", []) or [])
+            kwargs.setdefault("trim_loops", loops if len(loops) == len(ents) else None)
+            kwargs.setdefault("trim_holes", holes if len(holes) == len(ents) else None)
         return cls(ents, **kwargs)
 
     # ------------------------------------------------------------------
@@ -219,6 +435,29 @@ class CadGeometry:
             p = normalize_params(self.entities[e], params[sel].reshape(-1, d))
             out[sel] = evaluate_params(self.entities[e], p, 0).reshape(-1, nfv, 3)
         return out
+
+    def closest_point(self, points: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest point of each point on the (trimmed) faces: global search.
+
+        Newton from the ``k_seeds`` nearest grid samples (samples on the faces
+        only); a result on a surface's extension beyond its face's trimming
+        loops does not count, so a point is attributed to the face that really
+        contains its closest point, not to a larger surface's extension.
+
+        Returns:
+            ``(entity (n,) int64, params (n, d), distance (n,))``; entity ``-1``
+            and distance ``inf`` where no seed converged onto a face (e.g. the
+            closest point is a face corner that is a stationary point of no
+            surface).
+        """
+        X = np.asarray(points, dtype=float)
+        res = self.searcher.search(X, accept=self._accept)
+        ent, par, dist = res[:3]
+        if self.trims is not None:
+            ok = res[3]
+            ent = np.where(ok, ent, -1)
+            dist = np.where(ok, dist, np.inf)
+        return ent.astype(np.int64), par, dist
 
     # ------------------------------------------------------------------
     def _unwrap(self, root: np.ndarray, params: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -300,6 +539,13 @@ class CadGeometry:
         nf, nfv, _ = fp.shape
         d = self.param_dim
         ne = self.num_entities
+        if nfv - 1 != d:
+            have = "curves" if d == 1 else "surfaces"
+            need = "curves (2D mesh, segment facets)" if nfv == 2 else "surfaces (3D mesh, triangle facets)"
+            raise CadError(
+                f"facets with {nfv} vertices need NURBS {need}; this CadGeometry has {have} "
+                "(CadGeometry.from_iges(path, dim=...) picks the kind)"
+            )
         if nf == 0:
             return Records(np.zeros(0, dtype=np.int64), np.zeros((0, nfv, d)))
         flat = fp.reshape(-1, 3)
@@ -312,11 +558,24 @@ class CadGeometry:
 
         # (vertex, entity) table: best Newton result from the KD-tree seeds
         pt, ent, par, _, dist, _ = self.searcher.search_all(V)
+        # best entity per vertex ignoring trims: a candidate of last resort
+        any_best = ent[_best_rows(pt, dist, np.ones(len(pt), dtype=bool), nv)]
+        if self.trims is not None:
+            # results on a surface's extension beyond its face do not count
+            ok = self.trims.inside(ent, par)
+            lost = np.setdiff1d(np.arange(nv), pt[ok])
+            pt, ent, par, dist = pt[ok], ent[ok], par[ok], dist[ok]
+            if lost.size:  # every seed of these vertices left its face: more seeds
+                p2, e2, q2, _, d2, _ = self.searcher.search_all(V[lost], 4 * self.searcher.k_seeds)
+                ok2 = self.trims.inside(e2, q2)
+                pt = np.concatenate([pt, lost[p2[ok2]]])
+                ent = np.concatenate([ent, e2[ok2]])
+                par = np.concatenate([par, q2[ok2]])
+                dist = np.concatenate([dist, d2[ok2]])
         keys, par_t, dist_t = self._reduce(pt * ne + ent, par, dist)  # sorted by key
         # best entity per vertex (smallest distance)
-        order = np.lexsort((dist_t, keys // ne))
-        first = np.searchsorted((keys // ne)[order], np.arange(nv))
-        best_ent = keys[order[first]] % ne
+        rows = _best_rows(keys // ne, dist_t, np.ones(len(keys), dtype=bool), nv)
+        best_ent = np.where(rows >= 0, keys[np.maximum(rows, 0)] % ne if len(keys) else any_best, any_best)
 
         # candidate (facet, entity) pairs: entities within tolerance of any vertex, and
         # every vertex's best entity
@@ -340,7 +599,10 @@ class CadGeometry:
         found = (pos < len(keys)) & (keys[np.minimum(pos, len(keys) - 1)] == need)
         if not found.all():
             miss = np.unique(need[~found])
-            mp, _, md = self.searcher.search_on(V[miss // ne], miss % ne)
+            res = self.searcher.search_on(V[miss // ne], miss % ne, accept=self._accept)
+            mp, md = res[0], res[2]
+            if self.trims is not None:  # no projection on the trimmed face
+                md = np.where(res[3], md, np.inf)
             keys, par_t, dist_t = self._reduce(
                 np.concatenate([keys, miss]), np.concatenate([par_t, mp]), np.concatenate([dist_t, md])
             )
@@ -355,11 +617,24 @@ class CadGeometry:
         bad = np.flatnonzero(~(score <= tol))
         if bad.size:
             worst = bad[np.argmax(score[bad] / np.maximum(h[bad], 1e-300))]
+            what = (
+                f"is {score[worst]:.3e} from the nearest entity ({root[worst]}), more than the tolerance "
+                f"{tol[worst]:.3e} = tol_factor {self.tol_factor:g} x facet size {h[worst]:.3e}"
+                if np.isfinite(score[worst])
+                else "has no projection inside the trimming loops of any single face"
+            )
             raise CadError(
                 f"{bad.size} of {nf} boundary facets do not lie on the CAD geometry; e.g. "
-                f"facet {worst} (vertices {fp[worst].round(6).tolist()}) is {score[worst]:.3e} "
-                f"from the nearest entity ({root[worst]}), more than the tolerance "
-                f"{tol[worst]:.3e} = tol_factor {self.tol_factor:g} x facet size {h[worst]:.3e}"
+                f"facet {worst} (vertices {fp[worst].round(6).tolist()}) {what}"
+                + (
+                    f"; no facet lies on it: mesh boundary box {flat.min(axis=0).round(6).tolist()}"
+                    f" .. {flat.max(axis=0).round(6).tolist()}, CAD box "
+                    f"{self.searcher.bbox_lo.min(axis=0).round(6).tolist()} .. "
+                    f"{self.searcher.bbox_hi.max(axis=0).round(6).tolist()} (wrong file, units "
+                    "or placement?)"
+                    if bad.size == nf
+                    else ""
+                )
             )
         params = par_t[pos].reshape(-1, nfv, d)[choice]
         params = self._contiguous(root, params)
@@ -423,6 +698,7 @@ class CadGeometry:
                 "max_residual": 0.0, "mean_residual": 0.0,
                 "iterations_histogram": np.zeros(1, dtype=np.int64), "n_points": 0,
                 "n_vertices": 0, "n_fallback": 0, "n_off_root": 0, "n_unresolved": 0,
+                "n_left_face": 0, "n_edge_vertices": 0, "max_edge_gap": 0.0,
             }
             return np.zeros((nf, nfv, 3)), Records(root.copy(), params.copy()), report
         X = st.reshape(ns, 3)
@@ -431,9 +707,15 @@ class CadGeometry:
         hs = np.repeat(_edge_length(st), nfv)
         big = np.finfo(float).max
 
+        acc = self._accept
         # 1. seeded Newton on the facet's entity
         par, proj, dist, its, conv = self.searcher.refine(np.arange(ns), ent, seed, X, self.max_iter)
         valid = conv & (dist <= hs) & np.all(np.isfinite(proj), axis=1)
+        n_left_face = 0
+        if acc is not None:  # a result beyond the face's trimming loops: fall back
+            left = valid & ~acc(ent, par)
+            n_left_face = int(left.sum())
+            valid &= ~left
         dist = np.where(np.isfinite(dist), dist, big)
         on_root = np.ones(ns, dtype=bool)
         bad = np.flatnonzero(~valid)
@@ -447,6 +729,8 @@ class CadGeometry:
             pt = np.repeat(bad, m)
             cp, cx, cd, _, cc = self.searcher.refine(pt, ent[pt], cand.reshape(-1, d), X, self.max_iter)
             ok = cc & (cd <= hs[pt])
+            if acc is not None:
+                ok &= acc(ent[pt], cp)
             rows = _best_rows(np.repeat(np.arange(bad.size), m), cd, ok, bad.size)
             hit = rows >= 0
             s, r = bad[hit], rows[hit]
@@ -463,9 +747,12 @@ class CadGeometry:
             )  # (nb, ne)
             near[np.arange(bad.size), ent[bad]] = True
             bi, be = np.nonzero(near)
-            qp, qx, qd = self.searcher.search_on(Xb[bi], be)
+            res = self.searcher.search_on(Xb[bi], be, accept=acc)
+            qp, qx, qd = res[:3]
             qroot = be == ent[bad][bi]
             qok = qd <= hb[bi]
+            if acc is not None:  # only results on the faces (neighbours sharing the edge)
+                qok &= res[3]
             r_root = _best_rows(bi, qd, qroot, bad.size)  # best attempt on the root
             r_ok = _best_rows(bi, qd, qok & qroot, bad.size)  # acceptable on the root
             r_any = _best_rows(bi, qd, qok, bad.size)  # acceptable anywhere
@@ -484,16 +771,19 @@ class CadGeometry:
             bad = np.flatnonzero(~valid)
         if bad.size:
             # 4. global search over all entities
-            ge, gp, gd = self.searcher.search(X[bad])
+            res = self.searcher.search(X[bad], accept=acc)
+            ge, gp, gd = res[:3]
+            gin = res[3] if acc is not None else np.ones(bad.size, dtype=bool)
             gx = np.empty((bad.size, 3))
             for e in np.unique(ge):  # loop over entities
                 s = ge == e
                 gx[s] = evaluate_params(self.entities[e], normalize_params(self.entities[e], gp[s]), 0)
             groot = ge == ent[bad]
-            take = (gd <= hs[bad]) | (gd < dist[bad])
+            gok = gin & (gd <= hs[bad])
+            take = gok | (gd < dist[bad])
             s = bad[take]
             proj[s], dist[s], on_root[s] = gx[take], gd[take], groot[take]
-            valid[s] = gd[take] <= hs[s]
+            valid[s] = gok[take]
             sr = take & groot
             par[bad[sr]] = gp[sr]
         n_unresolved = int(np.sum(~valid))
@@ -522,6 +812,8 @@ class CadGeometry:
         if off.any():
             par[off] = self._unwrap(ent[off], par[rep[off]], seed[off])
         proj = proj[rep]
+        # vertices on facets of several entities lie on the faces' common edge
+        n_edge, edge_gap = self._edge_vertices(gid, ent, proj, par, seed, X, hs)
         dist = np.linalg.norm(proj - X, axis=1)
         vd = dist[rep_of_group]  # one value per distinct vertex
 
@@ -534,8 +826,123 @@ class CadGeometry:
             "n_fallback": n_fallback,
             "n_off_root": int(np.sum(~on_root)),
             "n_unresolved": n_unresolved,
+            "n_left_face": n_left_face,
+            "n_edge_vertices": n_edge,
+            "max_edge_gap": edge_gap,
         }
         return proj.reshape(nf, nfv, 3), Records(root.copy(), par.reshape(nf, nfv, d)), report
+
+    def _normals(self, ent: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """Unit normals ``(n, 3)`` of surfaces (zero where degenerate); curves: zero."""
+        out = np.zeros((len(ent), 3))
+        if self.param_dim != 2:
+            return out
+        for e in np.unique(ent):  # loop over entities
+            sel = np.flatnonzero(ent == e)
+            ent_e = self.entities[e]
+            _, T = evaluate_params(ent_e, normalize_params(ent_e, params[sel]), 1)
+            c = np.cross(T[:, 0], T[:, 1])
+            n = np.linalg.norm(c, axis=1)
+            lengths = np.diff(ent_e.bounds, axis=1)[:, 0]
+            ok = n > (DEGENERATE_RTOL * ent_e.bbox_size) ** 2 / (lengths[0] * lengths[1])
+            out[sel[ok]] = c[ok] / n[ok, None]
+        return out
+
+    def _edge_vertices(
+        self, gid: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,
+        seed: np.ndarray, X: np.ndarray, hs: np.ndarray,
+    ) -> tuple[int, float]:
+        """Put vertices shared by facets of several entities onto all of them.
+
+        A mesh vertex on facets of entities ``A`` and ``B`` lies on the CAD edge
+        the two faces share.  Its projections onto ``A`` and ``B`` separately
+        are on one face each but off the edge by ``O(h^2)`` (e.g. the midpoint
+        of a chord of a circular edge between a plane and a cylinder projects
+        onto the plane inside the hole).  Gauss-Newton steps converge to the
+        edge: project ``x`` onto every entity of the vertex (seeded Newton),
+        move ``x`` to the nearest point of the intersection of the tangent
+        planes there (``n_i . (y - p_i) = 0``, least squares, step capped to
+        the local edge length), repeat.  The best point over
+        :data:`EDGE_SWEEPS` steps is used if it is nearer all the entities
+        than the start and within the local edge length of the straight
+        vertex.  Every slot then takes the parameters of that point on its own
+        entity.  (Between faces meeting tangentially the step is ill-posed;
+        the gap left there is second order in the distance to the edge.)
+
+        Updates ``proj (ns, 3)`` (one position per group already) and
+        ``par (ns, d)`` in place; returns ``(number of edge vertices, largest
+        distance of an edge vertex to one of its entities)``.
+        """
+        ne = self.num_entities
+        if len(gid) == 0:
+            return 0, 0.0
+        key = gid * ne + ent
+        ukey, first_slot, inv = np.unique(key, return_index=True, return_inverse=True)
+        inv = inv.reshape(-1)
+        ug = ukey // ne
+        cnt = np.bincount(ug)
+        pidx = np.flatnonzero(cnt[ug] > 1)  # (group, entity) pairs of edge vertices
+        if pidx.size == 0:
+            return 0, 0.0
+        m = pidx.size
+        pe = ukey[pidx] % ne
+        groups, gpos = np.unique(ug[pidx], return_inverse=True)
+        gpos = gpos.reshape(-1)
+        G = groups.size
+        start = np.searchsorted(gpos, np.arange(G))  # pairs are sorted by group
+        rank = np.arange(m) - start[gpos]
+        gslot = first_slot[pidx][start]  # one slot per edge vertex
+        x = proj[gslot].copy()
+        hg = np.zeros(G)
+        sl = np.flatnonzero(np.isin(gid, groups))
+        np.maximum.at(hg, np.searchsorted(groups, gid[sl]), hs[sl])
+        etol = EDGE_RTOL * self.size
+
+        def distances(x, seeds):
+            pp, px, pd, _, _ = self.searcher.refine(np.arange(m), pe, seeds, x[gpos], self.max_iter)
+            score = np.zeros(G)
+            np.maximum.at(score, gpos, pd)
+            return pp, px, score
+
+        pp, px, score = distances(x, par[first_slot[pidx]])
+        pp0, score0 = pp.copy(), score.copy()
+        best_x, best_pp, best = x.copy(), pp.copy(), score.copy()
+        todo = best > etol
+        mr = int(rank.max()) + 1
+        for _sweep in range(EDGE_SWEEPS):
+            if not todo.any():
+                break
+            # Gauss-Newton: the point nearest x on the intersection of the entities'
+            # tangent planes at x's projections, n_i . (y - p_i) = 0
+            nrm = self._normals(pe, pp)  # (m, 3), zero where degenerate (pole)
+            N = np.zeros((G, mr, 3))
+            N[gpos, rank] = nrm
+            res = np.zeros((G, mr))
+            res[gpos, rank] = np.einsum("ij,ij->i", nrm, x[gpos] - px)
+            gram = np.einsum("gij,gkj->gik", N, N)
+            gram[:, np.arange(mr), np.arange(mr)] += 1e-12 + (np.linalg.norm(N, axis=2) == 0)
+            lam = np.linalg.solve(gram, res[:, :, None])[:, :, 0]
+            step = np.einsum("gi,gij->gj", lam, N)
+            sl_ = np.linalg.norm(step, axis=1)
+            step *= np.minimum(1.0, hg / np.maximum(sl_, 1e-300))[:, None]
+            x = np.where(todo[:, None], x - step, x)
+            pp, px, score = distances(x, pp)
+            better = todo & (score < best)
+            best_x[better], best[better] = x[better], score[better]
+            best_pp[better[gpos]] = pp[better[gpos]]
+            todo &= best > etol
+        keep = (best < score0) & (np.linalg.norm(best_x - X[gslot], axis=1) <= hg)
+        x_fin = np.where(keep[:, None], best_x, proj[gslot])
+        pp_fin = np.where(keep[gpos][:, None], best_pp, pp0)
+        gap = np.where(keep, best, score0)
+        # write back: every slot of an edge vertex
+        pos = np.full(len(ukey), -1, dtype=np.int64)
+        pos[pidx] = np.arange(m)
+        ps = pos[inv]
+        s = np.flatnonzero(ps >= 0)
+        proj[s] = x_fin[gpos[ps[s]]]
+        par[s] = self._unwrap(ent[s], pp_fin[ps[s]], par[s])
+        return int(G), float(gap.max())
 
 
 def _best_rows(group: np.ndarray, score: np.ndarray, mask: np.ndarray, n: int) -> np.ndarray:

@@ -20,6 +20,7 @@ from typing import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
+from scipy.spatial import cKDTree
 
 import dolfinx.mesh
 
@@ -36,12 +37,80 @@ __all__ = ["NagataGeometry", "NormalSource"]
 NormalSource = None | np.ndarray | Callable[[np.ndarray], np.ndarray]
 
 
-def _unit(n: np.ndarray, what: str) -> np.ndarray:
+def _unit(n: np.ndarray, what: str, at: np.ndarray | None = None) -> np.ndarray:
+    """Unit vectors of ``n (..., 3)``; ``NormalsError`` for zero/NaN ones (``at``: their points)."""
     norm = np.linalg.norm(n, axis=-1, keepdims=True)
     bad = ~(np.isfinite(n).all(axis=-1) & (norm[..., 0] > 1e-12))
     if bad.any():
-        raise NormalsError(f"{int(bad.sum())} {what} normals are zero, NaN or infinite")
+        where = f"; first at {np.round(at[bad][0], 6).tolist()}" if at is not None else ""
+        raise NormalsError(f"{int(bad.sum())} {what} normals are zero, NaN or infinite{where}")
     return n / norm
+
+
+def _check_facet_area(fnorm: np.ndarray, coords: np.ndarray) -> None:
+    """``NormalsError`` naming zero-area boundary facets (their normal is undefined).
+
+    ``fnorm (F, 3)`` are the facet normals (unit or not, NaN for degenerate
+    facets), ``coords (F, nfv, 3)`` the facet vertices.
+    """
+    norm = np.linalg.norm(fnorm, axis=1)
+    bad = ~(np.isfinite(norm) & (norm > 1e-12))
+    if bad.any():
+        raise NormalsError(
+            f"{int(bad.sum())} boundary facets have zero area (degenerate facet: its normal "
+            f"is undefined); first with vertices {np.round(coords[bad][0], 6).tolist()}"
+        )
+
+
+def _check_coincident(gids: np.ndarray, coords: np.ndarray, snap: np.ndarray) -> None:
+    """``ValueError`` if distinct vertices of snapped facets have the same coordinates.
+
+    Duplicate nodes (an unmerged mesh or surface, or a slit whose two sides
+    meet a snapped boundary) split the snapped surface into sides that are
+    snapped independently, so it would open up or overlap after refinement.
+    """
+    ids, first = np.unique(gids[snap].ravel(), return_index=True)
+    if len(ids) < 2:
+        return
+    pts = coords[snap].reshape(-1, 3)[first]
+    size = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    pairs = cKDTree(pts).query_pairs(1e-12 * size, output_type="ndarray")
+    if len(pairs):
+        raise ValueError(
+            f"{len(pairs)} pairs of distinct vertices of snapped boundary facets have the same "
+            f"coordinates (coincident vertices: duplicate nodes, e.g. an unmerged mesh or "
+            f"surface); first at {np.round(pts[pairs[0, 0]], 6).tolist()} (vertex ids "
+            f"{ids[pairs[0]].tolist()}); merge duplicate nodes before snapping"
+        )
+
+
+def _check_winding(fac: np.ndarray) -> None:
+    """``ValueError`` if neighbouring facets of a surface are not consistently oriented.
+
+    A manifold ridge (2D: vertex, 3D: edge) shared by two facets must be
+    traversed in opposite directions by them; non-manifold ridges are left to
+    :class:`~nagata_snap.normals.NonManifoldError`.
+    """
+    nfv = fac.shape[1]
+    if nfv == 2:  # each vertex must start one segment and end one
+        starts = np.bincount(fac[:, 0], minlength=int(fac.max()) + 1)
+        used = np.bincount(fac.ravel(), minlength=len(starts)) == 2
+        bad = np.flatnonzero(used & (starts != 1))
+        what = "vertices start or end both of their segments"
+    else:  # each manifold edge must appear once in each direction
+        directed = fac[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        _, inv_u, cnt_u = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True,
+                                    return_counts=True)
+        _, inv_d, cnt_d = np.unique(directed, axis=0, return_inverse=True, return_counts=True)
+        bad = np.flatnonzero((cnt_u[inv_u.ravel()] == 2) & (cnt_d[inv_d.ravel()] == 2))
+        bad = np.unique(np.sort(directed[bad], axis=1), axis=0)
+        what = "edges are traversed in the same direction by both of their triangles"
+    if len(bad):
+        raise ValueError(
+            f"facets are not consistently oriented: {len(bad)} {what} (first "
+            f"{np.asarray(bad[0]).tolist()}); orient segments counter-clockwise / triangles "
+            "with outward winding"
+        )
 
 
 def _gather(comm: MPI.Comm, *arrays: np.ndarray) -> list[np.ndarray]:
@@ -72,9 +141,12 @@ class NagataGeometry:
         eps: threshold of Nagata's singular-case rules.
 
     Raises:
-        ValueError: unsupported mesh, unknown tags.
-        NormalsError: zero/NaN normals, or normals more than ~155 degrees apart
-            on one edge.
+        ValueError: unsupported mesh (not affine triangles/tetrahedra, NaN or
+            infinite coordinates), unknown tags, tags on interior facets,
+            facet tags of another mesh or dimension, coincident vertices on
+            snapped facets, malformed ``normals``.
+        NormalsError: zero/NaN normals, zero-area facets, or normals more
+            than ~155 degrees apart on one edge.
         NonManifoldError: a boundary ridge shared by other than two facets.
     """
 
@@ -94,6 +166,11 @@ class NagataGeometry:
         self.comm = comm
         self.tdim = mesh.topology.dim
         self.gdim = mesh.geometry.dim
+        if facet_tags.topology is not mesh.topology._cpp_object:
+            raise ValueError(
+                "facet_tags belong to another mesh (MeshTags are bound to the mesh they were "
+                "created on); create them on this mesh"
+            )
         present = np.unique(np.concatenate(comm.allgather(np.asarray(facet_tags.values))))
         if tags is None:
             tags = present.tolist()
@@ -166,18 +243,49 @@ class NagataGeometry:
             facet_tags: ``(F,)`` tag per facet (default all 0).
             tags: tags whose patches are flagged as snapped (default all).
             normals: as for the constructor; an array is ``(nv, 3)`` per vertex.
+
+        Raises:
+            ValueError: malformed arrays (shapes, indices out of range, NaN or
+                infinite points), inconsistently oriented facets, coincident
+                vertices.
+            NormalsError, NonManifoldError: as for the constructor (an open
+                polygon/surface is a :class:`NonManifoldError`).
         """
-        pts = np.zeros((len(points), 3))
-        pts[:, : np.shape(points)[1]] = np.asarray(points, dtype=float)
-        fac = np.asarray(facets, dtype=np.int64)
+        pts_in = np.asarray(points, dtype=float)
+        if pts_in.ndim != 2 or pts_in.shape[1] not in (2, 3):
+            raise ValueError(f"points must have shape (nv, 2) or (nv, 3), got {pts_in.shape}")
+        fac_in = np.asarray(facets)
+        if fac_in.ndim != 2 or fac_in.shape[1] not in (2, 3) or len(fac_in) == 0:
+            raise ValueError(
+                f"facets must have shape (F, 2) (segments) or (F, 3) (triangles), F >= 1, "
+                f"got {fac_in.shape}"
+            )
+        fac = fac_in.astype(np.int64)
+        if not np.array_equal(fac, fac_in):
+            raise ValueError("facets must hold integer vertex indices")
+        out = (fac < 0) | (fac >= len(pts_in))
+        if out.any():
+            raise ValueError(
+                f"{int(out.sum())} facet vertex indices are outside 0..{len(pts_in) - 1}; "
+                f"first {int(fac[out][0])}"
+            )
+        if not np.all(np.isfinite(pts_in)):
+            bad = np.flatnonzero(~np.isfinite(pts_in).all(axis=1))
+            raise ValueError(f"{len(bad)} points have NaN or infinite coordinates; first: point {bad[0]}")
+        pts = np.zeros((len(pts_in), 3))
+        pts[:, : pts_in.shape[1]] = pts_in
         tag = np.zeros(len(fac), dtype=np.int64) if facet_tags is None else np.asarray(facet_tags)
+        if tag.shape != (len(fac),):
+            raise ValueError(f"facet_tags must have shape ({len(fac)},), got {tag.shape}")
+        _check_winding(fac)
         x = pts[fac]
         if fac.shape[1] == 2:
             t = x[:, 1] - x[:, 0]
             fn = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
         else:
             fn = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
-        fn = _unit(fn, "facet (zero-area facets give undefined)")
+        _check_facet_area(fn, x)
+        fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
         self = cls.__new__(cls)
         self.comm = MPI.COMM_SELF
         self.tdim = self.gdim = fac.shape[1]
@@ -186,6 +294,10 @@ class NagataGeometry:
         user = np.zeros_like(x)
         if normals is not None and not callable(normals):
             arr = np.asarray(normals, dtype=float)
+            if arr.ndim != 2 or arr.shape[0] != len(pts) or arr.shape[1] not in (2, 3):
+                raise ValueError(
+                    f"normals array must have shape (num_points={len(pts)}, 2 or 3), got {arr.shape}"
+                )
             user[..., : arr.shape[1]] = arr[fac]
         self._build(fac, x, tag, fn, user, normals, crease_angle, split_tags, eps)
         return self
@@ -205,7 +317,9 @@ class NagataGeometry:
             raise ValueError("the coarse mesh has NaN or infinite boundary coordinates")
         if len(gids) > 1 and np.any(np.all(gids[1:] == gids[:-1], axis=1)):
             raise ValueError("a boundary facet appears twice in the gathered coarse boundary")
-        _unit(fnorm, "facet (zero-area facets give undefined)")
+        _check_facet_area(fnorm, coords)
+        snap = np.isin(tag, tags)
+        _check_coincident(gids, coords, snap)
         _, vid = np.unique(gids, return_inverse=True)
         vid = vid.reshape(gids.shape)
         self.ids = gids
@@ -214,7 +328,6 @@ class NagataGeometry:
         self.facet_normal = fnorm
         cn = corner_normals(vid, coords, fnorm, tag, crease_angle, split_tags)
         n = cn.normals.copy()
-        snap = np.isin(tag, tags)
         self.snap = snap
         if normals is not None:
             if callable(normals):
@@ -229,7 +342,7 @@ class NagataGeometry:
                 un = val.reshape(-1, nfv, 3)
             else:
                 un = user[snap]
-            un = _unit(un, "user-supplied")
+            un = _unit(un, "user-supplied", coords[snap])
             # orientation is free (Nagata's c(d, n0, n1) is unchanged when both
             # normals flip): align each with the outward estimate
             dot = np.einsum("fvi,fvi->fv", un, n[snap])
@@ -332,15 +445,24 @@ class NagataGeometry:
         if nodes is None:
             raise ValueError("NagataGeometry.attach needs the facets' input-global vertex ids")
         patch, inv = self.find(np.asarray(nodes, dtype=np.int64))
-        if np.any(patch < 0):
+        # collective decisions: every process raises, or none does
+        n_missing = self.comm.allreduce(int(np.sum(patch < 0)))
+        if n_missing:
             raise ValueError(
-                f"{int(np.sum(patch < 0))} facets are not boundary facets of the mesh this "
-                "NagataGeometry was built on"
+                f"{n_missing} facets are not boundary facets of the mesh this NagataGeometry "
+                "was built on (build the geometry and the Snapper on the same coarse mesh)"
             )
         nfv = inv.shape[1]
         params = np.eye(nfv)[inv]
-        if not np.allclose(points, self.x[patch][np.arange(len(patch))[:, None], inv], atol=0, rtol=0):
-            raise ValueError("facet coordinates differ from the mesh this geometry was built on")
+        same = np.all(
+            np.asarray(points) == self.x[patch][np.arange(len(patch))[:, None], inv], axis=(1, 2)
+        )
+        n_moved = self.comm.allreduce(int(np.sum(~same)))
+        if n_moved:
+            raise ValueError(
+                f"the coordinates of {n_moved} facets differ from the mesh this NagataGeometry was "
+                "built on (was the mesh moved after the geometry was built?)"
+            )
         return Records(patch.astype(np.int64), params)
 
     def place(

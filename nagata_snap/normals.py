@@ -84,8 +84,11 @@ def corner_weights(x: np.ndarray) -> np.ndarray:
     return w
 
 
-def _ridges(vid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _ridges(vid: np.ndarray, x: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ridges (2D: vertices, 3D: edges) of a facet set, each with its two facets.
+
+    ``x (F, nfv, 3)``, if given, only serves to name the first bad ridge's
+    coordinates in the :class:`NonManifoldError` message.
 
     Returns ``(ridge_vertices (R, nfv-1), ridge_facets (R, 2), ridge_local (R, 2, nfv-1))``
     where ``ridge_local[r, s, :]`` are the local positions of the ridge's
@@ -107,10 +110,15 @@ def _ridges(vid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     inv = inv.reshape(-1)
     bad = np.flatnonzero(counts != 2)
     if len(bad):
+        where = f"vertex ids {uniq[bad[0]].tolist()}"
+        if x is not None:
+            slot = np.flatnonzero(inv == bad[0])[0]  # first facet corner(s) of that ridge
+            where = f"{np.round(x[fac[slot], loc[slot]], 6).tolist()}"
         raise NonManifoldError(
             f"{len(bad)} boundary {'vertices' if nfv == 2 else 'edges'} are shared by "
             f"{sorted(set(counts[bad].tolist()))} boundary facets instead of 2 "
-            f"(non-manifold or open boundary); first at vertex ids {uniq[bad[0]].tolist()}"
+            f"(non-manifold boundary, e.g. cells touching only at "
+            f"{'a vertex' if nfv == 2 else 'an edge'}, or an open surface); first at {where}"
         )
     srt = np.argsort(inv, kind="stable")
     fac2 = fac[srt].reshape(-1, 2)
@@ -140,7 +148,7 @@ def corner_normals(
         :class:`CornerNormals`.
     """
     F, nfv = vid.shape
-    rv, rf, rl = _ridges(vid)
+    rv, rf, rl = _ridges(vid, x)
     cosang = np.einsum("ij,ij->i", facet_normal[rf[:, 0]], facet_normal[rf[:, 1]])
     crease = cosang < np.cos(np.radians(crease_angle))
     if split_tags:

@@ -59,7 +59,7 @@ refines each, the best is kept.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -384,12 +384,17 @@ def project_newton(
         surfaces).  Points not converged after ``max_iter`` updates, or whose
         step could not decrease the distance, have ``converged = False`` and
         hold their best iterate.
+
+    Raises:
+        ValueError: points that are NaN, infinite or beyond :data:`MAX_COORD`
+            (non-finite seeds are allowed: the point is returned unconverged).
     """
     X = np.asarray(points, dtype=float)
     if X.ndim != 2 or X.shape[1] not in (2, 3):
         raise ValueError(f"points must have shape (k, 3), got {X.shape}")
     if X.shape[1] == 2:
         X = np.c_[X, np.zeros(len(X))]
+    _check_finite(X, "points")
     k = X.shape[0]
     d = entity.param_dim
     size = max(entity.bbox_size, np.finfo(float).tiny)
@@ -539,9 +544,12 @@ def sample_entity(
     return P, evaluate_params(entity, P, 0)
 
 
-def _best_per_point(n: int, pt: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Index (into the pair arrays) of the smallest distance of each point ``0..n-1``."""
-    order = np.lexsort((dist, pt))
+def _best_per_point(n: int, pt: np.ndarray, dist: np.ndarray, rank: np.ndarray | None = None) -> np.ndarray:
+    """Index (into the pair arrays) of the smallest distance of each point ``0..n-1``.
+
+    With ``rank``, the smallest rank wins first (e.g. ``~accepted``), then the distance.
+    """
+    order = np.lexsort((dist, pt) if rank is None else (dist, rank, pt))
     first = np.searchsorted(pt[order], np.arange(n))
     return order[first]
 
@@ -556,6 +564,12 @@ class GlobalSearcher:
         per_span: samples per knot span and direction (see :func:`sample_entity`).
         k_seeds: nearest samples used as Newton seeds per point.
         max_iter: Newton iterations per seed.
+        sample_filter: optional ``f(entity_index, params (s, d)) -> (s,) bool``
+            keeping only the grid samples of an entity that may seed Newton
+            (e.g. those inside a trimmed face); an entity with no sample kept
+            keeps them all.
+        extra_samples: optional per-entity ``(s_e, d)`` parameters added to the
+            grid (before filtering), e.g. the vertices of trimming loops.
     """
 
     def __init__(
@@ -565,6 +579,8 @@ class GlobalSearcher:
         per_span: int | None = None,
         k_seeds: int = 6,
         max_iter: int = 30,
+        sample_filter: Callable[[int, np.ndarray], np.ndarray] | None = None,
+        extra_samples: Sequence[np.ndarray | None] | None = None,
     ):
         entities = list(entities)
         if not entities:
@@ -572,6 +588,8 @@ class GlobalSearcher:
         dims = {e.param_dim for e in entities}
         if len(dims) != 1:
             raise ValueError("entities must be all curves or all surfaces")
+        if extra_samples is not None and len(extra_samples) != len(entities):
+            raise ValueError(f"{len(extra_samples)} extra sample sets for {len(entities)} entities")
         self.entities = entities
         self.param_dim = dims.pop()
         self.k_seeds = int(k_seeds)
@@ -579,6 +597,15 @@ class GlobalSearcher:
         params, pts, ent = [], [], []
         for i, e in enumerate(entities):  # loop over entities (patch count)
             P, X = sample_entity(e, per_span)
+            extra = None if extra_samples is None else extra_samples[i]
+            if extra is not None and len(extra):
+                Pe = normalize_params(e, np.asarray(extra, dtype=float).reshape(-1, self.param_dim))
+                P = np.concatenate([P, Pe])
+                X = np.concatenate([X, evaluate_params(e, Pe, 0)])
+            if sample_filter is not None:
+                keep = np.asarray(sample_filter(i, P), dtype=bool)
+                if keep.any():  # an entity keeps at least its unfiltered grid
+                    P, X = P[keep], X[keep]
             params.append(P)
             pts.append(X)
             ent.append(np.full(len(P), i, dtype=np.int64))
@@ -636,16 +663,30 @@ class GlobalSearcher:
         return params, proj, dist, its, conv
 
     def search(
-        self, points: npt.ArrayLike, k_seeds: int | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest point over all entities; see :func:`global_search`."""
+        self,
+        points: npt.ArrayLike,
+        k_seeds: int | None = None,
+        accept: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, ...]:
+        """Closest point over all entities; see :func:`global_search`.
+
+        With ``accept(ent (n,), params (n, d)) -> (n,) bool`` (e.g. "inside
+        the trimmed face") only accepted Newton results compete; the result
+        is then ``(entity, params, distance, accepted)``: a point with no
+        accepted result gets its best unaccepted one and ``accepted`` False.
+        """
         X = _points3(points)
         n = len(X)
         if n == 0:
-            return np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0)
+            empty = (np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0))
+            return empty if accept is None else empty + (np.zeros(0, dtype=bool),)
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
-        best = _best_per_point(n, pt, dist)
-        return ent[best], params[best], dist[best]
+        if accept is None:
+            best = _best_per_point(n, pt, dist)
+            return ent[best], params[best], dist[best]
+        ok = np.asarray(accept(ent, params), dtype=bool)
+        best = _best_per_point(n, pt, dist, ~ok)
+        return ent[best], params[best], dist[best], ok[best]
 
     def search_all(
         self, points: npt.ArrayLike, k_seeds: int | None = None
@@ -667,16 +708,24 @@ class GlobalSearcher:
         return pt, ent, params, proj, dist, conv
 
     def search_on(
-        self, points: npt.ArrayLike, ent: npt.ArrayLike, k_seeds: int | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self,
+        points: npt.ArrayLike,
+        ent: npt.ArrayLike,
+        k_seeds: int | None = None,
+        accept: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, ...]:
         """Closest point of each point on a *given* entity (per-entity KD-tree seeds).
 
         Args:
             points: ``(n, 3)``.
             ent: ``(n,)`` entity index per point.
+            accept: optional ``f(ent (m,), params (m, d)) -> (m,) bool``; only
+                accepted Newton results compete (see :meth:`search`).
 
         Returns:
-            ``(params (n, d), proj (n, 3), dist (n,))``.
+            ``(params (n, d), proj (n, 3), dist (n,))``, with ``accepted (n,)``
+            appended when ``accept`` is given (False: no seed gave an accepted
+            result; the best unaccepted one is returned).
         """
         X = _points3(points)
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
@@ -684,7 +733,8 @@ class GlobalSearcher:
         if ent.shape[0] != n:
             raise ValueError(f"{ent.shape[0]} entity indices for {n} points")
         if n == 0:
-            return np.zeros((0, self.param_dim)), np.zeros((0, 3)), np.zeros(0)
+            empty = (np.zeros((0, self.param_dim)), np.zeros((0, 3)), np.zeros(0))
+            return empty if accept is None else empty + (np.zeros(0, dtype=bool),)
         kk = self.k_seeds if k_seeds is None else int(k_seeds)
         pts, ents, seeds = [], [], []
         for e in np.unique(ent):  # loop over entities
@@ -698,8 +748,12 @@ class GlobalSearcher:
             seeds.append(self.sample_params[idx.ravel()])
         pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
         params, proj, dist, _, _ = self.refine(pt, en, sd, X)
-        best = _best_per_point(n, pt, dist)
-        return params[best], proj[best], dist[best]
+        if accept is None:
+            best = _best_per_point(n, pt, dist)
+            return params[best], proj[best], dist[best]
+        ok = np.asarray(accept(en, params), dtype=bool)
+        best = _best_per_point(n, pt, dist, ~ok)
+        return params[best], proj[best], dist[best], ok[best]
 
 
 def _points3(points: npt.ArrayLike) -> np.ndarray:
@@ -710,7 +764,25 @@ def _points3(points: npt.ArrayLike) -> np.ndarray:
         raise ValueError(f"points must have shape (k, 3), got {X.shape}")
     if X.shape[1] == 2:
         X = np.c_[X, np.zeros(len(X))]
+    _check_finite(X, "points")
     return X
+
+
+#: largest coordinate magnitude accepted: squared distances (and Newton's
+#: products of them) stay far from overflow
+MAX_COORD = 1e100
+
+
+def _check_finite(a: np.ndarray, what: str) -> None:
+    """``ValueError`` for NaN/infinite entries, or coordinates beyond :data:`MAX_COORD`."""
+    ok = np.isfinite(a) & (np.abs(a) <= MAX_COORD)
+    if not ok.all():
+        row = int(np.flatnonzero(~ok.reshape(len(a), -1).all(axis=1))[0])
+        raise ValueError(
+            f"{what} must be finite and at most {MAX_COORD:g} in magnitude; "
+            f"{int((~ok.reshape(len(a), -1).all(axis=1)).sum())} rows are not (first: row {row}, "
+            f"{a[row].tolist()})"
+        )
 
 
 def global_search(

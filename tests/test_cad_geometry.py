@@ -332,3 +332,132 @@ def test_two_surface_patches():
         assert report["n_fallback"] == 0
         check_records(geo, pts, rec, 1e-15)
         x = pts
+
+
+# ----------------------------------------------------------------------
+# trimmed faces (IGES 144/142 outer loops and holes)
+# ----------------------------------------------------------------------
+def plane_patch(origin, e1, e2, u, v):
+    """Bilinear NURBS plane ``origin + u e1 + v e2`` over ``u, v`` ranges (parameters = lengths)."""
+    from nagata_snap.nurbs import NurbsSurface
+
+    o, e1, e2 = (np.asarray(a, dtype=float) for a in (origin, e1, e2))
+    P = np.array([[o + a * e1 + b * e2 for b in v] for a in u])
+    return NurbsSurface(1, 1, [u[0], u[0], u[1], u[1]], [v[0], v[0], v[1], v[1]], P, np.ones((2, 2)))
+
+
+def rectangle(u, v, n=4):
+    """Closed polygon around ``[u0, u1] x [v0, v1]`` with ``n`` points per side."""
+    t = np.linspace(0, 1, n, endpoint=False)
+    a, b = np.array([u[0], v[0]]), np.array([u[1], v[1]])
+    c = [a, np.array([b[0], a[1]]), b, np.array([a[0], b[1]])]
+    return np.concatenate([c[k] + t[:, None] * (c[(k + 1) % 4] - c[k]) for k in range(4)])
+
+
+def test_point_near_face_extension_goes_to_the_face_containing_its_closest_point():
+    # face A: the floor z = 0, a surface over x in [0, 2] trimmed to x in [0, 1];
+    # face B: the wall x = 1 standing on A's trimming edge, z in [0, 1]
+    A = plane_patch([0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 2], [0, 1])
+    B = plane_patch([1, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1], [0, 1])
+    loops = [rectangle([0, 1], [0, 1]), None]
+    P = np.array([[1.5, 0.5, 0.3], [1.2, 0.3, 0.05], [0.6, 0.5, 0.2], [0.95, 0.5, 0.3]])
+    # B (the wall) really holds the closest points of the first two; A of the last two
+    untrimmed = CadGeometry([A, B])
+    ent0, _, d0 = untrimmed.closest_point(P)
+    np.testing.assert_array_equal(ent0, [0, 0, 0, 1])  # A's extension wins without trims
+    geo = CadGeometry([A, B], loops)
+    ent, par, dist = geo.closest_point(P)
+    np.testing.assert_array_equal(ent, [1, 1, 0, 1])
+    np.testing.assert_allclose(dist, [0.5, 0.2, 0.2, 0.05], rtol=0, atol=1e-14)
+    assert geo.inside(ent, par).all()
+    # a point exactly on the shared edge (A's trim, B's boundary) is on either face
+    edge = np.array([[1.0, 0.4, 0.0]])
+    for e, uv in ((0, [[1.0, 0.4]]), (1, [[0.0, 0.4]])):
+        assert geo.inside([e], uv).all()
+    assert not geo.inside([0], [[1.0 + 1e-4, 0.4]]).any()  # beyond the trim by 1e-4 (length units)
+    assert geo.closest_point(edge)[2][0] <= 1e-15
+    # attach: a wall triangle whose vertices all project onto A's extension closer
+    # than... they lie on B, so B; a floor triangle next to the edge: A
+    wall = np.array([[[1, 0.2, 0.0], [1, 0.4, 0.0], [1, 0.3, 0.1]]])
+    floor = np.array([[[1, 0.2, 0.0], [1, 0.4, 0.0], [0.9, 0.3, 0.0]]])
+    np.testing.assert_array_equal(geo.attach(np.concatenate([wall, floor])).root, [1, 0])
+
+
+def test_trim_rejects_projection_outside_face_and_inside_holes():
+    A = plane_patch([0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 1], [-1, 1])
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    hole = 0.5 * np.c_[np.cos(t), np.sin(t)]
+    geo = CadGeometry([A], [rectangle([-0.9, 0.9], [-0.9, 0.9])], [[hole]])
+    # inside the hole; on its circle (between polygon vertices too); on the face;
+    # on the outer loop; beyond it by 1e-3 and 1e-5; outside the surface (clamped
+    # onto its boundary, outside the loop)
+    uv = np.array([[0.0, 0.0], [0.49, 0.0], [0.5, 0.0], [0.5 * np.cos(0.05), 0.5 * np.sin(0.05)],
+                   [0.7, 0.7], [0.9, 0.2], [0.9 + 1e-3, 0.2], [0.2, -0.9 - 1e-5], [1.5, 0.0]])
+    np.testing.assert_array_equal(geo.inside(np.zeros(len(uv)), uv),
+                                  [False, False, True, True, True, True, False, False, False])
+    # the search grid keeps only samples on the face
+    assert np.all(np.hypot(*geo.searcher.sample_params.T) >= 0.5 - 1e-3)
+    with pytest.raises(ValueError, match="surfaces only"):
+        CadGeometry([circle()], [hole])
+    with pytest.raises(ValueError, match="entries for 1"):
+        CadGeometry([A], [None, None])
+
+
+def plate_with_hole(n=8, R=0.5, r_out=0.9, depth=0.4):
+    """Triangles of a plate z = 0 around a hole of radius R and of the hole's wall.
+
+    Ring vertices on the circle (z = 0) are shared by the plate (outer ring at
+    ``r_out``) and the wall (lower ring at ``z = -depth``)."""
+    t = 2 * np.pi * (np.arange(n) + 0.25) / n
+    rim = np.c_[R * np.cos(t), R * np.sin(t), 0 * t]
+    out = np.c_[r_out * np.cos(t), r_out * np.sin(t), 0 * t]
+    low = rim - [0, 0, depth]
+    tri = []
+    for i in range(n):
+        j = (i + 1) % n
+        tri += [[rim[i], out[i], out[j]], [rim[i], out[j], rim[j]]]
+    plate = len(tri)
+    for i in range(n):
+        j = (i + 1) % n
+        tri += [[rim[i], rim[j], low[j]], [rim[i], low[j], low[i]]]
+    return np.array(tri), plate
+
+
+def test_edge_vertices_of_plate_and_hole_land_on_the_trimming_curve():
+    """The rim of a hole: a new vertex between two rim vertices is the midpoint of
+    a chord, inside the hole; projected onto the plate's surface it stays there
+    (distance 0, on the plane's extension).  With the hole as a trimming loop
+    that result is rejected (the wall's is taken); in any case the vertex is on
+    facets of both entities, so it is put onto their common edge, the circle."""
+    R = 0.5
+    plate = plane_patch([0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 1], [-1, 1])
+    wall = cylinder(np.array([0, 0, -1.0]), R, 1.0)
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    hole = R * np.c_[np.cos(t), np.sin(t)]
+    facets, nplate = plate_with_hole(R=R)
+    for trimmed in (True, False):
+        geo = CadGeometry([plate, wall], *(([rectangle([-1, 1], [-1, 1]), None], [[hole], []]) if trimmed else ()))
+        rec = geo.attach(facets)
+        np.testing.assert_array_equal(rec.root, np.r_[np.zeros(nplate), np.ones(len(facets) - nplate)])
+        x = facets
+        for level in range(3):
+            st, rec = split_triangles(x, rec)
+            pts, rec, report = geo.place(rec, st)
+            flat = pts.reshape(-1, 3)
+            on_rim = np.isclose(st.reshape(-1, 3)[:, 2], 0.0, atol=1e-15) & (
+                np.hypot(*st.reshape(-1, 3)[:, :2].T) < R + 1e-12)
+            rad = np.hypot(flat[:, 0], flat[:, 1])
+            np.testing.assert_allclose(rad[on_rim], R, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(flat[on_rim, 2], 0.0, rtol=0, atol=1e-15)
+            np.testing.assert_allclose(pts[rec.root == 0][..., 2], 0.0, rtol=0, atol=1e-15)  # plate stays flat
+            w = pts[rec.root == 1]
+            np.testing.assert_allclose(np.hypot(w[..., 0], w[..., 1]), R, rtol=0, atol=1e-14)
+            assert same_vertex_agreement(st, pts) == 0.0
+            assert report["n_unresolved"] == 0
+            assert (report["n_left_face"] > 0) == trimmed
+            assert report["n_edge_vertices"] == 8 * 2 ** (level + 1)
+            assert report["max_edge_gap"] <= 1e-14
+            # records: every slot's parameters evaluate to its vertex on its own entity
+            np.testing.assert_allclose(geo.evaluate(rec.root, rec.params), pts, rtol=0, atol=1e-14)
+            assert geo.inside(np.repeat(rec.root, 3), rec.params.reshape(-1, 2)).all()
+            x = pts

@@ -1,0 +1,123 @@
+"""Bad inputs under MPI: every process must raise the same error class (no hang).
+
+Usage: python bad_input.py CASE [CASE ...]   (under mpiexec -n N or serially)
+
+Each case runs collectively; every process catches its exception, and the
+class names and messages of all processes are gathered.  Rank 0 prints one
+line ``RESULT {json}`` mapping each case to ``[[class, message], ...]`` (one
+entry per rank; ``"OK"`` where a process raised nothing).  A process that
+does not raise while another does would wait in a collective call: the
+caller's timeout turns that into a failure.
+
+Cases:
+  unknown_tag               NagataGeometry(tags=[99])              ValueError
+  foreign_mesh              Snapper.refine(another mesh)           LineageError
+  interior_tag              snapped tag on interior facets of rank 0 only   ValueError
+  nan_on_one_rank           NaN at an interior node of the last rank only   ValueError
+  geometry_of_another_mesh  Snapper on a mesh the geometry was not built on ValueError
+  cad_far                   IGES circle 10 cm off the DFG cylinder CadError
+"""
+
+import json
+import os
+import sys
+import tempfile
+
+import mpi4py.MPI as MPI
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
+import generate  # noqa: E402
+import make_iges  # noqa: E402
+
+import dolfinx.mesh  # noqa: E402
+
+from nagata_snap import NagataGeometry, Snapper  # noqa: E402
+from nagata_snap.cad import CadGeometry  # noqa: E402
+from nagata_snap.iges import write_iges  # noqa: E402
+
+comm = MPI.COMM_WORLD
+
+
+def exterior_tags(mesh, value=1):
+    mesh.topology.create_connectivity(mesh.topology.dim - 1, mesh.topology.dim)
+    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    return dolfinx.mesh.meshtags(mesh, mesh.topology.dim - 1, f, np.full(len(f), value, np.int32))
+
+
+_dfg = None
+
+
+def dfg():
+    global _dfg
+    if _dfg is None:
+        md = generate.dfg_channel(comm, n_circle=16, h_far=0.1)
+        _dfg = md.mesh, md.facet_tags
+    return _dfg
+
+
+def unknown_tag():
+    mesh, ft = dfg()
+    NagataGeometry(mesh, ft, tags=[99])
+
+
+def foreign_mesh():
+    mesh, ft = dfg()
+    snapper = Snapper(mesh, ft, NagataGeometry(mesh, ft, tags=[generate.CYLINDER]))
+    snapper.refine(dolfinx.mesh.create_unit_square(comm, 4, 4))
+
+
+def interior_tag():
+    mesh, ft = dfg()
+    mesh.topology.create_connectivity(1, 2)
+    f2c = mesh.topology.connectivity(1, 2)
+    nloc = mesh.topology.index_map(1).size_local
+    interior = np.flatnonzero(np.diff(f2c.offsets)[:nloc] == 2)[:3].astype(np.int32)
+    if comm.rank != 0:
+        interior = interior[:0]
+    idx = np.concatenate([ft.indices, interior])
+    val = np.concatenate([ft.values, np.full(len(interior), generate.CYLINDER, np.int32)])
+    o = np.argsort(idx)
+    bad = dolfinx.mesh.meshtags(mesh, 1, idx[o], val[o])
+    NagataGeometry(mesh, bad, tags=[generate.CYLINDER])
+
+
+def nan_on_one_rank():
+    mesh = dolfinx.mesh.create_unit_square(comm, 8, 8)
+    ft = exterior_tags(mesh)
+    geo = NagataGeometry(mesh, ft)
+    if comm.rank == comm.size - 1:
+        x = mesh.geometry.x
+        n = mesh.geometry.index_map().size_local
+        inner = np.flatnonzero((np.abs(x[:n, :2] - 0.5) < 0.4).all(axis=1))
+        x[inner[:1], 0] = np.nan
+    Snapper(mesh, ft, geo)
+
+
+def geometry_of_another_mesh():
+    a = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    geo = NagataGeometry(a, exterior_tags(a))
+    b = dolfinx.mesh.create_unit_square(comm, 6, 6)
+    Snapper(b, exterior_tags(b), geo)
+
+
+def cad_far():
+    mesh, ft = dfg()
+    d = comm.bcast(tempfile.mkdtemp() if comm.rank == 0 else None)
+    path = os.path.join(d, "shifted.igs")
+    if comm.rank == 0:
+        write_iges(path, curves=[make_iges.circle_curve((0.3, 0.2, 0.0), 0.05)], units="M")
+    comm.barrier()
+    Snapper(mesh, ft, CadGeometry.from_iges(path), tags=[generate.CYLINDER])
+
+
+result = {}
+for case in sys.argv[1:]:
+    try:
+        globals()[case]()
+        out = ("OK", "")
+    except Exception as e:  # noqa: BLE001 (the class is the result)
+        out = (type(e).__name__, str(e)[:300])
+    result[case] = comm.allgather(out)
+if comm.rank == 0:
+    print("RESULT " + json.dumps(result), flush=True)

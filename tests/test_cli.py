@@ -1,0 +1,141 @@
+"""The ``nagata-snap`` command line (``python -m nagata_snap.cli``), run as a subprocess."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import dolfinx.io
+import dolfinx.mesh
+import generate
+import make_iges
+
+CENTRE = np.array(generate.DFG_CENTER)
+R = generate.DFG_RADIUS
+
+
+def cli(*args, cwd=None):
+    return subprocess.run(
+        [sys.executable, "-m", "nagata_snap.cli", *map(str, args)],
+        capture_output=True, text=True, timeout=300, cwd=cwd,
+    )
+
+
+@pytest.fixture(scope="module")
+def msh(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "dfg_n16.msh"
+    generate.dfg_channel(MPI.COMM_SELF, n_circle=16, h_far=0.1, msh_file=str(path))
+    return path
+
+
+def read_xdmf(path):
+    with dolfinx.io.XDMFFile(MPI.COMM_SELF, str(path), "r") as f:
+        mesh = f.read_mesh(name="mesh")
+        mesh.topology.create_connectivity(mesh.topology.dim - 1, mesh.topology.dim)
+        ft = f.read_meshtags(mesh, name="facet_tags")
+    return mesh, ft
+
+
+def cylinder_vertices(mesh, ft):
+    nodes = dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ft.find(generate.CYLINDER))
+    return mesh.geometry.x[np.unique(nodes)]
+
+
+def circle_dist(x):
+    return np.abs(np.hypot(x[:, 0] - CENTRE[0], x[:, 1] - CENTRE[1]) - R)
+
+
+def test_help():
+    r = cli("--help")
+    assert r.returncode == 0
+    for opt in ("--tags", "--iges", "--levels", "--crease-angle", "--output", "--report", "--tag-key"):
+        assert opt in r.stdout
+
+
+@pytest.mark.parametrize("iges", [False, True])
+def test_refine_msh_to_xdmf(msh, tmp_path, iges):
+    out = tmp_path / "fine.xdmf"
+    args = [msh, "--tags", generate.CYLINDER, "--levels", 2, "--output", out, "--report"]
+    if iges:
+        args += ["--iges", make_iges.write_dfg_circle(tmp_path)]
+    r = cli(*args)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "nagata-snap: level 2/2" in r.stdout  # progress line
+    assert "\n  level 2:" in r.stdout  # --report: the SnapReport of the level
+    assert out.exists()
+    mesh, ft = read_xdmf(out)
+    coarse = generate.dfg_channel(MPI.COMM_SELF, n_circle=16, h_far=0.1).mesh
+    assert mesh.geometry.dim == 2
+    assert mesh.topology.index_map(2).size_global == 16 * coarse.topology.index_map(2).size_global
+    assert sorted(np.unique(ft.values)) == [1, 2, 3, 4]
+    x = cylinder_vertices(mesh, ft)
+    assert len(x) == 16 * 4  # the 16-gon's edges bisected twice
+    # exact NURBS circle / Nagata curve of a 16-gon (R (2 pi/16)^4 / 128 = 9.3e-6);
+    # the coarse polygon is 9.6e-4 away from the circle at its edge midpoints
+    tol = 1e-12 if iges else 1e-4
+    assert circle_dist(x).max() < tol
+
+
+def test_xdmf_and_meshio_inputs(msh, tmp_path):
+    # the CLI's own XDMF output is a valid input
+    out1 = tmp_path / "l1.xdmf"
+    assert cli(msh, "--tags", 4, "--output", out1).returncode == 0
+    out2 = tmp_path / "l2.xdmf"
+    r = cli(out1, "--tags", 4, "--output", out2)
+    assert r.returncode == 0, r.stderr
+    # a meshio format (VTU) with the tags in cell data 'gmsh:physical'
+    import meshio
+
+    m = meshio.read(msh)
+    vtu = tmp_path / "coarse.vtu"
+    meshio.Mesh(m.points, m.cells, cell_data={"ref": m.cell_data["gmsh:physical"]}).write(vtu)
+    r = cli(vtu, "--tags", 4, "--levels", 2, "--output", tmp_path / "v.xdmf")
+    assert r.returncode == 2 and "--tag-key" in r.stderr and "ref" in r.stderr
+    r = cli(vtu, "--tags", 4, "--levels", 2, "--tag-key", "ref", "--output", tmp_path / "v.xdmf")
+    assert r.returncode == 0, r.stderr
+    for path in (out2, tmp_path / "v.xdmf"):
+        mesh, ft = read_xdmf(path)
+        assert circle_dist(cylinder_vertices(mesh, ft)).max() < 1e-4
+
+
+def test_bp_output(msh, tmp_path):
+    out = tmp_path / "fine.bp"
+    r = cli(msh, "--tags", 4, "--output", out)
+    assert r.returncode == 0, r.stderr
+    assert out.is_dir() and any(out.iterdir())
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [("this is not a mesh\n", "cannot read"), (None, "does not exist")],
+)
+def test_bad_file(tmp_path, content, message):
+    path = tmp_path / "bad.msh"
+    if content is not None:
+        path.write_text(content)
+    r = cli(path, "--tags", 4)
+    assert r.returncode == 2
+    assert r.stderr.startswith("nagata-snap: error:") and message in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_unknown_tag(msh):
+    r = cli(msh, "--tags", 4, 7)
+    assert r.returncode == 2
+    assert "nagata-snap: error:" in r.stderr and "7" in r.stderr
+    assert "available facet tags: 1, 2, 3, 4" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_bad_options(msh, tmp_path):
+    r = cli(msh, "--tags", 4, "--output", tmp_path / "x.vtk")
+    assert r.returncode == 2 and ".xdmf or .bp" in r.stderr
+    r = cli(msh, "--tags", 4, "--iges", tmp_path / "missing.igs")
+    assert r.returncode == 2 and "does not exist" in r.stderr
+    r = cli(msh, "--tags", 4, "--iges", msh)  # not an IGES file
+    assert r.returncode == 2 and "IGES" in r.stderr and "Traceback" not in r.stderr
+    r = cli(msh)  # --tags is required
+    assert r.returncode == 2 and "--tags" in r.stderr

@@ -1,0 +1,112 @@
+"""The demos run with tiny settings and show what they are meant to show."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FLOW = os.path.join(ROOT, "demos", "flow_past_cylinder.py")
+SPHERE = os.path.join(ROOT, "demos", "sphere_poisson.py")
+TINY_FLOW = ["--levels", "3", "--n-circle", "16", "--h-far", "0.08", "--theta", "0.5"]
+
+
+def run(args, n=1, timeout=300):
+    exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
+    r = subprocess.run(exe + [sys.executable, *map(str, args)], capture_output=True, text=True,
+                       timeout=timeout, cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+@pytest.fixture(scope="module")
+def flow(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("flow")
+    r = run([FLOW, *TINY_FLOW, "--json", tmp / "flow.json", "--plot", tmp / "cd.png",
+             "--out", tmp / "out"])
+    return r, json.loads((tmp / "flow.json").read_text()), tmp
+
+
+def test_flow_snapping_beats_plain_refinement(flow):
+    r, data, _ = flow
+    runs = data["runs"]
+    assert runs["none"]["status"] == "ok" and runs["nagata"]["status"] == "ok"
+    nlev = int(TINY_FLOW[1]) + 1
+    for mode in ("none", "nagata"):
+        levels = runs[mode]["levels"]
+        assert [lv["level"] for lv in levels] == list(range(nlev))
+        for lv in levels:
+            for key in ("dofs", "c_D", "c_L", "dp", "err_c_D", "err_c_L", "err_dp"):
+                assert np.isfinite(lv[key])
+            assert abs(lv["c_D"] - data["reference"]["c_D"]) / data["reference"]["c_D"] == \
+                pytest.approx(lv["err_c_D"])
+            assert set(lv["times"]) >= {"solve", "estimate"}
+        for lv in levels[:-1]:
+            assert set(lv["times"]) == {"solve", "estimate", "mark", "refine", "snap"}
+        assert levels[-1]["dofs"] > levels[0]["dofs"]
+    plain = runs["none"]["levels"][-1]
+    snapped = runs["nagata"]["levels"][-1]
+    # the plain run stays on the 16-gon (c_D error 1.3e-2), the snapped one converges
+    assert plain["err_c_D"] > 1e-2
+    assert snapped["err_c_D"] < 0.5 * plain["err_c_D"]
+    assert snapped["cylinder_distance"] < 1e-4 < plain["cylinder_distance"]
+    # the comparison table is printed
+    assert "level |" in r.stdout and "none" in r.stdout and "nagata" in r.stdout
+
+
+def test_flow_iges_run(flow):
+    """The IGES run (CadGeometry on dfg_circle.igs) completes and beats plain refinement."""
+    _, data, _ = flow
+    runs = data["runs"]
+    iges = runs["iges"]
+    assert iges["status"] == "ok", f"IGES run {iges['status']}: {iges['reason']}"
+    assert len(iges["levels"]) == int(TINY_FLOW[1]) + 1
+    plain, snapped = runs["none"]["levels"][-1], iges["levels"][-1]
+    assert snapped["err_c_D"] < 0.5 * plain["err_c_D"]
+    assert snapped["cylinder_distance"] < 1e-10
+
+
+def test_flow_outputs(flow):
+    _, _, tmp = flow
+    png = tmp / "cd.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    out = tmp / "out"
+    for mode in ("none", "nagata"):
+        assert (out / f"{mode}_mesh.xdmf").exists() and (out / f"{mode}_mesh.h5").exists()
+        for name in ("velocity", "pressure"):
+            assert (out / f"{mode}_{name}.bp").is_dir()
+
+
+@pytest.mark.mpi
+def test_flow_mpi_matches_serial(flow, tmp_path):
+    _, serial, _ = flow
+    run([FLOW, *TINY_FLOW, "--modes", "none", "nagata", "--quiet", "--json", tmp_path / "p.json"], n=2)
+    par = json.loads((tmp_path / "p.json").read_text())
+    assert par["config"]["mpi_size"] == 2
+    for mode in ("none", "nagata"):
+        for a, b in zip(serial["runs"][mode]["levels"], par["runs"][mode]["levels"], strict=True):
+            assert a["dofs"] == b["dofs"]
+            assert b["c_D"] == pytest.approx(a["c_D"], rel=1e-8)
+
+
+def test_sphere_snapping_beats_plain_refinement(tmp_path):
+    out = tmp_path / "sphere.json"
+    r = run([SPHERE, "--levels", "2", "--h", "0.6", "--json", out])
+    data = json.loads(out.read_text())
+    plain, snapped = data["runs"]["plain"], data["runs"]["snapped"]
+    assert len(plain) == len(snapped) == 3
+    assert [p["dofs"] for p in plain] == [s["dofs"] for s in snapped]
+    assert snapped[-1]["L2"] < 0.5 * plain[-1]["L2"]
+    assert snapped[-1]["H1"] < plain[-1]["H1"]
+    assert snapped[-1]["order_L2"] > 1.5  # P1, domain converging to the ball
+    assert plain[-1]["order_L2"] < 1.0  # stalls on the coarse polyhedron
+    assert "order" not in r.stderr
+
+
+@pytest.mark.parametrize("script", [FLOW, SPHERE])
+def test_demo_help(script):
+    r = run([script, "--help"])
+    assert "--json" in r.stdout and "--levels" in r.stdout
