@@ -29,7 +29,7 @@ import dolfinx.mesh
 from .boundary import BoundaryFacets, boundary_facets, check_p1_simplex, tag_values, update_nodes
 from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
-from .lineage import LineageError, child_facets
+from .lineage import LineageError, child_facets, child_interior_facets
 from .quality import QualityReport
 from .records import Records, refine_records
 from .smoothing import InvertedCellsError, repair
@@ -86,6 +86,8 @@ class _Level:
     tag: np.ndarray  # (nf,) facet tag values (-1 untagged)
     snapped: np.ndarray  # (nf,) bool
     records: Records  # records of the snapped facets, in order
+    interior: np.ndarray  # (ni,) tagged facets that are not exterior (interfaces)
+    interior_tag: np.ndarray  # (ni,) their tags
 
 
 class Snapper:
@@ -134,7 +136,13 @@ class Snapper:
             raise ValueError(f"smoothing must be 'elastic', 'laplace' or 'none', got {smoothing!r}")
         if not 0.0 <= min_fraction <= 1.0:
             raise ValueError(f"min_fraction must be in [0, 1], got {min_fraction}")
+        if not 0.0 <= min_quality <= 1.0:
+            raise ValueError(f"min_quality must be in [0, 1], got {min_quality}")
         check_p1_simplex(mesh)
+        if facet_tags.topology is not mesh.topology._cpp_object:
+            raise ValueError(
+                "facet_tags belong to another mesh (MeshTags are bound to the mesh they were made on)"
+            )
         if tags is None:
             tags = getattr(geometry, "tags", None)
         if tags is None:
@@ -156,11 +164,26 @@ class Snapper:
         bf = boundary_facets(mesh)
         tag = tag_values(facet_tags, bf.facets)
         snapped = np.isin(tag, self.tags)
+        # tagged facets that are not on the exterior boundary (interfaces): kept through refine
+        ext = np.zeros(mesh.topology.index_map(mesh.topology.dim - 1).size_local
+                       + mesh.topology.index_map(mesh.topology.dim - 1).num_ghosts, dtype=bool)
+        ext[bf.facets] = True
+        ext_all = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+        ext[ext_all] = True
+        inner = ~ext[facet_tags.indices]
+        interior = np.asarray(facet_tags.indices[inner], dtype=np.int32)
+        interior_tag = np.asarray(facet_tags.values[inner], dtype=np.int64)
+        n_bad = self.comm.allreduce(int(np.isin(interior_tag, self.tags).sum()))
+        if n_bad:
+            raise ValueError(
+                f"{n_bad} facets with snapped tags {self.tags} are interior facets; only exterior "
+                "boundary facets can be snapped"
+            )
         x = mesh.geometry.x
         gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)
         sel = np.flatnonzero(snapped)
-        records = geometry.attach(x[bf.nodes[sel]], nodes=gids[bf.nodes[sel]])
-        self._level = _Level(mesh, bf, tag, snapped, records)
+        records = _collective(self.comm, geometry.attach, x[bf.nodes[sel]], nodes=gids[bf.nodes[sel]])
+        self._level = _Level(mesh, bf, tag, snapped, records, interior, interior_tag)
         self.level = 0
 
     @property
@@ -213,13 +236,17 @@ class Snapper:
         t0 = time.perf_counter()
         tdim = mesh.topology.dim
         mesh.topology.create_entities(1)
+        if edges is not None:
+            edges = _check_edges(mesh, edges)
         mesh1, parent_cell, parent_facet = dolfinx.mesh.refine(
             mesh, edges, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet
         )
         times["refine"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        ch = child_facets(mesh, prev.boundary, mesh1, parent_cell)
+        ch = _collective(self.comm, child_facets, mesh, prev.boundary, mesh1, parent_cell)
+        f_int, i_int = child_interior_facets(mesh, prev.interior, mesh1, ch.parent_cells)
+        tag_int = prev.interior_tag[i_int]
         tag = prev.tag[ch.parent]
         snapped = prev.snapped[ch.parent]
         row = np.cumsum(prev.snapped) - 1  # boundary facet -> row of prev.records
@@ -231,7 +258,7 @@ class Snapper:
         x = mesh1.geometry.x
         x_ref = x.copy()
         nodes = ch.boundary.nodes[sel]
-        pts, records, geo_report = self.geometry.place(records, x[nodes])
+        pts, records, geo_report = _collective(self.comm, self.geometry.place, records, x[nodes])
         unresolved = self.comm.allreduce(int(geo_report.get("n_unresolved", 0)))
         if unresolved:
             raise CadError(
@@ -260,7 +287,9 @@ class Snapper:
         x[:] = res.x
         times["smooth+check"] = time.perf_counter() - t0
 
-        ft1 = self._facet_tags(mesh1, ch.boundary.facets, tag)
+        ft1 = self._facet_tags(
+            mesh1, np.concatenate([ch.boundary.facets, f_int]), np.concatenate([tag, tag_int])
+        )
         imap = mesh1.geometry.index_map()
         n_own = imap.size_local
         disp = np.linalg.norm(x[:n_own] - x_ref[:n_own], axis=1)
@@ -284,7 +313,7 @@ class Snapper:
             geometry=geo_report,
             quality=res.report,
         )
-        self._level = _Level(mesh1, ch.boundary, tag, snapped, records)
+        self._level = _Level(mesh1, ch.boundary, tag, snapped, records, f_int, tag_int)
         self.level += 1
         if self.verbose and self.comm.rank == 0:
             print(report, flush=True)
@@ -293,9 +322,46 @@ class Snapper:
     @staticmethod
     def _facet_tags(mesh1, facets: np.ndarray, tag: np.ndarray) -> dolfinx.mesh.MeshTags:
         keep = tag >= 0
-        f, v = facets[keep], tag[keep].astype(np.int32)
-        order = np.argsort(f)
-        return dolfinx.mesh.meshtags(mesh1, mesh1.topology.dim - 1, f[order], v[order])
+        f, first = np.unique(facets[keep], return_index=True)
+        v = tag[keep][first].astype(np.int32)
+        return dolfinx.mesh.meshtags(mesh1, mesh1.topology.dim - 1, f.astype(np.int32), v)
+
+
+def _check_edges(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike) -> np.ndarray:
+    """Validate marked edges before they reach C++ (bad indices corrupt memory there)."""
+    e = np.asarray(edges)
+    if e.size and not np.issubdtype(e.dtype, np.integer):
+        raise TypeError(f"edges must be integer edge indices, got dtype {e.dtype}")
+    e = e.astype(np.int32).ravel()
+    emap = mesh.topology.index_map(1)
+    n = emap.size_local + emap.num_ghosts
+    bad = (e < 0) | (e >= n)
+    if bad.any():
+        raise ValueError(
+            f"{int(bad.sum())} marked edge indices are outside 0..{n - 1} (local edges of this "
+            f"process), e.g. {e[bad][:3].tolist()}"
+        )
+    return e
+
+
+def _collective(comm, fn, *args, **kwargs):
+    """Call ``fn``; if it raises on any process, raise the same error on every process."""
+    err = None
+    try:
+        out = fn(*args, **kwargs)
+    except Exception as exc:  # re-raised below, on every process
+        err = exc
+    errors = comm.allgather(None if err is None else (type(err), str(err)))
+    if err is not None:
+        raise err
+    for e in errors:
+        if e is not None:
+            cls, msg = e
+            try:
+                raise cls(f"{msg} (raised on another process)")
+            except TypeError:
+                raise RuntimeError(f"{cls.__name__}: {msg} (raised on another process)") from None
+    return out
 
 
 def _max():

@@ -60,7 +60,6 @@ mesh passed in and its facet tags are bitwise unchanged and the Snapper is
 still usable: its next ``refine`` gives bitwise the result of a fresh
 Snapper.
 
-Known gaps (checks that belong in ``hook.py``) are ``xfail(strict=True)``.
 """
 
 from __future__ import annotations
@@ -455,8 +454,6 @@ def _run_script(code: str, timeout=120):
     return r.returncode, r.stdout + r.stderr
 
 
-@pytest.mark.xfail(strict=True, reason="hook.py passes `edges` to dolfinx.mesh.refine unchecked: "
-                   "out-of-range indices corrupt memory (segfault / double free)")
 @pytest.mark.parametrize("edges", ["[-1]", "[10**6]"])
 def test_refine_edges_out_of_range(edges):
     code = (
@@ -476,8 +473,6 @@ def test_refine_edges_out_of_range(edges):
     assert rc == 0 and "ValueError:" in out and "edge" in out, out[-2000:]
 
 
-@pytest.mark.xfail(strict=True, reason="hook.py: Snapper._facet_tags rebuilds the tags from the "
-                   "exterior facets only, so tags on interior facets (interfaces) are dropped")
 def test_interior_facet_tags_survive_refine(dfg):
     """Nothing is lost: a tag on interior facets (not snapped) is kept by refine,
     as by dolfinx.mesh.transfer_meshtag."""
@@ -719,8 +714,5 @@ def test_bad_input_mpi_all_ranks_raise_the_same_error():
 
 
 @pytest.mark.mpi
-@pytest.mark.xfail(strict=True, reason="hook.py: Snapper.__init__ calls geometry.attach without a "
-                   "collective error check; under mpiexec -n 2 the process that holds no cylinder "
-                   "facet does not raise CadError and goes on alone")
 def test_cad_far_mpi():
     check_bad_input_result(run_bad_input(2, MPI_CASES_HOOK), MPI_CASES_HOOK, 2)
