@@ -69,6 +69,17 @@ def test_flow_iges_run(flow):
     assert snapped["cylinder_distance"] < 1e-10
 
 
+def test_flow_curved_run_same_meshes_smaller_error(flow):
+    """The degree-2 run replays the straight IGES run's marks: same dofs, smaller drag error."""
+    _, data, _ = flow
+    runs = data["runs"]
+    p2, iges = runs["iges-p2"], runs["iges"]
+    assert p2["status"] == "ok", f"iges-p2 run {p2['status']}: {p2['reason']}"
+    assert [r["dofs"] for r in p2["levels"]] == [r["dofs"] for r in iges["levels"]]
+    for a, b in zip(p2["levels"], iges["levels"]):
+        assert a["err_c_D"] < b["err_c_D"]
+
+
 def test_flow_outputs(flow):
     _, _, tmp = flow
     png = tmp / "cd.png"
