@@ -7,16 +7,19 @@ cd "$(dirname "$0")"
 VENV=${NAGATA_SNAP_VENV:-.venv}
 
 find_python() {
+  # A pyenv shim answers `command -v` even when its version is not active, so
+  # every candidate is run, not merely looked up.
   for cand in python3.12 python3.13; do
-    if command -v "$cand" >/dev/null 2>&1; then echo "$cand"; return; fi
+    if "$cand" -c 'import sys; assert sys.version_info >= (3, 12)' >/dev/null 2>&1; then
+      echo "$cand"; return
+    fi
   done
-  if command -v pyenv >/dev/null 2>&1 || [ -x "$HOME/.pyenv/bin/pyenv" ]; then
-    for v in 3.12.1 3.12 3.13.0; do
-      if PYENV_VERSION=$v python3 -c 'import sys; assert sys.version_info >= (3, 12)' 2>/dev/null; then
-        echo "env PYENV_VERSION=$v python3"; return
-      fi
-    done
-  fi
+  # pyenv-installed interpreters, whether or not pyenv is active in this shell
+  for exe in "${PYENV_ROOT:-$HOME/.pyenv}"/versions/3.1[2-9]*/bin/python3; do
+    if [ -x "$exe" ] && "$exe" -c 'import sys; assert sys.version_info >= (3, 12)' >/dev/null 2>&1; then
+      echo "$exe"; return
+    fi
+  done
   if python3 -c 'import sys; assert sys.version_info >= (3, 12)' 2>/dev/null; then echo python3; return; fi
   echo "error: CPython >= 3.12 is needed (DOLFINx wheel dolfinx-solver-real); none found" >&2
   exit 1
