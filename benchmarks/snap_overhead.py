@@ -1,177 +1,218 @@
-"""Overhead of interior smoothing + quality check relative to ``dolfinx.mesh.refine``.
+"""Overhead of snapping relative to ``dolfinx.mesh.refine``, real pipeline.
 
-Skeleton benchmark (the snapping itself is a stand-in until the refinement
-hook exists): a square channel [-L, L]^2 with a circular hole of radius R,
-meshed by gmsh with the hole as an inscribed ``--segments``-gon and about
-``--cells`` triangles. The mesh is refined (uniformly by default, or only the
-cells within ``--near`` of the hole), then the refined hole-boundary nodes
-are snapped radially onto the true circle (the boundary displacement), and
-the interior is smoothed with 'elastic' and with 'laplace', followed by the
-validity / quality check.
+For each case a gmsh mesh (default DOLFINx partitioner, no ghost cells) with a
+curved boundary is refined uniformly once by
 
-Timed stages (max over ranks, best of ``--repeat``):
-  refine     dolfinx.mesh.refine
-  smooth     nagata_snap.smoothing.smooth(method)   (band + setup + solve)
-  check      inverted_cells on all owned cells (+ allreduce)
-  report     QualityReport.from_mesh (angles, ratios, histograms, reductions)
-  repair     nagata_snap.smoothing.repair(method)   (smooth + guard + report)
+* ``dolfinx.mesh.refine(mesh)`` (the plain refinement a loop without
+  snapping would call), and by
+* :meth:`nagata_snap.Snapper.refine` (``dolfinx.mesh.refine`` with parent
+  cells and facets, then lineage, placement of the new boundary vertices on
+  the Nagata geometry, interior smoothing, check / repair and the quality
+  report, i.e. the ``Snapper`` defaults).
 
-Output: a table, then the last line ``snap_over_refine <worst ratio>`` with
-ratio = (smooth + check + report) / refine, worst over the two methods.
+The snapping overhead is ``Snapper.refine`` minus its own refine time, i.e.
+``lineage + place + smooth+check`` from ``report.times`` (max over ranks),
+and ``ratio = overhead / plain refine``. Each stage is the best of
+``--repeat`` runs (a fresh ``Snapper`` on the same coarse mesh each time; its
+construction is not timed). One small warm-up run per dimension compiles the
+forms first.
+
+Cases (cell counts are of the REFINED mesh; the coarse mesh has 1/4 (2D) or
+1/8 (3D) of them):
+
+  2d-1e5, 2d-1e6  square [-2, 2]^2 minus the disk of radius 0.5 (a true
+                  circle in gmsh), uniform size; the hole is snapped.
+  3d-1e6          ``meshes/generate.sphere_in_box`` with uniform size; the
+                  sphere is snapped.
+
+Output: one table row per case and smoother with the stage times and the
+``smooth+check`` breakdown (band, setup, solve, check, report from
+``report.quality.timings``), then the last line
+``snap_over_refine <worst ratio>``.
 
 Usage:
-  python benchmarks/snap_overhead.py [--cells 100000] [--segments 16]
+  python benchmarks/snap_overhead.py [--cases 2d-1e5,2d-1e6,3d-1e6]
+                                     [--methods elastic] [--repeat 2]
+                                     [--options '{"solver": "cg"}']
   mpiexec -n 2 python benchmarks/snap_overhead.py
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import pathlib
 import sys
 import time
 
 import mpi4py.MPI as MPI
-import numpy as np
 
-import dolfinx
 import dolfinx.mesh
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-from nagata_snap.quality import QualityReport, inverted_cells  # noqa: E402
-from nagata_snap.smoothing import repair, smooth  # noqa: E402
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "meshes"))
+import generate  # noqa: E402
+
+from nagata_snap import NagataGeometry, Snapper  # noqa: E402
+
+R2D, L2D = 0.5, 2.0
+HOLE = 2
 
 
-def build_mesh(comm, cells: int, segments: int, R: float, L: float):
-    import gmsh
+def channel_hole(comm, h: float):
+    """[-L, L]^2 minus the disk of radius R (4 circle arcs), uniform size h.
 
-    import dolfinx.io.gmsh
+    Facet tags: 1 outer square, 2 (HOLE) circle.
+    """
 
-    # uniform size h: about 2 area / (sqrt(3)/2 h^2) ... use area / (0.45 h^2)
-    area = (2 * L) ** 2 - 0.5 * segments * R**2 * np.sin(2 * np.pi / segments)
-    h = float(np.sqrt(area / (0.45 * cells)))
-    if comm.rank == 0:
-        gmsh.initialize()
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("channel_hole")
+    def build():
+        import gmsh
+
+        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
         geo = gmsh.model.geo
-        outer = [geo.addPoint(x, y, 0, h) for x, y in [(-L, -L), (L, -L), (L, L), (-L, L)]]
+        L, R = L2D, R2D
+        outer = [geo.addPoint(x, y, 0) for x, y in [(-L, -L), (L, -L), (L, L), (-L, L)]]
         ol = [geo.addLine(outer[i], outer[(i + 1) % 4]) for i in range(4)]
-        t = 2 * np.pi * np.arange(segments) / segments
-        hp = [geo.addPoint(R * np.cos(a), R * np.sin(a), 0, h) for a in t]
-        hl = [geo.addLine(hp[i], hp[(i + 1) % segments]) for i in range(segments)]
-        s = geo.addPlaneSurface([geo.addCurveLoop(ol), geo.addCurveLoop(hl)])
+        c = geo.addPoint(0, 0, 0)
+        hp = [geo.addPoint(R * math.cos(a), R * math.sin(a), 0)
+              for a in (0, 0.5 * math.pi, math.pi, 1.5 * math.pi)]
+        arcs = [geo.addCircleArc(hp[i], c, hp[(i + 1) % 4]) for i in range(4)]
+        s = geo.addPlaneSurface([geo.addCurveLoop(ol), geo.addCurveLoop(arcs)])
         geo.synchronize()
         gmsh.model.addPhysicalGroup(2, [s], 1)
         gmsh.model.addPhysicalGroup(1, ol, 1)
-        gmsh.model.addPhysicalGroup(1, hl, 2)
+        gmsh.model.addPhysicalGroup(1, arcs, HOLE)
         gmsh.model.mesh.generate(2)
-    msh = dolfinx.io.gmsh.model_to_mesh(gmsh.model if comm.rank == 0 else None, comm, 0,
-                                        gdim=2).mesh
-    if comm.rank == 0:
-        gmsh.finalize()
-    return msh
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 1e22)
+
+    return generate._build_and_convert(comm, "channel_hole", build, 2, msh_file=None,
+                                       verbose=False, root=0)
 
 
-def boundary_nodes(msh, R):
-    """(hole nodes, other boundary nodes) as local geometry indices."""
-    msh.topology.create_connectivity(1, 2)
-    bf = dolfinx.mesh.exterior_facet_indices(msh.topology)
-    bnodes = np.unique(dolfinx.mesh.entities_to_geometry(msh, 1, bf))
-    # ghost boundary nodes of owned facets on other ranks: use geometry too
-    x = msh.geometry.x
-    r = np.linalg.norm(x[bnodes, :2], axis=1)
-    hole = bnodes[r < R * (1 + 1e-9)].astype(np.int32)
-    other = bnodes[r >= R * (1 + 1e-9)].astype(np.int32)
-    return hole, other
+def build(comm, case: str):
+    """(coarse mesh, facet tags, snapped tag) for a case name 'Nd-<refined cells>'."""
+    dim = int(case[0])
+    target = float(case.split("-")[1]) / (4 if dim == 2 else 8)  # coarse cells
+    if dim == 2:
+        area = (2 * L2D) ** 2 - math.pi * R2D**2
+        h = math.sqrt(area / (0.43 * target))  # gmsh frontal-Delaunay: ~0.43 h^2 per cell
+        md = channel_hole(comm, h)
+        return md.mesh, md.facet_tags, HOLE
+    vol = 8.0 - 4.0 / 3.0 * math.pi * 0.5**3
+    h = (vol / (0.21 * target)) ** (1.0 / 3.0)  # gmsh Delaunay: ~0.21 h^3 per tet (at ~1e5 tets)
+    md = generate.sphere_in_box(comm, h_sphere=h, h_box=h)
+    return md.mesh, md.facet_tags, generate.SPHERE
 
 
-def timed(comm, fn, repeat):
-    best, out = np.inf, None
+def gmax(comm, v: float) -> float:
+    return comm.allreduce(float(v), op=MPI.MAX)
+
+
+def run_case(comm, case: str, methods, repeat: int, options: dict):
+    mesh, ft, tag = build(comm, case)
+    tdim = mesh.topology.dim
+    # edges are needed by refine; created once here, so neither timing includes them
+    mesh.topology.create_entities(1)
+    n0 = mesh.topology.index_map(tdim).size_global
+
+    t_plain = math.inf
     for _ in range(repeat):
         comm.Barrier()
         t0 = time.perf_counter()
-        out = fn()
-        dt = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
-        best = min(best, dt)
-    return best, out
+        fine, _, _ = dolfinx.mesh.refine(mesh)
+        t_plain = min(t_plain, gmax(comm, time.perf_counter() - t0))
+    n1 = fine.topology.index_map(tdim).size_global
+    del fine
+
+    geometry = NagataGeometry(mesh, ft, tags=[tag])
+    rows = []
+    for method in methods:
+        opts = dict(options)
+        best: dict[str, float] = {}
+        rep = None
+        for _ in range(repeat):
+            snapper = Snapper(mesh, ft, geometry, tags=[tag], smoothing=method,
+                              smoothing_options=opts)
+            comm.Barrier()
+            t0 = time.perf_counter()
+            r = snapper.refine(mesh)
+            wall = gmax(comm, time.perf_counter() - t0)
+            rep = r.report
+            t = {k: gmax(comm, v) for k, v in rep.times.items()}
+            t["wall"] = wall
+            t["overhead"] = t["lineage"] + t["place"] + t["smooth+check"]
+            for k, v in (rep.quality.timings if rep.quality else {}).items():
+                t["sc:" + k] = v  # already max over ranks
+            if not best or t["overhead"] < best["overhead"]:
+                best = t
+            del r, snapper
+        rows.append(dict(case=case, method=method, n0=n0, n1=n1, plain=t_plain, t=best,
+                         moved=rep.boundary_vertices_moved, stage=rep.repair_stage,
+                         ratio=best["overhead"] / t_plain,
+                         ratio_norep=(best["overhead"] - best.get("sc:report", 0.0)) / t_plain))
+    return rows
+
+
+def warm_up(comm, dims):
+    """Compile the smoother forms (FFCx/JIT cache) on tiny meshes."""
+    for dim in dims:
+        mesh, ft, tag = build(comm, f"{dim}d-{4000 if dim == 2 else 8000}")
+        for method in ("elastic", "laplace"):
+            Snapper(mesh, ft, NagataGeometry(mesh, ft, tags=[tag]), smoothing=method).refine(mesh)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cells", type=int, default=100_000, help="target cells before refine")
-    ap.add_argument("--segments", type=int, default=16, help="hole polygon segments")
-    ap.add_argument("--near", type=float, default=None,
-                    help="refine only cells within this distance of the hole (default: uniform)")
-    ap.add_argument("--layers", type=int, default=4)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--cases", default="2d-1e5,2d-1e6,3d-1e6")
+    ap.add_argument("--methods", default="elastic", help="comma separated: elastic,laplace,none")
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--options", default="{}",
+                    help='Snapper smoothing_options as JSON, e.g. \'{"solver": "cg"}\'')
     args = ap.parse_args(argv)
     comm = MPI.COMM_WORLD
-    R, L = 0.5, 2.0
-
-    msh0 = build_mesh(comm, args.cells, args.segments, R, L)
-    msh0.topology.create_entities(1)
-    edges = None
-    if args.near is not None:
-        edges = dolfinx.mesh.locate_entities(
-            msh0, 1, lambda x: np.linalg.norm(x[:2], axis=0) < R + args.near)
-    # best of --repeat refinements of the same coarse mesh
-    t_refine, (msh, _, _) = timed(comm, lambda: dolfinx.mesh.refine(msh0, edges), args.repeat)
-    n0 = msh0.topology.index_map(2).size_global
-    n1 = msh.topology.index_map(2).size_global
-
-    hole, other = boundary_nodes(msh, R)
-    x_ref = msh.geometry.x.copy()
-    rh = np.linalg.norm(x_ref[hole, :2], axis=1)
-    msh.geometry.x[hole, :2] *= (R / rh)[:, None]
-    x_tgt = msh.geometry.x.copy()
-    n_moved = comm.allreduce(int(np.count_nonzero(
-        np.abs(rh[hole < msh.geometry.index_map().size_local] - R) > 0)))
-    tdim = 2
-    n_own = msh.topology.index_map(tdim).size_local
-    cells_own = msh.geometry.dofmaps[0][:n_own]
-    h_min = comm.allreduce(float(msh.h(tdim, np.arange(n_own, dtype=np.int32)).min()),
-                           op=MPI.MIN)
-    max_disp = comm.allreduce(float(np.abs(rh - R).max()) if rh.size else 0.0, op=MPI.MAX)
-
-    smooth(msh, x_ref, hole, other, method="elastic")  # JIT warm-up, not timed
+    cases = [c for c in args.cases.split(",") if c]
+    methods = [m for m in args.methods.split(",") if m]
+    warm_up(comm, sorted({int(c[0]) for c in cases}))
 
     rows = []
-    ratios = {}
-    for method in ("elastic", "laplace"):
-        info: dict = {}
-        t_s, x_new = timed(comm, lambda: smooth(msh, x_ref, hole, other, method=method,
-                                                layers=args.layers, info=info), args.repeat)
-        t_c, n_inv = timed(comm, lambda: comm.allreduce(
-            int(inverted_cells(x_new, x_ref, cells_own, 2).size)), args.repeat)
-        t_r, rep = timed(comm, lambda: QualityReport.from_mesh(
-            msh, x_new, x_ref=x_ref, x_before=x_tgt), args.repeat)
-        t_rep, res = timed(comm, lambda: repair(msh, x_ref, x_tgt, hole, other, method=method,
-                                                layers=args.layers), args.repeat)
-        ratio = (t_s + t_c + t_r) / t_refine
-        ratios[method] = ratio
-        rows.append((method, t_s, t_c, t_r, t_rep, ratio, n_inv, rep.n_inverted_before,
-                     res.stage, info.get("band_cells", 0), info.get("timings", {})))
-
+    for case in cases:
+        new = run_case(comm, case, methods, args.repeat, json.loads(args.options))
+        if comm.rank == 0:
+            for r in new:
+                _print_row(r, header=not rows, ranks=comm.size)
+                rows.append(r)
     if comm.rank == 0:
-        print(f"mesh: {n0} cells -> refine -> {n1} cells on {comm.size} rank(s); "
-              f"hole {args.segments}-gon, R={R}; moved nodes {n_moved}, "
-              f"max snap displacement {max_disp:.3g} (h_min {h_min:.3g})")
-        print(f"{'stage':<28}{'seconds':>10}{'/refine':>10}")
-        print(f"{'refine':<28}{t_refine:>10.4f}{1.0:>10.3f}")
-        for (method, t_s, t_c, t_r, t_rep, ratio, n_inv, n_inv0, stage, nb, tim) in rows:
-            print(f"{'smooth ' + method:<28}{t_s:>10.4f}{t_s / t_refine:>10.3f}")
-            for k, v in tim.items():
-                print(f"{'  ' + k:<28}{v:>10.4f}{v / t_refine:>10.3f}")
-            print(f"{'check (inverted_cells)':<28}{t_c:>10.4f}{t_c / t_refine:>10.3f}")
-            print(f"{'report (QualityReport)':<28}{t_r:>10.4f}{t_r / t_refine:>10.3f}")
-            print(f"{'repair ' + method + ' (all-in)':<28}{t_rep:>10.4f}"
-                  f"{t_rep / t_refine:>10.3f}")
-            print(f"{'  -> inverted before/after':<28}{n_inv0:>10d}{n_inv:>10d}"
-                  f"   band cells {nb}, repair stage '{stage}'")
-        worst = max(ratios.values())
+        print()
+        print("smooth+check breakdown [s] (report.quality.timings, max over ranks)")
+        keys = sorted({k for r in rows for k in r["t"] if k.startswith("sc:")})
+        print(f"{'case':<9}{'method':<9}" + "".join(f"{k[3:]:>9}" for k in keys))
+        for r in rows:
+            print(f"{r['case']:<9}{r['method']:<9}"
+                  + "".join(f"{r['t'].get(k, 0.0):>9.3f}" for k in keys))
+        worst = max(r["ratio"] for r in rows)
         print(f"snap_over_refine {worst:.4f}")
+
+
+def _print_row(r, header, ranks):
+    if header:
+        print(f"uniform refinement, {ranks} rank(s); times [s], best of repeats, max over ranks;"
+              f" 'refine' = plain dolfinx.mesh.refine, 'Sn.refine' = Snapper.refine wall time,"
+              f" 'its ref' = its dolfinx.mesh.refine, overhd = lineage + place + sm+chk,"
+              f" ratio = overhd / refine, -report = the same without the QualityReport")
+        print(f"{'case':<9}{'method':<9}{'cells':>9}{'moved':>7}{'refine':>8}{'Sn.refine':>10}"
+              f"{'its ref':>8}{'lineage':>8}{'place':>7}{'sm+chk':>8}{'overhd':>8}{'ratio':>7}"
+              f"{'-report':>8}  stage")
+    t = r["t"]
+    print(f"{r['case']:<9}{r['method']:<9}{r['n1']:>9d}{r['moved']:>7d}{r['plain']:>8.3f}"
+          f"{t['wall']:>10.3f}{t['refine']:>8.3f}{t['lineage']:>8.3f}{t['place']:>7.3f}"
+          f"{t['smooth+check']:>8.3f}{t['overhead']:>8.3f}{r['ratio']:>7.3f}"
+          f"{r['ratio_norep']:>8.3f}  {r['stage']}",
+          flush=True)
 
 
 if __name__ == "__main__":

@@ -256,13 +256,21 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
             c0 = [-(a + b + c) for a, b, c in zip(c1, c2, c3)]
             cof = [c0, c1, c2, c3]
             nrm = [np.sqrt(_dot(c, c)) for c in cof]  # 2 * face areas
-            amin = amax = None
+            # The dihedral angle at the edge shared by faces fa, fb is
+            # pi - angle(cof[fa], cof[fb]), an increasing function of the
+            # cosine of that angle: the min / max dihedral angles come from
+            # the min / max cosine over the six edges (two arccos per cell
+            # instead of six cross products and arctan2). A zero-area face
+            # counts as cosine 1 (dihedral angle pi).
+            cmin = cmax = None
             for fa, fb in _TET_EDGE_FACES:
-                na, nb = cof[fa], cof[fb]
-                cr = _cross3(na, nb)
-                d = np.pi - np.arctan2(np.sqrt(_dot(cr, cr)), _dot(na, nb))
-                amin = d if amin is None else np.minimum(amin, d)
-                amax = d if amax is None else np.maximum(amax, d)
+                den = nrm[fa] * nrm[fb]
+                c = np.divide(_dot(cof[fa], cof[fb]), den, out=np.ones_like(den),
+                              where=den > 0)
+                cmin = c if cmin is None else np.minimum(cmin, c)
+                cmax = c if cmax is None else np.maximum(cmax, c)
+            amin = np.pi - np.arccos(np.clip(cmin, -1.0, 1.0))
+            amax = np.pi - np.arccos(np.clip(cmax, -1.0, 1.0))
             # 3 r / R = 216 V^2 / (S * sqrt(P)),  r = 3V/S,
             # R = sqrt(P) / (24 V),  P from products of opposite edges
             S = 0.5 * (nrm[0] + nrm[1] + nrm[2] + nrm[3])
@@ -275,17 +283,36 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
             rr = 216.0 * vol**2 / (S * np.sqrt(np.maximum(Pp, 0.0)))
         rr = np.where(np.isfinite(rr), rr, 0.0)
     rr = np.minimum(rr, 1.0)  # round-off guard for (near-)regular cells
-    if orientation is not None:
-        good = vol * np.sign(np.asarray(orientation, dtype=np.float64)) > 0
-        rr = np.where(good, rr, -rr)
-        mr = np.where(good, mr, -mr)
-    return {
+    q = {
         "volume": vol,
         "min_angle": np.degrees(amin),
         "max_angle": np.degrees(amax),
         "radius_ratio": rr,
         "mean_ratio": mr,
     }
+    if orientation is not None:
+        _orient(q, orientation)
+    return q
+
+
+def _orient(q: dict[str, np.ndarray], orientation: np.ndarray) -> None:
+    """Negate (in ``q``) the ratios of cells whose volume sign differs from ``orientation``."""
+    good = q["volume"] * np.sign(np.asarray(orientation, dtype=np.float64)) > 0
+    for k in ("radius_ratio", "mean_ratio"):
+        q[k] = np.where(good, q[k], -q[k])
+
+
+def _changed_cells(x_a: np.ndarray, x_b: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """(m,) indices of the cells with a node whose row differs between x_a and x_b.
+
+    One O(nodes) comparison and one uint8 gather per cell vertex: much
+    cheaper than a geometric quantity over all cells.
+    """
+    changed = np.any(np.asarray(x_a) != np.asarray(x_b), axis=1).view(np.uint8)
+    out = np.zeros(cells.shape[0], dtype=np.uint8)
+    for k in range(cells.shape[1]):
+        out |= changed.take(cells[:, k])
+    return np.flatnonzero(out)
 
 
 # ---------------------------------------------------------------------------
@@ -321,7 +348,11 @@ class MetricSummary:
         # bin i holds bins[i] <= v < bins[i+1] (last bin closed); outside
         # values are clipped into the first / last bin (as np.histogram of
         # the clipped values, but without its sort)
-        idx = np.clip(np.searchsorted(bins, values, side="right") - 1, 0, len(bins) - 2)
+        # (count of interior edges e with not v < e: as searchsorted(side="right")
+        # with the clipping, NaN last; ~2.5x faster than searchsorted)
+        idx = np.zeros(values.size, dtype=np.uint8 if len(bins) <= 256 else np.intp)
+        for e in np.asarray(bins, dtype=np.float64)[1:-1]:
+            idx += ~(values < e)
         h = np.bincount(idx, minlength=len(bins) - 1)
         h = comm.allreduce(h.astype(np.int64), op=mpi4py.MPI.SUM)
         if n == 0:
@@ -406,10 +437,19 @@ class QualityReport:
                 by this rank that did not reach their target (only entries
                 > 0 are counted).
         """
-        x_new = np.asarray(x_new)
+        x_new = np.asarray(x_new, dtype=np.float64)
         cells = np.asarray(cells)
-        v_ref = signed_volumes(x_ref, cells, gdim) if x_ref is not None else None
-        q = quality_stats(x_new, cells, gdim, orientation=v_ref)
+        q = quality_stats(x_new, cells, gdim)
+        v_ref = None
+        if x_ref is not None:
+            # Reference volumes: a cell whose nodes all kept their reference
+            # coordinates has exactly the volume just computed, so only the
+            # changed cells need the reference geometry (bitwise identical).
+            x_ref = np.asarray(x_ref, dtype=np.float64)
+            v_ref = q["volume"].copy()
+            ch = _changed_cells(x_new, x_ref, cells)
+            v_ref[ch] = signed_volumes(x_ref, cells[ch], gdim)
+            _orient(q, v_ref)
         n_cells = comm.allreduce(int(cells.shape[0]))
         rep = cls(
             n_cells=n_cells,
@@ -424,10 +464,12 @@ class QualityReport:
             rep.n_inverted_after = comm.allreduce(
                 int(np.count_nonzero(_inverted_mask(q["volume"], v_ref, rel_floor))))
             if x_before is not None:
-                v_b = signed_volumes(x_before, cells, gdim)
+                v_b = v_ref.copy()
+                ch = _changed_cells(x_before, x_ref, cells)
+                v_b[ch] = signed_volumes(x_before, cells[ch], gdim)
                 rep.n_inverted_before = comm.allreduce(
                     int(np.count_nonzero(_inverted_mask(v_b, v_ref, rel_floor))))
-            d = np.linalg.norm(x_new[:nown] - np.asarray(x_ref)[:nown], axis=1)
+            d = np.linalg.norm(x_new[:nown] - x_ref[:nown], axis=1)
             rep.n_moved = comm.allreduce(int(np.count_nonzero(d > 0.0)))
             rep.max_displacement = comm.allreduce(float(d.max()) if d.size else 0.0,
                                                   op=mpi4py.MPI.MAX)

@@ -31,9 +31,11 @@ point), both restricted to a *band* of cells around the moved nodes:
 The band
     Cells within ``layers`` vertex-neighbour layers of the moved nodes (layer
     1 = cells touching a moved node, layer ``j+1`` = cells touching a node of
-    layer ``j``). It is extracted with ``dolfinx.mesh.create_submesh``
-    (owned and ghost band cells), so the linear system only has band
-    unknowns and its cost follows the number of moved nodes, not the mesh.
+    layer ``j``). Its owned cells are turned into a separate distributed
+    mesh with ``dolfinx.mesh.create_mesh`` (see :func:`_band_mesh`; not
+    ``create_submesh``, which builds all edges and faces of the parent), so
+    the linear system only has band unknowns and its cost follows the number
+    of moved nodes, not the mesh.
     Constrained (Dirichlet) nodes of the band problem: the moved nodes (their
     prescribed displacement), the ``fixed`` nodes, the outer boundary of the
     band and, with ``fix_boundary=True`` (default), every node on the
@@ -41,14 +43,23 @@ The band
     band that is not listed as moved. Constrained nodes keep their input
     coordinates exactly.
 
-The only per-mesh (not per-band) work is the layer marking, a few numpy
-passes over the geometry dofmap, and the validity check.
+The only per-mesh (not per-band) work is the layer marking and a few cheap
+numpy passes over the nodes and the geometry dofmap (node masks, ghost
+scatters); the validity check of :func:`repair` only evaluates cells in the
+band or touching a prescribed node, and the optional :class:`QualityReport`
+is O(mesh).
 
 Parallel
     Node masks and coordinates are kept ghost-consistent with
     ``dolfinx.la.vector`` scatters over ``mesh.geometry.index_map()``; the
-    owner's coordinates of a node are authoritative. Results agree with the
-    serial run to round-off.
+    owner's coordinates of a node are authoritative. For the same mesh
+    (same cells), with or without ghost cells, results agree with a serial
+    run to round-off (tests/mpi/snapper_smooth_mpi.py gathers the
+    distributed problem and repeats it serially). Note that in 3D
+    ``dolfinx.mesh.refine`` itself is partition dependent: Plaza breaks ties
+    between equally long face edges by global vertex index, so a serial and
+    a parallel refinement of the same coarse mesh can differ in their
+    interior diagonals, and the smoothed coordinates then differ too.
 
 :func:`repair` wraps :func:`smooth` in the guard: check, stiffen / widen,
 partial moves (per-vertex displacement fractions found by a blame-weighted
@@ -67,9 +78,11 @@ import mpi4py.MPI  # noqa: F401  (must precede dolfinx/petsc4py imports)
 import numpy as np
 import scipy.sparse as sp
 
+import basix.ufl
 import dolfinx
 import dolfinx.fem
 import dolfinx.fem.petsc
+import dolfinx.graph
 import dolfinx.la
 import dolfinx.mesh
 import ufl
@@ -214,26 +227,75 @@ def _expand(cells: np.ndarray, mark: np.ndarray, layers: int, sync: _NodeSync,
 # ---------------------------------------------------------------------------
 
 
+def _band_mesh(mesh, band_cells: np.ndarray, sync: _NodeSync):
+    """Mesh of the given local cells and its node -> parent node map (collective).
+
+    Built with ``dolfinx.mesh.create_mesh`` from the OWNED band cells (nodes
+    numbered contiguously by their owners, cells kept on their rank, no
+    ghost cells), which is O(band). ``dolfinx.mesh.create_submesh`` would do
+    O(mesh) work on the parent: in DOLFINx 0.11 it creates every edge and
+    face of the parent and its cell-permutation data (about 1.6 s for 1e6
+    tetrahedra, more than all the band work; 0.08 s for 1e6 triangles).
+
+    Returns:
+        (mesh, gmap): ``gmap`` (n_sub,) int64 parent geometry node of every
+        node of the band mesh.
+    """
+    tdim = mesh.topology.dim
+    comm = mesh.comm
+    cells = mesh.geometry.dofmaps[0]
+    own = band_cells[band_cells < mesh.topology.index_map(tdim).size_local]
+    # nodes of owned band cells on any rank, numbered contiguously by their owner
+    flag = np.zeros(sync.n, dtype=bool)
+    flag[cells[own].reshape(-1)] = True
+    nodes = np.flatnonzero(sync.any(flag)[: sync.n_owned])
+    offset = comm.exscan(nodes.size) if comm.size > 1 else 0
+    gid = np.full(sync.n, -1.0)
+    gid[nodes] = (offset or 0) + np.arange(nodes.size)
+    gid = sync.forward(gid).astype(np.int64)
+    gdim = mesh.geometry.dim
+    element = basix.ufl.element("Lagrange", mesh.topology.cell_name(), 1, shape=(gdim,))
+
+    def keep(comm_, nparts, cell_types, cells_):
+        return dolfinx.graph.adjacencylist(np.full(own.size, comm_.rank, np.int32))._cpp_object
+
+    sub = dolfinx.mesh.create_mesh(comm, gid[cells[own]], element,
+                                   mesh.geometry.x[nodes, :gdim],
+                                   partitioner=keep if comm.size > 1 else None)
+    # parent node of every band-mesh node (all are nodes of local band cells)
+    local = np.flatnonzero(gid >= 0)
+    local = local[np.argsort(gid[local])]
+    want = np.asarray(sub.geometry.input_global_indices, dtype=np.int64)
+    pos = np.minimum(np.searchsorted(gid[local], want), max(local.size - 1, 0))
+    if want.size and not np.array_equal(gid[local[pos]], want):
+        raise RuntimeError("band mesh node without a parent node")
+    return sub, local[pos]
+
+
 class _Band:
     """Submesh of the cells within ``layers`` of the moved nodes (collective).
 
     Attributes:
-        sub: the band submesh (geometry set to the reference coordinates).
+        sub: the band mesh (geometry set to the reference coordinates), see
+            :func:`_band_mesh`.
+        cells: (m,) int32 local parent cells of the band (owned and ghost);
+            every node the smoother can move is only in cells of this list.
         gmap: (n_sub,) parent geometry node of every submesh node.
         constrained: (n_sub,) bool, Dirichlet nodes of the band problem.
         n_cells_global, n_nodes_global: band size.
     """
 
-    def __init__(self, mesh, x_ref, moved_mask, fixed_mask, sync, layers, fix_boundary):
+    def __init__(self, mesh, x_ref, moved_mask, fixed_mask, sync, layers, fix_boundary,
+                 cols=None):
         if layers < 1:
             raise ValueError("layers must be >= 1")
         tdim = mesh.topology.dim
         cells = mesh.geometry.dofmaps[0]
-        mark, prev, cin = _expand(cells, moved_mask, layers, sync)
+        mark, prev, cin = _expand(cells, moved_mask, layers, sync, cols)
         outer = mark & ~prev
         band_cells = np.flatnonzero(cin).astype(np.int32)
-        sub, _emap, _vmap, gmap = dolfinx.mesh.create_submesh(mesh, tdim, band_cells)
-        gmap = np.asarray(gmap, dtype=np.int64)
+        self.cells = band_cells
+        sub, gmap = _band_mesh(mesh, band_cells, sync)
         sub.geometry.x[:] = np.asarray(x_ref)[gmap]
         self.sub = sub
         self.gmap = gmap
@@ -386,7 +448,8 @@ class _LaplaceSolver:
 class _Smoother:
     """Band + solver for one set of options; ``run`` maps prescribed to new x."""
 
-    def __init__(self, mesh, x_ref, moved_mask, fixed_mask, sync, method, opts, timings):
+    def __init__(self, mesh, x_ref, moved_mask, fixed_mask, sync, method, opts, timings,
+                 cols=None):
         self.mesh = mesh
         self.x_ref = x_ref
         self.sync = sync
@@ -404,7 +467,7 @@ class _Smoother:
             return
         t0 = time.perf_counter()
         self.band = _Band(mesh, x_ref, moved_mask, fixed_mask, sync, int(opts["layers"]),
-                          bool(opts["fix_boundary"]))
+                          bool(opts["fix_boundary"]), cols)
         t1 = time.perf_counter()
         _acc(timings, "band", t1 - t0)
         gdim = mesh.geometry.dim
@@ -420,6 +483,11 @@ class _Smoother:
         else:
             raise ValueError(f"unknown method {method!r} (use 'elastic', 'laplace' or 'none')")
         _acc(timings, "setup", time.perf_counter() - t1)
+
+    @property
+    def cells(self) -> np.ndarray:
+        """Local parent cells whose nodes ``run`` may move (empty without a band)."""
+        return self.band.cells if self.band is not None else np.zeros(0, dtype=np.int32)
 
     def run(self, x_cur: np.ndarray) -> np.ndarray:
         """New coordinates (n, 3); constrained nodes keep ``x_cur`` exactly."""
@@ -668,27 +736,57 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
     x_tgt = sync.forward(x_target)  # owner-consistent copy
     disp = np.where(moved_mask[:, None], x_tgt - x_ref, 0.0)
     cells = mesh.geometry.dofmaps[0]
+    n_cells = cells.shape[0]
     n_own_cells = mesh.topology.index_map(tdim).size_local
     cols = _columns(cells)
-    v_ref = signed_volumes(x_ref, cells, gdim)
-    q_floor = (np.minimum(min_quality, 0.5 * mean_ratio(x_ref, cells, gdim))
-               if min_quality > 0 else None)
+    # Every coordinate array checked below differs from x_ref only at nodes
+    # where x_tgt does (scaled prescribed moves) or at nodes a smoother moved,
+    # which lie in its band cells. So the check only looks at the cells
+    # touching a node with x_tgt != x_ref plus the band cells (O(band), not
+    # O(mesh)); reference volumes and quality floors are computed lazily for
+    # the cells actually examined.
+    touched_tgt = _touching(np.any(x_tgt != x_ref, axis=1), cols)
+    v_ref = np.empty(n_cells)
+    q_floor = np.empty(n_cells) if min_quality > 0 else None
+    have_ref = np.zeros(n_cells, dtype=bool)
     attempts: list[dict] = []
 
-    def bad_mask(x):
+    def ref_data(cand):
+        need = cand[~have_ref[cand]]
+        if need.size:
+            sub = cells[need]
+            v_ref[need] = signed_volumes(x_ref, sub, gdim)
+            if q_floor is not None:
+                q_floor[need] = np.minimum(min_quality, 0.5 * mean_ratio(x_ref, sub, gdim))
+            have_ref[need] = True
+
+    pools: dict = {}
+
+    def bad_mask(x, sm_cells):
         """Bad local cells (owned + ghost) and their global (owned) count.
 
         Only cells with a node that differs from x_ref are examined; an
-        unchanged cell cannot have been made bad.
+        unchanged cell cannot have been made bad. ``sm_cells``: band cells
+        of the smoother that produced ``x`` (the only other cells whose
+        nodes can differ from x_ref, see above).
         """
         t0 = time.perf_counter()
-        changed = np.any(x != x_ref, axis=1)
-        cand = np.flatnonzero(_touching(changed, cols))
+        if pools.get("key") is not sm_cells:  # candidate pool of this smoother
+            pool = touched_tgt.copy()
+            pool[sm_cells] = True
+            pool = np.flatnonzero(pool)
+            pc = cells[pool]
+            pools.update(key=sm_cells, pool=pool, cols=_columns(pc), nodes=np.unique(pc))
+        pool, nodes = pools["pool"], pools["nodes"]
+        changed = np.zeros(x.shape[0], dtype=bool)
+        changed[nodes] = np.any(x[nodes] != x_ref[nodes], axis=1)
+        cand = pool[_touching(changed, pools["cols"])]
+        ref_data(cand)
         sub = cells[cand]
         badc = _inverted_mask(signed_volumes(x, sub, gdim), v_ref[cand], rel_floor)
         if q_floor is not None:
             badc |= mean_ratio(x, sub, gdim) < q_floor[cand]
-        bad = np.zeros(cells.shape[0], dtype=bool)
+        bad = np.zeros(n_cells, dtype=bool)
         bad[cand[badc]] = True
         nbad = comm.allreduce(int(np.count_nonzero(bad[:n_own_cells])))
         _acc(timings, "check", time.perf_counter() - t0)
@@ -742,15 +840,16 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
                             timings=timings, report=rep)
 
     ones = np.ones(sync.n)
-    _, n_unsmoothed = bad_mask(x_tgt)
+    no_cells = np.zeros(0, dtype=np.int32)
+    _, n_unsmoothed = bad_mask(x_tgt, no_cells)
 
     # -- step 0: requested smoother ---------------------------------------
-    sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
+    sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings, cols)
     try:
         x = sm.run(x_tgt)
     finally:
         sm.destroy()
-    bad, nbad = bad_mask(x)
+    bad, nbad = bad_mask(x, sm.cells)
     n_smoothed = nbad
     attempts.append({"stage": "smooth", "method": method, "exponent": o["exponent"],
                      "layers": o["layers"], "n_bad": nbad})
@@ -764,16 +863,17 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
             if sm is not None:
                 sm.destroy()
             os_ = dict(o, exponent=o["exponent"] + dp, layers=int(o["layers"]) * int(mult))
-            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, "elastic", os_, timings)
+            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, "elastic", os_, timings,
+                           cols)
             x = sm.run(x_tgt)
-            bad, nbad = bad_mask(x)
+            bad, nbad = bad_mask(x, sm.cells)
             attempts.append({"stage": "stiffen", "method": "elastic",
                              "exponent": os_["exponent"], "layers": os_["layers"],
                              "n_bad": nbad})
             if nbad == 0:
                 return finish(x, ones, "stiffen", n_unsmoothed, n_smoothed)
         if sm is None:  # empty schedule
-            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
+            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings, cols)
         layers_used = int(attempts[-1]["layers"])
 
         # -- step 2: partial moves, blame-weighted bisection ----------------
@@ -802,7 +902,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
                     t = 0.5 * (t_lo + t_hi)
                     a_t = alpha_of(t)
                     x = sm.run(positions(a_t))
-                    bad_t, nbad = bad_mask(x)
+                    bad_t, nbad = bad_mask(x, sm.cells)
                     attempts.append({"stage": "bisect", "round": rnd, "t": t,
                                      "method": sm.method, "layers": layers_used,
                                      "n_bad": nbad})
@@ -814,7 +914,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
                     return finish(good[0], good[1], "partial", n_unsmoothed, n_smoothed)
                 alpha = alpha_of(0.0)
                 x = sm.run(positions(alpha))
-                bad, nbad = bad_mask(x)
+                bad, nbad = bad_mask(x, sm.cells)
                 attempts.append({"stage": "partial", "round": rnd, "t": 0.0,
                                  "method": sm.method, "layers": layers_used,
                                  "n_bad": nbad})

@@ -337,3 +337,58 @@ def test_mpi_matches_serial():
             assert out["report_maxdiff"] < 1e-10 and out["report_mean_ratio_diff"] < 1e-10
             assert out["stage"] == ["partial", "partial"]
             assert out["report_par"]["n_shortfall"] > 0
+
+
+SNAPPER_CASES = {  # case -> number of JSON lines per smoother (levels)
+    "sphere": 2, "sphere_tiefree": 2, "dfg": 3, "direct3d": 1, "direct3d_hard": 1, "direct2d": 1,
+}
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("nprocs, cases", [
+    (2, tuple(SNAPPER_CASES)),
+    (3, ("sphere_tiefree", "dfg", "direct3d_hard", "direct2d")),
+])
+def test_mpi_snapper_unghosted_gmsh(nprocs, cases):
+    """Smoothing inside ``Snapper.refine`` on unghosted gmsh meshes, 2D and 3D.
+
+    See tests/mpi/snapper_smooth_mpi.py. For every level and smoother:
+    * the parallel result equals a serial ``repair`` on the very same
+      (gathered) mesh to round-off -- smoothing and repair are MPI-exact;
+    * when the serial and the parallel pipeline produced the same refined
+      mesh (2D; 3D without tied face edges), the coordinates agree too.
+    3D meshes with equally long face edges (``sphere``) are refined by
+    DOLFINx into partition-dependent interior diagonals, so there only the
+    first point applies.
+    """
+    script = REPO / "tests" / "mpi" / "snapper_smooth_mpi.py"
+    mpiexec = pathlib.Path(sys.executable).parent / "mpiexec"
+    if not mpiexec.exists():
+        pytest.skip("mpiexec not found next to the interpreter")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run([str(mpiexec), "-n", str(nprocs), sys.executable, str(script), *cases],
+                          capture_output=True, text=True, timeout=900, env=env, cwd=REPO)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "DONE" in proc.stdout
+    lines = [json.loads(ln) for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    assert len(lines) == 2 * sum(SNAPPER_CASES[c] for c in cases)
+    assert {(o["case"], o["method"]) for o in lines} == {
+        (c, m) for c in cases for m in ("elastic", "laplace")}
+    for out in lines:
+        assert out["size"] == nprocs
+        assert out["ghosts_coarse"] == [0] * nprocs, out  # unghosted gmsh distribution
+        assert out["ghost_ok"] and out["n_inverted"] == 0, out
+        assert out["same_mesh_maxdiff"] < 1e-12, out
+        assert out["stage_serial_rerun"] == out["stage"], out
+        if out["case"].startswith("direct"):
+            assert out["n_smoothed"] > 0, out
+            if out["case"] == "direct3d_hard":
+                assert out["stage"] == "partial", out
+            continue
+        assert out["n_inverted_serial"] == 0, out
+        if out["cells_differ"] == 0:
+            assert out["serial_maxdiff"] < 1e-12, out
+        if out["case"] in ("sphere_tiefree", "dfg"):
+            assert out["ref_matched"] and out["cells_differ"] == 0, out
+            assert out["serial_maxdiff"] < 1e-12 and out["pointset_maxdiff"] < 1e-12, out
