@@ -31,7 +31,6 @@ from nagata_snap import Snapper
 from nagata_snap.cad import CadGeometry
 from nagata_snap.quality import inverted_cells
 
-PATH = os.path.join(generate._MESHES_DIR, "occ_part.igs")
 SIZE = math.sqrt(3.0)  # model size: the box diagonal
 H = 0.2  # coarse mesh size
 LEVELS = 2
@@ -114,12 +113,21 @@ class OccModel:
 
 
 @pytest.fixture(scope="module")
-def occ():
+def part(tmp_path_factory) -> str:
+    """``occ_part.igs`` written by gmsh/OCC (``meshes/make_iges.py``) into a temporary folder."""
+    import make_iges
+
+    paths = make_iges.write_occ_models(tmp_path_factory.mktemp("occ"))
+    return str(next(p for p in paths if p.name == "occ_part.igs"))
+
+
+@pytest.fixture(scope="module")
+def occ(part):
     gmsh.initialize(interruptible=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add("reference")
-        yield OccModel(PATH)
+        yield OccModel(part)
     finally:
         gmsh.finalize()
 
@@ -140,11 +148,11 @@ def test_reference_checker_sees_face_extensions(occ):
     np.testing.assert_allclose(d[:2], [0.2, 0.15], rtol=0, atol=1e-5)
 
 
-def test_occ_part_snapping_matches_occ(occ):
-    md = generate.iges_solid(MPI.COMM_WORLD, PATH, h=H)
+def test_occ_part_snapping_matches_occ(occ, part):
+    md = generate.iges_solid(MPI.COMM_WORLD, part, h=H)
     mesh, ft = md.mesh, md.facet_tags
     with pytest.warns(UserWarning, match="type 402"):  # OCC's group entity, not geometry
-        geo = CadGeometry.from_iges(PATH)
+        geo = CadGeometry.from_iges(part)
     assert geo.num_entities == 7 and geo.trims is not None
     assert sorted(np.unique(ft.values).tolist()) == sorted(occ.faces)
 

@@ -629,10 +629,10 @@ class FailingOnce:
         return pts, rec, rep
 
 
-def test_cad_error_during_refine_leaves_everything_unchanged(dfg):
+def test_cad_error_during_refine_leaves_everything_unchanged(dfg, tmp_path):
     mesh, ft = dfg
     before = snapshot(mesh, ft)
-    path = os.path.join(os.path.dirname(HERE), "meshes", "dfg_circle.igs")
+    path = make_iges.write_dfg_circle(tmp_path)
     geo = FailingOnce(CadGeometry.from_iges(path))
     snapper = Snapper(mesh, ft, geo, tags=[generate.CYLINDER])
     raises(CadError, "no acceptable projection", snapper.refine, mesh)
