@@ -98,7 +98,7 @@ SMOOTH_DEFAULTS: dict[str, Any] = {
     "exponent": 1.0,        # stiffening exponent p in E = (V_max/|K|)^p
     "model": "elastic",     # 'elastic' (linear elasticity) or 'harmonic'
     "nu": 0.3,              # Poisson ratio for model='elastic'
-    "solver": "mumps",      # 'mumps' (direct LU) or 'cg' (CG + GAMG)
+    "solver": "cg",         # 'cg' (CG + GAMG, MUMPS LU if it fails) or 'mumps' (LU)
     "rtol": 1e-12,          # relative tolerance for solver='cg'
     "petsc_options": None,  # extra/overriding KSP options (dict)
     "sweeps": None,         # Jacobi sweeps for 'laplace' (default max(50, 4 layers^2))
@@ -387,6 +387,17 @@ class _ElasticSolver:
             del opts[k]
         opts.prefixPop()
         self.ksp = ksp
+        self.solver = solver
+        self.n_fallback = 0
+
+    def _switch_to_lu(self) -> None:
+        """Replace the iterative solver by MUMPS LU (after CG + GAMG failed)."""
+        self.ksp.setType("preonly")
+        pc = self.ksp.getPC()
+        pc.setType("lu")
+        pc.setFactorSolverType("mumps")
+        self.solver = "mumps"
+        self.n_fallback += 1
 
     def solve(self, d_sub: np.ndarray) -> np.ndarray:
         """Displacement (n_sub, 3) from Dirichlet values ``d_sub`` (n_sub, 3)."""
@@ -398,7 +409,15 @@ class _ElasticSolver:
         dolfinx.fem.petsc.apply_lifting(self.b, [self.a], bcs=[[self.bc]])
         self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.bc.set(self.b.array_w)
-        self.ksp.solve(self.b, self.x)
+        try:
+            self.ksp.solve(self.b, self.x)
+        except PETSc.Error:
+            # CG + GAMG did not converge (the convergence test is collective,
+            # so every process gets here): solve directly instead
+            if self.solver != "cg":
+                raise
+            self._switch_to_lu()
+            self.ksp.solve(self.b, self.x)
         self.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         dolfinx.fem.petsc.assign(self.x, self.u)
         out = np.zeros((d_sub.shape[0], 3))
@@ -572,13 +591,15 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
             * ``exponent`` (float, 1.0): stiffening exponent ``p`` of
               ``E = (V_max/|K|)^p``;
             * ``model`` ('elastic' | 'harmonic'), ``nu`` (Poisson ratio);
-            * ``solver`` ('mumps' | 'cg'), ``rtol``, ``petsc_options``;
+            * ``solver`` ('cg' | 'mumps'): CG + GAMG to ``rtol`` (default;
+              if it does not converge, the same system is solved by MUMPS
+              LU) or MUMPS LU directly; ``petsc_options`` override either;
             * ``sweeps`` (int): Jacobi sweeps for ``'laplace'``;
             * ``fix_boundary`` (bool, True): also hold every node on the band
               submesh boundary (domain boundary nodes not listed as moved);
             * ``info`` (dict): if given, filled with ``timings`` (stage ->
               seconds), ``band_cells``, ``band_nodes``, ``band_free_nodes``
-              (global counts).
+              (global counts), ``solver_fallbacks`` (0 or 1: CG failed, LU used).
 
     Returns:
         (n, 3) float64 new coordinates of all local nodes (ghost rows equal
@@ -601,6 +622,7 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
             info["band_cells"] = sm.band.n_cells_global
             info["band_nodes"] = sm.band.n_nodes_global
             info["band_free_nodes"] = sm.band.n_free_global
+        info["solver_fallbacks"] = getattr(sm.solver, "n_fallback", 0)
     return x_new
 
 

@@ -392,3 +392,19 @@ def test_mpi_snapper_unghosted_gmsh(nprocs, cases):
         if out["case"] in ("sphere_tiefree", "dfg"):
             assert out["ref_matched"] and out["cells_differ"] == 0, out
             assert out["serial_maxdiff"] < 1e-12 and out["pointset_maxdiff"] < 1e-12, out
+
+
+def test_cg_falls_back_to_lu_when_it_does_not_converge(hole):
+    """The default CG + GAMG solve, stopped after one iteration, is redone by MUMPS LU."""
+    msh, x_ref, hole_nodes, outer_nodes = hole
+    info: dict = {}
+    x_lu = smooth(msh, x_ref, hole_nodes, outer_nodes, solver="mumps")
+    x_cg = smooth(msh, x_ref, hole_nodes, outer_nodes)  # default: cg
+    x_fb = smooth(msh, x_ref, hole_nodes, outer_nodes, solver="cg",
+                  petsc_options={"ksp_max_it": 1}, info=info)
+    scale = np.abs(x_lu - x_ref).max()
+    assert scale > 0
+    # the one-iteration CG would be far off; the fallback is the LU solution
+    np.testing.assert_allclose(x_fb, x_lu, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(x_cg, x_lu, rtol=0, atol=1e-8 * scale)
+    assert info["solver_fallbacks"] == 1
