@@ -117,6 +117,21 @@ def test_sphere_snapping_beats_plain_refinement(tmp_path):
     assert "order" not in r.stderr
 
 
+def test_sphere_p2_curved_beats_straight_snapped(tmp_path):
+    """P2 on the exact NURBS ball: curved cells converge faster than straight snapped cells."""
+    out = tmp_path / "sphere2.json"
+    run([SPHERE, "--degree", "2", "--geometry", "cad", "--levels", "2", "--quiet", "--json", out])
+    data = json.loads(out.read_text())
+    snapped, curved = data["runs"]["snapped"], data["runs"]["curved"]
+    assert [s["dofs"] for s in snapped] == [c["dofs"] for c in curved]
+    for s, c in zip(snapped, curved, strict=True):
+        assert c["L2"] < s["L2"] / 4
+    # straight cells: L2 order about 2 (the domain error); curved: above 2.3 and rising
+    assert 1.7 < snapped[-1]["order_L2"] < 2.3
+    assert curved[-1]["order_L2"] > 2.3
+    assert curved[-1]["sphere_distance"] < 1e-12  # vertices and mid-nodes on the sphere
+
+
 @pytest.mark.parametrize("script", [FLOW, SPHERE])
 def test_demo_help(script):
     r = run([script, "--help"])

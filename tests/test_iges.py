@@ -755,7 +755,7 @@ def mutate(text: str, ops) -> str:
     return text
 
 
-@settings(max_examples=200, deadline=2000, derandomize=True, database=None,
+@settings(max_examples=3000, deadline=2000, derandomize=True, database=None,
           suppress_health_check=[HealthCheck.too_slow])
 @given(
     src=st.integers(0, len(FUZZ_SOURCES) - 1),
