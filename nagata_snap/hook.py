@@ -113,7 +113,10 @@ class Snapper:
         smoothing_options: options of :func:`nagata_snap.smoothing.smooth`
             (``layers``, ``exponent``, ``solver``, ...).
         quality_report: build a :class:`~nagata_snap.quality.QualityReport`
-            each level (O(mesh) work, about 0.3 us per cell).
+            each level: ``True`` / ``"changed"`` (default): angles and ratios
+            of the cells that snapping and smoothing changed (O(band) work);
+            ``"all"``: of every cell (O(mesh), about 1 us per tetrahedron);
+            ``False``: none.
         verbose: print the per-level report on rank 0.
     """
 
@@ -129,7 +132,7 @@ class Snapper:
         min_fraction: float = 0.0,
         min_quality: float = 0.01,
         smoothing_options: dict | None = None,
-        quality_report: bool = True,
+        quality_report: bool | str = True,
         verbose: bool = False,
     ):
         if smoothing not in ("elastic", "laplace", "none"):
@@ -158,7 +161,10 @@ class Snapper:
         self.min_fraction = float(min_fraction)
         self.min_quality = float(min_quality)
         self.smoothing_options = dict(smoothing_options or {})
-        self.quality_report = bool(quality_report)
+        if quality_report not in (True, False, "changed", "all"):
+            raise ValueError(
+                f"quality_report must be True, False, 'changed' or 'all', not {quality_report!r}")
+        self.quality_report = quality_report
         self.verbose = verbose
         self.comm = mesh.comm
         bf = boundary_facets(mesh)

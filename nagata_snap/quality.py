@@ -390,6 +390,12 @@ class QualityReport:
         max_shortfall: largest remaining distance to the target among them.
         timings: stage name -> seconds (max over ranks).
         gdim: geometric dimension.
+        scope: ``"all"`` (the metrics cover every cell of the mesh) or
+            ``"changed"`` (only the cells with a node that moved, i.e. the
+            cells snapping and smoothing changed; inversion counts are the
+            same either way, as an unchanged cell cannot invert).
+        n_cells_mesh: global number of cells of the mesh (``n_cells`` is the
+            number of cells the metrics cover).
     """
 
     n_cells: int
@@ -405,6 +411,8 @@ class QualityReport:
     max_shortfall: float = 0.0
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     gdim: int = 2
+    scope: str = "all"
+    n_cells_mesh: int = -1
 
     # -- construction --------------------------------------------------------
     @classmethod
@@ -414,7 +422,8 @@ class QualityReport:
                     x_before: np.ndarray | None = None,
                     rel_floor: float = 1e-12,
                     timings: dict[str, float] | None = None,
-                    shortfall: np.ndarray | None = None) -> "QualityReport":
+                    shortfall: np.ndarray | None = None,
+                    scope: str = "all") -> "QualityReport":
         """Collective: build the report from raw arrays.
 
         Args:
@@ -436,9 +445,24 @@ class QualityReport:
             shortfall: (k,) remaining distances of the prescribed nodes OWNED
                 by this rank that did not reach their target (only entries
                 > 0 are counted).
+            scope: ``"all"``: metrics over all ``cells``; ``"changed"``
+                (needs ``x_ref``): only over the cells with a node whose
+                coordinates in ``x_new`` or ``x_before`` differ from
+                ``x_ref`` (O(changed cells) geometry instead of O(mesh)).
         """
+        if scope not in ("all", "changed"):
+            raise ValueError(f"scope must be 'all' or 'changed', not {scope!r}")
         x_new = np.asarray(x_new, dtype=np.float64)
         cells = np.asarray(cells)
+        n_cells_mesh = comm.allreduce(int(cells.shape[0]))
+        if scope == "changed":
+            if x_ref is None:
+                raise ValueError("scope='changed' needs x_ref")
+            x_ref = np.asarray(x_ref, dtype=np.float64)
+            sel = _changed_cells(x_new, x_ref, cells)
+            if x_before is not None:
+                sel = np.union1d(sel, _changed_cells(np.asarray(x_before), x_ref, cells))
+            cells = cells[sel]
         q = quality_stats(x_new, cells, gdim)
         v_ref = None
         if x_ref is not None:
@@ -453,6 +477,8 @@ class QualityReport:
         n_cells = comm.allreduce(int(cells.shape[0]))
         rep = cls(
             n_cells=n_cells,
+            scope=scope,
+            n_cells_mesh=n_cells_mesh,
             min_angle=MetricSummary.reduce(comm, q["min_angle"], ANGLE_BINS),
             max_angle=MetricSummary.reduce(comm, q["max_angle"], ANGLE_BINS),
             radius_ratio=MetricSummary.reduce(comm, q["radius_ratio"], RATIO_BINS),
@@ -522,7 +548,11 @@ class QualityReport:
 
     def __str__(self) -> str:
         ang = "dihedral angle" if self.gdim == 3 else "angle"
-        lines = [f"mesh quality report ({self.n_cells} cells, gdim={self.gdim})"]
+        if self.scope == "changed":
+            lines = [f"mesh quality report ({self.n_cells} changed cells of {self.n_cells_mesh}, "
+                     f"gdim={self.gdim})"]
+        else:
+            lines = [f"mesh quality report ({self.n_cells} cells, gdim={self.gdim})"]
         w = 24
         lines.append(f"  {'measure':<{w}} {'min':>10} {'mean':>10} {'max':>10}")
         rows = [(f"min {ang} [deg]", self.min_angle),

@@ -672,7 +672,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
            allow_partial: bool = True, min_fraction: float = 0.0,
            bisection_steps: int = 8, implicate_layers: int = 1,
            taper_layers: int | None = None, max_rounds: int = 4,
-           report: bool = True, **opts) -> RepairResult:
+           report: bool | str = True, **opts) -> RepairResult:
     """Smooth, guard against inverted / degenerate cells, repair or fail.
 
     Collective on ``mesh.comm``. Neither ``mesh`` nor any input array is
@@ -734,7 +734,9 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         taper_layers: layers over which the blame decays to 0 (default: the
             band width of the last smoother).
         max_rounds: number of blame rounds (the last blames all moved nodes).
-        report: build a :class:`QualityReport` (collective, O(mesh)).
+        report: build a :class:`QualityReport`: ``True`` or ``"changed"``
+            (metrics over the cells snapping / smoothing changed, O(band)),
+            ``"all"`` (every cell, O(mesh)) or ``False`` (none).
         **opts: smoothing options of :func:`smooth` (``layers``, ``exponent``,
             ...).
 
@@ -848,11 +850,12 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         rep = None
         if report:
             t0 = time.perf_counter()
+            scope = "changed" if report is True else str(report)
             n_own = sync.n_owned
             own_moved = np.flatnonzero(moved_mask[:n_own])
             rep = QualityReport.from_mesh(
                 mesh, x, x_ref=x_ref, x_before=x_tgt, rel_floor=rel_floor,
-                timings=dict(timings), shortfall=short_all[own_moved])
+                timings=dict(timings), shortfall=short_all[own_moved], scope=scope)
             timings["report"] = time.perf_counter() - t0
             rep.timings["report"] = comm.allreduce(timings["report"], op=mpi4py.MPI.MAX)
         return RepairResult(x=x, fraction=np.asarray(frac, dtype=np.float64),

@@ -218,3 +218,36 @@ def test_report_on_structured_mesh():
     rows = [ln for ln in s.splitlines() if ln.strip().startswith(("min angle", "max angle",
                                                                   "radius ratio", "mean ratio"))]
     assert len({len(r) for r in rows[:4]}) == 1
+
+
+def test_changed_scope_covers_exactly_the_cells_with_moved_nodes():
+    """scope='changed': metrics of the cells touching a moved node, same inversion counts."""
+    msh = dolfinx.mesh.create_unit_square(MPI.COMM_SELF, 8, 8)
+    x_ref = msh.geometry.x.copy()
+    x = x_ref.copy()
+    x_before = x_ref.copy()
+    cells = msh.geometry.dofmaps[0]
+    # push the node nearest (0.5, 0.5) past its neighbours (inverts cells), and
+    # before smoothing also a second node
+    i = int(np.argmin(np.linalg.norm(x_ref[:, :2] - 0.5, axis=1)))
+    j = int(np.argmin(np.linalg.norm(x_ref[:, :2] - 0.25, axis=1)))
+    x[i, 0] += 0.2
+    x_before[[i, j], 0] += 0.2
+    full = QualityReport.from_arrays(MPI.COMM_SELF, x, cells, 2, x_ref=x_ref, x_before=x_before)
+    part = QualityReport.from_arrays(MPI.COMM_SELF, x, cells, 2, x_ref=x_ref, x_before=x_before,
+                                     scope="changed")
+    touched = np.flatnonzero(np.isin(cells, [i, j]).any(axis=1))
+    assert part.scope == "changed" and part.n_cells == touched.size == 12
+    assert part.n_cells_mesh == full.n_cells == 128
+    q = quality_stats(x, cells[touched], 2)
+    assert part.min_angle.min == pytest.approx(float(q["min_angle"].min()), abs=1e-12)
+    assert part.max_angle.max == pytest.approx(float(q["max_angle"].max()), abs=1e-12)
+    assert int(part.mean_ratio.hist.sum()) == 12
+    assert part.n_inverted_after == full.n_inverted_after > 0
+    assert part.n_inverted_before == full.n_inverted_before > 0
+    assert (part.n_moved, part.max_displacement) == (full.n_moved, full.max_displacement)
+    assert "12 changed cells of 128" in str(part)
+    with pytest.raises(ValueError, match="scope"):
+        QualityReport.from_arrays(MPI.COMM_SELF, x, cells, 2, scope="band")
+    with pytest.raises(ValueError, match="needs x_ref"):
+        QualityReport.from_arrays(MPI.COMM_SELF, x, cells, 2, scope="changed")

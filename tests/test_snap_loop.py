@@ -185,3 +185,20 @@ def test_mpi_matches_serial(case, levels, mode, nprocs, tmp_path):
                 d, i = cKDTree(a).query(b)
                 assert d.max() <= 1e-12, key
                 assert len(np.unique(i)) == len(a)  # a bijection
+
+
+def test_quality_report_scopes(dfg):
+    mesh, ft = dfg
+    geo = NagataGeometry(mesh, ft, tags=[generate.CYLINDER])
+    runs = {q: Snapper(mesh, ft, geo, quality_report=q).refine(mesh) for q in (True, "all", False)}
+    a, b = runs[True].report.quality, runs["all"].report.quality
+    assert runs[False].report.quality is None
+    assert np.array_equal(runs[True].mesh.geometry.x, runs["all"].mesh.geometry.x)
+    assert (a.scope, b.scope) == ("changed", "all")
+    assert a.n_cells_mesh == b.n_cells == b.n_cells_mesh
+    assert 0 < a.n_cells < b.n_cells / 4  # only the cells around the cylinder (coarse mesh)
+    assert (a.n_moved, a.max_displacement, a.n_inverted_before, a.n_inverted_after) == (
+        b.n_moved, b.max_displacement, b.n_inverted_before, b.n_inverted_after)
+    assert a.min_angle.min >= b.min_angle.min
+    with pytest.raises(ValueError, match="quality_report"):
+        Snapper(mesh, ft, geo, quality_report="some")

@@ -9,6 +9,7 @@ compared with the serial result by original input index
 """
 
 import json
+import os
 import sys
 
 import mpi4py.MPI as MPI
@@ -152,11 +153,7 @@ def main():
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except Exception:
-        import traceback
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import _abort
 
-        traceback.print_exc()
-        sys.stdout.flush()
-        MPI.COMM_WORLD.Abort(1)
+    _abort.run(main)

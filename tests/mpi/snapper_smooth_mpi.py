@@ -268,11 +268,7 @@ def main():
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except Exception:
-        import traceback
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import _abort
 
-        traceback.print_exc()
-        sys.stdout.flush()
-        WORLD.Abort(1)
+    _abort.run(main)
