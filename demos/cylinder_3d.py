@@ -51,6 +51,13 @@ KADIR_TABLE_41 = [
 KADIR_TABLE_42_B = {"1-5": 12066155, "6-10": 12, "11-15": 0, "16-20": 0, "21-35": 0, "1000 (failed)": 0}
 
 
+#: Largest distance of Kadir's NURBS cylinder (quarter arcs with corner weight
+#: 0.707107 instead of sqrt(2)/2) from the exact one: R |sqrt(2)(1 + 2w)/(2 + 2w) - 1|,
+#: at the middle of each quarter arc [m].
+KADIR_SURFACE_OFFSET = generate.KADIR_CYL_RADIUS * abs(
+    np.sqrt(2.0) * (1 + 2 * 0.707107) / (2 + 2 * 0.707107) - 1.0)
+
+
 def mark_near_cylinder(mesh, distance: float) -> np.ndarray:
     """Edges of the owned cells whose midpoint is within ``distance`` of the cylinder surface."""
     tdim = mesh.topology.dim
@@ -108,6 +115,13 @@ def main(argv=None) -> dict:
         own = own[own < m.geometry.index_map().size_local]
         return comm.allreduce(len(own))
 
+    def cylinder_distance(m, tags) -> float:
+        """Max | r - R | of the cylinder's vertices from the exact circular cylinder [m]."""
+        x = m.geometry.x[np.unique(dolfinx.mesh.entities_to_geometry(m, 2, tags.find(generate.CIB_CYLINDER)))]
+        cx, cy = generate.KADIR_CYL_CENTER
+        d = np.abs(np.hypot(x[:, 0] - cx, x[:, 1] - cy) - generate.KADIR_CYL_RADIUS)
+        return comm.allreduce(float(d.max()) if d.size else 0.0, op=MPI.MAX)
+
     for k in range(args.levels):
         old = mesh.geometry.index_map().size_global
         on_before = n_on_cylinder(mesh, ft)
@@ -128,6 +142,7 @@ def main(argv=None) -> dict:
                          max_iterations=int(np.flatnonzero(hist)[-1]) if hist.any() else 0,
                          unresolved=rep.geometry.get("n_unresolved", 0),
                          inverted_after=rep.inverted_after_smoothing,
+                         cylinder_distance=cylinder_distance(mesh, ft),
                          times=rep.times))
     ours = bins(total_hist)
     say("\nNewton iterations of the seeded projections (all levels; every facet-vertex slot of a new")
@@ -139,6 +154,9 @@ def main(argv=None) -> dict:
     mean = float((np.arange(len(total_hist))[1:] * total_hist[1:]).sum() / max(n, 1))
     say(f"max iterations {int(np.flatnonzero(total_hist)[-1])}, mean {mean:.2f} "
         f"(Kadir: at most 7, most in 1-5)")
+    say(f"max distance of the cylinder's vertices from the exact cylinder: "
+        f"{max(r['cylinder_distance'] for r in rows):.3e} m (Kadir's file rounds the NURBS "
+        f"weights to 0.707107: its surface is itself up to {KADIR_SURFACE_OFFSET:.3e} m off)")
     out = dict(levels=rows, histogram=total_hist.tolist(), bins=ours, mean_iterations=mean)
     if args.json and comm.rank == 0:
         with open(args.json, "w") as f:
