@@ -669,8 +669,9 @@ class CadGeometry:
             contiguous within each facet), and a report with
             ``max_residual``/``mean_residual`` (snap distance ``|S(u) - P|``
             over distinct vertices, length units), ``iterations_histogram``
-            (``np.bincount`` of the Newton iterations of every slot's seeded
-            projection), ``n_points`` (slots), ``n_vertices``, ``n_fallback``
+            (``np.bincount`` of the Newton iterations of the seeded
+            projections, one per distinct (vertex, entity, seed)), ``n_points``
+            (slots), ``n_vertices``, ``n_fallback``
             (slots whose seeded Newton failed or jumped farther than the
             facet's longest edge), ``n_off_root`` (positions taken from
             another entity) and ``n_unresolved`` (no acceptable projection
@@ -708,8 +709,17 @@ class CadGeometry:
         big = np.finfo(float).max
 
         acc = self._accept
-        # 1. seeded Newton on the facet's entity
-        par, proj, dist, its, conv = self.searcher.refine(np.arange(ns), ent, seed, X, self.max_iter)
+        # 1. seeded Newton on the facet's entity, once per distinct (entity,
+        # vertex, seed): the slots of a vertex shared by several facets of one
+        # entity (about 5 per vertex on a surface) mostly carry the same seed
+        # and share one result; different seeds (seams, poles, where the
+        # parameter is not unique) keep their own Newton run
+        key = np.column_stack([ent.astype(float), X, seed])
+        _, uniq, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inv = inv.reshape(-1)
+        par, proj, dist, its, conv = self.searcher.refine(uniq, ent[uniq], seed[uniq], X,
+                                                          self.max_iter)
+        par, proj, dist, conv = par[inv], proj[inv], dist[inv], conv[inv]
         valid = conv & (dist <= hs) & np.all(np.isfinite(proj), axis=1)
         n_left_face = 0
         if acc is not None:  # a result beyond the face's trimming loops: fall back

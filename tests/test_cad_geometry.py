@@ -99,9 +99,11 @@ def test_circle_polygon_refinement(offset):
         assert report["n_points"] == st.shape[0] * 2 and report["n_fallback"] == 0
         assert report["n_vertices"] == st.shape[0]
         h = report["iterations_histogram"]
-        assert h.sum() == report["n_points"] and len(h) - 1 <= 7
-        # the old vertices are exact already: 0 iterations
-        assert h[0] >= st.shape[0]
+        # one seeded projection per distinct (vertex, seed), not per facet slot:
+        # only the vertex on the seam has two seeds (u = 0 and u = 1)
+        assert report["n_vertices"] <= h.sum() <= report["n_vertices"] + 1 and len(h) - 1 <= 7
+        # the old vertices (half of them) are exact already: 0 iterations
+        assert h[0] >= st.shape[0] // 2
         np.testing.assert_allclose(report["max_residual"], np.max(np.linalg.norm(pts - st, axis=2)), rtol=1e-12)
         x = pts
 
