@@ -535,6 +535,21 @@ def sphere_in_box(
     )
 
 
+def squeeze_wall_layer(mesh, radius: float = 0.5, reach: float = 0.3, factor: float = 0.15) -> None:
+    """Squeeze the cells off a sphere into a thin near-wall layer (in place).
+
+    Every geometry node at a distance ``0 < r - radius < reach`` from the
+    origin is moved radially to ``radius + factor (r - radius)``: the first
+    cell layer off the sphere becomes ``factor`` times thinner, so that
+    snapping the sphere's new vertices outwards inverts cells (the hard 3D
+    case of the smoothing tests and ``benchmarks/hard_cases.py``).
+    """
+    x = mesh.geometry.x
+    r = np.linalg.norm(x, axis=1)
+    sel = (r > radius + 1e-9) & (r < radius + reach)
+    x[sel] *= ((radius + factor * (r[sel] - radius)) / r[sel])[:, None]
+
+
 def ball(
     comm,
     radius: float = 1.0,

@@ -39,7 +39,26 @@ __all__ = ["Snapper", "Refined", "SnapReport", "InvertedCellsError", "LineageErr
 
 @dataclass
 class SnapReport:
-    """What one :meth:`Snapper.refine` call did (numbers are global over processes)."""
+    """What one :meth:`Snapper.refine` call did (numbers are global over processes).
+
+    Attributes:
+        level: refinement level reached (1 after the first call).
+        num_cells, num_vertices: size of the refined mesh.
+        boundary_vertices_moved: snapped vertices that moved off their straight position.
+        max_displacement: largest snapping move (length unit).
+        inverted_before_smoothing: cells inverted or degenerate with the boundary
+            snapped and the interior not yet smoothed.
+        inverted_after_smoothing: always 0 in a returned report.
+        repair_stage: ``'smooth'``, ``'stiffen'`` or ``'partial'`` (see
+            :func:`nagata_snap.smoothing.repair`).
+        partially_moved, max_shortfall: vertices left short of the geometry and
+            the largest remaining distance.
+        times: seconds per stage (``refine``, ``lineage``, ``place``, ``smooth+check``).
+        geometry: the geometry's placement report (CAD: residuals, Newton histogram).
+        quality: :class:`~nagata_snap.quality.QualityReport` (None if switched off).
+        smoothing_attempts: one dict per smoothing attempt (stage, method,
+            stiffening exponent, band ``layers``, number of bad cells).
+    """
 
     level: int
     num_cells: int
@@ -54,6 +73,7 @@ class SnapReport:
     times: dict[str, float] = field(default_factory=dict)
     geometry: dict = field(default_factory=dict)
     quality: QualityReport | None = None
+    smoothing_attempts: list[dict] = field(default_factory=list)
 
     def __str__(self) -> str:
         t = ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in self.times.items())
@@ -318,6 +338,7 @@ class Snapper:
             times=times,
             geometry=geo_report,
             quality=res.report,
+            smoothing_attempts=list(res.attempts),
         )
         self._level = _Level(mesh1, ch.boundary, tag, snapped, records, f_int, tag_int)
         self.level += 1

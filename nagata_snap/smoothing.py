@@ -94,7 +94,8 @@ __all__ = ["smooth", "repair", "RepairResult", "InvertedCellsError", "SMOOTH_DEF
 
 #: Default options of :func:`smooth` (``**opts``).
 SMOOTH_DEFAULTS: dict[str, Any] = {
-    "layers": 4,            # band width in vertex-neighbour layers (>= 1)
+    "layers": "auto",       # band width in vertex-neighbour layers (>= 1), or 'auto'
+                            # (2, 3 or 4 from the relative displacement, see _auto_layers)
     "exponent": 1.0,        # stiffening exponent p in E = (V_max/|K|)^p
     "model": "elastic",     # 'elastic' (linear elasticity) or 'harmonic'
     "nu": 0.3,              # Poisson ratio for model='elastic'
@@ -201,6 +202,53 @@ def _touching(mask: np.ndarray, cols: list[np.ndarray]) -> np.ndarray:
     for c in cols[1:]:
         out |= m8.take(c)
     return out.view(bool)
+
+
+#: ``layers='auto'``: (largest relative displacement, band layers); above the
+#: last threshold the band has AUTO_LAYERS_MAX layers.
+AUTO_LAYERS = ((0.1, 2), (0.3, 3))
+AUTO_LAYERS_MAX = 4
+
+#: Default blame taper of the partial moves (vertex layers, at most the band
+#: width): wide enough for a smooth fraction field along the boundary, narrow
+#: enough that only the vertices near the offending cells stay short (a taper
+#: as wide as a stiffened band of 24 layers left 780 vertices short where 53
+#: suffice, benchmarks/hard_cases.py).
+TAPER_LAYERS = 2
+
+
+def _auto_layers(comm, x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
+                 cols: list[np.ndarray]) -> int:
+    """Band width for the prescribed displacement ``disp`` (n, 3) (collective).
+
+    The relative displacement of a cell is the largest prescribed
+    displacement of its nodes over its shortest reference edge; its maximum
+    over the cells touching a displaced node decides: below 0.1 (the usual
+    case after refinement, where the snapping distance is O(h^2)) two layers
+    are enough to spread the move, below 0.3 three, otherwise four (as for
+    the first levels of a very coarse polygon).  The repair widens the band
+    further if cells still invert.
+    """
+    dn = np.linalg.norm(disp, axis=1)
+    sel = np.flatnonzero(_touching(dn > 0.0, cols))
+    r = 0.0
+    if sel.size:
+        sub = cells[sel]
+        xs = x_ref[sub]  # (m, k, 3)
+        k = sub.shape[1]
+        hmin = np.full(sel.size, np.inf)
+        for a in range(k):
+            for b in range(a + 1, k):
+                hmin = np.minimum(hmin, np.linalg.norm(xs[:, a] - xs[:, b], axis=1))
+        dmax = dn[sub].max(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(hmin > 0, dmax / hmin, np.inf)
+        r = float(rel.max())
+    r = comm.allreduce(r, op=mpi4py.MPI.MAX)
+    for limit, layers in AUTO_LAYERS:
+        if r <= limit:
+            return layers
+    return AUTO_LAYERS_MAX
 
 
 def _expand(cells: np.ndarray, mark: np.ndarray, layers: int, sync: _NodeSync,
@@ -557,6 +605,10 @@ def _options(opts: dict) -> dict:
         raise TypeError(f"unknown smoothing options: {sorted(unknown)}")
     o = dict(SMOOTH_DEFAULTS)
     o.update({k: v for k, v in opts.items() if k != "info"})
+    lay = o["layers"]
+    if not (lay == "auto" or (isinstance(lay, (int, np.integer)) and not isinstance(lay, bool)
+                              and lay >= 1)):
+        raise ValueError(f"layers must be an integer >= 1 or 'auto', not {lay!r}")
     return o
 
 
@@ -586,8 +638,11 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
         method: ``'elastic'`` (default), ``'laplace'`` or ``'none'``.
         **opts: see :data:`SMOOTH_DEFAULTS`:
 
-            * ``layers`` (int, 4): band width in vertex-neighbour layers
-              (for ``'elastic'`` and ``'laplace'``);
+            * ``layers`` (int or ``'auto'``, default ``'auto'``): band width
+              in vertex-neighbour layers (for ``'elastic'`` and
+              ``'laplace'``); ``'auto'``: 2, 3 or 4 from the largest
+              displacement relative to the shortest edge of the cells it
+              touches (<= 0.1, <= 0.3, above);
             * ``exponent`` (float, 1.0): stiffening exponent ``p`` of
               ``E = (V_max/|K|)^p``;
             * ``model`` ('elastic' | 'harmonic'), ``nu`` (Poisson ratio);
@@ -599,7 +654,8 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
               submesh boundary (domain boundary nodes not listed as moved);
             * ``info`` (dict): if given, filled with ``timings`` (stage ->
               seconds), ``band_cells``, ``band_nodes``, ``band_free_nodes``
-              (global counts), ``solver_fallbacks`` (0 or 1: CG failed, LU used).
+              (global counts), ``solver_fallbacks`` (0 or 1: CG failed, LU
+              used), ``layers`` (the band width used).
 
     Returns:
         (n, 3) float64 new coordinates of all local nodes (ghost rows equal
@@ -611,6 +667,11 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
     timings: dict[str, float] = {}
     sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed)
     x_cur = sync.forward(mesh.geometry.x)
+    if o["layers"] == "auto":
+        cells = mesh.geometry.dofmaps[0]
+        o["layers"] = _auto_layers(mesh.comm, x_ref,
+                                   np.where(moved_mask[:, None], x_cur - x_ref, 0.0),
+                                   cells, _columns(cells))
     sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
     try:
         x_new = sm.run(x_cur)
@@ -623,6 +684,7 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
             info["band_nodes"] = sm.band.n_nodes_global
             info["band_free_nodes"] = sm.band.n_free_global
         info["solver_fallbacks"] = getattr(sm.solver, "n_fallback", 0)
+        info["layers"] = int(o["layers"])
     return x_new
 
 
@@ -696,11 +758,15 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
        (factorised once, re-solved per trial): the moved nodes near the bad
        cells get a *blame weight* ``w`` (1 within ``implicate_layers``
        vertex layers of a bad cell, tapering linearly to 0 over
-       ``taper_layers`` further layers, default the band width), and their
+       ``taper_layers`` further layers), and their
        displacement fractions become
        ``alpha_i(t) = a_i - (1 - t) w_i (a_i - min_fraction)`` (``a`` the
        fractions of the previous round, initially 1). ``bisection_steps``
-       bisections on ``t`` in [0, 1] keep the largest valid ``t``. If even
+       bisections on ``t`` in [0, 1] keep the largest valid ``t``. The
+       first try is local (taper ``TAPER_LAYERS`` = 2 layers: only the
+       vertices next to the bad cells stay short, e.g. around a boundary
+       sliver whose nodes are all constrained); if no ``t`` is valid, the
+       rounds use a taper as wide as the band. If even
        ``t = 0`` leaves bad cells (elsewhere), a new round blames those
        with a wider radius, up to ``max_rounds``; the last round blames
        every moved node. So every node gets its own fraction, and the
@@ -731,8 +797,9 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         implicate_layers: moved nodes within this many vertex layers of a
             bad cell get the full blame (>= 1); grows by the band width per
             round.
-        taper_layers: layers over which the blame decays to 0 (default: the
-            band width of the last smoother).
+        taper_layers: layers over which the blame decays to 0. Default: a
+            first, local bisection with a taper of ``TAPER_LAYERS`` (2), then
+            rounds with the band width of the last smoother.
         max_rounds: number of blame rounds (the last blames all moved nodes).
         report: build a :class:`QualityReport`: ``True`` or ``"changed"``
             (metrics over the cells snapping / smoothing changed, O(band)),
@@ -763,6 +830,8 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
     n_cells = cells.shape[0]
     n_own_cells = mesh.topology.index_map(tdim).size_local
     cols = _columns(cells)
+    if o["layers"] == "auto":
+        o["layers"] = _auto_layers(comm, x_ref, disp, cells, cols)
     # Every coordinate array checked below differs from x_ref only at nodes
     # where x_tgt does (scaled prescribed moves) or at nodes a smoother moved,
     # which lie in its band cells. So the check only looks at the cells
@@ -905,8 +974,36 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         if allow_partial:
             fmin = float(min_fraction)
             r0 = max(1, int(implicate_layers))
-            taper = max(1, layers_used if taper_layers is None else int(taper_layers))
+
+            def bisect(w, base, rnd):
+                """Largest valid t of alpha(t) = base - (1 - t) w (base - fmin), or None."""
+                t_lo, t_hi, good = 0.0, 1.0, None
+                for _ in range(int(bisection_steps)):
+                    t = 0.5 * (t_lo + t_hi)
+                    a_t = base - (1.0 - t) * w * (base - fmin)
+                    x = sm.run(positions(a_t))
+                    _, nbad = bad_mask(x, sm.cells)
+                    attempts.append({"stage": "bisect", "round": rnd, "t": t,
+                                     "method": sm.method, "layers": layers_used,
+                                     "n_bad": nbad})
+                    if nbad == 0:
+                        t_lo, good = t, (x, a_t)
+                    else:
+                        t_hi = t
+                return good
+
             alpha = np.ones(sync.n)
+            # 2a. local: only the moved nodes next to the bad cells, narrow
+            # taper (a bad cell all of whose nodes are constrained, e.g. a
+            # boundary sliver, leaves only a few vertices short)
+            narrow = TAPER_LAYERS if taper_layers is None else int(taper_layers)
+            if taper_layers is None and narrow < layers_used:
+                good = bisect(blame(bad, r0, max(1, narrow)), alpha, "local")
+                if good is not None:
+                    return finish(good[0], good[1], "partial", n_unsmoothed, n_smoothed)
+            # 2b. rounds with the taper as wide as the band (smooth fractions
+            # when many nodes must stay short), widening the blamed region
+            taper = max(1, layers_used if taper_layers is None else int(taper_layers))
             for rnd in range(int(max_rounds)):
                 last = rnd == int(max_rounds) - 1
                 w = moved_mask.astype(np.float64) if last else \
@@ -916,28 +1013,10 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
                     w = np.where(alpha > fmin, moved_mask.astype(np.float64), 0.0)
                     if not comm.allreduce(bool(np.any(w > 0)), op=mpi4py.MPI.LOR):
                         break  # every moved node already at min_fraction
-                base = alpha
-
-                def alpha_of(t, base=base, w=w):
-                    return base - (1.0 - t) * w * (base - fmin)
-
-                t_lo, t_hi = 0.0, 1.0
-                good = None
-                for _ in range(int(bisection_steps)):
-                    t = 0.5 * (t_lo + t_hi)
-                    a_t = alpha_of(t)
-                    x = sm.run(positions(a_t))
-                    bad_t, nbad = bad_mask(x, sm.cells)
-                    attempts.append({"stage": "bisect", "round": rnd, "t": t,
-                                     "method": sm.method, "layers": layers_used,
-                                     "n_bad": nbad})
-                    if nbad == 0:
-                        t_lo, good = t, (x, a_t)
-                    else:
-                        t_hi = t
+                good = bisect(w, alpha, rnd)
                 if good is not None:
                     return finish(good[0], good[1], "partial", n_unsmoothed, n_smoothed)
-                alpha = alpha_of(0.0)
+                alpha = alpha - w * (alpha - fmin)
                 x = sm.run(positions(alpha))
                 bad, nbad = bad_mask(x, sm.cells)
                 attempts.append({"stage": "partial", "round": rnd, "t": 0.0,
