@@ -27,6 +27,7 @@ import dolfinx.mesh
 from . import nagata
 from .boundary import boundary_facets, check_p1_simplex, tag_values
 from .normals import NormalsError, corner_normals
+from .parallel import collective
 from .records import Records
 
 __all__ = ["NagataGeometry", "NormalSource"]
@@ -193,10 +194,11 @@ class NagataGeometry:
         user = None
         if normals is not None and not callable(normals):
             arr = np.asarray(normals, dtype=float)
-            if arr.ndim != 2 or arr.shape[0] < x.shape[0] or arr.shape[1] not in (2, 3):
+            bad_shape = arr.ndim != 2 or arr.shape[0] < x.shape[0] or arr.shape[1] not in (2, 3)
+            if comm.allreduce(bool(bad_shape), op=MPI.LOR):  # the same error on every process
                 raise ValueError(
                     f"normals array must have shape (num_geometry_nodes={x.shape[0]}, gdim), "
-                    f"got {arr.shape}"
+                    f"got {arr.shape}" + ("" if bad_shape else " on another process")
                 )
             user = np.zeros((x.shape[0], 3))
             user[:, : arr.shape[1]] = arr[: x.shape[0]]
@@ -217,7 +219,10 @@ class NagataGeometry:
                 "only exterior boundary facets can be snapped"
             )
         gids, coords, tag, fnorm, user = _gather(comm, gids, coords, tag, fnorm, user)
-        self._build(gids, coords, tag, fnorm, user, normals, crease_angle, split_tags, eps)
+        # every process builds the same patches from the gathered data (no MPI
+        # inside); a callable of normals may still fail on some processes only
+        collective(comm, self._build, gids, coords, tag, fnorm, user, normals, crease_angle,
+                   split_tags, eps)
 
     @classmethod
     def from_surface(

@@ -30,6 +30,7 @@ from .boundary import BoundaryFacets, boundary_facets, check_p1_simplex, tag_val
 from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, child_facets, child_interior_facets
+from .parallel import collective
 from .quality import QualityReport
 from .records import Records, refine_records
 from .smoothing import InvertedCellsError, repair
@@ -208,7 +209,7 @@ class Snapper:
         x = mesh.geometry.x
         gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)
         sel = np.flatnonzero(snapped)
-        records = _collective(self.comm, geometry.attach, x[bf.nodes[sel]], nodes=gids[bf.nodes[sel]])
+        records = collective(self.comm, geometry.attach, x[bf.nodes[sel]], nodes=gids[bf.nodes[sel]])
         self._level = _Level(mesh, bf, tag, snapped, records, interior, interior_tag)
         self.level = 0
 
@@ -270,7 +271,7 @@ class Snapper:
         times["refine"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        ch = _collective(self.comm, child_facets, mesh, prev.boundary, mesh1, parent_cell)
+        ch = collective(self.comm, child_facets, mesh, prev.boundary, mesh1, parent_cell)
         f_int, i_int = child_interior_facets(mesh, prev.interior, mesh1, ch.parent_cells)
         tag_int = prev.interior_tag[i_int]
         tag = prev.tag[ch.parent]
@@ -284,7 +285,7 @@ class Snapper:
         x = mesh1.geometry.x
         x_ref = x.copy()
         nodes = ch.boundary.nodes[sel]
-        pts, records, geo_report = _collective(self.comm, self.geometry.place, records, x[nodes])
+        pts, records, geo_report = collective(self.comm, self.geometry.place, records, x[nodes])
         unresolved = self.comm.allreduce(int(geo_report.get("n_unresolved", 0)))
         if unresolved:
             raise CadError(
@@ -369,26 +370,6 @@ def _check_edges(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike) -> np.ndarray:
             f"process), e.g. {e[bad][:3].tolist()}"
         )
     return e
-
-
-def _collective(comm, fn, *args, **kwargs):
-    """Call ``fn``; if it raises on any process, raise the same error on every process."""
-    err = None
-    try:
-        out = fn(*args, **kwargs)
-    except Exception as exc:  # re-raised below, on every process
-        err = exc
-    errors = comm.allgather(None if err is None else (type(err), str(err)))
-    if err is not None:
-        raise err
-    for e in errors:
-        if e is not None:
-            cls, msg = e
-            try:
-                raise cls(f"{msg} (raised on another process)")
-            except TypeError:
-                raise RuntimeError(f"{cls.__name__}: {msg} (raised on another process)") from None
-    return out
 
 
 def _max():

@@ -16,6 +16,17 @@ Cases:
   nan_on_one_rank           NaN at an interior node of the last rank only   ValueError
   geometry_of_another_mesh  Snapper on a mesh the geometry was not built on ValueError
   cad_far                   IGES circle 10 cm off the DFG cylinder CadError
+  cad_mm                    IGES circle in millimetres, mesh in metres      CadError
+  cad_curves_for_3d         NURBS curves for a tetrahedral mesh    CadError
+  cell_tags                 cell tags passed as facet tags         ValueError
+  tags_of_another_mesh      facet tags created on another mesh     ValueError
+  stale_mesh                Snapper.refine(the mesh before the last one)    LineageError
+  zero_normals              normals array of zeros                 NormalsError
+  nan_normals_one_rank      normals callable giving NaN on the last rank only NormalsError
+  mesh_moved                mesh moved on rank 0 after the geometry was built ValueError
+  quadrilaterals            quadrilateral mesh                     ValueError
+  bad_option                Snapper(smoothing="spring")            ValueError
+  inverted                  wall normals tilted +-50 deg, no smoothing, no repair InvertedCellsError
 """
 
 import json
@@ -35,6 +46,7 @@ import dolfinx.mesh  # noqa: E402
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
 from nagata_snap.iges import write_iges  # noqa: E402
+from nagata_snap.nurbs import circle  # noqa: E402
 
 comm = MPI.COMM_WORLD
 
@@ -109,6 +121,99 @@ def cad_far():
         write_iges(path, curves=[make_iges.circle_curve((0.3, 0.2, 0.0), 0.05)], units="M")
     comm.barrier()
     Snapper(mesh, ft, CadGeometry.from_iges(path), tags=[generate.CYLINDER])
+
+
+def _circle_file(name, centre, radius, units):
+    d = comm.bcast(tempfile.mkdtemp() if comm.rank == 0 else None)
+    path = os.path.join(d, name)
+    if comm.rank == 0:
+        write_iges(path, curves=[make_iges.circle_curve(centre, radius)], units=units)
+    comm.barrier()
+    return path
+
+
+def cad_mm():
+    mesh, ft = dfg()
+    path = _circle_file("mm.igs", (200.0, 200.0, 0.0), 50.0, "MM")
+    Snapper(mesh, ft, CadGeometry.from_iges(path), tags=[generate.CYLINDER])
+
+
+def cad_curves_for_3d():
+    mesh = dolfinx.mesh.create_unit_cube(comm, 2, 2, 2)
+    Snapper(mesh, exterior_tags(mesh), CadGeometry([circle((0.5, 0.5, 0.0), 0.5)]))
+
+
+def cell_tags():
+    mesh = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    n = mesh.topology.index_map(2).size_local
+    ct = dolfinx.mesh.meshtags(mesh, 2, np.arange(n, dtype=np.int32), np.ones(n, np.int32))
+    NagataGeometry(mesh, ct)
+
+
+def tags_of_another_mesh():
+    a = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    b = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    NagataGeometry(a, exterior_tags(b))
+
+
+def stale_mesh():
+    mesh = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    ft = exterior_tags(mesh)
+    snapper = Snapper(mesh, ft, NagataGeometry(mesh, ft))
+    snapper.refine(mesh)
+    snapper.refine(mesh)  # the coarse mesh again, not the one returned
+
+
+def zero_normals():
+    mesh, ft = dfg()
+    NagataGeometry(mesh, ft, tags=[generate.CYLINDER], normals=np.zeros((len(mesh.geometry.x), 2)))
+
+
+def nan_normals_one_rank():
+    mesh, ft = dfg()
+
+    def normals(x):
+        n = np.c_[x[:, 0] - 0.2, x[:, 1] - 0.2, 0 * x[:, 0]]
+        if comm.rank == comm.size - 1:
+            n[:1] = np.nan
+        return n
+
+    NagataGeometry(mesh, ft, tags=[generate.CYLINDER], normals=normals)
+
+
+def mesh_moved():
+    mesh = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    ft = exterior_tags(mesh)
+    geo = NagataGeometry(mesh, ft)
+    if comm.rank == 0:
+        mesh.geometry.x[:, :2] *= 2.0
+    Snapper(mesh, ft, geo)
+
+
+def quadrilaterals():
+    mesh = dolfinx.mesh.create_unit_square(comm, 4, 4, dolfinx.mesh.CellType.quadrilateral)
+    NagataGeometry(mesh, exterior_tags(mesh))
+
+
+def bad_option():
+    mesh = dolfinx.mesh.create_unit_square(comm, 4, 4)
+    ft = exterior_tags(mesh)
+    Snapper(mesh, ft, NagataGeometry(mesh, ft), smoothing="spring")
+
+
+def inverted():
+    mesh = dolfinx.mesh.create_rectangle(comm, [[0.0, 0.0], [1.0, 0.1]], [4, 2])
+    mesh.topology.create_connectivity(1, 2)
+    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    mid = dolfinx.mesh.compute_midpoints(mesh, 1, f)
+    ft = dolfinx.mesh.meshtags(mesh, 1, f, np.where(np.abs(mid[:, 1]) < 1e-12, 1, 2).astype(np.int32))
+
+    def wavy(x):  # wall normals tilted by +-50 deg on alternate vertices
+        a = np.radians(50.0) * np.where(np.round(x[:, 0] / 0.25) % 2 == 0, 1.0, -1.0)
+        return np.c_[np.sin(a), -np.cos(a), 0 * a]
+
+    geo = NagataGeometry(mesh, ft, tags=[1], normals=wavy, crease_angle=60.0)
+    Snapper(mesh, ft, geo, smoothing="none", repair=False).refine(mesh)
 
 
 result = {}
