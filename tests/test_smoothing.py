@@ -408,3 +408,16 @@ def test_cg_falls_back_to_lu_when_it_does_not_converge(hole):
     np.testing.assert_allclose(x_fb, x_lu, rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(x_cg, x_lu, rtol=0, atol=1e-8 * scale)
     assert info["solver_fallbacks"] == 1
+
+
+@pytest.mark.parametrize("rel, layers", [(0.05, 2), (0.2, 3), (0.5, 4)])
+def test_auto_band_width_follows_the_relative_displacement(rel, layers):
+    """layers='auto': 2, 3 or 4 layers for a push of 5 %, 20 %, 50 % of the cell size."""
+    msh, x_ref, left, fixed = square_push(rel * H)  # shortest edge of the cells: H
+    info: dict = {}
+    x_new = smooth(msh, x_ref, left, fixed, info=info)
+    assert info["layers"] == layers
+    assert n_inverted(msh, x_new, x_ref) == 0
+    # only nodes within that many layers of the pushed side moved (grid columns)
+    moved = np.flatnonzero(np.any(x_new != x_ref, axis=1))
+    assert x_ref[moved, 0].max() < (layers + 0.5) * H
