@@ -32,9 +32,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "meshes"))
 
 from nagata_snap.nurbs import torus  # noqa: E402
 from nagata_snap.projection import project_newton  # noqa: E402
+from nurbs_reference import occ_bspline  # noqa: E402
 
 R_MAJOR, R_MINOR = 2.0, 1.0
 
@@ -81,23 +83,6 @@ def time_ours(surf, P, seeds, repeat: int):
         if best is None or c.cpu < best.cpu:
             best = c
     return best, res
-
-
-def occ_bspline(gmsh, surf) -> int:
-    nu, nv = surf.n_ctrl
-    tags, w = [], []
-    for j in range(nv):  # gmsh: u index fastest
-        for i in range(nu):
-            tags.append(gmsh.model.occ.addPoint(*surf.control_points[i, j]))
-            w.append(float(surf.weights[i, j]))
-    ku, mu = np.unique(surf.knots_u, return_counts=True)
-    kv, mv = np.unique(surf.knots_v, return_counts=True)
-    tag = gmsh.model.occ.addBSplineSurface(
-        tags, nu, degreeU=surf.degree_u, degreeV=surf.degree_v, weights=w,
-        knotsU=ku.tolist(), knotsV=kv.tolist(), multiplicitiesU=mu.tolist(), multiplicitiesV=mv.tolist(),
-    )
-    gmsh.model.occ.synchronize()
-    return tag
 
 
 def time_occ(gmsh, tag: int, P: np.ndarray):

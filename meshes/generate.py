@@ -478,6 +478,31 @@ def _surfaces_of_type(surfaces: list[int], kind: str) -> list[int]:
     return [s for s in surfaces if gmsh.model.getType(2, s) == kind]
 
 
+def _box_minus_tool(lo, hi, make_tool, curved_type: str, h_curved: float, h_box: float,
+                    dist: float, box_group: tuple[int, str], curved_group: tuple[int, str]) -> None:
+    """Mesh (in the current gmsh model) the box ``[lo, hi]`` minus an OCC tool solid.
+
+    ``make_tool(occ) -> tag`` adds the tool after the box; its faces of OCC
+    type ``curved_type`` ("Sphere", "Cylinder") get size ``h_curved``, growing
+    to ``h_box`` at distance ``dist``; physical groups: the volume, the other
+    faces (``box_group``) and the curved faces (``curved_group``).
+    """
+    occ = gmsh.model.occ
+    b = occ.addBox(*lo, *(hi - lo))
+    tool = make_tool(occ)
+    out, _ = occ.cut([(3, b)], [(3, tool)])
+    occ.synchronize()
+    vols = [t for d, t in out if d == 3]
+    surfs = _boundary_surfaces([(3, v) for v in vols])
+    curved = _surfaces_of_type(surfs, curved_type)
+    rest = [t for t in surfs if t not in curved]
+    _threshold_field(curved, 2, h_curved, max(h_box, h_curved), dist)
+    gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
+    gmsh.model.addPhysicalGroup(2, rest, box_group[0], name=box_group[1])
+    gmsh.model.addPhysicalGroup(2, curved, curved_group[0], name=curved_group[1])
+    gmsh.model.mesh.generate(3)
+
+
 def sphere_in_box(
     comm,
     radius: float = 0.5,
@@ -514,20 +539,8 @@ def sphere_in_box(
     dmax = gap if dist_far is None else dist_far
 
     def build():
-        occ = gmsh.model.occ
-        b = occ.addBox(*lo, *(hi - lo))
-        s = occ.addSphere(*c, radius)
-        out, _ = occ.cut([(3, b)], [(3, s)])
-        occ.synchronize()
-        vols = [t for d, t in out if d == 3]
-        surfs = _boundary_surfaces([(3, v) for v in vols])
-        sph = _surfaces_of_type(surfs, "Sphere")
-        rest = [t for t in surfs if t not in sph]
-        _threshold_field(sph, 2, h_sphere, max(h_box, h_sphere), dmax)
-        gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
-        gmsh.model.addPhysicalGroup(2, rest, BOX, name="box")
-        gmsh.model.addPhysicalGroup(2, sph, SPHERE, name="sphere")
-        gmsh.model.mesh.generate(3)
+        _box_minus_tool(lo, hi, lambda occ: occ.addSphere(*c, radius), "Sphere",
+                        h_sphere, h_box, dmax, (BOX, "box"), (SPHERE, "sphere"))
 
     return _build_and_convert(
         comm, "sphere_in_box", build, 3, msh_file=msh_file, verbose=verbose,
@@ -621,21 +634,13 @@ def cylinder_in_box(
         raise ValueError("cylinder must lie strictly inside the box in x and y")
 
     def build():
-        occ = gmsh.model.occ
-        b = occ.addBox(*lo, *(hi - lo))
         extra = 0.1 * (hi[2] - lo[2])
-        cyl = occ.addCylinder(xc, yc, lo[2] - extra, 0.0, 0.0, hi[2] - lo[2] + 2 * extra, radius)
-        out, _ = occ.cut([(3, b)], [(3, cyl)])
-        occ.synchronize()
-        vols = [t for d, t in out if d == 3]
-        surfs = _boundary_surfaces([(3, v) for v in vols])
-        lateral = _surfaces_of_type(surfs, "Cylinder")
-        rest = [t for t in surfs if t not in lateral]
-        _threshold_field(lateral, 2, h_cylinder, max(h_box, h_cylinder), dist_far)
-        gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
-        gmsh.model.addPhysicalGroup(2, rest, CIB_WALLS, name="walls")
-        gmsh.model.addPhysicalGroup(2, lateral, CIB_CYLINDER, name="cylinder")
-        gmsh.model.mesh.generate(3)
+        _box_minus_tool(
+            lo, hi,
+            lambda occ: occ.addCylinder(xc, yc, lo[2] - extra, 0.0, 0.0,
+                                        hi[2] - lo[2] + 2 * extra, radius),
+            "Cylinder", h_cylinder, h_box, dist_far, (CIB_WALLS, "walls"),
+            (CIB_CYLINDER, "cylinder"))
 
     return _build_and_convert(
         comm, "cylinder_in_box", build, 3, msh_file=msh_file, verbose=verbose,

@@ -184,7 +184,6 @@ class NagataGeometry:
             )
         self.tags = tags
         self.crease_angle = float(crease_angle)
-        nfv = self.tdim
         bf = boundary_facets(mesh)
         x = mesh.geometry.x
         gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)[bf.nodes]

@@ -170,7 +170,6 @@ def child_interior_facets(
     """
     tdim = mesh0.topology.dim
     fdim = tdim - 1
-    nfv = tdim
     if len(facets0) == 0:
         return np.zeros(0, np.int32), np.zeros(0, np.int64)
     mesh0.topology.create_connectivity(fdim, tdim)

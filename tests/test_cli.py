@@ -1,6 +1,5 @@
 """The ``nagata-snap`` command line (``python -m nagata_snap.cli``), run as a subprocess."""
 
-import os
 import subprocess
 import sys
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from nurbs_reference import herrero_71, occ_bspline
 
 from nagata_snap.nurbs import (
     NurbsCurve,
@@ -31,27 +32,6 @@ def explicit_circle(c=(0.2, 0.2, 0.0), R=0.05) -> NurbsCurve:
     net = np.array([[1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0], [-1, -1], [0, -1], [1, -1], [1, 0]], float)
     P = c + R * np.c_[net, np.zeros(9)]
     return NurbsCurve(2, CIRCLE_KNOTS, P, [1, S2, 1, S2, 1, S2, 1, S2, 1])
-
-
-def herrero_71() -> NurbsSurface:
-    """Herrero Adan & Cardoso (2020), Appendix D, Example 7.1 (Tables D.2 and D.3).
-
-    n = 6 (xi, our u), m = 5 (eta, our v), p = q = 2,
-    Xi = {0,0,0,0.25,0.5,0.75,1,1,1}, H = {0,0,0,0.5,0.5,1,1,1}.
-    Rows of Table D.3 are i = 1..6, columns j = 1..5, entries "x, y, z, w".
-    """
-    table = [
-        [(0, 0, -90, 1), (0, 0, 0, 0.707), (0, 30, 0, 1), (0, 60, 0, 0.707), (0, 60, -30, 1)],
-        [(30, 0, -15, 1), (30, 15, 0, 1), (30, 30, 0, 1), (30, 45, 0, 1), (30, 60, -15, 1)],
-        [(95, 0, 0, 1), (95, 15, 0, 1), (95, 30, 0, 1), (95, 45, 0, 1), (95, 60, 0, 1)],
-        [(150, 0, 0, 6), (137.5, 15, 0, 1), (125, 30, 0, 1), (112.5, 45, 0, 1), (100, 60, 0, 1)],
-        [(150, 65, 0, 1), (137.5, 65, 0, 1), (125, 65, 0, 1), (112.5, 65, 0, 1), (100, 65, 0, 1)],
-        [(150, 100, 0, 1), (137.5, 100, 0, 1), (125, 100, 0, 1), (112.5, 100, 0, 1), (100, 100, 0, 1)],
-    ]
-    a = np.array(table, dtype=float)
-    return NurbsSurface(
-        2, 2, [0, 0, 0, 0.25, 0.5, 0.75, 1, 1, 1], [0, 0, 0, 0.5, 0.5, 1, 1, 1], a[..., :3], a[..., 3]
-    )
 
 
 def herrero_72_mid() -> NurbsSurface:
@@ -310,24 +290,6 @@ def test_surface_corners_and_wrap():
 # ----------------------------------------------------------------------
 # Herrero Adan App. D surfaces against OpenCASCADE (gmsh) and finite differences
 # ----------------------------------------------------------------------
-def _occ_bspline(gmsh, surf: NurbsSurface) -> int:
-    nu, nv = surf.n_ctrl
-    tags, w = [], []
-    for j in range(nv):  # gmsh: u index fastest
-        for i in range(nu):
-            tags.append(gmsh.model.occ.addPoint(*surf.control_points[i, j]))
-            w.append(float(surf.weights[i, j]))
-    ku, mu = np.unique(surf.knots_u, return_counts=True)
-    kv, mv = np.unique(surf.knots_v, return_counts=True)
-    tag = gmsh.model.occ.addBSplineSurface(
-        tags, nu, degreeU=surf.degree_u, degreeV=surf.degree_v, weights=w,
-        knotsU=ku.tolist(), knotsV=kv.tolist(),
-        multiplicitiesU=mu.tolist(), multiplicitiesV=mv.tolist(),
-    )
-    gmsh.model.occ.synchronize()
-    return tag
-
-
 @pytest.mark.parametrize("make", [herrero_71, herrero_72_mid])
 def test_herrero_surfaces_vs_occ_and_fd(make):
     gmsh = pytest.importorskip("gmsh")
@@ -338,7 +300,7 @@ def test_herrero_surfaces_vs_occ_and_fd(make):
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add("herrero")
-        tag = _occ_bspline(gmsh, surf)
+        tag = occ_bspline(gmsh, surf)
         uv = np.c_[u, v].ravel().tolist()
         X = np.array(gmsh.model.getValue(2, tag, uv)).reshape(-1, 3)
         D1 = np.array(gmsh.model.getDerivative(2, tag, uv)).reshape(-1, 2, 3)

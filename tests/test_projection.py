@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from nurbs_reference import herrero_71, occ_bspline
 
 from nagata_snap.nurbs import NurbsCurve, NurbsSurface, circle, cylinder, sphere, torus
 from nagata_snap.projection import (
@@ -21,43 +22,6 @@ from nagata_snap.projection import (
 )
 
 S2 = np.sqrt(0.5)
-
-
-def herrero_71() -> NurbsSurface:
-    """Herrero Adan & Cardoso (2020), Appendix D, Example 7.1 (Tables D.2, D.3).
-
-    (Same data as in test_nurbs.py.)  Rows i = 1..6 (xi = u), columns j = 1..5
-    (eta = v), entries x, y, z, w.
-    """
-    table = [
-        [(0, 0, -90, 1), (0, 0, 0, 0.707), (0, 30, 0, 1), (0, 60, 0, 0.707), (0, 60, -30, 1)],
-        [(30, 0, -15, 1), (30, 15, 0, 1), (30, 30, 0, 1), (30, 45, 0, 1), (30, 60, -15, 1)],
-        [(95, 0, 0, 1), (95, 15, 0, 1), (95, 30, 0, 1), (95, 45, 0, 1), (95, 60, 0, 1)],
-        [(150, 0, 0, 6), (137.5, 15, 0, 1), (125, 30, 0, 1), (112.5, 45, 0, 1), (100, 60, 0, 1)],
-        [(150, 65, 0, 1), (137.5, 65, 0, 1), (125, 65, 0, 1), (112.5, 65, 0, 1), (100, 65, 0, 1)],
-        [(150, 100, 0, 1), (137.5, 100, 0, 1), (125, 100, 0, 1), (112.5, 100, 0, 1), (100, 100, 0, 1)],
-    ]
-    a = np.array(table, dtype=float)
-    return NurbsSurface(
-        2, 2, [0, 0, 0, 0.25, 0.5, 0.75, 1, 1, 1], [0, 0, 0, 0.5, 0.5, 1, 1, 1], a[..., :3], a[..., 3]
-    )
-
-
-def _occ_bspline(gmsh, surf: NurbsSurface) -> int:
-    nu, nv = surf.n_ctrl
-    tags, w = [], []
-    for j in range(nv):  # gmsh: u index fastest
-        for i in range(nu):
-            tags.append(gmsh.model.occ.addPoint(*surf.control_points[i, j]))
-            w.append(float(surf.weights[i, j]))
-    ku, mu = np.unique(surf.knots_u, return_counts=True)
-    kv, mv = np.unique(surf.knots_v, return_counts=True)
-    tag = gmsh.model.occ.addBSplineSurface(
-        tags, nu, degreeU=surf.degree_u, degreeV=surf.degree_v, weights=w,
-        knotsU=ku.tolist(), knotsV=kv.tolist(), multiplicitiesU=mu.tolist(), multiplicitiesV=mv.tolist(),
-    )
-    gmsh.model.occ.synchronize()
-    return tag
 
 
 # ----------------------------------------------------------------------
@@ -344,7 +308,7 @@ def test_against_occ_bspline_herrero(gmsh_session):
     """Herrero Adan & Cardoso (2020) App. D, Example 7.1 net, as an OCC B-spline surface."""
     gmsh = gmsh_session
     surf = herrero_71()
-    tag = _occ_bspline(gmsh, surf)
+    tag = occ_bspline(gmsh, surf)
     size = surf.bbox_size
     rng = np.random.default_rng(8)
     P = _near_points(surf, 1000, 4.0, rng, umargin=0.05, vmargin=0.05)  # edge length ~ a few units

@@ -30,7 +30,6 @@ Runtime: derandomized, 100-200 examples per property, deadlines set (about 40 s)
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
