@@ -684,6 +684,18 @@ def import_iges_solid(path: str, heal_tolerance: float = IGES_HEAL_TOLERANCE) ->
     return vols, _boundary_surfaces([(3, v) for v in vols])
 
 
+def _mesh_uniform_per_face(vols: list[int], faces: list[int], h: float) -> None:
+    """Tetrahedra of uniform size ``h`` in ``vols``; physical group = face tag for every face."""
+    fld = gmsh.model.mesh.field
+    f = fld.add("MathEval")
+    fld.setString(f, "F", repr(float(h)))
+    fld.setAsBackgroundMesh(f)
+    gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
+    for t in faces:  # loop over CAD faces (a few), one physical group each
+        gmsh.model.addPhysicalGroup(2, [t], t, name=f"face{t}")
+    gmsh.model.mesh.generate(3)
+
+
 def iges_solid(
     comm,
     path: str,
@@ -706,15 +718,7 @@ def iges_solid(
     """
 
     def build():
-        vols, faces = import_iges_solid(path, heal_tolerance)
-        fld = gmsh.model.mesh.field
-        f = fld.add("MathEval")
-        fld.setString(f, "F", repr(float(h)))
-        fld.setAsBackgroundMesh(f)
-        gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
-        for t in faces:
-            gmsh.model.addPhysicalGroup(2, [t], t, name=f"face{t}")
-        gmsh.model.mesh.generate(3)
+        _mesh_uniform_per_face(*import_iges_solid(path, heal_tolerance), h)
 
     return _build_and_convert(
         comm, "iges_solid", build, 3, msh_file=msh_file, verbose=verbose, root=root,
@@ -744,15 +748,7 @@ def occ_features(
 
     def build():
         vols = make_iges.build_occ_features()
-        faces = _boundary_surfaces([(3, v) for v in vols])
-        fld = gmsh.model.mesh.field
-        f = fld.add("MathEval")
-        fld.setString(f, "F", repr(float(h)))
-        fld.setAsBackgroundMesh(f)
-        gmsh.model.addPhysicalGroup(3, vols, VOLUME, name="volume")
-        for t in faces:
-            gmsh.model.addPhysicalGroup(2, [t], t, name=f"face{t}")
-        gmsh.model.mesh.generate(3)
+        _mesh_uniform_per_face(vols, _boundary_surfaces([(3, v) for v in vols]), h)
 
     return _build_and_convert(
         comm, "occ_features", build, 3, msh_file=msh_file, verbose=verbose, root=root,
