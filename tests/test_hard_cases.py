@@ -76,3 +76,24 @@ def test_sphere_with_thin_wall_layer():
     assert rep.partially_moved <= 0.1 * rep.boundary_vertices_moved
     if rep.partially_moved:
         assert rep.repair_stage == "partial" and 0 < rep.max_shortfall < 0.01
+
+
+@pytest.mark.mpi
+def test_hard_cases_mpi_same_repair_as_serial():
+    """benchmarks/hard_cases.py under mpiexec -n 2: the same stages and counts as serially."""
+    import os
+    import subprocess
+    import sys
+
+    script = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "hard_cases.py")
+    mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
+
+    def rows(cmd):
+        r = subprocess.run(cmd + [sys.executable, script], capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert r.stdout.strip().splitlines()[-1] == "inverted_after 0"
+        # level rows: level, cells, inverted before/after, stage, partial, layers
+        return [ln.split()[:7] for ln in r.stdout.splitlines() if ln.strip()[:1].isdigit()]
+
+    serial, par = rows([]), rows([mpiexec, "-n", "2"])
+    assert len(serial) == 5 and serial == par
