@@ -197,7 +197,9 @@ class NagataGeometry:
             if comm.allreduce(bool(bad_shape), op=MPI.LOR):  # the same error on every process
                 raise ValueError(
                     f"normals array must have shape (num_geometry_nodes={x.shape[0]}, gdim), "
-                    f"got {arr.shape}" + ("" if bad_shape else " on another process")
+                    f"got {arr.shape}" if bad_shape else
+                    "normals array has a wrong shape on another process (expected "
+                    "(num_geometry_nodes, gdim) there)"
                 )
             user = np.zeros((x.shape[0], 3))
             user[:, : arr.shape[1]] = arr[: x.shape[0]]
