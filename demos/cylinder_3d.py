@@ -29,6 +29,7 @@ import dolfinx.mesh
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "meshes"))
 import generate  # noqa: E402
+import make_iges  # noqa: E402
 
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
@@ -51,11 +52,10 @@ KADIR_TABLE_41 = [
 KADIR_TABLE_42_B = {"1-5": 12066155, "6-10": 12, "11-15": 0, "16-20": 0, "21-35": 0, "1000 (failed)": 0}
 
 
-#: Largest distance of Kadir's NURBS cylinder (quarter arcs with corner weight
-#: 0.707107 instead of sqrt(2)/2) from the exact one: R |sqrt(2)(1 + 2w)/(2 + 2w) - 1|,
-#: at the middle of each quarter arc [m].
-KADIR_SURFACE_OFFSET = generate.KADIR_CYL_RADIUS * abs(
-    np.sqrt(2.0) * (1 + 2 * 0.707107) / (2 + 2 * 0.707107) - 1.0)
+#: Largest distance of Kadir's NURBS cylinder (corner weights printed as 0.707107)
+#: from the exact one, at the middle of each quarter arc [m].
+KADIR_SURFACE_OFFSET = generate.KADIR_CYL_RADIUS * make_iges.weight_rounding_error(
+    make_iges.KADIR_WEIGHT)
 
 
 def mark_near_cylinder(mesh, distance: float) -> np.ndarray:

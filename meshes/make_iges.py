@@ -128,6 +128,21 @@ def single_entity_file(start: list[str], global_line: str, etype: int, form: int
     return "\n".join(out) + "\n"
 
 
+#: Corner weight of the quarter arcs as printed in Kadir's files (not 1/sqrt 2).
+KADIR_WEIGHT = 0.707107
+
+
+def weight_rounding_error(w: float) -> float:
+    """Relative radial error at the middle of a quarter arc with corner weight ``w``.
+
+    Unit quarter circle P0=(1,0), P1=(1,1), P2=(0,1): C(1/2) = (P0 + 2 w P1 + P2) / (2 + 2 w),
+    |C(1/2)| = sqrt(2) (1 + 2 w) / (2 + 2 w) (= 1 for w = 1/sqrt(2)).  This is the largest
+    deviation of the arc (it is symmetric and monotone in each half), so Kadir's circle and
+    cylinder are up to ``R * weight_rounding_error(KADIR_WEIGHT)`` off the exact ones.
+    """
+    return abs(math.sqrt(2.0) * (1 + 2 * w) / (2 + 2 * w) - 1.0)
+
+
 def kadir_circle_text() -> str:
     """Kadir (2010) App. C, IGES File 1 (entity 126) in 80-column layout."""
     return single_entity_file(KADIR_CIRCLE_START, KADIR_GLOBAL, 126, 0, KADIR_CIRCLE_P)

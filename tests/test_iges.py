@@ -164,17 +164,8 @@ def occ_distance(dim: int, P: np.ndarray) -> np.ndarray:
 KC, KR = np.array([0.2, 0.2, 0.0]), 0.05
 # Start section of "IGES File 2": "Center(x,y)=(0.55, 0.5), zmin=0, zmax=0.4, Radius=0.05"
 YC, YR, YZ = np.array([0.55, 0.5]), 0.05, (0.0, 0.4)
-W_PRINTED = 0.707107
-
-
-def weight_rounding_error(w: float) -> float:
-    """Relative radial error at the middle of a quarter arc with corner weight ``w``.
-
-    Unit quarter circle P0=(1,0), P1=(1,1), P2=(0,1): C(1/2) = (P0 + 2 w P1 + P2) / (2 + 2 w),
-    |C(1/2)| = sqrt(2) (1 + 2 w) / (2 + 2 w) (= 1 for w = 1/sqrt(2)).  This is the largest
-    deviation of the arc (it is symmetric and monotone in each half).
-    """
-    return abs(math.sqrt(2.0) * (1 + 2 * w) / (2 + 2 * w) - 1.0)
+W_PRINTED = make_iges.KADIR_WEIGHT
+weight_rounding_error = make_iges.weight_rounding_error
 
 
 def test_kadir_circle_file_layout(files):
