@@ -230,7 +230,7 @@ def parse_args(argv=None):
                    help="build the Nagata patches with the exact sphere normals n(x) = x "
                         "(a callable) instead of estimating them from the coarse mesh; Max's "
                         "weights are exact for vertices on a sphere, so the results agree to "
-                        "round-off: this shows the API")
+                        "round-off: this shows the API (Nagata geometry only)")
     p.add_argument("--json", metavar="FILE", help="write the three runs, every level, as JSON")
     p.add_argument("--quiet", action="store_true", help="print only the final table")
     args = p.parse_args(argv)
@@ -246,9 +246,10 @@ def main(argv=None) -> dict:
     comm = MPI.COMM_WORLD
     t0 = time.perf_counter()
     if comm.rank == 0 and not args.quiet:
+        normals = ("" if args.geometry == "cad"
+                   else f", {'exact' if args.exact_normals else 'estimated'} normals")
         print(f"Poisson in the unit ball, P{args.degree}, coarse h = {args.h}, {args.levels} "
-              f"uniform refinements, geometry {args.geometry}"
-              f"{'' if args.geometry == 'cad' else (', exact' if args.exact_normals else ', estimated') + ' normals'}, "
+              f"uniform refinements, geometry {args.geometry}{normals}, "
               f"{comm.size} MPI process(es)", flush=True)
     results = {**run("plain", args, comm), **run("snapped", args, comm)}
     total = time.perf_counter() - t0
