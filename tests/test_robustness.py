@@ -79,6 +79,7 @@ from mpi4py import MPI
 import dolfinx.mesh
 import generate
 import make_iges
+from robustness_inputs import exterior_tags, wall_tags, wavy
 from surfaces import circle_polygon, sphere_octahedron
 
 from nagata_snap import (
@@ -110,23 +111,6 @@ def simplex_mesh(cells, x, cell: str | None = None, degree: int = 1):
     if COMM.rank != 0:
         x, cells = x[:0], cells[:0]
     return dolfinx.mesh.create_mesh(COMM, cells, el, x)
-
-
-def exterior_tags(mesh, value=1):
-    """Facet tags with ``value`` on every exterior facet."""
-    fdim = mesh.topology.dim - 1
-    mesh.topology.create_connectivity(fdim, mesh.topology.dim)
-    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    return dolfinx.mesh.meshtags(mesh, fdim, f, np.full(len(f), value, dtype=np.int32))
-
-
-def wall_tags(mesh, y0=0.0):
-    """Tag 1 on the wall y = y0, tag 2 on the rest of the boundary."""
-    mesh.topology.create_connectivity(1, 2)
-    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    mid = dolfinx.mesh.compute_midpoints(mesh, 1, f)
-    v = np.where(np.abs(mid[:, 1] - y0) < 1e-12, 1, 2).astype(np.int32)
-    return dolfinx.mesh.meshtags(mesh, 1, f, v)
 
 
 def snapshot(mesh, ft):
@@ -560,16 +544,6 @@ def channel():
     """[0, 1] x [0, 0.1], 4 x 2 cells: the wall y = 0 (tag 1) is 0.25 per edge."""
     mesh = dolfinx.mesh.create_rectangle(COMM, [[0.0, 0.0], [1.0, 0.1]], [4, 2])
     return mesh, wall_tags(mesh)
-
-
-def wavy(deg):
-    """Wall normals tilted by +-deg on alternate vertices: every second new midpoint
-    is pushed into the domain by about 0.25 tan(deg) / 4 (more than a cell height)."""
-    def f(x):
-        s = np.where(np.round(x[:, 0] / 0.25) % 2 == 0, 1.0, -1.0)
-        a = np.radians(deg) * s
-        return np.c_[np.sin(a), -np.cos(a), 0 * a]
-    return f
 
 
 INVERTING = [

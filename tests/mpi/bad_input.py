@@ -38,8 +38,10 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import generate  # noqa: E402
 import make_iges  # noqa: E402
+from robustness_inputs import exterior_tags, wall_tags, wavy  # noqa: E402
 
 import dolfinx.mesh  # noqa: E402
 
@@ -49,12 +51,6 @@ from nagata_snap.iges import write_iges  # noqa: E402
 from nagata_snap.nurbs import circle  # noqa: E402
 
 comm = MPI.COMM_WORLD
-
-
-def exterior_tags(mesh, value=1):
-    mesh.topology.create_connectivity(mesh.topology.dim - 1, mesh.topology.dim)
-    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    return dolfinx.mesh.meshtags(mesh, mesh.topology.dim - 1, f, np.full(len(f), value, np.int32))
 
 
 _dfg = None
@@ -203,16 +199,8 @@ def bad_option():
 
 def inverted():
     mesh = dolfinx.mesh.create_rectangle(comm, [[0.0, 0.0], [1.0, 0.1]], [4, 2])
-    mesh.topology.create_connectivity(1, 2)
-    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    mid = dolfinx.mesh.compute_midpoints(mesh, 1, f)
-    ft = dolfinx.mesh.meshtags(mesh, 1, f, np.where(np.abs(mid[:, 1]) < 1e-12, 1, 2).astype(np.int32))
-
-    def wavy(x):  # wall normals tilted by +-50 deg on alternate vertices
-        a = np.radians(50.0) * np.where(np.round(x[:, 0] / 0.25) % 2 == 0, 1.0, -1.0)
-        return np.c_[np.sin(a), -np.cos(a), 0 * a]
-
-    geo = NagataGeometry(mesh, ft, tags=[1], normals=wavy, crease_angle=60.0)
+    ft = wall_tags(mesh)
+    geo = NagataGeometry(mesh, ft, tags=[1], normals=wavy(50.0), crease_angle=60.0)
     Snapper(mesh, ft, geo, smoothing="none", repair=False).refine(mesh)
 
 

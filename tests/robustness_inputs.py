@@ -1,0 +1,32 @@
+"""Inputs shared by tests/test_robustness.py and tests/mpi/bad_input.py (serial and MPI)."""
+
+import numpy as np
+
+import dolfinx.mesh
+
+
+def exterior_tags(mesh, value=1):
+    """Facet tags with ``value`` on every exterior facet."""
+    fdim = mesh.topology.dim - 1
+    mesh.topology.create_connectivity(fdim, mesh.topology.dim)
+    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    return dolfinx.mesh.meshtags(mesh, fdim, f, np.full(len(f), value, dtype=np.int32))
+
+
+def wall_tags(mesh, y0=0.0):
+    """Tag 1 on the wall y = y0, tag 2 on the rest of the boundary."""
+    mesh.topology.create_connectivity(1, 2)
+    f = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    mid = dolfinx.mesh.compute_midpoints(mesh, 1, f)
+    v = np.where(np.abs(mid[:, 1] - y0) < 1e-12, 1, 2).astype(np.int32)
+    return dolfinx.mesh.meshtags(mesh, 1, f, v)
+
+
+def wavy(deg):
+    """Wall normals tilted by +-deg on alternate vertices: every second new midpoint
+    is pushed into the domain by about 0.25 tan(deg) / 4 (more than a cell height)."""
+    def f(x):
+        s = np.where(np.round(x[:, 0] / 0.25) % 2 == 0, 1.0, -1.0)
+        a = np.radians(deg) * s
+        return np.c_[np.sin(a), -np.cos(a), 0 * a]
+    return f
