@@ -148,8 +148,6 @@ def main():
                    "maxdiff": float(np.abs(x_p - x_s).max()), "n": int(r_par.shape[0]),
                    "ghost_ok": True, "n_inverted": n_inv, "n_inverted_unsmoothed": n_inv0}
             print(json.dumps(out), flush=True)
-    if comm.rank == 0:
-        print("DONE", flush=True)
 
 
 if __name__ == "__main__":

@@ -263,8 +263,6 @@ def main():
                      out["pointset_maxdiff"]) = compare(lev["data"], ser[k]["data"])
                     out["n_inverted_serial"] = ser[k]["n_inverted"]
                 print(json.dumps(out), flush=True)
-    if WORLD.rank == 0:
-        print("DONE", flush=True)
 
 
 if __name__ == "__main__":
