@@ -28,7 +28,7 @@ import dolfinx.mesh
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 import generate  # noqa: E402
-from surfaces import barycentric_grid  # noqa: E402
+from surfaces import nagata_surface_error  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 
@@ -38,9 +38,7 @@ OPTS: dict = {}
 
 def run(name, comm, mesh, ft, tag, dist, levels, say) -> int:
     geo = NagataGeometry(mesh, ft, tags=[tag])
-    sel = np.flatnonzero(geo.snap)
-    g = barycentric_grid(geo.ids.shape[1], 200 if geo.ids.shape[1] == 2 else 30)
-    e_nag = float(dist(geo.evaluate(sel, np.broadcast_to(g, (len(sel), *g.shape)))).max())
+    e_nag = nagata_surface_error(geo, dist)
     say(f"\n{name} (coarse Nagata surface error {e_nag:.3e})")
     say(f"{'level':>5} {'cells':>9} {'inv. before':>12} {'inv. after':>11} {'stage':>8} "
         f"{'partial':>8} {'layers':>7} {'min angle':>10} {'max dist':>10}")

@@ -32,7 +32,7 @@ import dolfinx.mesh
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 import generate  # noqa: E402
-from surfaces import barycentric_grid  # noqa: E402
+from surfaces import nagata_surface_error  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 
@@ -54,12 +54,6 @@ def gmax(comm, a: np.ndarray) -> float:
     return comm.allreduce(float(a.max()) if a.size else 0.0, op=MPI.MAX)
 
 
-def nagata_error(geo, tag, dist) -> float:
-    sel = np.flatnonzero(geo.tag == tag)
-    g = barycentric_grid(geo.ids.shape[1], 200 if geo.ids.shape[1] == 2 else 30)
-    return float(dist(geo.evaluate(sel, np.broadcast_to(g, (len(sel), *g.shape)))).max())
-
-
 def plain_curved_vertices(mesh, dist, tol) -> np.ndarray:
     """Exterior vertices of a plain refined mesh within ``tol`` of the curved surface.
 
@@ -74,7 +68,7 @@ def plain_curved_vertices(mesh, dist, tol) -> np.ndarray:
 
 def study(name, comm, mesh, ft, curved_tag, flat, dist, near, exact, levels, say, reference=None):
     geo = NagataGeometry(mesh, ft)
-    e_nag = nagata_error(geo, curved_tag, dist)
+    e_nag = nagata_surface_error(geo, dist, curved_tag)
     say(f"\n{name}: coarse Nagata surface error {e_nag:.4e}"
         + (f"  (closed form {reference:.4e})" if reference is not None else ""))
     say(f"{'level':>5} {'vertices':>10} {'dist snapped':>13} {'dist plain':>11} "

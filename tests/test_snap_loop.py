@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 
 import dolfinx.mesh
 import generate
-from surfaces import barycentric_grid
+from surfaces import nagata_surface_error
 
 from nagata_snap import LineageError, NagataGeometry, Snapper
 
@@ -33,14 +33,6 @@ def measure(mesh):
     return mesh.comm.allreduce(np.abs(np.linalg.det(e)).sum() / (2 if tdim == 2 else 6))
 
 
-def coarse_nagata_error(geo, tag, dist):
-    """Max distance of densely sampled Nagata patches of ``tag`` from the exact surface."""
-    sel = np.flatnonzero(geo.tag == tag)
-    g = barycentric_grid(geo.ids.shape[1], 200 if geo.ids.shape[1] == 2 else 30)
-    pts = geo.evaluate(sel, np.broadcast_to(g, (len(sel), *g.shape)))
-    return dist(pts).max()
-
-
 @pytest.fixture(scope="module")
 def dfg():
     md = generate.dfg_channel(MPI.COMM_WORLD, n_circle=16, h_far=0.1)
@@ -55,7 +47,7 @@ def circle_dist(x):
 def test_dfg_cylinder_converges_to_circle(dfg, mode):
     mesh, ft = dfg
     geo = NagataGeometry(mesh, ft)  # all tags snapped: walls must stay exactly straight
-    e_nagata = coarse_nagata_error(geo, generate.CYLINDER, circle_dist)
+    e_nagata = nagata_surface_error(geo, circle_dist, generate.CYLINDER)
     n = 16
     # exact normals on a circle of N equal segments: R (2 pi / N)^4 / 128 (seeds/README)
     assert e_nagata == pytest.approx(R * (2 * np.pi / n) ** 4 / 128, rel=0.05)
@@ -109,7 +101,7 @@ def test_sphere_in_box_converges_and_box_stays_flat():
     def dist(x):
         return np.abs(np.linalg.norm(x, axis=-1) - 0.5)
 
-    e_nagata = coarse_nagata_error(geo, generate.SPHERE, dist)
+    e_nagata = nagata_surface_error(geo, dist, generate.SPHERE)
     snapper = Snapper(mesh, ft, geo)
     exact = 8.0 - 4 / 3 * np.pi * 0.5**3
     errs = []
