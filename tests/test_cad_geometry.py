@@ -269,7 +269,7 @@ def test_attach_with_node_ids_and_2d_input():
 # IGES input (nagata_snap.iges, written by another engineer)
 # ----------------------------------------------------------------------
 def test_from_iges_round_trip(tmp_path):
-    iges = pytest.importorskip("nagata_snap.iges")
+    from nagata_snap import iges
     c, R = np.array([0.2, 0.2, 0.0]), 0.05
     path = tmp_path / "model.igs"
     iges.write_iges(path, curves=[circle(c, R)], surfaces=[cylinder(np.array([0.55, 0.5, 0.0]), R, 0.4)])

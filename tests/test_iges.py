@@ -29,7 +29,7 @@ from nagata_snap.iges import (
 )
 from nagata_snap.nurbs import NurbsCurve, NurbsSurface
 
-gmsh = pytest.importorskip("gmsh")
+import gmsh  # noqa: E402  (a dependency: a missing gmsh must fail, not skip)
 
 
 # ----------------------------------------------------------------------
