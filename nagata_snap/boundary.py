@@ -20,6 +20,7 @@ import dolfinx.mesh
 __all__ = [
     "BoundaryFacets",
     "boundary_facets",
+    "cell_facet_nodes",
     "facet_nodes",
     "tag_values",
     "update_nodes",
@@ -54,21 +55,58 @@ def check_p1_simplex(mesh: dolfinx.mesh.Mesh) -> None:
         raise ValueError(f"the mesh has {n_bad} nodes with NaN or infinite coordinates (first: {first})")
 
 
+def local_facet_vertices(tdim: int) -> np.ndarray:
+    """``(tdim + 1, tdim)`` local vertices of each local facet of a simplex.
+
+    DOLFINx (Basix) numbers the facets of triangles and tetrahedra so that
+    local facet ``j`` is the one opposite local vertex ``j``; its vertices are
+    the others in increasing order.
+    """
+    nv = tdim + 1
+    return np.array([[v for v in range(nv) if v != j] for j in range(nv)], dtype=np.int32)
+
+
+def cell_facet_nodes(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """``(n, nfv)`` geometry nodes of local facet ``local[i]`` of cell ``cells[i]`` (P1 geometry).
+
+    Needs no facet entities, only the cells' geometry dofmap.
+    """
+    tdim = mesh.topology.dim
+    g = mesh.geometry.dofmaps[0]
+    return np.take_along_axis(g[cells], local_facet_vertices(tdim)[local], axis=1).astype(np.int32)
+
+
 @dataclass
 class BoundaryFacets:
     """Exterior facets whose cell is owned by this process.
 
+    A facet is identified by its cell and its local index in that cell, so
+    refined levels need no facet entities (creating them costs about a
+    sixth of ``dolfinx.mesh.refine`` on tetrahedra); the facet indices are
+    computed on demand by :meth:`facet_indices`.
+
     Attributes:
-        facets: ``(nf,)`` local facet indices.
         cells: ``(nf,)`` local index of the owned cell of each facet.
+        local: ``(nf,)`` local facet index in that cell (opposite vertex ``local``).
         nodes: ``(nf, nfv)`` local geometry-node indices of the facet vertices.
         opposite: ``(nf,)`` geometry node of the cell vertex not on the facet.
+        facets: ``(nf,)`` local facet indices, or None until :meth:`facet_indices`.
     """
 
-    facets: npt.NDArray[np.int32]
     cells: npt.NDArray[np.int32]
+    local: npt.NDArray[np.int32]
     nodes: npt.NDArray[np.int32]
     opposite: npt.NDArray[np.int32]
+    facets: npt.NDArray[np.int32] | None = None
+
+    def facet_indices(self, mesh: dolfinx.mesh.Mesh) -> npt.NDArray[np.int32]:
+        """``(nf,)`` local facet indices in ``mesh`` (creates the facets if needed)."""
+        if self.facets is None:
+            tdim = mesh.topology.dim
+            mesh.topology.create_entities(tdim - 1)
+            c2f = mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, tdim + 1)
+            self.facets = c2f[self.cells, self.local].astype(np.int32)
+        return self.facets
 
     def outward_normals(self, x: np.ndarray) -> np.ndarray:
         """``(nf, 3)`` unit outward normals of the straight facets for coordinates ``x``."""
@@ -120,13 +158,11 @@ def boundary_facets(mesh: dolfinx.mesh.Mesh) -> BoundaryFacets:
     cells = f2c.array[f2c.offsets[cand]]
     owned = cells < top.index_map(tdim).size_local
     cand, cells = cand[owned], cells[owned].astype(np.int32)
-    nodes = facet_nodes(mesh, cand)
-    cell_nodes = mesh.geometry.dofmaps[0][cells]
-    on_facet = (cell_nodes[:, :, None] == nodes[:, None, :]).any(axis=2)
-    opposite = cell_nodes[~on_facet]
-    if opposite.shape[0] != len(cand):
-        raise RuntimeError("could not identify the cell vertex opposite to each boundary facet")
-    return BoundaryFacets(cand, cells, nodes.astype(np.int32), opposite.astype(np.int32))
+    c2f = top.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
+    local = np.argmax(c2f[cells] == cand[:, None], axis=1).astype(np.int32)
+    nodes = cell_facet_nodes(mesh, cells, local)
+    opposite = mesh.geometry.dofmaps[0][cells, local].astype(np.int32)
+    return BoundaryFacets(cells, local, nodes, opposite, facets=cand)
 
 
 def tag_values(

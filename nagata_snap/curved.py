@@ -119,10 +119,7 @@ def curved_mesh(
 
     # closure dofs of each snapped facet, matched to its vertex pairs
     sel = np.flatnonzero(snapped)
-    f, c = boundary.facets[sel], boundary.cells[sel]
-    mesh.topology.create_connectivity(tdim, fdim)
-    c2f = mesh.topology.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
-    lf = np.argmax(c2f[c] == f[:, None], axis=1)
+    c, lf = boundary.cells[sel], boundary.local[sel]
     layout = Q.dofmap.dof_layout
     closure = np.array([layout.entity_closure_dofs(fdim, i) for i in range(tdim + 1)])
     fdofs = np.take_along_axis(dofs[c], closure[lf], axis=1)  # (nf, nclosure)

@@ -29,7 +29,7 @@ import dolfinx.mesh
 from .boundary import BoundaryFacets, boundary_facets, check_p1_simplex, tag_values, update_nodes
 from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
-from .lineage import LineageError, child_facets, child_interior_facets
+from .lineage import LineageError, cell_facets_of, child_facets, child_interior_facets
 from .parallel import collective
 from .quality import QualityReport
 from .records import Records, refine_records
@@ -54,7 +54,10 @@ class SnapReport:
             :func:`nagata_snap.smoothing.repair`).
         partially_moved, max_shortfall: vertices left short of the geometry and
             the largest remaining distance.
-        times: seconds per stage (``refine``, ``lineage``, ``place``, ``smooth+check``).
+        times: seconds per stage (``refine``, ``lineage``, ``place``, ``smooth+check``,
+            ``tags``: the facet tags of the refined mesh, i.e. its facet entities
+            and the MeshTags, which a loop without snapping pays in
+            ``transfer_meshtag`` too).
         geometry: the geometry's placement report (CAD: residuals, Newton histogram).
         quality: :class:`~nagata_snap.quality.QualityReport` (None if switched off).
         smoothing_attempts: one dict per smoothing attempt (stage, method,
@@ -107,7 +110,8 @@ class _Level:
     tag: np.ndarray  # (nf,) facet tag values (-1 untagged)
     snapped: np.ndarray  # (nf,) bool
     records: Records  # records of the snapped facets, in order
-    interior: np.ndarray  # (ni,) tagged facets that are not exterior (interfaces)
+    interior_cells: np.ndarray  # (ni,) tagged facets that are not exterior (interfaces),
+    interior_local: np.ndarray  # (ni,)  as owned cell / local facet pairs (once per side)
     interior_tag: np.ndarray  # (ni,) their tags
 
 
@@ -199,6 +203,7 @@ class Snapper:
         ext[ext_all] = True
         inner = ~ext[facet_tags.indices]
         interior = np.asarray(facet_tags.indices[inner], dtype=np.int32)
+        int_cells, int_local, which = cell_facets_of(mesh, interior)
         interior_tag = np.asarray(facet_tags.values[inner], dtype=np.int64)
         n_bad = self.comm.allreduce(int(np.isin(interior_tag, self.tags).sum()))
         if n_bad:
@@ -210,7 +215,8 @@ class Snapper:
         gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)
         sel = np.flatnonzero(snapped)
         records = collective(self.comm, geometry.attach, x[bf.nodes[sel]], nodes=gids[bf.nodes[sel]])
-        self._level = _Level(mesh, bf, tag, snapped, records, interior, interior_tag)
+        self._level = _Level(mesh, bf, tag, snapped, records, int_cells, int_local,
+                             interior_tag[which])
         self.level = 0
 
     @property
@@ -272,7 +278,8 @@ class Snapper:
 
         t0 = time.perf_counter()
         ch = collective(self.comm, child_facets, mesh, prev.boundary, mesh1, parent_cell)
-        f_int, i_int = child_interior_facets(mesh, prev.interior, mesh1, ch.parent_cells)
+        c_int, l_int, i_int = child_interior_facets(mesh, prev.interior_cells, prev.interior_local,
+                                                    mesh1, ch.parent_cells)
         tag_int = prev.interior_tag[i_int]
         tag = prev.tag[ch.parent]
         snapped = prev.snapped[ch.parent]
@@ -314,9 +321,9 @@ class Snapper:
         x[:] = res.x
         times["smooth+check"] = time.perf_counter() - t0
 
-        ft1 = self._facet_tags(
-            mesh1, np.concatenate([ch.boundary.facets, f_int]), np.concatenate([tag, tag_int])
-        )
+        t0 = time.perf_counter()
+        ft1 = self._facet_tags(mesh1, ch.boundary, c_int, l_int, tag, tag_int)
+        times["tags"] = time.perf_counter() - t0
         imap = mesh1.geometry.index_map()
         n_own = imap.size_local
         disp = np.linalg.norm(x[:n_own] - x_ref[:n_own], axis=1)
@@ -341,14 +348,27 @@ class Snapper:
             quality=res.report,
             smoothing_attempts=list(res.attempts),
         )
-        self._level = _Level(mesh1, ch.boundary, tag, snapped, records, f_int, tag_int)
+        self._level = _Level(mesh1, ch.boundary, tag, snapped, records, c_int, l_int, tag_int)
         self.level += 1
         if self.verbose and self.comm.rank == 0:
             print(report, flush=True)
         return Refined(mesh1, ft1, parent_cell, parent_facet, report)
 
     @staticmethod
-    def _facet_tags(mesh1, facets: np.ndarray, tag: np.ndarray) -> dolfinx.mesh.MeshTags:
+    def _facet_tags(mesh1, boundary: BoundaryFacets, c_int: np.ndarray, l_int: np.ndarray,
+                    tag_ext: np.ndarray, tag_int: np.ndarray) -> dolfinx.mesh.MeshTags:
+        """Facet tags of the refined mesh.
+
+        Creates its facets (as ``transfer_meshtag`` needs too) and the
+        facet-to-cell connectivity, so the mesh is ready for
+        ``locate_dofs_topological`` like a mesh read from gmsh.
+        """
+        tdim = mesh1.topology.dim
+        f_ext = boundary.facet_indices(mesh1)
+        mesh1.topology.create_connectivity(tdim - 1, tdim)
+        c2f = mesh1.topology.connectivity(tdim, tdim - 1).array.reshape(-1, tdim + 1)
+        facets = np.concatenate([f_ext, c2f[c_int, l_int]])
+        tag = np.concatenate([tag_ext, tag_int])
         keep = tag >= 0
         f, first = np.unique(facets[keep], return_index=True)
         v = tag[keep][first].astype(np.int32)

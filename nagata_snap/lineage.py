@@ -9,6 +9,14 @@ refinement only bisects edges, every barycentric coordinate is 0, 1/2 or 1;
 they are rounded to these values (so lineage never drifts) after checking
 that the unrounded ones are within round-off of them.
 
+Facets are handled as (owned cell, local facet index) pairs: an exterior
+facet of the refined mesh lies in an exterior facet of the previous level, so
+only the local facets of the children of boundary cells are examined, and no
+facet entities of the refined mesh are created (on 1e6 tetrahedra that would
+cost about a sixth of the refinement).  Completeness is checked instead of
+assumed: the children of every parent facet must tile it (their areas or
+lengths add up to its own).
+
 In DOLFINx 0.11 ``parent_cell`` is indexed by the refined cells' order before
 DOLFINx reorders them (``topology.original_cell_index`` relates the two); we
 detect which indexing holds by checking that every child cell lies in its
@@ -25,13 +33,25 @@ import numpy.typing as npt
 
 import dolfinx.mesh
 
-from .boundary import BoundaryFacets, boundary_facets, facet_nodes
+from .boundary import BoundaryFacets, cell_facet_nodes
 
-__all__ = ["LineageError", "ChildFacets", "parent_cells", "child_facets", "child_interior_facets", "barycentric"]
+__all__ = [
+    "LineageError",
+    "ChildFacets",
+    "parent_cells",
+    "child_facets",
+    "child_interior_facets",
+    "cell_facets_of",
+    "barycentric",
+]
 
 #: Tolerance on barycentric coordinates (dimensionless) when recognising
 #: children: bisection gives exactly 0, 1/2, 1 up to round-off.
 TOL = 1e-7
+
+
+#: Children checked by :func:`parent_cells` with ``select`` to pick the indexing.
+SAMPLE = 4096
 
 
 class LineageError(RuntimeError):
@@ -57,6 +77,25 @@ class ChildFacets:
     parent_cells: npt.NDArray[np.int32]
 
 
+def _inverse(G: np.ndarray) -> np.ndarray:
+    """Inverses of ``(n, k, k)`` matrices, ``k <= 3``, by the adjugate (vectorised).
+
+    Much faster than batched ``np.linalg.inv`` for tiny matrices; singular
+    matrices give inf/nan entries (callers reject those points).
+    """
+    k = G.shape[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if k == 1:
+            return 1.0 / G
+        if k == 2:
+            a, b, c, d = G[:, 0, 0], G[:, 0, 1], G[:, 1, 0], G[:, 1, 1]
+            adj = np.stack([np.stack([d, -b], axis=1), np.stack([-c, a], axis=1)], axis=1)
+            return adj / (a * d - b * c)[:, None, None]
+        m0, m1, m2 = G[:, 0], G[:, 1], G[:, 2]
+        adj = np.stack([np.cross(m1, m2), np.cross(m2, m0), np.cross(m0, m1)], axis=2)
+        return adj / np.einsum("ni,ni->n", m0, np.cross(m1, m2))[:, None, None]
+
+
 def barycentric(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Barycentric coordinates of points in segments/triangles/tetrahedra.
 
@@ -69,14 +108,29 @@ def barycentric(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         coordinates and the distance of each point from the simplex's affine hull,
         relative to the simplex's longest edge from vertex 0.
     """
-    E = X[:, 1:] - X[:, :1]  # (n, m-1, 3)
-    G = np.einsum("nai,nbi->nab", E, E)
-    r = np.einsum("nai,nki->nka", E, y - X[:, :1])
-    mu = np.linalg.solve(G[:, None], r[..., None])[..., 0] if G.shape[1] > 1 else r / G[:, None, :, 0]
-    lam = np.concatenate([1.0 - mu.sum(axis=2, keepdims=True), mu], axis=2)
-    back = np.einsum("nkm,nmi->nki", lam, X)
-    h = np.sqrt(np.max(np.einsum("nai,nai->na", E, E), axis=1))
-    return lam, np.linalg.norm(back - y, axis=2) / h[:, None]
+    # Component-wise arithmetic on (n,) columns: for these tiny matrices it is
+    # several times faster than einsum / matmul / linalg.solve over the batch.
+    m, k = X.shape[1], y.shape[1]
+    E = [[X[:, a + 1, i] - X[:, 0, i] for i in range(3)] for a in range(m - 1)]
+    G = np.empty((len(X), m - 1, m - 1))
+    for a in range(m - 1):
+        for b in range(a, m - 1):
+            G[:, a, b] = G[:, b, a] = E[a][0] * E[b][0] + E[a][1] * E[b][1] + E[a][2] * E[b][2]
+    Gi = _inverse(G)
+    lam = np.empty((len(X), k, m))
+    dist2 = np.zeros((len(X), k))
+    for p in range(k):
+        d = [y[:, p, i] - X[:, 0, i] for i in range(3)]
+        r = [E[a][0] * d[0] + E[a][1] * d[1] + E[a][2] * d[2] for a in range(m - 1)]
+        mu = [sum(Gi[:, a, b] * r[b] for b in range(m - 1)) for a in range(m - 1)]
+        lam[:, p, 0] = 1.0 - sum(mu)
+        for a in range(m - 1):
+            lam[:, p, a + 1] = mu[a]
+        for i in range(3):  # residual of the projection onto the affine hull
+            res = d[i] - sum(mu[a] * E[a][i] for a in range(m - 1))
+            dist2[:, p] += res * res
+    h = np.sqrt(np.max(np.diagonal(G, axis1=1, axis2=2), axis=1))
+    return lam, np.sqrt(dist2) / h[:, None]
 
 
 def parent_cells(
@@ -84,12 +138,18 @@ def parent_cells(
     mesh0: dolfinx.mesh.Mesh,
     parent_cell: npt.NDArray[np.int32],
     check: npt.NDArray[np.int32] | None = None,
+    select: npt.NDArray[np.bool_] | None = None,
 ) -> np.ndarray:
     """Parent cell (local index in ``mesh0``) of every owned cell of ``mesh1``.
 
     Args:
         check: owned cells of ``mesh1`` on which the indexing is verified
             geometrically (default: all owned cells).
+        select: ``(num_cells0,)`` bool over the cells of ``mesh0``: verify on
+            (an evenly spaced sample of at most ``SAMPLE``) children of the
+            selected parents instead, as each candidate indexing names them.
+            This only chooses between the indexings; :func:`child_facets`
+            then verifies every child facet it uses.
 
     Raises:
         LineageError: if no indexing of ``parent_cell`` puts every checked child in its parent.
@@ -108,12 +168,16 @@ def parent_cells(
         if oci.max() - lo + 1 == n_owned:
             candidates.append(pc[oci - lo])
     candidates.append(pc)
-    check = np.arange(n_owned) if check is None else np.asarray(check)
     x1, x0 = mesh1.geometry.x, mesh0.geometry.x
     g1, g0 = mesh1.geometry.dofmaps[0], mesh0.geometry.dofmaps[0]
-    cen = x1[g1[check]].mean(axis=1)[:, None, :]
     for P in candidates:
-        lam, dist = barycentric(cen, x0[g0[P[check]]])
+        if select is not None:
+            chk = np.flatnonzero(select[P])
+            chk = chk[:: max(1, len(chk) // SAMPLE)]
+        else:
+            chk = np.arange(n_owned) if check is None else np.asarray(check)
+        cen = x1[g1[chk]].mean(axis=1)[:, None, :]
+        lam, dist = barycentric(cen, x0[g0[P[chk]]])
         if np.all(lam > -TOL) and np.all(dist < TOL):
             return P
     raise LineageError(
@@ -152,50 +216,152 @@ def _pairs(P: np.ndarray, cells0: np.ndarray, ncell0: int) -> tuple[np.ndarray, 
     return child, order[start + k]
 
 
-def child_interior_facets(
+def _hyperplanes(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals ``(m, 3)`` and sizes ``(m,)`` of segments / triangles ``X (m, nfv, 3)``.
+
+    The size is the longest edge from vertex 0 (the scale of :func:`barycentric`).
+    """
+    t = X[:, 1] - X[:, 0]
+    if X.shape[1] == 2:
+        n = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
+        h = np.linalg.norm(t, axis=1)
+    else:
+        s = X[:, 2] - X[:, 0]
+        n = np.cross(t, s)
+        h = np.maximum(np.linalg.norm(t, axis=1), np.linalg.norm(s, axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    return n, h
+
+
+def _measure(p: np.ndarray) -> np.ndarray:
+    """``(n,)`` length (2 vertices) or area (3 vertices) of ``p (n, nfv, 3)``."""
+    if p.shape[1] == 2:
+        return np.linalg.norm(p[:, 1] - p[:, 0], axis=1)
+    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+
+def _children(
     mesh0: dolfinx.mesh.Mesh,
-    facets0: npt.NDArray[np.int32],
+    cells0: np.ndarray,
+    nodes0: np.ndarray,
     mesh1: dolfinx.mesh.Mesh,
     P: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Facets of ``mesh1`` lying in the (interior) facets ``facets0`` of ``mesh0``.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Local facets of the children of ``cells0`` that lie in the parent facets ``nodes0``.
 
     Args:
-        facets0: local facet indices of ``mesh0`` (e.g. tagged interfaces).
-        P: parent cell of every owned cell of ``mesh1`` (:func:`parent_cells`).
+        cells0: ``(m,)`` owned cell of ``mesh0`` of each parent facet.
+        nodes0: ``(m, nfv)`` geometry nodes of each parent facet.
+        P: parent cell of every owned cell of ``mesh1``.
 
     Returns:
-        ``(facets1, index)``: local facets of ``mesh1`` (from owned cells, each
-        once) and the index into ``facets0`` of the facet each lies in.
+        ``(cells1, local1, nodes1, parent, weights)`` over the child facets
+        found: owned cell of ``mesh1`` and local facet index, geometry nodes,
+        index into ``cells0`` of the parent facet, rounded barycentric
+        coordinates ``(n, nfv, nfv)`` of the child's vertices in the parent.
+
+    Raises:
+        LineageError: a child facet in two parent facets, or a parent facet
+            not covered by its children (the mesh is not a refinement).
     """
-    tdim = mesh0.topology.dim
-    fdim = tdim - 1
-    if len(facets0) == 0:
-        return np.zeros(0, np.int32), np.zeros(0, np.int64)
-    mesh0.topology.create_connectivity(fdim, tdim)
-    f2c = mesh0.topology.connectivity(fdim, tdim)
+    tdim = mesh1.topology.dim
+    nv = tdim + 1
     ncell0 = mesh0.topology.index_map(tdim).size_local
-    cnt = np.diff(f2c.offsets)[facets0]
-    which = np.repeat(np.arange(len(facets0)), cnt)
-    cells0 = f2c.array[np.repeat(f2c.offsets[facets0], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))]
-    own = cells0 < ncell0
-    which, cells0 = which[own], cells0[own]
-    mesh1.topology.create_connectivity(tdim, fdim)
-    c2f1 = mesh1.topology.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
     has = np.zeros(ncell0, dtype=bool)
     has[cells0] = True
     kids = np.flatnonzero(has[P])  # owned fine cells whose parent has such a facet
-    if len(kids) == 0:
-        return np.zeros(0, np.int32), np.zeros(0, np.int64)
-    child, cand = _pairs(P[kids], cells0, ncell0)
-    fine = c2f1[kids[child]]  # (npair, tdim+1) candidate child facets
-    fine = fine.ravel()
-    cand = np.repeat(cand, tdim + 1)
-    y = mesh1.geometry.x[facet_nodes(mesh1, fine.astype(np.int32))]
-    X = mesh0.geometry.x[facet_nodes(mesh0, facets0[which[cand]].astype(np.int32))]
-    ok, _ = _match(y, X)
-    f1, first = np.unique(fine[ok], return_index=True)
-    return f1.astype(np.int32), which[cand[ok][first]]
+    pair_kid, cand = _pairs(P[kids], cells0, ncell0)
+    x1, x0 = mesh1.geometry.x, mesh0.geometry.x
+    # Cheap filter first: a local facet of a child lies in a parent facet only
+    # if exactly its nv - 1 vertices lie in the parent facet's hyperplane (the
+    # remaining vertex is then the one opposite it).
+    X = x0[nodes0]  # (m, nfv, 3)
+    nrm, h = _hyperplanes(X)
+    V = x1[mesh1.geometry.dofmaps[0][kids[pair_kid]]]  # (np, nv, 3)
+    dist = np.einsum("pvi,pi->pv", V - X[cand, :1], nrm[cand])
+    on = np.abs(dist) < TOL * h[cand, None]
+    one_off = np.count_nonzero(on, axis=1) == nv - 1
+    kc = kids[pair_kid[one_off]].astype(np.int32)
+    kl = np.argmin(on[one_off], axis=1).astype(np.int32)  # the vertex off the plane
+    cand = cand[one_off]
+    fn = cell_facet_nodes(mesh1, kc, kl)
+    ok, lr = _match(x1[fn], X[cand])
+    sel = np.flatnonzero(ok)
+    key = np.sort(kc[sel].astype(np.int64) * nv + kl[sel])
+    twice = key[1:][key[1:] == key[:-1]]
+    if twice.size:
+        c, j = divmod(int(twice[0]), nv)
+        raise LineageError(
+            f"{twice.size} facets of the refined mesh lie in more than one parent facet; first at "
+            f"{x1[cell_facet_nodes(mesh1, np.array([c]), np.array([j]))[0]].round(6).tolist()}"
+        )
+    child, cand = sel, cand[sel]
+    # every parent facet must be tiled by its children (area / length sum)
+    covered = np.bincount(cand, weights=_measure(x1[fn[child]]), minlength=len(cells0))
+    whole = _measure(x0[nodes0])
+    gap = np.abs(covered - whole) > 1e-8 * np.maximum(whole, np.finfo(float).tiny)
+    if np.any(gap):
+        first = np.flatnonzero(gap)[0]
+        raise LineageError(
+            f"{int(gap.sum())} facets of the previous level are not covered by facets of the "
+            f"refined mesh (the mesh is not a refinement of the previous level); first at "
+            f"{x0[nodes0[first]].round(6).tolist()}"
+        )
+    return kc[child], kl[child], fn[child], cand, lr[sel]
+
+
+def cell_facets_of(mesh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each facet in ``facets`` as (owned cell, local facet) pairs, once per owned adjacent cell.
+
+    Returns:
+        ``(cells, local, index)``: ``index`` into ``facets``.
+    """
+    tdim = mesh.topology.dim
+    fdim = tdim - 1
+    if len(facets) == 0:
+        z = np.zeros(0, dtype=np.int32)
+        return z, z, np.zeros(0, dtype=np.int64)
+    mesh.topology.create_connectivity(fdim, tdim)
+    mesh.topology.create_connectivity(tdim, fdim)
+    f2c = mesh.topology.connectivity(fdim, tdim)
+    c2f = mesh.topology.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
+    facets = np.asarray(facets, dtype=np.int32)
+    cnt = np.diff(f2c.offsets)[facets]
+    index = np.repeat(np.arange(len(facets)), cnt)
+    pos = np.repeat(f2c.offsets[facets], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    cells = f2c.array[pos]
+    own = cells < mesh.topology.index_map(tdim).size_local
+    index, cells = index[own], cells[own].astype(np.int32)
+    local = np.argmax(c2f[cells] == facets[index][:, None], axis=1).astype(np.int32)
+    return cells, local, index
+
+
+def child_interior_facets(
+    mesh0: dolfinx.mesh.Mesh,
+    cells0: np.ndarray,
+    local0: np.ndarray,
+    mesh1: dolfinx.mesh.Mesh,
+    P: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Children of (interior, e.g. interface) facets given as owned-cell / local-facet pairs.
+
+    Args:
+        cells0, local0: ``(m,)`` the parent facets, as owned cells of
+            ``mesh0`` and local facet indices (a facet between two owned
+            cells appears once per side).
+        P: parent cell of every owned cell of ``mesh1`` (:func:`parent_cells`).
+
+    Returns:
+        ``(cells1, local1, index)``: the child facets in the same form (once
+        per owned adjacent child cell) and the index into ``cells0`` of the
+        parent of each.
+    """
+    if len(cells0) == 0:
+        z = np.zeros(0, dtype=np.int32)
+        return z, z, np.zeros(0, dtype=np.int64)
+    c1, l1, _, parent, _ = _children(mesh0, cells0, cell_facet_nodes(mesh0, cells0, local0), mesh1, P)
+    return c1, l1, parent
 
 
 def child_facets(
@@ -207,6 +373,10 @@ def child_facets(
 ) -> ChildFacets:
     """Match the exterior facets of ``mesh1`` to the exterior facets ``prev`` of ``mesh0``.
 
+    A facet of ``mesh1`` is exterior exactly when it lies in an exterior
+    facet of ``mesh0``, so only the local facets of the children of cells
+    with an exterior facet are examined, without creating facet entities.
+
     Args:
         mesh0: mesh that was refined (with its final, snapped coordinates).
         prev: its exterior facets (as used at the previous level).
@@ -215,26 +385,14 @@ def child_facets(
         P: parent cell of every owned cell of ``mesh1`` if already known.
 
     Raises:
-        LineageError: a child facet that lies in no parent boundary facet.
+        LineageError: a child facet in two parent facets, or a parent
+            boundary facet that its children do not cover.
     """
-    bf = boundary_facets(mesh1)
-    nf = len(bf.facets)
-    nfv = bf.nodes.shape[1]
-    P = parent_cells(mesh1, mesh0, parent_cell, bf.cells) if P is None else P
-    ncell0 = mesh0.topology.index_map(mesh0.topology.dim).size_local
-    child, cand = _pairs(P[bf.cells], prev.cells, ncell0)
-    ok, lr = _match(mesh1.geometry.x[bf.nodes[child]], mesh0.geometry.x[prev.nodes[cand]])
-    hits = np.bincount(child[ok], minlength=nf)
-    if np.any(hits != 1):
-        lost = np.flatnonzero(hits != 1)
-        raise LineageError(
-            f"{len(lost)} boundary facets of the refined mesh lie in "
-            f"{sorted(set(hits[lost].tolist()))} parent boundary facets instead of one; first at "
-            f"{mesh1.geometry.x[bf.nodes[lost[0]]].round(6).tolist()}"
-        )
-    sel = np.flatnonzero(ok)
-    parent = np.empty(nf, dtype=np.int64)
-    weights = np.empty((nf, nfv, nfv))
-    parent[child[sel]] = cand[sel]
-    weights[child[sel]] = lr[sel]
-    return ChildFacets(bf, parent, weights, P)
+    if P is None:
+        select = np.zeros(mesh0.topology.index_map(mesh0.topology.dim).size_local, dtype=bool)
+        select[prev.cells] = True
+        P = parent_cells(mesh1, mesh0, parent_cell, select=select)
+    cells, local, nodes, parent, weights = _children(mesh0, prev.cells, prev.nodes, mesh1, P)
+    opposite = mesh1.geometry.dofmaps[0][cells, local].astype(np.int32)
+    bf = BoundaryFacets(cells, local, nodes, opposite)
+    return ChildFacets(bf, parent.astype(np.int64), weights, P)

@@ -177,6 +177,15 @@ def test_mpi_matches_serial(case, levels, mode, nprocs, tmp_path):
                 d, i = cKDTree(a).query(b)
                 assert d.max() <= 1e-12, key
                 assert len(np.unique(i)) == len(a)  # a bijection
+            # facet tags: the same measure per tag value; in 2D the same tagged facets
+            a, b = serial[f"tagarea{k}"], par[f"tagarea{k}"]
+            assert np.array_equal(a[:, 0], b[:, 0])
+            assert np.allclose(a[:, 1], b[:, 1], rtol=1e-12, atol=0)
+            if case == "dfg":
+                a, b = serial[f"tagmid{k}"], par[f"tagmid{k}"]
+                assert a.shape == b.shape
+                d, i = cKDTree(a[:, :3]).query(b[:, :3])
+                assert d.max() <= 1e-12 and np.array_equal(a[i, 3], b[:, 3])
 
 
 def test_quality_report_scopes(dfg):

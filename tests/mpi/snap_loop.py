@@ -63,7 +63,22 @@ for k in range(levels):
         cells = np.flatnonzero(np.linalg.norm(mid - centre, axis=1) < (0.8 if case == "sphere" else 0.15))
         mesh.topology.create_connectivity(tdim, 1)
         edges = dolfinx.mesh.compute_incident_entities(mesh.topology, cells.astype(np.int32), tdim, 1)
+    mesh0, ft0 = mesh, ft
     mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
+    if comm.size == 1:  # transfer_meshtag aborts (double free) under mpiexec in DOLFINx 0.11
+        # the tags found without facet entities are DOLFINx's own transfer
+        ref = dolfinx.mesh.transfer_meshtag(ft0, mesh, pc, pf)
+        if set(zip(ft.indices.tolist(), ft.values.tolist())) != set(zip(ref.indices.tolist(), ref.values.tolist())):
+            raise AssertionError(f"facet tags differ from transfer_meshtag at level {k + 1}")
+    # tagged facets (owned ones, so each once): midpoint and tag, and measure per tag
+    fdim = mesh.topology.dim - 1
+    own = ft.indices < mesh.topology.index_map(fdim).size_local
+    fx = mesh.geometry.x[dolfinx.mesh.entities_to_geometry(mesh, fdim, ft.indices[own])]
+    meas = (np.linalg.norm(fx[:, 1] - fx[:, 0], axis=1) if fdim == 1 else
+            0.5 * np.linalg.norm(np.cross(fx[:, 1] - fx[:, 0], fx[:, 2] - fx[:, 0]), axis=1))
+    vals = np.unique(np.concatenate(comm.allgather(ft.values)))
+    area = np.array([comm.allreduce(float(meas[ft.values[own] == v].sum())) for v in vals])
+    tm = comm.gather(np.column_stack([fx.mean(axis=1), ft.values[own]]), root=0)
     snapped = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ft.find(tag)))
     ss = comm.gather(mesh.geometry.x[snapped], root=0)
     n = mesh.geometry.index_map().size_local
@@ -74,6 +89,8 @@ for k in range(levels):
         result[f"level{k + 1}"] = np.concatenate(xs)
         result[f"boundary{k + 1}"] = np.unique(np.concatenate(bs), axis=0)
         result[f"snapped{k + 1}"] = np.unique(np.concatenate(ss), axis=0)
+        result[f"tagmid{k + 1}"] = np.concatenate(tm)
+        result[f"tagarea{k + 1}"] = np.column_stack([vals, area])
         result[f"iterations{k + 1}"] = np.asarray(rep.geometry.get("iterations_histogram", [0]))
 if comm.rank == 0:
     np.savez(out, **result)
