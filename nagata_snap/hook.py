@@ -304,19 +304,24 @@ class Snapper:
         times["place"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
+        # boundary nodes that do not move are held; listing them (from the
+        # lineage) spares smoothing the O(mesh) search for exterior facets
+        opts = dict(self.smoothing_options)
+        hold = ch.boundary.nodes.ravel() if opts.pop("fix_boundary", True) else np.zeros(0, np.int32)
         res = repair(
             mesh1,
             x_ref,
             x,
             np.flatnonzero(moved).astype(np.int32),
-            np.zeros(0, dtype=np.int32),
+            hold,
             method=self.smoothing,
             min_quality=self.min_quality,
             stiffen=((0.0, 3), (1.0, 3), (1.0, 6)) if self.repair and self.smoothing != "none" else (),
             allow_partial=self.repair,
             min_fraction=self.min_fraction,
             report=self.quality_report,
-            **self.smoothing_options,
+            fix_boundary=False,
+            **opts,
         )
         x[:] = res.x
         times["smooth+check"] = time.perf_counter() - t0

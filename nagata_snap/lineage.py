@@ -33,6 +33,7 @@ import numpy.typing as npt
 
 import dolfinx.mesh
 
+from ._batched import inverse_small
 from .boundary import BoundaryFacets, cell_facet_nodes
 
 __all__ = [
@@ -77,25 +78,6 @@ class ChildFacets:
     parent_cells: npt.NDArray[np.int32]
 
 
-def _inverse(G: np.ndarray) -> np.ndarray:
-    """Inverses of ``(n, k, k)`` matrices, ``k <= 3``, by the adjugate (vectorised).
-
-    Much faster than batched ``np.linalg.inv`` for tiny matrices; singular
-    matrices give inf/nan entries (callers reject those points).
-    """
-    k = G.shape[1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if k == 1:
-            return 1.0 / G
-        if k == 2:
-            a, b, c, d = G[:, 0, 0], G[:, 0, 1], G[:, 1, 0], G[:, 1, 1]
-            adj = np.stack([np.stack([d, -b], axis=1), np.stack([-c, a], axis=1)], axis=1)
-            return adj / (a * d - b * c)[:, None, None]
-        m0, m1, m2 = G[:, 0], G[:, 1], G[:, 2]
-        adj = np.stack([np.cross(m1, m2), np.cross(m2, m0), np.cross(m0, m1)], axis=2)
-        return adj / np.einsum("ni,ni->n", m0, np.cross(m1, m2))[:, None, None]
-
-
 def barycentric(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Barycentric coordinates of points in segments/triangles/tetrahedra.
 
@@ -116,7 +98,7 @@ def barycentric(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for a in range(m - 1):
         for b in range(a, m - 1):
             G[:, a, b] = G[:, b, a] = E[a][0] * E[b][0] + E[a][1] * E[b][1] + E[a][2] * E[b][2]
-    Gi = _inverse(G)
+    Gi, _ = inverse_small(G)
     lam = np.empty((len(X), k, m))
     dist2 = np.zeros((len(X), k))
     for p in range(k):

@@ -10,20 +10,22 @@ to the straight refined mesh ``x_ref`` (so the straight mesh is a fixed
 point), both restricted to a *band* of cells around the moved nodes:
 
 ``'elastic'`` (default)
-    Vector P1 finite element extension of the boundary displacement solved
-    with DOLFINx + PETSc on the reference (straight) configuration:
+    Vector P1 finite element extension of the boundary displacement on the
+    reference (straight) configuration, solved with PETSc:
     ``-div(E(K) sigma(d)) = 0`` (linear elasticity, or the vector Laplacian
     with ``model='harmonic'``), with Dirichlet data ``d`` on all constrained
     nodes. The stiffness ``E(K) = (V_max / |K|)^p`` (``|K|`` the reference
     cell measure, ``V_max`` the largest one in the band, ``p`` =
     ``exponent``) makes small cells nearly rigid, so they are translated
-    rather than squashed (Jacobian-based stiffening).
+    rather than squashed (Jacobian-based stiffening). The element
+    matrices are written out from the hat-function gradients (a test checks
+    the result against the same form in UFL, assembled by DOLFINx).
 
 ``'laplace'``
     Jacobi sweeps of graph-Laplacian averaging of the displacement over the
-    band (edge weight = number of cells sharing the edge), vectorised with a
-    ``scipy.sparse`` adjacency, MPI-consistent through ``dolfinx.la`` vector
-    scatters.
+    band (edge weight = number of cells sharing the edge): PETSc Richardson
+    iterations with a Jacobi preconditioner on the graph Laplacian, from a
+    zero start.
 
 ``'none'``
     Only the prescribed nodes move.
@@ -31,17 +33,19 @@ point), both restricted to a *band* of cells around the moved nodes:
 The band
     Cells within ``layers`` vertex-neighbour layers of the moved nodes (layer
     1 = cells touching a moved node, layer ``j+1`` = cells touching a node of
-    layer ``j``). Its owned cells are turned into a separate distributed
-    mesh with ``dolfinx.mesh.create_mesh`` (see :func:`_band_mesh`; not
-    ``create_submesh``, which builds all edges and faces of the parent), so
-    the linear system only has band unknowns and its cost follows the number
-    of moved nodes, not the mesh.
+    layer ``j``). No mesh is built for it: the system over its free nodes
+    is assembled from the owned band cells straight into a distributed
+    PETSc matrix (COO set-up of the summed 2x2 / 3x3 node blocks, see
+    :class:`_BandSolver`), so the cost follows the number of moved nodes,
+    not the mesh. (Building the band as a DOLFINx mesh with ``create_mesh``
+    and assembling UFL forms on it cost about 4 us per band cell, more than
+    everything else; ``create_submesh`` does O(mesh) work.)
     Constrained (Dirichlet) nodes of the band problem: the moved nodes (their
-    prescribed displacement), the ``fixed`` nodes, the outer boundary of the
-    band and, with ``fix_boundary=True`` (default), every node on the
-    boundary of the band submesh, i.e. also every domain-boundary node in the
-    band that is not listed as moved. Constrained nodes keep their input
-    coordinates exactly.
+    prescribed displacement), the ``fixed`` nodes, the outer layer of the
+    band and, with ``fix_boundary=True`` (default), every exterior-boundary
+    node that is not listed as moved (found with DOLFINx, creating the
+    facets if the mesh has none; the snapper lists them as ``fixed``
+    instead). Constrained nodes keep their input coordinates exactly.
 
 The only per-mesh (not per-band) work is the layer marking and a few cheap
 numpy passes over the nodes and the geometry dofmap (node masks, ghost
@@ -76,17 +80,13 @@ from typing import Any
 
 import mpi4py.MPI  # noqa: F401  (must precede dolfinx/petsc4py imports)
 import numpy as np
-import scipy.sparse as sp
 
-import basix.ufl
 import dolfinx
-import dolfinx.fem
-import dolfinx.fem.petsc
-import dolfinx.graph
 import dolfinx.la
 import dolfinx.mesh
-import ufl
 from petsc4py import PETSc
+
+from ._batched import inverse_small
 
 from .quality import (QualityReport, _columns, _inverted_mask, _touching, mean_ratio,
                       signed_volumes)
@@ -104,7 +104,7 @@ SMOOTH_DEFAULTS: dict[str, Any] = {
     "rtol": 1e-12,          # relative tolerance for solver='cg'
     "petsc_options": None,  # extra/overriding KSP options (dict)
     "sweeps": None,         # Jacobi sweeps for 'laplace' (default max(50, 4 layers^2))
-    "fix_boundary": True,   # hold all band-submesh boundary nodes not in `moved`
+    "fix_boundary": True,   # hold every exterior-boundary node not in `moved`
 }
 
 _counter = itertools.count()
@@ -258,161 +258,243 @@ def _expand(cells: np.ndarray, mark: np.ndarray, layers: int, sync: _NodeSync,
 
 
 # ---------------------------------------------------------------------------
-# Band (submesh) and smoothers
+# Band and its linear system
 # ---------------------------------------------------------------------------
 
 
-def _band_mesh(mesh, band_cells: np.ndarray, sync: _NodeSync):
-    """Mesh of the given local cells and its node -> parent node map (collective).
+def _exterior_nodes(mesh, sync: _NodeSync) -> np.ndarray:
+    """(n,) bool: nodes on the exterior boundary of ``mesh`` (collective).
 
-    Built with ``dolfinx.mesh.create_mesh`` from the OWNED band cells (nodes
-    numbered contiguously by their owners, cells kept on their rank, no
-    ghost cells), which is O(band). ``dolfinx.mesh.create_submesh`` would do
-    O(mesh) work on the parent: in DOLFINx 0.11 it creates every edge and
-    face of the parent and its cell-permutation data (about 1.6 s for 1e6
-    tetrahedra, more than all the band work; 0.08 s for 1e6 triangles).
-
-    Returns:
-        (mesh, gmap): ``gmap`` (n_sub,) int64 parent geometry node of every
-        node of the band mesh.
+    Creates the facets and the facet-to-cell connectivity if the mesh has
+    none (O(mesh)); :class:`~nagata_snap.hook.Snapper` lists its boundary
+    nodes as ``fixed`` instead, which costs nothing.
     """
     tdim = mesh.topology.dim
-    comm = mesh.comm
-    cells = mesh.geometry.dofmaps[0]
-    own = band_cells[band_cells < mesh.topology.index_map(tdim).size_local]
-    # nodes of owned band cells on any rank, numbered contiguously by their owner
-    flag = np.zeros(sync.n, dtype=bool)
-    flag[cells[own].reshape(-1)] = True
-    nodes = np.flatnonzero(sync.any(flag)[: sync.n_owned])
-    offset = comm.exscan(nodes.size) if comm.size > 1 else 0
-    gid = np.full(sync.n, -1.0)
-    gid[nodes] = (offset or 0) + np.arange(nodes.size)
-    gid = sync.forward(gid).astype(np.int64)
-    gdim = mesh.geometry.dim
-    element = basix.ufl.element("Lagrange", mesh.topology.cell_name(), 1, shape=(gdim,))
+    mesh.topology.create_entities(tdim - 1)
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    ext = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    nodes = dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, ext)
+    return sync.any(_mask(sync.n, nodes))
 
-    def keep(comm_, nparts, cell_types, cells_):
-        return dolfinx.graph.adjacencylist(np.full(own.size, comm_.rank, np.int32))._cpp_object
 
-    sub = dolfinx.mesh.create_mesh(comm, gid[cells[own]], element,
-                                   mesh.geometry.x[nodes, :gdim],
-                                   partitioner=keep if comm.size > 1 else None)
-    # parent node of every band-mesh node (all are nodes of local band cells)
-    local = np.flatnonzero(gid >= 0)
-    local = local[np.argsort(gid[local])]
-    want = np.asarray(sub.geometry.input_global_indices, dtype=np.int64)
-    pos = np.minimum(np.searchsorted(gid[local], want), max(local.size - 1, 0))
-    if want.size and not np.array_equal(gid[local[pos]], want):
-        raise RuntimeError("band mesh node without a parent node")
-    return sub, local[pos]
+def _p1_gradients(x: np.ndarray, cells: np.ndarray, gdim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients of the P1 hat functions and cell measures of affine simplices.
+
+    Args:
+        x: (n, 3) node coordinates; cells: (nc, gdim + 1) nodes of each cell.
+
+    Returns:
+        ``(G (nc, gdim + 1, gdim), measure (nc,))``: ``G[c, a]`` is the
+        gradient of the hat function of local vertex ``a`` in cell ``c``
+        (1 / length unit); ``measure`` is the area / volume.
+    """
+    X = x[cells][:, :, :gdim]
+    J = X[:, 1:] - X[:, :1]  # (nc, gdim, gdim), rows = edge vectors from vertex 0
+    Jinv, det = inverse_small(J)
+    G = np.empty((len(cells), gdim + 1, gdim))
+    G[:, 1:] = Jinv.transpose(0, 2, 1)  # grad lambda_a = column a - 1 of J^-1
+    G[:, 0] = -G[:, 1:].sum(axis=1)
+    return G, np.abs(det) / (2.0 if gdim == 2 else 6.0)
+
+
+def _lame(nu: float) -> tuple[float, float]:
+    """Lame parameters ``(mu, lambda)`` for unit Young's modulus and Poisson ratio ``nu``."""
+    return 1.0 / (2.0 * (1.0 + nu)), nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+def _blocks(G: np.ndarray, w: np.ndarray, model: str, nu: float, c: np.ndarray, a: np.ndarray,
+            b: np.ndarray) -> np.ndarray:
+    """``(m, gdim, gdim)`` blocks ``K[c, a, :, b, :]`` of P1 element stiffness matrices.
+
+    ``G``: (nc, nv, gdim) hat-function gradients; ``w``: (nc,) ``E |K|``;
+    ``c, a, b``: (m,) cell and local vertex pairs. The bilinear forms:
+
+    * ``'elastic'``: ``int_K E (2 mu eps(u):eps(v) + lambda div u div v)``, whose
+      block is ``E |K| (mu (g_a.g_b delta_ij + g_a,j g_b,i) + lambda g_a,i g_b,j)``;
+    * ``'harmonic'``: ``E |K| g_a.g_b delta_ij`` (vector Laplacian);
+    * ``'graph'``: graph Laplacian of the cell's edges, per component
+      (``nv - 1`` on the diagonal, -1 off it; ``G`` and ``w`` unused).
+    """
+    d = G.shape[2]
+    eye = np.eye(d)
+    if model == "graph":
+        return (G.shape[1] * (a == b) - 1.0)[:, None, None] * eye
+    ga, gb = G[c, a], G[c, b]  # (m, d)
+    ww = w[c]
+    dot = np.einsum("mi,mi->m", ga, gb)
+    if model == "harmonic":
+        return (ww * dot)[:, None, None] * eye
+    mu, lmbda = _lame(nu)
+    B = (mu * dot)[:, None, None] * eye
+    B += mu * gb[:, :, None] * ga[:, None, :]  # (i, j): g_a,j g_b,i
+    B += lmbda * ga[:, :, None] * gb[:, None, :]  # (i, j): g_a,i g_b,j
+    return B * ww[:, None, None]
+
+
+def _apply(G: np.ndarray, w: np.ndarray, model: str, nu: float, u: np.ndarray) -> np.ndarray:
+    """Element stiffness matrices times element displacements, without forming them.
+
+    ``u``: (nc, nv, gdim) displacement at the cell's vertices. With
+    ``H = G^T u`` (the transposed displacement gradient) the elastic
+    element action is ``E |K| (mu (G H + G H^T) + lambda tr(H) G)``; the
+    harmonic one ``E |K| G H``; the graph one ``nv u - sum_b u_b``.
+
+    Returns:
+        (nc, nv, gdim).
+    """
+    if model == "graph":
+        return G.shape[1] * u - u.sum(axis=1, keepdims=True)
+    H = G.transpose(0, 2, 1) @ u  # (nc, d, d): H_ij = sum_b g_b,i u_b,j
+    if model == "harmonic":
+        return w[:, None, None] * (G @ H)
+    mu, lmbda = _lame(nu)
+    tr = np.trace(H, axis1=1, axis2=2)
+    out = mu * (G @ (H + H.transpose(0, 2, 1))) + lmbda * tr[:, None, None] * G
+    return w[:, None, None] * out
 
 
 class _Band:
-    """Submesh of the cells within ``layers`` of the moved nodes (collective).
+    """Cells within ``layers`` of the moved nodes and the unknowns on them (collective).
+
+    No mesh is built for the band: its system is assembled from the parent
+    mesh's cells straight into a PETSc matrix whose unknowns are the band's
+    free nodes, numbered contiguously by their owners. So the work follows
+    the band, not the mesh, and there is no per-band mesh, function space or
+    form set-up (``dolfinx.mesh.create_mesh`` of the band and the DOLFINx
+    assembly cost about 2 us per band cell each).
 
     Attributes:
-        sub: the band mesh (geometry set to the reference coordinates), see
-            :func:`_band_mesh`.
         cells: (m,) int32 local parent cells of the band (owned and ghost);
             every node the smoother can move is only in cells of this list.
-        gmap: (n_sub,) parent geometry node of every submesh node.
-        constrained: (n_sub,) bool, Dirichlet nodes of the band problem.
-        n_cells_global, n_nodes_global: band size.
+        own_cells: the owned ones (each cell is assembled once, by its owner).
+        constrained: (n,) bool Dirichlet nodes: moved, fixed, and the band's
+            outer layer.
+        free: (n,) bool unknown nodes (in a band cell, not constrained).
+        own_free: (k,) local indices of the owned free nodes, in global order.
+        gid: (n,) int64 global number of each free node (-1 elsewhere).
+        n_cells_global, n_nodes_global, n_free_global: band size.
     """
 
-    def __init__(self, mesh, x_ref, moved_mask, fixed_mask, sync, layers, fix_boundary,
-                 cols=None):
+    def __init__(self, mesh, moved_mask, fixed_mask, sync, layers, cols=None):
         if layers < 1:
             raise ValueError("layers must be >= 1")
-        tdim = mesh.topology.dim
+        comm = mesh.comm
         cells = mesh.geometry.dofmaps[0]
         mark, prev, cin = _expand(cells, moved_mask, layers, sync, cols)
-        outer = mark & ~prev
-        band_cells = np.flatnonzero(cin).astype(np.int32)
-        self.cells = band_cells
-        sub, gmap = _band_mesh(mesh, band_cells, sync)
-        sub.geometry.x[:] = np.asarray(x_ref)[gmap]
-        self.sub = sub
-        self.gmap = gmap
-        self.sync = _NodeSync(sub.geometry.index_map())
-        n_sub = self.sync.n
-        constrained = moved_mask[gmap] | fixed_mask[gmap] | outer[gmap]
-        if fix_boundary:
-            sub.topology.create_connectivity(tdim - 1, tdim)
-            ext = dolfinx.mesh.exterior_facet_indices(sub.topology)
-            bnodes = dolfinx.mesh.entities_to_geometry(sub, tdim - 1, ext)
-            constrained |= _mask(n_sub, bnodes)
-        self.constrained = self.sync.any(constrained)
-        self.moved = moved_mask[gmap]
-        cim = sub.topology.index_map(tdim)
-        self.n_owned_cells = cim.size_local
+        self.cells = np.flatnonzero(cin).astype(np.int32)
+        n_own_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+        self.own_cells = self.cells[self.cells < n_own_cells]
+        in_band = np.zeros(sync.n, dtype=bool)
+        in_band[cells[self.cells].reshape(-1)] = True
+        in_band = sync.any(in_band)
+        self.constrained = moved_mask | fixed_mask | (mark & ~prev)
+        self.free = in_band & ~self.constrained
+        self.own_free = np.flatnonzero(self.free[: sync.n_owned])
+        offset = comm.exscan(self.own_free.size) if comm.size > 1 else 0
+        gid = np.full(sync.n, -1.0)
+        gid[self.own_free] = (offset or 0) + np.arange(self.own_free.size)
+        self.gid = sync.forward(gid).astype(np.int64)
+        self.n_cells_global = comm.allreduce(int(self.own_cells.size))
+        self.n_nodes_global = comm.allreduce(int(np.count_nonzero(in_band[: sync.n_owned])))
+        self.n_free_global = comm.allreduce(int(self.own_free.size))
+
+
+def _scalar_coo(rn: np.ndarray, cn: np.ndarray, blocks: np.ndarray):
+    """Scalar COO arrays of a block matrix, in row-major order.
+
+    ``rn, cn``: (u,) block row / column, sorted by row then column;
+    ``blocks``: (u, d, d). Scalar row ``d rn + i``, column ``d cn + j``.
+    """
+    u, d, _ = blocks.shape
+    first = np.flatnonzero(np.r_[True, rn[1:] != rn[:-1]]) if u else np.zeros(0, np.int64)
+    count = np.diff(np.r_[first, u])  # blocks per block row
+    s = np.repeat(first, count)  # first block of each block's row
+    k = np.repeat(count, count)
+    i = np.arange(d)
+    # entry (block q, i, j) of row d rn + i sits at d^2 s + i d k + d (q - s) + j
+    pos = (d * d * s + d * (np.arange(u) - s))[:, None, None] + (d * k)[:, None, None] * i[:, None] + i
+    rows = np.empty(u * d * d, dtype=np.int64)
+    cols = np.empty_like(rows)
+    vals = np.empty(u * d * d)
+    rows[pos.ravel()] = np.broadcast_to((d * rn)[:, None, None] + i[:, None], (u, d, d)).ravel()
+    cols[pos.ravel()] = np.broadcast_to((d * cn)[:, None, None] + i, (u, d, d)).ravel()
+    vals[pos.ravel()] = blocks.ravel()
+    return rows, cols, vals
+
+
+class _BandSolver:
+    """The band system ``K_ff u_f = -K_fc u_c`` (assembled once) and its PETSc solver.
+
+    ``model``: ``'elastic'`` / ``'harmonic'``: stiffened P1 extension, solved
+    by CG + Jacobi (MUMPS LU if CG fails) or MUMPS (``solver``);
+    ``'graph'``: ``sweeps`` Jacobi sweeps of graph-Laplacian averaging from
+    a zero start (PETSc Richardson + Jacobi, no convergence test).
+    """
+
+    def __init__(self, mesh, band: _Band, x_ref: np.ndarray, model: str, *,
+                 exponent: float = 1.0, nu: float = 0.3, solver: str = "cg",
+                 rtol: float = 1e-12, petsc_options: dict | None = None, sweeps: int = 50):
         comm = mesh.comm
-        self.n_cells_global = cim.size_global
-        self.n_nodes_global = sub.geometry.index_map().size_global
-        self.n_free_global = comm.allreduce(
-            int(np.count_nonzero(~self.constrained[: self.sync.n_owned])))
-
-
-class _ElasticSolver:
-    """P1 elasticity / vector Laplace extension on a band (factorised once)."""
-
-    def __init__(self, band: _Band, gdim: int, exponent: float, model: str, nu: float,
-                 solver: str, rtol: float, petsc_options: dict | None):
-        sub = band.sub
-        comm = sub.comm
+        gdim = mesh.geometry.dim
         self.gdim = gdim
-        V = dolfinx.fem.functionspace(sub, ("Lagrange", 1, (gdim,)))
-        gdm = sub.geometry.dofmaps[0]
-        n_sub = band.sync.n
-        node_to_dof = np.empty(n_sub, dtype=np.int32)
-        node_to_dof[gdm.reshape(-1)] = V.dofmap.list.reshape(-1)
-        self.node_to_dof = node_to_dof
-
-        # cell stiffness from the reference cell measure
-        Q = dolfinx.fem.functionspace(sub, ("DG", 0))
-        vol = np.abs(signed_volumes(sub.geometry.x, gdm, gdim))
-        vmax = comm.allreduce(float(vol.max()) if vol.size else 0.0, op=mpi4py.MPI.MAX)
-        with np.errstate(divide="ignore"):
-            Ek = (vmax / np.maximum(vol, 1e-300)) ** float(exponent)
-        E = dolfinx.fem.Function(Q)
-        E.x.array[Q.dofmap.list.reshape(-1)] = Ek
-        u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
-        if model == "harmonic":
-            a = E * ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx
-        elif model == "elastic":
-            mu = 1.0 / (2.0 * (1.0 + nu))
-            lmbda = nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
-
-            def eps(w):
-                return ufl.sym(ufl.grad(w))
-
-            a = E * (2.0 * mu * ufl.inner(eps(u), eps(v))
-                     + lmbda * ufl.div(u) * ufl.div(v)) * ufl.dx
+        self.band = band
+        cells = mesh.geometry.dofmaps[0][band.own_cells]
+        gid = band.gid[cells]
+        keep = (gid >= 0).any(axis=1)  # cells with an unknown
+        cells, gid = cells[keep], gid[keep]
+        nc, nv = cells.shape
+        if model == "graph":
+            G, weight = np.zeros((nc, nv, gdim)), None
         else:
-            raise ValueError(f"unknown model {model!r} (use 'elastic' or 'harmonic')")
-        self.a = dolfinx.fem.form(a)
-        dofs = node_to_dof[np.flatnonzero(band.constrained)].astype(np.int32)
-        self.ubc = dolfinx.fem.Function(V)
-        self.bc = dolfinx.fem.dirichletbc(self.ubc, dofs)
-        self.A = dolfinx.fem.petsc.assemble_matrix(self.a, bcs=[self.bc])
-        self.A.assemble()
-        self.b = dolfinx.fem.petsc.create_vector(V)
-        self.x = dolfinx.fem.petsc.create_vector(V)
-        self.u = dolfinx.fem.Function(V)
+            G, meas = _p1_gradients(x_ref, cells, gdim)
+            # E = (V_max / |K|)^p; V_max only scales the system (no effect on u)
+            vmax = comm.allreduce(float(meas.max(initial=0.0)), op=mpi4py.MPI.MAX)
+            with np.errstate(divide="ignore"):
+                weight = meas * (vmax / np.maximum(meas, 1e-300)) ** float(exponent)
+        self.G, self.w, self.model, self.nu = G, weight, model, nu
+        self.cells = cells
+        self.free = gid >= 0  # (nc, nv)
+        # matrix: the blocks of free-free vertex pairs, summed per node pair
+        # (sorted keys, so PETSc's COO set-up sees each entry once, in order)
+        c, a, b = np.nonzero(self.free[:, :, None] & self.free[:, None, :])
+        n_free = band.n_free_global
+        key = gid[c, a] * n_free + gid[c, b]
+        order = np.argsort(key)
+        key = key[order]
+        start = np.flatnonzero(np.r_[key.size > 0, key[1:] != key[:-1]])
+        blocks = (np.add.reduceat(_blocks(G, weight, model, nu, c[order], a[order], b[order]),
+                                  start, axis=0) if start.size else np.zeros((0, gdim, gdim)))
+        rn, cn = np.divmod(key[start], n_free)
+        rows, cols, vals = _scalar_coo(rn, cn, blocks)
+        # global unknowns of the free vertices of each cell, (c, a, i) order
+        free_dof = np.repeat(self.free[:, :, None], gdim, axis=2)
+        self.gdof = (gid[:, :, None] * gdim + np.arange(gdim))[free_dof]
+        n_loc = band.own_free.size * gdim
+        A = PETSc.Mat().create(comm)
+        A.setSizes([[n_loc, PETSc.DETERMINE], [n_loc, PETSc.DETERMINE]])
+        A.setType(PETSc.Mat.Type.AIJ)
+        A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))
+        A.setValuesCOO(vals, addv=PETSc.InsertMode.ADD_VALUES)
+        A.assemble()
+        self.A = A
+        self.b, self.x = A.createVecs()
         ksp = PETSc.KSP().create(comm)
-        ksp.setOperators(self.A)
+        ksp.setOperators(A)
         prefix = f"nagata_smooth_{next(_counter)}_"
         ksp.setOptionsPrefix(prefix)
-        if solver == "mumps":
+        if model == "graph":
+            popts = {"ksp_type": "richardson", "pc_type": "jacobi", "ksp_max_it": int(sweeps),
+                     "ksp_norm_type": "none", "ksp_convergence_test": "skip"}
+            solver = "sweeps"
+        elif solver == "mumps":
             popts = {"ksp_type": "preonly", "pc_type": "lu",
-                     "pc_factor_mat_solver_type": "mumps"}
+                     "pc_factor_mat_solver_type": "mumps", "ksp_error_if_not_converged": True}
         elif solver == "cg":
             popts = {"ksp_type": "cg", "pc_type": "jacobi", "ksp_rtol": rtol,
-                     "ksp_atol": 0.0, "ksp_max_it": 5000}
+                     "ksp_atol": 0.0, "ksp_max_it": 5000, "ksp_error_if_not_converged": True}
         else:
             raise ValueError(f"unknown solver {solver!r} (use 'mumps' or 'cg')")
         popts.update(petsc_options or {})
-        popts["ksp_error_if_not_converged"] = True
         opts = PETSc.Options()
         opts.prefixPush(prefix)
         for k, val in popts.items():
@@ -434,16 +516,20 @@ class _ElasticSolver:
         self.solver = "mumps"
         self.n_fallback += 1
 
-    def solve(self, d_sub: np.ndarray) -> np.ndarray:
-        """Displacement (n_sub, 3) from Dirichlet values ``d_sub`` (n_sub, 3)."""
+    def solve(self, d: np.ndarray) -> np.ndarray:
+        """Displacement ``(k, 3)`` of the owned free nodes (``band.own_free``).
+
+        ``d``: (n, 3) displacement of all local nodes; only its rows at
+        constrained nodes of band cells are read (Dirichlet data).
+        """
         g = self.gdim
-        arr = self.ubc.x.array.reshape(-1, g)
-        arr[self.node_to_dof] = d_sub[:, :g]
-        with self.b.localForm() as bl:
-            bl.set(0.0)
-        dolfinx.fem.petsc.apply_lifting(self.b, [self.a], bcs=[[self.bc]])
-        self.b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        self.bc.set(self.b.array_w)
+        u = d[self.cells][:, :, :g]  # (nc, nv, g)
+        u[self.free] = 0.0
+        f = -_apply(self.G, self.w, self.model, self.nu, u)
+        self.b.zeroEntries()
+        self.b.setValues(self.gdof.astype(PETSc.IntType), f[self.free].reshape(-1),
+                         addv=PETSc.InsertMode.ADD_VALUES)
+        self.b.assemble()
         try:
             self.ksp.solve(self.b, self.x)
         except PETSc.Error:
@@ -453,50 +539,13 @@ class _ElasticSolver:
                 raise
             self._switch_to_lu()
             self.ksp.solve(self.b, self.x)
-        self.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        dolfinx.fem.petsc.assign(self.x, self.u)
-        out = np.zeros((d_sub.shape[0], 3))
-        out[:, :g] = self.u.x.array.reshape(-1, g)[self.node_to_dof]
+        out = np.zeros((self.band.own_free.size, 3))
+        out[:, :g] = self.x.getArray(readonly=True).reshape(-1, g)
         return out
 
     def destroy(self):
         for obj in (self.ksp, self.A, self.b, self.x):
             obj.destroy()
-
-
-class _LaplaceSolver:
-    """Jacobi graph-Laplacian averaging of the displacement over a band."""
-
-    def __init__(self, band: _Band, sweeps: int):
-        sub = band.sub
-        self.band = band
-        self.sweeps = int(sweeps)
-        sync = band.sync
-        cells = sub.geometry.dofmaps[0][: band.n_owned_cells]
-        nv = cells.shape[1]
-        ii, jj = np.nonzero(~np.eye(nv, dtype=bool))
-        rows = cells[:, ii].reshape(-1)
-        cols = cells[:, jj].reshape(-1)
-        n = sync.n
-        # edge weight = number of (owned, summed over ranks) cells sharing it
-        self.A = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
-        deg = sync.forward(sync.reverse_add(np.asarray(self.A.sum(axis=1)).reshape(-1)))
-        self.free = ~band.constrained
-        self.free_owned = np.flatnonzero(self.free[: sync.n_owned])
-        self.deg_free = deg[self.free_owned][:, None]
-
-    def solve(self, d_sub: np.ndarray) -> np.ndarray:
-        sync = self.band.sync
-        d = np.array(d_sub, dtype=np.float64, copy=True)
-        d[self.free] = 0.0
-        for _ in range(self.sweeps):
-            s = sync.reverse_add(self.A @ d)
-            d[self.free_owned] = s[self.free_owned] / self.deg_free
-            d = sync.forward(d)
-        return d
-
-    def destroy(self):
-        pass
 
 
 class _Smoother:
@@ -520,22 +569,22 @@ class _Smoother:
         if method == "none" or not any_moved:
             return
         t0 = time.perf_counter()
-        self.band = _Band(mesh, x_ref, moved_mask, fixed_mask, sync, int(opts["layers"]),
-                          bool(opts["fix_boundary"]), cols)
+        self.band = _Band(mesh, moved_mask, fixed_mask, sync, int(opts["layers"]), cols)
         t1 = time.perf_counter()
         _acc(timings, "band", t1 - t0)
-        gdim = mesh.geometry.dim
+        if self.band.n_free_global == 0:
+            return
         if method == "elastic":
-            self.solver = _ElasticSolver(self.band, gdim, opts["exponent"], opts["model"],
-                                         opts["nu"], opts["solver"], opts["rtol"],
-                                         opts["petsc_options"])
-        elif method == "laplace":
+            self.solver = _BandSolver(mesh, self.band, x_ref, opts["model"],
+                                      exponent=opts["exponent"], nu=opts["nu"],
+                                      solver=opts["solver"], rtol=opts["rtol"],
+                                      petsc_options=opts["petsc_options"])
+        else:
             sweeps = opts["sweeps"]
             if sweeps is None:
                 sweeps = max(50, 4 * int(opts["layers"]) ** 2)
-            self.solver = _LaplaceSolver(self.band, sweeps)
-        else:
-            raise ValueError(f"unknown method {method!r} (use 'elastic', 'laplace' or 'none')")
+            self.solver = _BandSolver(mesh, self.band, x_ref, "graph", sweeps=sweeps,
+                                      petsc_options=opts["petsc_options"])
         _acc(timings, "setup", time.perf_counter() - t1)
 
     @property
@@ -546,15 +595,11 @@ class _Smoother:
     def run(self, x_cur: np.ndarray) -> np.ndarray:
         """New coordinates (n, 3); constrained nodes keep ``x_cur`` exactly."""
         x_new = np.array(x_cur, dtype=np.float64, copy=True)
-        if self.band is None:
+        if self.solver is None:
             return x_new
         t0 = time.perf_counter()
-        b = self.band
-        d_sub = x_cur[b.gmap] - self.x_ref[b.gmap]
-        d_sub[~b.constrained] = 0.0
-        d = self.solver.solve(d_sub)
-        free = ~b.constrained
-        x_new[b.gmap[free]] = self.x_ref[b.gmap[free]] + d[free]
+        own = self.band.own_free
+        x_new[own] = self.x_ref[own] + self.solver.solve(x_cur - self.x_ref)
         x_new = self.sync.forward(x_new)
         _acc(self.timings, "solve", time.perf_counter() - t0)
         return x_new
@@ -569,8 +614,11 @@ def _acc(timings: dict | None, key: str, dt: float):
         timings[key] = timings.get(key, 0.0) + dt
 
 
-def _prepare(mesh, x_ref, moved, fixed):
-    """Validate inputs, build masks (ghost-consistent) and the node sync."""
+def _prepare(mesh, x_ref, moved, fixed, fix_boundary: bool):
+    """Validate inputs, build masks (ghost-consistent) and the node sync.
+
+    With ``fix_boundary`` every exterior-boundary node that is not moved is fixed.
+    """
     if mesh.geometry.cmaps[0].degree != 1:
         raise ValueError("only P1 (affine) geometry is supported")
     tdim = mesh.topology.dim
@@ -582,8 +630,10 @@ def _prepare(mesh, x_ref, moved, fixed):
     if x_ref.shape != (n, 3):
         raise ValueError(f"x_ref must have shape {(n, 3)}, got {x_ref.shape}")
     moved_mask = sync.any(_mask(n, moved))
-    fixed_mask = sync.any(_mask(n, fixed)) & ~moved_mask
-    return sync, x_ref, moved_mask, fixed_mask
+    fixed_mask = sync.any(_mask(n, fixed))
+    if fix_boundary:
+        fixed_mask |= _exterior_nodes(mesh, sync)
+    return sync, x_ref, moved_mask, fixed_mask & ~moved_mask
 
 
 def _options(opts: dict) -> dict:
@@ -596,6 +646,10 @@ def _options(opts: dict) -> dict:
     if not (lay == "auto" or (isinstance(lay, (int, np.integer)) and not isinstance(lay, bool)
                               and lay >= 1)):
         raise ValueError(f"layers must be an integer >= 1 or 'auto', not {lay!r}")
+    if o["model"] not in ("elastic", "harmonic"):
+        raise ValueError(f"unknown model {o['model']!r} (use 'elastic' or 'harmonic')")
+    if o["solver"] not in ("cg", "mumps"):
+        raise ValueError(f"unknown solver {o['solver']!r} (use 'mumps' or 'cg')")
     return o
 
 
@@ -640,8 +694,10 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
               whose set-up costs more than it saves here); ``'mumps'`` is LU
               directly; ``petsc_options`` override either;
             * ``sweeps`` (int): Jacobi sweeps for ``'laplace'``;
-            * ``fix_boundary`` (bool, True): also hold every node on the band
-              submesh boundary (domain boundary nodes not listed as moved);
+            * ``fix_boundary`` (bool, True): also hold every exterior-boundary
+              node not listed as moved (creates the mesh's facets if it has
+              none: O(mesh); pass the boundary nodes as ``fixed`` and
+              ``False`` to avoid that);
             * ``info`` (dict): if given, filled with ``timings`` (stage ->
               seconds), ``band_cells``, ``band_nodes``, ``band_free_nodes``
               (global counts), ``solver_fallbacks`` (0 or 1: CG failed, LU
@@ -655,7 +711,8 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
     info = opts.get("info")
     o = _options(opts)
     timings: dict[str, float] = {}
-    sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed)
+    sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed,
+                                                    bool(o["fix_boundary"]))
     x_cur = sync.forward(mesh.geometry.x)
     if o["layers"] == "auto":
         cells = mesh.geometry.dofmaps[0]
@@ -809,7 +866,8 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
     comm = mesh.comm
     gdim = mesh.geometry.dim
     tdim = mesh.topology.dim
-    sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed)
+    sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed,
+                                                    bool(o["fix_boundary"]))
     x_target = np.asarray(x_target, dtype=np.float64)
     if x_target.shape != x_ref.shape:
         raise ValueError(f"x_target must have shape {x_ref.shape}, got {x_target.shape}")
