@@ -126,7 +126,7 @@ class Snapper:
         tags: facet tag values to snap; default ``geometry.tags`` (Nagata) or all tags.
         smoothing: interior smoothing after the boundary moved: ``'elastic'``
             (default; stiffened linear-elastic extension in a band of cells,
-            DOLFINx + PETSc), ``'laplace'`` (Jacobi averaging sweeps) or ``'none'``.
+            PETSc CG + Jacobi), ``'laplace'`` (Jacobi averaging sweeps) or ``'none'``.
         repair: on inverted or degenerate cells, re-smooth with stronger
             stiffening, then move the offending boundary vertices only part of
             the way (reported).  With ``False`` any bad cell raises.
