@@ -277,9 +277,13 @@ class Snapper:
         times["refine"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        ch = collective(self.comm, child_facets, mesh, prev.boundary, mesh1, parent_cell)
-        c_int, l_int, i_int = child_interior_facets(mesh, prev.interior_cells, prev.interior_local,
-                                                    mesh1, ch.parent_cells)
+
+        def lineage():  # no MPI inside: a LineageError on one process is raised on all
+            ch = child_facets(mesh, prev.boundary, mesh1, parent_cell)
+            return ch, child_interior_facets(mesh, prev.interior_cells, prev.interior_local,
+                                             mesh1, ch.parent_cells)
+
+        ch, (c_int, l_int, i_int) = collective(self.comm, lineage)
         tag_int = prev.interior_tag[i_int]
         tag = prev.tag[ch.parent]
         snapped = prev.snapped[ch.parent]
