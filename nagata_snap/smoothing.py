@@ -302,33 +302,41 @@ def _lame(nu: float) -> tuple[float, float]:
     return 1.0 / (2.0 * (1.0 + nu)), nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
 
 
-def _blocks(G: np.ndarray, w: np.ndarray, model: str, nu: float, c: np.ndarray, a: np.ndarray,
-            b: np.ndarray) -> np.ndarray:
-    """``(m, gdim, gdim)`` blocks ``K[c, a, :, b, :]`` of P1 element stiffness matrices.
+def _summed_blocks(G: np.ndarray, w: np.ndarray | None, model: str, nu: float, c: np.ndarray,
+                   a: np.ndarray, b: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Node-pair blocks of the P1 stiffness matrix, summed over the cells sharing the pair.
 
-    ``G``: (nc, nv, gdim) hat-function gradients; ``w``: (nc,) ``E |K|``;
-    ``c, a, b``: (m,) cell and local vertex pairs. The bilinear forms:
+    Args:
+        G: (nc, nv, gdim) hat-function gradients; w: (nc,) ``E |K|``.
+        c, a, b: (m,) cell and local vertex pairs, grouped so that the pairs
+            of one node pair are contiguous, the groups starting at ``start``.
 
-    * ``'elastic'``: ``int_K E (2 mu eps(u):eps(v) + lambda div u div v)``, whose
-      block is ``E |K| (mu (g_a.g_b delta_ij + g_a,j g_b,i) + lambda g_a,i g_b,j)``;
-    * ``'harmonic'``: ``E |K| g_a.g_b delta_ij`` (vector Laplacian);
-    * ``'graph'``: graph Laplacian of the cell's edges, per component
-      (``nv - 1`` on the diagonal, -1 off it; ``G`` and ``w`` unused).
+    Returns:
+        (len(start), gdim, gdim): for each group the sum over its cells of
+        the block ``K[c, a, :, b, :]`` of the element matrix of
+
+        * ``'elastic'``: ``int_K E (2 mu eps(u):eps(v) + lambda div u div v)``,
+          whose block is ``E |K| (mu (g_a.g_b delta_ij + g_a,j g_b,i) + lambda g_a,i g_b,j)``;
+        * ``'harmonic'``: ``E |K| g_a.g_b delta_ij`` (vector Laplacian);
+        * ``'graph'``: the graph Laplacian of the cell's edges, per component
+          (``nv - 1`` on the diagonal, -1 off it; ``G`` and ``w`` unused).
+
+        Every block is linear in ``P = E |K| g_a (x) g_b`` (``g_a.g_b = tr P``),
+        so ``P`` is summed first and the blocks are formed once per node pair.
     """
     d = G.shape[2]
     eye = np.eye(d)
+    if c.size == 0:
+        return np.zeros((0, d, d))
     if model == "graph":
-        return (G.shape[1] * (a == b) - 1.0)[:, None, None] * eye
-    ga, gb = G[c, a], G[c, b]  # (m, d)
-    ww = w[c]
-    dot = np.einsum("mi,mi->m", ga, gb)
+        return np.add.reduceat(G.shape[1] * (a == b) - 1.0, start)[:, None, None] * eye
+    P = G[c, a][:, :, None] * (w[c, None] * G[c, b])[:, None, :]  # (m, d, d)
+    P = np.add.reduceat(P, start, axis=0)
+    tr = np.trace(P, axis1=1, axis2=2)[:, None, None]
     if model == "harmonic":
-        return (ww * dot)[:, None, None] * eye
+        return tr * eye
     mu, lmbda = _lame(nu)
-    B = (mu * dot)[:, None, None] * eye
-    B += mu * gb[:, :, None] * ga[:, None, :]  # (i, j): g_a,j g_b,i
-    B += lmbda * ga[:, :, None] * gb[:, None, :]  # (i, j): g_a,i g_b,j
-    return B * ww[:, None, None]
+    return mu * (tr * eye + P.transpose(0, 2, 1)) + lmbda * P
 
 
 def _apply(G: np.ndarray, w: np.ndarray, model: str, nu: float, u: np.ndarray) -> np.ndarray:
@@ -462,8 +470,7 @@ class _BandSolver:
         order = np.argsort(key)
         key = key[order]
         start = np.flatnonzero(np.r_[key.size > 0, key[1:] != key[:-1]])
-        blocks = (np.add.reduceat(_blocks(G, weight, model, nu, c[order], a[order], b[order]),
-                                  start, axis=0) if start.size else np.zeros((0, gdim, gdim)))
+        blocks = _summed_blocks(G, weight, model, nu, c[order], a[order], b[order], start)
         rn, cn = np.divmod(key[start], n_free)
         rows, cols, vals = _scalar_coo(rn, cn, blocks)
         # global unknowns of the free vertices of each cell, (c, a, i) order
