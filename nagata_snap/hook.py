@@ -31,7 +31,7 @@ from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, cell_facets_of, child_facets, child_interior_facets
 from .parallel import collective
-from .quality import QualityReport
+from .quality import QualityReport, degenerate_cells
 from .records import Records, refine_records
 from .smoothing import InvertedCellsError, repair
 
@@ -167,6 +167,7 @@ class Snapper:
         if not 0.0 <= min_quality <= 1.0:
             raise ValueError(f"min_quality must be in [0, 1], got {min_quality}")
         check_p1_simplex(mesh)
+        _check_cells(mesh)
         if facet_tags.topology is not mesh.topology._cpp_object:
             raise ValueError(
                 "facet_tags belong to another mesh (MeshTags are bound to the mesh they were made on)"
@@ -382,6 +383,27 @@ class Snapper:
         f, first = np.unique(facets[keep], return_index=True)
         v = tag[keep][first].astype(np.int32)
         return dolfinx.mesh.meshtags(mesh1, mesh1.topology.dim - 1, f.astype(np.int32), v)
+
+
+def _check_cells(mesh: dolfinx.mesh.Mesh) -> None:
+    """Raise ``ValueError`` (on every process) if the mesh has degenerate cells.
+
+    Bisection keeps refined cells non-degenerate and the guard keeps snapped
+    ones valid, so checking the coarse mesh once is enough; a zero-volume
+    cell would otherwise reach the smoother as a singular element.
+    """
+    n = mesh.topology.index_map(mesh.topology.dim).size_local
+    cells = mesh.geometry.dofmaps[0][:n]
+    bad = degenerate_cells(mesh.geometry.x, cells, mesh.geometry.dim)
+    n_bad = mesh.comm.allreduce(int(bad.size))
+    if n_bad:
+        where = (np.round(mesh.geometry.x[cells[bad[0]]].mean(axis=0), 6).tolist() if bad.size
+                 else "another process")
+        raise ValueError(
+            f"the mesh has {n_bad} degenerate cells (area / volume at most 1e-12 of their "
+            f"longest edge to the power {mesh.geometry.dim}); first at {where}. nagata_snap "
+            "needs valid simplices: repair or remesh the input"
+        )
 
 
 def _check_edges(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike) -> np.ndarray:

@@ -40,6 +40,7 @@ import mpi4py.MPI  # noqa: F401  (must precede dolfinx/petsc4py imports)
 import numpy as np
 
 __all__ = [
+    "degenerate_cells",
     "signed_volumes",
     "inverted_cells",
     "quality_stats",
@@ -131,6 +132,28 @@ def signed_volumes(x: np.ndarray, cells: np.ndarray, gdim: int) -> np.ndarray:
 
 def _inverted_mask(v_new: np.ndarray, v_ref: np.ndarray, rel_floor: float) -> np.ndarray:
     return v_new * np.sign(v_ref) <= rel_floor * np.abs(v_ref)
+
+
+def degenerate_cells(x: np.ndarray, cells: np.ndarray, gdim: int,
+                     rel_floor: float = 1e-12) -> np.ndarray:
+    """Cells whose measure is at most ``rel_floor`` times (longest edge)^gdim.
+
+    Such a cell has no usable orientation or shape (zero area / volume, or
+    round-off away from it).
+
+    Args:
+        x: (n, 3) node coordinates; cells: (nc, gdim + 1) node indices per cell.
+        gdim: 2 or 3; rel_floor: dimensionless threshold (>= 0).
+
+    Returns:
+        (m,) int32 indices into ``cells`` (sorted ascending).
+    """
+    P = _verts(x, cells, gdim)
+    vol = np.abs(_signed_volumes_v(P, gdim))
+    h2 = np.zeros(len(cells))
+    for e in _edges_v(P, gdim):
+        h2 = np.maximum(h2, _dot(e, e))
+    return np.flatnonzero(vol <= rel_floor * h2 ** (gdim / 2.0)).astype(np.int32)
 
 
 def inverted_cells(x_new: np.ndarray, x_ref: np.ndarray, cells: np.ndarray,

@@ -293,7 +293,8 @@ def _p1_gradients(x: np.ndarray, cells: np.ndarray, gdim: int) -> tuple[np.ndarr
     Jinv, det = inverse_small(J)
     G = np.empty((len(cells), gdim + 1, gdim))
     G[:, 1:] = Jinv.transpose(0, 2, 1)  # grad lambda_a = column a - 1 of J^-1
-    G[:, 0] = -G[:, 1:].sum(axis=1)
+    with np.errstate(invalid="ignore"):  # degenerate cells: inf / nan, rejected by callers
+        G[:, 0] = -G[:, 1:].sum(axis=1)
     return G, np.abs(det) / (2.0 if gdim == 2 else 6.0)
 
 
@@ -457,8 +458,14 @@ class _BandSolver:
             G, meas = _p1_gradients(x_ref, cells, gdim)
             # E = (V_max / |K|)^p; V_max only scales the system (no effect on u)
             vmax = comm.allreduce(float(meas.max(initial=0.0)), op=mpi4py.MPI.MAX)
-            with np.errstate(divide="ignore"):
+            with np.errstate(divide="ignore", invalid="ignore"):
                 weight = meas * (vmax / np.maximum(meas, 1e-300)) ** float(exponent)
+            singular = ~np.isfinite(weight) | ~np.isfinite(G).all(axis=(1, 2)) | (meas <= 0)
+            n_bad = comm.allreduce(int(np.count_nonzero(singular)))
+            if n_bad:
+                raise ValueError(
+                    f"{n_bad} cells of the smoothing band have zero area / volume in the "
+                    "reference coordinates x_ref: no stiffness can be built for them")
         self.G, self.w, self.model, self.nu = G, weight, model, nu
         self.cells = cells
         self.free = gid >= 0  # (nc, nv)

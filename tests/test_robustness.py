@@ -1,8 +1,8 @@
 """Bad input gets a clear error, and a failed snap loses nothing.
 
 Every bad input below asserts the error TYPE and a message substring that
-names the problem.  This module covers 52 distinct bad inputs; with the 25
-bad IGES files of ``tests/test_iges.py`` (``BAD``) that makes 77.  Sixteen
+names the problem.  This module covers 53 distinct bad inputs; with the 25
+bad IGES files of ``tests/test_iges.py`` (``BAD``) that makes 78.  Seventeen
 of them, and a normals callable that fails on one process only, also run
 under ``mpiexec -n 2`` and ``-n 3`` (``tests/mpi/bad_input.py``: every process
 must raise the same class, within a timeout).
@@ -20,6 +20,7 @@ Mesh and tags (DOLFINx meshes)
   10. coincident vertices (duplicate nodes, slit mesh)         ValueError
   11. NaN coordinates at a boundary node                       ValueError
   12. infinite coordinates at an interior node (Snapper)       ValueError      (MPI: one rank)
+  12b. a zero-area cell (Snapper)                              ValueError      (MPI: one rank)
   13. quadrilateral cells                                      ValueError
   14. hexahedral cells                                         ValueError
   15. interval cells (1D)                                      ValueError
@@ -235,6 +236,18 @@ def test_coincident_vertices():
     mesh = simplex_mesh([[0, 1, 2], [3, 4, 5]], [[0, 0], [1, 0], [1, 1], [0, 0], [1, 1], [0, 1]])
     e = raises(ValueError, "coincident vertices", NagataGeometry, mesh, exterior_tags(mesh))
     assert "merge duplicate nodes" in str(e)
+
+
+def test_degenerate_cell():
+    # an interior vertex moved onto the opposite edge of one of its triangles
+    mesh = dolfinx.mesh.create_unit_square(COMM, 4, 4)
+    ft = exterior_tags(mesh)
+    geo = NagataGeometry(mesh, ft)
+    x, cells = mesh.geometry.x, mesh.geometry.dofmaps[0]
+    inner = (np.abs(x[:, :2] - 0.5) < 0.4).all(axis=1)
+    v = cells[np.flatnonzero(inner[cells].all(axis=1))[0]]
+    x[v[0]] = 0.5 * (x[v[1]] + x[v[2]])
+    raises(ValueError, "degenerate cells", Snapper, mesh, ft, geo)
 
 
 def test_nan_boundary_coordinates():
@@ -662,6 +675,7 @@ MPI_CASES = {
     "quadrilaterals": "ValueError",
     "bad_option": "ValueError",
     "inverted": "InvertedCellsError",
+    "degenerate_cell_one_rank": "ValueError",
 }
 
 

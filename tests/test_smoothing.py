@@ -371,6 +371,15 @@ def test_bad_inputs():
         smooth(msh, x_ref, left, fixed, layer=3)
     with pytest.raises(IndexError):
         smooth(msh, x_ref, np.array([x_ref.shape[0]], np.int32), fixed)
+    # a zero-area reference cell next to the moved nodes: no stiffness for it
+    flat = x_ref.copy()
+    cells = msh.geometry.dofmaps[0]
+    one_left = (np.isin(cells, left).sum(axis=1) == 1) & ~np.isin(cells, fixed).any(axis=1)
+    tri = cells[np.flatnonzero(one_left)[0]]
+    w, v0, v1 = tri[np.argsort(~np.isin(tri, left))]  # the moved node first
+    flat[v0] = 0.5 * (flat[w] + flat[v1])
+    with pytest.raises(ValueError, match="zero area / volume"):
+        smooth(msh, flat, left, fixed)
 
 
 @pytest.mark.mpi

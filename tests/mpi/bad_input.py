@@ -27,6 +27,7 @@ Cases:
   quadrilaterals            quadrilateral mesh                     ValueError
   bad_option                Snapper(smoothing="spring")            ValueError
   inverted                  wall normals tilted +-50 deg, no smoothing, no repair InvertedCellsError
+  degenerate_cell_one_rank  a zero-area cell on the last rank only  ValueError
 """
 
 import json
@@ -202,6 +203,19 @@ def inverted():
     ft = wall_tags(mesh)
     geo = NagataGeometry(mesh, ft, tags=[1], normals=wavy(50.0), crease_angle=60.0)
     Snapper(mesh, ft, geo, smoothing="none", repair=False).refine(mesh)
+
+
+def degenerate_cell_one_rank():
+    mesh = dolfinx.mesh.create_unit_square(comm, 8, 8)
+    ft = exterior_tags(mesh)
+    geo = NagataGeometry(mesh, ft)
+    if comm.rank == comm.size - 1:
+        x, cells = mesh.geometry.x, mesh.geometry.dofmaps[0]
+        nc = mesh.topology.index_map(2).size_local
+        inner = (np.abs(x[:, :2] - 0.5) < 0.4).all(axis=1)
+        v = cells[np.flatnonzero(inner[cells[:nc]].all(axis=1))[0]]
+        x[v[0]] = 0.5 * (x[v[1]] + x[v[2]])  # an owned cell of zero area
+    Snapper(mesh, ft, geo)
 
 
 result = {}
