@@ -21,8 +21,9 @@ times what a loop without snapping that keeps its facet tags does
 (``refine`` with parent maps, then ``transfer_meshtag``) and prints
 ``Snapper.refine``'s wall time relative to that. Each stage is the best of
 ``--repeat`` runs (a fresh ``Snapper`` on the same coarse mesh each time; its
-construction is not timed). One small warm-up run per dimension compiles the
-forms first.
+construction is not timed). One small warm-up run per dimension and smoother
+first loads the code paths (the snapper compiles no forms: its smoothing
+system is assembled in numpy and PETSc).
 
 Cases (cell counts are of the REFINED mesh; the coarse mesh has 1/4 (2D) or
 1/8 (3D) of them):
@@ -182,7 +183,7 @@ def run_case(comm, case: str, methods, repeat: int, options: dict):
 
 
 def warm_up(comm, dims):
-    """Compile the smoother forms (FFCx/JIT cache) on tiny meshes."""
+    """Run every smoother once on a tiny mesh (imports, PETSc set-up, numpy caches)."""
     for dim in dims:
         mesh, ft, tag = build(comm, f"{dim}d-{4000 if dim == 2 else 8000}")
         for method in ("elastic", "laplace"):
