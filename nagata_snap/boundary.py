@@ -21,7 +21,6 @@ __all__ = [
     "BoundaryFacets",
     "boundary_facets",
     "cell_facet_nodes",
-    "facet_nodes",
     "tag_values",
     "update_nodes",
     "check_p1_simplex",
@@ -119,14 +118,6 @@ class BoundaryFacets:
         flip = np.einsum("ij,ij->i", n, x[self.opposite] - p[:, 0]) > 0
         n[flip] *= -1
         return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
-def facet_nodes(mesh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]) -> np.ndarray:
-    """``(nf, nfv)`` geometry nodes of the vertices of ``facets`` (P1 geometry)."""
-    fdim = mesh.topology.dim - 1
-    if len(facets) == 0:
-        return np.zeros((0, fdim + 1), dtype=np.int32)
-    return dolfinx.mesh.entities_to_geometry(mesh, fdim, np.asarray(facets, dtype=np.int32))
 
 
 def boundary_facets(mesh: dolfinx.mesh.Mesh) -> BoundaryFacets:
