@@ -74,13 +74,17 @@ def test_tags_equal_transfer_meshtag(case):
         mesh, ft = mesh1, ft1
 
 
-def test_weights_reproduce_children():
-    md = generate.sphere_in_box(COMM, h_sphere=0.35, h_box=0.6)
+def _refined_once(md):
+    """(mesh0, its boundary, mesh1, parent_cell, child facets) for one uniform refinement."""
     mesh0 = md.mesh
     mesh0.topology.create_entities(1)
     prev = boundary_facets(mesh0)
     mesh1, pc, _ = dolfinx.mesh.refine(mesh0, option=dolfinx.mesh.RefinementOption.parent_cell)
-    ch = child_facets(mesh0, prev, mesh1, pc)
+    return mesh0, prev, mesh1, pc, child_facets(mesh0, prev, mesh1, pc)
+
+
+def test_weights_reproduce_children():
+    mesh0, prev, mesh1, _, ch = _refined_once(generate.sphere_in_box(COMM, h_sphere=0.35, h_box=0.6))
     y = mesh1.geometry.x[ch.boundary.nodes]  # (nf, 3, 3)
     X = mesh0.geometry.x[prev.nodes[ch.parent]]
     assert np.abs(np.einsum("fvw,fwi->fvi", ch.weights, X) - y).max() < 1e-14
@@ -90,14 +94,9 @@ def test_weights_reproduce_children():
 
 
 def test_not_a_refinement_is_refused():
-    md = generate.dfg_channel(COMM, n_circle=16, h_far=0.1)
-    mesh0 = md.mesh
-    mesh0.topology.create_entities(1)
-    prev = boundary_facets(mesh0)
-    mesh1, pc, _ = dolfinx.mesh.refine(mesh0, option=dolfinx.mesh.RefinementOption.parent_cell)
+    mesh0, prev, mesh1, pc, ch = _refined_once(generate.dfg_channel(COMM, n_circle=16, h_far=0.1))
     # push one boundary midpoint off its parent edge: that child edge lies in
     # no parent facet, so the parent edge is no longer covered
-    ch = child_facets(mesh0, prev, mesh1, pc)
     f, v = np.argwhere((ch.weights == 0.5).any(axis=2))[0]  # a vertex that is a midpoint
     node = ch.boundary.nodes[f, v]
     mesh1.geometry.x[node] += 1e-3 * np.array([1.0, 1.0, 0.0])
