@@ -21,6 +21,8 @@ __all__ = [
     "BoundaryFacets",
     "boundary_facets",
     "cell_facet_nodes",
+    "cell_facets_of",
+    "facet_normal_vectors",
     "tag_values",
     "update_nodes",
     "check_p1_simplex",
@@ -75,6 +77,19 @@ def cell_facet_nodes(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarr
     return np.take_along_axis(g[cells], local_facet_vertices(tdim)[local], axis=1).astype(np.int32)
 
 
+def facet_normal_vectors(p: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` unnormalised normals of segments / triangles ``p (n, nfv, 3)``.
+
+    In 2D ``(t_y, -t_x, 0)`` for the edge ``t``, in 3D the cross product of
+    two edges: the length is the segment's length or twice the triangle's
+    area. The orientation follows the vertex order.
+    """
+    t = p[:, 1] - p[:, 0]
+    if p.shape[1] == 2:
+        return np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
+    return np.cross(t, p[:, 2] - p[:, 0])
+
+
 @dataclass
 class BoundaryFacets:
     """Exterior facets whose cell is owned by this process.
@@ -107,14 +122,19 @@ class BoundaryFacets:
             self.facets = c2f[self.cells, self.local].astype(np.int32)
         return self.facets
 
+    @classmethod
+    def from_cells(cls, mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarray,
+                   facets: np.ndarray | None = None) -> "BoundaryFacets":
+        """The facets ``local`` of the owned ``cells`` (nodes and opposite vertices looked up)."""
+        cells = np.asarray(cells, dtype=np.int32)
+        local = np.asarray(local, dtype=np.int32)
+        opposite = mesh.geometry.dofmaps[0][cells, local].astype(np.int32)
+        return cls(cells, local, cell_facet_nodes(mesh, cells, local), opposite, facets)
+
     def outward_normals(self, x: np.ndarray) -> np.ndarray:
         """``(nf, 3)`` unit outward normals of the straight facets for coordinates ``x``."""
         p = x[self.nodes]
-        if p.shape[1] == 2:
-            t = p[:, 1] - p[:, 0]
-            n = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
-        else:
-            n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        n = facet_normal_vectors(p)
         flip = np.einsum("ij,ij->i", n, x[self.opposite] - p[:, 0]) > 0
         n[flip] *= -1
         return n / np.linalg.norm(n, axis=1, keepdims=True)
@@ -146,14 +166,36 @@ def boundary_facets(mesh: dolfinx.mesh.Mesh) -> BoundaryFacets:
         vec.scatter_forward()
         is_ext = vec.array > 0.5
     cand = cand[is_ext[cand]]
-    cells = f2c.array[f2c.offsets[cand]]
-    owned = cells < top.index_map(tdim).size_local
-    cand, cells = cand[owned], cells[owned].astype(np.int32)
-    c2f = top.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
-    local = np.argmax(c2f[cells] == cand[:, None], axis=1).astype(np.int32)
-    nodes = cell_facet_nodes(mesh, cells, local)
-    opposite = mesh.geometry.dofmaps[0][cells, local].astype(np.int32)
-    return BoundaryFacets(cells, local, nodes, opposite, facets=cand)
+    cells, local, index = cell_facets_of(mesh, cand)  # drops facets of ghost cells
+    return BoundaryFacets.from_cells(mesh, cells, local, facets=cand[index])
+
+
+def cell_facets_of(
+    mesh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each facet in ``facets`` as (owned cell, local facet) pairs, once per owned adjacent cell.
+
+    Returns:
+        ``(cells, local, index)``: ``index`` into ``facets``.
+    """
+    tdim = mesh.topology.dim
+    fdim = tdim - 1
+    if len(facets) == 0:
+        z = np.zeros(0, dtype=np.int32)
+        return z, z, np.zeros(0, dtype=np.int64)
+    mesh.topology.create_connectivity(fdim, tdim)
+    mesh.topology.create_connectivity(tdim, fdim)
+    f2c = mesh.topology.connectivity(fdim, tdim)
+    c2f = mesh.topology.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
+    facets = np.asarray(facets, dtype=np.int32)
+    cnt = np.diff(f2c.offsets)[facets]
+    index = np.repeat(np.arange(len(facets)), cnt)
+    pos = np.repeat(f2c.offsets[facets], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    cells = f2c.array[pos]
+    own = cells < mesh.topology.index_map(tdim).size_local
+    index, cells = index[own], cells[own].astype(np.int32)
+    local = np.argmax(c2f[cells] == facets[index][:, None], axis=1).astype(np.int32)
+    return cells, local, index
 
 
 def tag_values(

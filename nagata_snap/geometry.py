@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 import dolfinx.mesh
 
 from . import nagata
-from .boundary import boundary_facets, check_p1_simplex, tag_values
+from .boundary import boundary_facets, check_p1_simplex, facet_normal_vectors, tag_values
 from .normals import NormalsError, corner_normals
 from .parallel import collective
 from .records import Records
@@ -285,11 +285,7 @@ class NagataGeometry:
             raise ValueError(f"facet_tags must have shape ({len(fac)},), got {tag.shape}")
         _check_winding(fac)
         x = pts[fac]
-        if fac.shape[1] == 2:
-            t = x[:, 1] - x[:, 0]
-            fn = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
-        else:
-            fn = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+        fn = facet_normal_vectors(x)
         _check_facet_area(fn, x)
         fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
         self = cls.__new__(cls)

@@ -26,10 +26,11 @@ import numpy.typing as npt
 
 import dolfinx.mesh
 
-from .boundary import BoundaryFacets, boundary_facets, check_p1_simplex, tag_values, update_nodes
+from .boundary import (BoundaryFacets, boundary_facets, cell_facets_of, check_p1_simplex,
+                       tag_values, update_nodes)
 from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
-from .lineage import LineageError, cell_facets_of, child_facets, child_interior_facets
+from .lineage import LineageError, child_facets, child_interior_facets
 from .parallel import collective
 from .quality import QualityReport, degenerate_cells
 from .records import Records, refine_records

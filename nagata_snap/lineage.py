@@ -34,7 +34,7 @@ import numpy.typing as npt
 import dolfinx.mesh
 
 from ._batched import inverse_small
-from .boundary import BoundaryFacets, cell_facet_nodes
+from .boundary import BoundaryFacets, cell_facet_nodes, facet_normal_vectors
 
 __all__ = [
     "LineageError",
@@ -42,7 +42,6 @@ __all__ = [
     "parent_cells",
     "child_facets",
     "child_interior_facets",
-    "cell_facets_of",
     "barycentric",
 ]
 
@@ -119,17 +118,15 @@ def parent_cells(
     mesh1: dolfinx.mesh.Mesh,
     mesh0: dolfinx.mesh.Mesh,
     parent_cell: npt.NDArray[np.int32],
-    check: npt.NDArray[np.int32] | None = None,
-    select: npt.NDArray[np.bool_] | None = None,
+    select: npt.NDArray[np.bool_],
 ) -> np.ndarray:
     """Parent cell (local index in ``mesh0``) of every owned cell of ``mesh1``.
 
     Args:
-        check: owned cells of ``mesh1`` on which the indexing is verified
-            geometrically (default: all owned cells).
-        select: ``(num_cells0,)`` bool over the cells of ``mesh0``: verify on
-            (an evenly spaced sample of at most ``SAMPLE``) children of the
-            selected parents instead, as each candidate indexing names them.
+        select: ``(num_cells0,)`` bool over the cells of ``mesh0``: the
+            indexing is verified geometrically on (an evenly spaced sample of
+            at most ``SAMPLE``) children of the selected parents, as each
+            candidate indexing names them.
             This only chooses between the indexings; :func:`child_facets`
             then verifies every child facet it uses.
 
@@ -153,11 +150,8 @@ def parent_cells(
     x1, x0 = mesh1.geometry.x, mesh0.geometry.x
     g1, g0 = mesh1.geometry.dofmaps[0], mesh0.geometry.dofmaps[0]
     for P in candidates:
-        if select is not None:
-            chk = np.flatnonzero(select[P])
-            chk = chk[:: max(1, len(chk) // SAMPLE)]
-        else:
-            chk = np.arange(n_owned) if check is None else np.asarray(check)
+        chk = np.flatnonzero(select[P])
+        chk = chk[:: max(1, len(chk) // SAMPLE)]
         cen = x1[g1[chk]].mean(axis=1)[:, None, :]
         lam, dist = barycentric(cen, x0[g0[P[chk]]])
         if np.all(lam > -TOL) and np.all(dist < TOL):
@@ -203,24 +197,15 @@ def _hyperplanes(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     The size is the longest edge from vertex 0 (the scale of :func:`barycentric`).
     """
-    t = X[:, 1] - X[:, 0]
-    if X.shape[1] == 2:
-        n = np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
-        h = np.linalg.norm(t, axis=1)
-    else:
-        s = X[:, 2] - X[:, 0]
-        n = np.cross(t, s)
-        h = np.maximum(np.linalg.norm(t, axis=1), np.linalg.norm(s, axis=1))
+    n = facet_normal_vectors(X)
+    h = np.max(np.linalg.norm(X[:, 1:] - X[:, :1], axis=2), axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        n = n / np.linalg.norm(n, axis=1, keepdims=True)
-    return n, h
+        return n / np.linalg.norm(n, axis=1, keepdims=True), h
 
 
 def _measure(p: np.ndarray) -> np.ndarray:
     """``(n,)`` length (2 vertices) or area (3 vertices) of ``p (n, nfv, 3)``."""
-    if p.shape[1] == 2:
-        return np.linalg.norm(p[:, 1] - p[:, 0], axis=1)
-    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    return np.linalg.norm(facet_normal_vectors(p), axis=1) / (p.shape[1] - 1)
 
 
 def _children(
@@ -229,7 +214,7 @@ def _children(
     nodes0: np.ndarray,
     mesh1: dolfinx.mesh.Mesh,
     P: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Local facets of the children of ``cells0`` that lie in the parent facets ``nodes0``.
 
     Args:
@@ -238,9 +223,9 @@ def _children(
         P: parent cell of every owned cell of ``mesh1``.
 
     Returns:
-        ``(cells1, local1, nodes1, parent, weights)`` over the child facets
-        found: owned cell of ``mesh1`` and local facet index, geometry nodes,
-        index into ``cells0`` of the parent facet, rounded barycentric
+        ``(cells1, local1, parent, weights)`` over the child facets found:
+        owned cell of ``mesh1`` and local facet index, index into
+        ``cells0`` of the parent facet, rounded barycentric
         coordinates ``(n, nfv, nfv)`` of the child's vertices in the parent.
 
     Raises:
@@ -278,9 +263,9 @@ def _children(
             f"{twice.size} facets of the refined mesh lie in more than one parent facet; first at "
             f"{x1[cell_facet_nodes(mesh1, np.array([c]), np.array([j]))[0]].round(6).tolist()}"
         )
-    child, cand = sel, cand[sel]
+    cand = cand[sel]
     # every parent facet must be tiled by its children (area / length sum)
-    covered = np.bincount(cand, weights=_measure(x1[fn[child]]), minlength=len(cells0))
+    covered = np.bincount(cand, weights=_measure(x1[fn[sel]]), minlength=len(cells0))
     whole = _measure(x0[nodes0])
     gap = np.abs(covered - whole) > 1e-8 * np.maximum(whole, np.finfo(float).tiny)
     if np.any(gap):
@@ -290,33 +275,7 @@ def _children(
             f"refined mesh (the mesh is not a refinement of the previous level); first at "
             f"{x0[nodes0[first]].round(6).tolist()}"
         )
-    return kc[child], kl[child], fn[child], cand, lr[sel]
-
-
-def cell_facets_of(mesh: dolfinx.mesh.Mesh, facets: npt.NDArray[np.int32]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each facet in ``facets`` as (owned cell, local facet) pairs, once per owned adjacent cell.
-
-    Returns:
-        ``(cells, local, index)``: ``index`` into ``facets``.
-    """
-    tdim = mesh.topology.dim
-    fdim = tdim - 1
-    if len(facets) == 0:
-        z = np.zeros(0, dtype=np.int32)
-        return z, z, np.zeros(0, dtype=np.int64)
-    mesh.topology.create_connectivity(fdim, tdim)
-    mesh.topology.create_connectivity(tdim, fdim)
-    f2c = mesh.topology.connectivity(fdim, tdim)
-    c2f = mesh.topology.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
-    facets = np.asarray(facets, dtype=np.int32)
-    cnt = np.diff(f2c.offsets)[facets]
-    index = np.repeat(np.arange(len(facets)), cnt)
-    pos = np.repeat(f2c.offsets[facets], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-    cells = f2c.array[pos]
-    own = cells < mesh.topology.index_map(tdim).size_local
-    index, cells = index[own], cells[own].astype(np.int32)
-    local = np.argmax(c2f[cells] == facets[index][:, None], axis=1).astype(np.int32)
-    return cells, local, index
+    return kc[sel], kl[sel], cand, lr[sel]
 
 
 def child_interior_facets(
@@ -342,7 +301,7 @@ def child_interior_facets(
     if len(cells0) == 0:
         z = np.zeros(0, dtype=np.int32)
         return z, z, np.zeros(0, dtype=np.int64)
-    c1, l1, _, parent, _ = _children(mesh0, cells0, cell_facet_nodes(mesh0, cells0, local0), mesh1, P)
+    c1, l1, parent, _ = _children(mesh0, cells0, cell_facet_nodes(mesh0, cells0, local0), mesh1, P)
     return c1, l1, parent
 
 
@@ -351,7 +310,6 @@ def child_facets(
     prev: BoundaryFacets,
     mesh1: dolfinx.mesh.Mesh,
     parent_cell: npt.NDArray[np.int32],
-    P: np.ndarray | None = None,
 ) -> ChildFacets:
     """Match the exterior facets of ``mesh1`` to the exterior facets ``prev`` of ``mesh0``.
 
@@ -364,17 +322,14 @@ def child_facets(
         prev: its exterior facets (as used at the previous level).
         mesh1: the refined mesh, coordinates as returned by ``dolfinx.mesh.refine``.
         parent_cell: the ``parent_cell`` array returned by ``dolfinx.mesh.refine``.
-        P: parent cell of every owned cell of ``mesh1`` if already known.
 
     Raises:
         LineageError: a child facet in two parent facets, or a parent
             boundary facet that its children do not cover.
     """
-    if P is None:
-        select = np.zeros(mesh0.topology.index_map(mesh0.topology.dim).size_local, dtype=bool)
-        select[prev.cells] = True
-        P = parent_cells(mesh1, mesh0, parent_cell, select=select)
-    cells, local, nodes, parent, weights = _children(mesh0, prev.cells, prev.nodes, mesh1, P)
-    opposite = mesh1.geometry.dofmaps[0][cells, local].astype(np.int32)
-    bf = BoundaryFacets(cells, local, nodes, opposite)
-    return ChildFacets(bf, parent.astype(np.int64), weights, P)
+    select = np.zeros(mesh0.topology.index_map(mesh0.topology.dim).size_local, dtype=bool)
+    select[prev.cells] = True
+    P = parent_cells(mesh1, mesh0, parent_cell, select)
+    cells, local, parent, weights = _children(mesh0, prev.cells, prev.nodes, mesh1, P)
+    return ChildFacets(BoundaryFacets.from_cells(mesh1, cells, local), parent.astype(np.int64),
+                       weights, P)
