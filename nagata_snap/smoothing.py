@@ -376,10 +376,9 @@ class _Band:
         cells: (m,) int32 local parent cells of the band (owned and ghost);
             every node the smoother can move is only in cells of this list.
         own_cells: the owned ones (each cell is assembled once, by its owner).
-        constrained: (n,) bool Dirichlet nodes: moved, fixed, and the band's
-            outer layer.
-        free: (n,) bool unknown nodes (in a band cell, not constrained).
-        own_free: (k,) local indices of the owned free nodes, in global order.
+        own_free: (k,) local indices of the owned free nodes (in a band cell,
+            not constrained: neither moved, fixed nor in the band's outer
+            layer), in global order.
         gid: (n,) int64 global number of each free node (-1 elsewhere).
         n_cells_global, n_nodes_global, n_free_global: band size.
     """
@@ -396,9 +395,8 @@ class _Band:
         in_band = np.zeros(sync.n, dtype=bool)
         in_band[cells[self.cells].reshape(-1)] = True
         in_band = sync.any(in_band)
-        self.constrained = moved_mask | fixed_mask | (mark & ~prev)
-        self.free = in_band & ~self.constrained
-        self.own_free = np.flatnonzero(self.free[: sync.n_owned])
+        free = in_band & ~(moved_mask | fixed_mask | (mark & ~prev))
+        self.own_free = np.flatnonzero(free[: sync.n_owned])
         offset = comm.exscan(self.own_free.size) if comm.size > 1 else 0
         gid = np.full(sync.n, -1.0)
         gid[self.own_free] = (offset or 0) + np.arange(self.own_free.size)
@@ -530,14 +528,15 @@ class _BandSolver:
         self.solver = "mumps"
         self.n_fallback += 1
 
-    def solve(self, d: np.ndarray) -> np.ndarray:
+    def solve(self, x: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
         """Displacement ``(k, 3)`` of the owned free nodes (``band.own_free``).
 
-        ``d``: (n, 3) displacement of all local nodes; only its rows at
-        constrained nodes of band cells are read (Dirichlet data).
+        ``x``, ``x_ref``: (n, 3) current and reference coordinates of all
+        local nodes; only the constrained nodes of band cells are read (the
+        Dirichlet data ``x - x_ref``).
         """
         g = self.gdim
-        u = d[self.cells][:, :, :g]  # (nc, nv, g)
+        u = x[self.cells][:, :, :g] - x_ref[self.cells][:, :, :g]  # (nc, nv, g)
         u[self.free] = 0.0
         f = -_apply(self.G, self.w, self.model, self.nu, u)
         self.b.zeroEntries()
@@ -613,7 +612,7 @@ class _Smoother:
             return x_new
         t0 = time.perf_counter()
         own = self.band.own_free
-        x_new[own] = self.x_ref[own] + self.solver.solve(x_cur - self.x_ref)
+        x_new[own] = self.x_ref[own] + self.solver.solve(x_cur, self.x_ref)
         x_new = self.sync.forward(x_new)
         _acc(self.timings, "solve", time.perf_counter() - t0)
         return x_new
