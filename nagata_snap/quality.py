@@ -41,6 +41,7 @@ import numpy as np
 
 __all__ = [
     "degenerate_cells",
+    "edge_length_range",
     "signed_volumes",
     "inverted_cells",
     "quality_stats",
@@ -148,12 +149,16 @@ def degenerate_cells(x: np.ndarray, cells: np.ndarray, gdim: int,
     Returns:
         (m,) int32 indices into ``cells`` (sorted ascending).
     """
-    P = _verts(x, cells, gdim)
-    vol = np.abs(_signed_volumes_v(P, gdim))
-    h2 = np.zeros(len(cells))
-    for e in _edges_v(P, gdim):
-        h2 = np.maximum(h2, _dot(e, e))
-    return np.flatnonzero(vol <= rel_floor * h2 ** (gdim / 2.0)).astype(np.int32)
+    _, hmax = edge_length_range(x, cells, gdim)
+    vol = np.abs(signed_volumes(x, cells, gdim))
+    return np.flatnonzero(vol <= rel_floor * hmax**gdim).astype(np.int32)
+
+
+def edge_length_range(x: np.ndarray, cells: np.ndarray, gdim: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(shortest, longest)`` edge length of every cell, two (nc,) arrays (length unit)."""
+    _check(cells, gdim)
+    l2 = [_dot(e, e) for e in _edges_v(_verts(x, cells, gdim), gdim)]
+    return np.sqrt(np.minimum.reduce(l2)), np.sqrt(np.maximum.reduce(l2))
 
 
 def inverted_cells(x_new: np.ndarray, x_ref: np.ndarray, cells: np.ndarray,

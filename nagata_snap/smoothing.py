@@ -88,8 +88,8 @@ from petsc4py import PETSc
 
 from ._batched import inverse_small
 
-from .quality import (QualityReport, _columns, _inverted_mask, _touching, mean_ratio,
-                      signed_volumes)
+from .quality import (QualityReport, _columns, _inverted_mask, _touching, edge_length_range,
+                      mean_ratio, signed_volumes)
 
 __all__ = ["smooth", "repair", "RepairResult", "InvertedCellsError", "SMOOTH_DEFAULTS"]
 
@@ -221,12 +221,7 @@ def _auto_layers(comm, x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
     r = 0.0
     if sel.size:
         sub = cells[sel]
-        xs = x_ref[sub]  # (m, k, 3)
-        k = sub.shape[1]
-        hmin = np.full(sel.size, np.inf)
-        for a in range(k):
-            for b in range(a + 1, k):
-                hmin = np.minimum(hmin, np.linalg.norm(xs[:, a] - xs[:, b], axis=1))
+        hmin, _ = edge_length_range(x_ref, sub, sub.shape[1] - 1)
         dmax = dn[sub].max(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = np.where(hmin > 0, dmax / hmin, np.inf)
