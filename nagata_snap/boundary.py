@@ -22,6 +22,7 @@ __all__ = [
     "boundary_facets",
     "cell_facet_nodes",
     "cell_facets_of",
+    "facets_of_cells",
     "facet_normal_vectors",
     "tag_values",
     "update_nodes",
@@ -90,6 +91,17 @@ def facet_normal_vectors(p: np.ndarray) -> np.ndarray:
     return np.cross(t, p[:, 2] - p[:, 0])
 
 
+def facets_of_cells(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """``(n,)`` local facet index of local facet ``local[i]`` of cell ``cells[i]``.
+
+    Creates the mesh's facets if it has none (O(mesh)).
+    """
+    tdim = mesh.topology.dim
+    mesh.topology.create_entities(tdim - 1)
+    c2f = mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, tdim + 1)
+    return c2f[cells, local].astype(np.int32)
+
+
 @dataclass
 class BoundaryFacets:
     """Exterior facets whose cell is owned by this process.
@@ -116,10 +128,7 @@ class BoundaryFacets:
     def facet_indices(self, mesh: dolfinx.mesh.Mesh) -> npt.NDArray[np.int32]:
         """``(nf,)`` local facet indices in ``mesh`` (creates the facets if needed)."""
         if self.facets is None:
-            tdim = mesh.topology.dim
-            mesh.topology.create_entities(tdim - 1)
-            c2f = mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, tdim + 1)
-            self.facets = c2f[self.cells, self.local].astype(np.int32)
+            self.facets = facets_of_cells(mesh, self.cells, self.local)
         return self.facets
 
     @classmethod

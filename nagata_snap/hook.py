@@ -27,7 +27,7 @@ import numpy.typing as npt
 import dolfinx.mesh
 
 from .boundary import (BoundaryFacets, boundary_facets, cell_facets_of, check_p1_simplex,
-                       tag_values, update_nodes)
+                       facets_of_cells, tag_values, update_nodes)
 from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, child_facets, child_interior_facets
@@ -375,10 +375,8 @@ class Snapper:
         ``locate_dofs_topological`` like a mesh read from gmsh.
         """
         tdim = mesh1.topology.dim
-        f_ext = boundary.facet_indices(mesh1)
+        facets = np.concatenate([boundary.facet_indices(mesh1), facets_of_cells(mesh1, c_int, l_int)])
         mesh1.topology.create_connectivity(tdim - 1, tdim)
-        c2f = mesh1.topology.connectivity(tdim, tdim - 1).array.reshape(-1, tdim + 1)
-        facets = np.concatenate([f_ext, c2f[c_int, l_int]])
         tag = np.concatenate([tag_ext, tag_int])
         keep = tag >= 0
         f, first = np.unique(facets[keep], return_index=True)
