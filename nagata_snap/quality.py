@@ -347,16 +347,6 @@ def _touching(mask: np.ndarray, cols: list[np.ndarray]) -> np.ndarray:
     return out.view(bool)
 
 
-def _changed_cells(x_a: np.ndarray, x_b: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """(m,) indices of the cells with a node whose row differs between x_a and x_b.
-
-    One O(nodes) comparison and a :func:`_touching` pass: much cheaper than a
-    geometric quantity over all cells.
-    """
-    changed = np.any(np.asarray(x_a) != np.asarray(x_b), axis=1)
-    return np.flatnonzero(_touching(changed, _columns(np.asarray(cells))))
-
-
 # ---------------------------------------------------------------------------
 # Report
 # ---------------------------------------------------------------------------
@@ -497,23 +487,27 @@ class QualityReport:
         x_new = np.asarray(x_new, dtype=np.float64)
         cells = np.asarray(cells)
         n_cells_mesh = comm.allreduce(int(cells.shape[0]))
-        if scope == "changed":
-            if x_ref is None:
-                raise ValueError("scope='changed' needs x_ref")
+        if scope == "changed" and x_ref is None:
+            raise ValueError("scope='changed' needs x_ref")
+        if x_ref is not None:
+            # nodes moved off x_ref, once per coordinate array (O(nodes))
             x_ref = np.asarray(x_ref, dtype=np.float64)
-            sel = _changed_cells(x_new, x_ref, cells)
+            moved_new = np.any(x_new != x_ref, axis=1)
             if x_before is not None:
-                sel = np.union1d(sel, _changed_cells(np.asarray(x_before), x_ref, cells))
-            cells = cells[sel]
+                x_before = np.asarray(x_before, dtype=np.float64)
+                moved_before = np.any(x_before != x_ref, axis=1)
+        if scope == "changed":
+            either = moved_new | moved_before if x_before is not None else moved_new
+            cells = cells[_touching(either, _columns(cells))]
         q = quality_stats(x_new, cells, gdim)
         v_ref = None
         if x_ref is not None:
             # Reference volumes: a cell whose nodes all kept their reference
             # coordinates has exactly the volume just computed, so only the
             # changed cells need the reference geometry (bitwise identical).
-            x_ref = np.asarray(x_ref, dtype=np.float64)
+            cols = _columns(cells)
             v_ref = q["volume"].copy()
-            ch = _changed_cells(x_new, x_ref, cells)
+            ch = _touching(moved_new, cols)
             v_ref[ch] = signed_volumes(x_ref, cells[ch], gdim)
             _orient(q, v_ref)
         n_cells = comm.allreduce(int(cells.shape[0]))
@@ -533,7 +527,7 @@ class QualityReport:
                 int(np.count_nonzero(_inverted_mask(q["volume"], v_ref, rel_floor))))
             if x_before is not None:
                 v_b = v_ref.copy()
-                ch = _changed_cells(x_before, x_ref, cells)
+                ch = _touching(moved_before, cols)
                 v_b[ch] = signed_volumes(x_before, cells[ch], gdim)
                 rep.n_inverted_before = comm.allreduce(
                     int(np.count_nonzero(_inverted_mask(v_b, v_ref, rel_floor))))
