@@ -42,7 +42,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes")
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import generate  # noqa: E402
 import make_iges  # noqa: E402
-from robustness_inputs import exterior_tags, wall_tags, wavy  # noqa: E402
+from robustness_inputs import exterior_tags, flatten_one_cell, wall_tags, wavy  # noqa: E402
 
 import dolfinx.mesh  # noqa: E402
 
@@ -210,11 +210,7 @@ def degenerate_cell_one_rank():
     ft = exterior_tags(mesh)
     geo = NagataGeometry(mesh, ft)
     if comm.rank == comm.size - 1:
-        x, cells = mesh.geometry.x, mesh.geometry.dofmaps[0]
-        nc = mesh.topology.index_map(2).size_local
-        inner = (np.abs(x[:, :2] - 0.5) < 0.4).all(axis=1)
-        v = cells[np.flatnonzero(inner[cells[:nc]].all(axis=1))[0]]
-        x[v[0]] = 0.5 * (x[v[1]] + x[v[2]])  # an owned cell of zero area
+        flatten_one_cell(mesh)  # an owned cell of zero area, on this process only
     Snapper(mesh, ft, geo)
 
 
