@@ -19,7 +19,8 @@ import dolfinx
 import dolfinx.mesh
 
 from nagata_snap.quality import inverted_cells
-from nagata_snap.smoothing import repair, smooth
+from nagata_snap.repair import repair
+from nagata_snap.smoothing import smooth
 
 N = 16
 H = 1.0 / N
