@@ -78,7 +78,10 @@ SLIDE_ROUNDS = 3
 #: Blame taper of the partial moves (vertex layers): only the vertices next
 #: to the bad cells stay short, with a smooth fraction along the boundary.
 TAPER_LAYERS = 2
-_DEBUG = False
+#: A valid changed cell is *poor* if its mean ratio fell below this fraction
+#: of its straight (reference) value: the optimise stage improves it when it
+#: can (the check's floor is ``min(min_quality, 0.5 q_ref)``, far below).
+POOR_RATIO = 0.7
 
 
 class InvertedCellsError(RuntimeError):
@@ -161,7 +164,7 @@ class _Guard:
         # plus every band / neighbourhood a stage worked on (see check)
         self.pool = _touching(np.any(self.x_tgt != self.x_ref, axis=1), self.cols)
         n = self.cells.shape[0]
-        self._v_ref, self._q_floor = np.empty(n), np.empty(n)
+        self._v_ref, self._q_floor, self._q_ref = np.empty(n), np.empty(n), np.empty(n)
         self._have_ref = np.zeros(n, dtype=bool)
         self._pool_key = None
         self.timings: dict[str, float] = {}
@@ -177,8 +180,8 @@ class _Guard:
         if need.size:
             sub = self.cells[need]
             self._v_ref[need] = signed_volumes(self.x_ref, sub, self.gdim)
-            self._q_floor[need] = np.minimum(self.min_quality,
-                                             0.5 * mean_ratio(self.x_ref, sub, self.gdim))
+            self._q_ref[need] = mean_ratio(self.x_ref, sub, self.gdim)
+            self._q_floor[need] = np.minimum(self.min_quality, 0.5 * self._q_ref[need])
             self._have_ref[need] = True
 
     def check(self, x: np.ndarray) -> tuple[np.ndarray, int]:
@@ -188,10 +191,12 @@ class _Guard:
         volume floor ``rel_floor``) or below the mean-ratio floor
         ``min(min_quality, 0.5 q_ref)``.  Only pool cells with a node that
         differs from ``x_ref`` are examined: no other cell can have changed.
+        Also sets ``poor`` (valid cells below ``POOR_RATIO q_ref``), ``n_poor``
+        and ``worst`` (the smallest ``q / q_ref`` over the examined cells,
+        global).
         """
         t0 = time.perf_counter()
-        if self._pool_key is None or self._pool_key.shape != self.pool.shape or \
-                np.any(self._pool_key != self.pool):
+        if self._pool_key is None or np.any(self._pool_key != self.pool):
             self._pool_key = self.pool.copy()
             pool = np.flatnonzero(self.pool)
             pc = self.cells[pool]
@@ -203,13 +208,21 @@ class _Guard:
         self._ref_data(cand)
         sub = self.cells[cand]
         badc = _inverted_mask(signed_volumes(x, sub, self.gdim), self._v_ref[cand], self.rel_floor)
+        q = mean_ratio(x, sub, self.gdim)
         if self.min_quality > 0:
-            badc |= mean_ratio(x, sub, self.gdim) < self._q_floor[cand]
+            badc |= q < self._q_floor[cand]
+        ratio = q / np.maximum(self._q_ref[cand], 1e-300)
         bad = np.zeros(self.cells.shape[0], dtype=bool)
         bad[cand[badc]] = True
-        nbad = self.comm.allreduce(int(np.count_nonzero(bad[: self.n_own_cells])))
+        self.poor = np.zeros_like(bad)
+        self.poor[cand[~badc & (ratio < POOR_RATIO)]] = True
+        own = slice(0, self.n_own_cells)
+        nbad, self.n_poor = self.comm.allreduce(
+            np.array([np.count_nonzero(bad[own]), np.count_nonzero(self.poor[own])]))
+        own_c = cand < self.n_own_cells
+        self.worst = self.comm.allreduce(float(ratio[own_c].min(initial=1.0)), op=mpi4py.MPI.MIN)
         _acc(self.timings, "check", time.perf_counter() - t0)
-        return bad, nbad
+        return bad, int(nbad)
 
     def log(self, stage: str, t0: float, n_bad: int, **info: Any) -> None:
         """Record one attempt (``seconds``: wall time since ``t0``, max over processes)."""
@@ -285,6 +298,25 @@ class _Local:
         return int(np.count_nonzero(moving[self.nbh.cells].any(axis=1)))
 
 
+def _optimise(g: _Guard, x: np.ndarray, bad: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Stage ``optimise``: the mesh is valid but some changed cells are poor; improve them.
+
+    One attempt on the neighbourhood of the poor cells; kept if it leaves no
+    bad cell and raises the worst quality ratio ``q / q_ref``.
+    """
+    t0 = time.perf_counter()
+    worst = g.worst
+    loc = _Local(g, g.poor, UNTANGLE_LAYERS[0] + 1)
+    free = (loc.distance(g, g.poor) < UNTANGLE_LAYERS[0]) & ~loc.constrained
+    xn, _ = loc.run(g, x, free)
+    _, nb = g.check(xn)
+    keep = nb == 0 and g.worst > worst
+    g.log("optimise", t0, nb, layers=UNTANGLE_LAYERS[0], cells=loc.cells_moving(free),
+          nodes=int(free.sum()), worst=g.worst, kept=keep)
+    _acc(g.timings, "optimise", g.attempts[-1]["seconds"])
+    return (xn, True) if keep else (x, False)
+
+
 def _pinned(g: _Guard, x: np.ndarray, bad: np.ndarray) -> int:
     """Global number of bad cells that no interior motion can repair (collective).
 
@@ -315,9 +347,10 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int
     loc = None
     for layers in UNTANGLE_LAYERS:
         t0 = time.perf_counter()
+        seeds = bad | g.poor  # poor cells nearby are improved as well
         if loc is None or loc.layers <= layers:
-            loc = _Local(g, bad, layers + 1)
-        free = (loc.distance(g, bad) < layers) & ~loc.constrained
+            loc = _Local(g, seeds, layers + 1)
+        free = (loc.distance(g, seeds) < layers) & ~loc.constrained
         xn, _ = loc.run(g, x, free)
         bn, nb = g.check(xn)
         g.log("untangle", t0, nb, layers=layers, cells=loc.cells_moving(free),
@@ -339,7 +372,7 @@ def _slide(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, loc: _Local,
     dist = loc.distance(g, bad)
     eligible = nbh.gather(boundary.eligible(g.sync).astype(np.int8)) > 0
     sl = np.flatnonzero(eligible & nbh.complete & (dist <= SLIDE_LAYERS))
-    free = (dist < loc.layers - 1) & ~loc.constrained
+    free = (dist < UNTANGLE_LAYERS[0]) & ~loc.constrained
     free[sl] = False
     if sl.size == 0:  # (the neighbourhood is the same on every process)
         g.log("slide", t0, nbad, layers=loc.layers - 1, cells=0, nodes=0, slid=0)
@@ -347,17 +380,18 @@ def _slide(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, loc: _Local,
     facets = SlideFacets(boundary, nbh, sl)
     xc = nbh.gather(x[:, :d])
     x0 = xc[sl].copy()
+    best = -np.inf
     for _ in range(SLIDE_ROUNDS):
         p, basis = facets.tangents(xc, nbh.scale)
         xc[sl] = p
         res = optimise(xc, nbh.cells, loc.winv, free, nbh.scale, slide=sl, basis=basis)
         xc = res.x
         xc[sl] = facets.project(xc, xc[sl])
-        if _DEBUG:
-            print("slide round", len(sl), "ranks", np.bincount((np.linalg.norm(basis, axis=1) > 0.5).sum(axis=1)),
-                  "opt smin", res.sigma_min, "proj smin", volume_ratio_min(xc, nbh.cells, loc.winv),
-                  "move", np.abs(xc[sl] - x0).max() if len(sl) else 0)
-        if volume_ratio_min(xc, nbh.cells, loc.winv) > 0:
+        smin = volume_ratio_min(xc, nbh.cells, loc.winv)
+        if smin <= best:
+            break  # sliding no longer helps
+        best = smin
+        if smin > 0:
             break
     slid = np.any(xc[sl] != x0, axis=1)
     xn = x.copy()
@@ -400,13 +434,13 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother
     base_x = x
     for rnd in range(int(max_rounds)):
         radius = max(1, int(implicate_layers)) + rnd
-        loc = _Local(g, bad, radius + TAPER_LAYERS + max(UNTANGLE_LAYERS[0], 1) + 1)
+        loc = _Local(g, bad, radius + TAPER_LAYERS + 3)
         nbh = loc.nbh
         dist = loc.distance(g, bad)
         moved_c = nbh.gather(g.moved_mask.astype(np.int8)) > 0
         a_c = nbh.gather(alpha)
         w = _blame(dist, moved_c, radius, TAPER_LAYERS) * (a_c > fmin)
-        free = ~loc.constrained
+        free = ~loc.constrained & (dist <= radius + TAPER_LAYERS + 2)
         w_loc = np.zeros(g.sync.n)
         w_loc[nbh.local_nodes] = w[nbh.local_pos]
 
@@ -414,10 +448,8 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother
             t0 = time.perf_counter()
             a_t = alpha - (1.0 - t) * w_loc * (alpha - fmin)
             xt = np.where(g.moved_mask[:, None], g.positions(a_t), base_x)
-            xn, res = loc.run(g, xt, free)
+            xn, _ = loc.run(g, xt, free)
             bn, nb = g.check(xn)
-            if _DEBUG and g.comm.rank == 0:
-                print("trial", t, nb, res.sigma_min, res.rounds, res.evaluations)
             g.log("partial", t0, nb, round=rnd, t=t, layers=loc.layers,
                   cells=loc.cells_moving(free), nodes=int(free.sum()))
             return xn, a_t, bn, nb
@@ -552,6 +584,9 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
     stage = "smooth" if len(g.attempts) == 1 else "stiffen"
     alpha = np.ones(g.sync.n)
     try:
+        if nbad == 0 and untangle and g.n_poor:
+            x, kept = _optimise(g, x, bad)
+            stage = "optimise" if kept else stage
         if nbad and untangle:
             # interior motion first, unless some bad cells need the boundary to move
             if slide is None or _pinned(g, x, bad) == 0:

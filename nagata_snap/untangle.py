@@ -79,6 +79,10 @@ EPS = 1e-2
 #: ``delta`` once every cell is valid: ``h(sigma)`` differs from ``sigma`` by
 #: less than ``DELTA_MIN^2 / sigma``, and a flat cell costs ``|S|^2 / DELTA_MIN^(2/d)``.
 DELTA_MIN = 1e-4
+#: Newton: gradient tolerance (scaled variables) and largest step per node
+#: and iteration (edge lengths).
+GTOL = 1e-10
+MAX_STEP = 4.0
 #: Largest tangential move of a sliding node per call, in units of its
 #: shortest edge (the tangent plane is a good model of the surface there).
 SLIDE_STEP = 0.3
@@ -256,7 +260,8 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
         max_rounds: regularisation rounds (``delta`` updated from the
             smallest volume ratio between rounds; they stop early when a
             round no longer raises it: the cells cannot be untangled here).
-        max_iterations: Newton iterations per round.
+        max_iterations: Newton iterations of the final (valid, ``delta =
+            DELTA_MIN``) round; the untangling rounds get half as many.
 
     Returns:
         :class:`OptimiseResult`; the result is a deterministic function of
@@ -269,7 +274,7 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
     z, rounds, smin = pb.z0, 0, pb.sigma_min(pb.z0)
     for rounds in range(1, max_rounds + 1):
         delta = max(np.sqrt(EPS * (EPS - smin)) if smin < EPS else 0.0, DELTA_MIN)
-        z = _newton(pb, z, delta, max_iterations)
+        z = _newton(pb, z, delta, max_iterations if delta == DELTA_MIN else max_iterations // 2)
         prev, smin = smin, pb.sigma_min(z)
         if smin > 0 and delta == DELTA_MIN:
             break  # valid and converged
@@ -280,17 +285,26 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
     return OptimiseResult(x, smin, pb.count, rounds)
 
 
-def _newton(pb: "_Problem", z: np.ndarray, delta: float, max_iterations: int,
-            gtol: float = 1e-10) -> np.ndarray:
-    """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps)."""
+def _newton(pb: "_Problem", z: np.ndarray, delta: float, max_iterations: int) -> np.ndarray:
+    """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps).
+
+    Stops at a gradient below ``GTOL`` (scaled variables), or when an
+    iteration lowers ``F`` by less than ``ftol`` relative: not at all in the
+    final round (``delta = DELTA_MIN``), 1e-10 in an untangling round,
+    whose minimum is only a step towards the next ``delta``.
+    """
+    ftol = 0.0 if delta == DELTA_MIN else 1e-10
     F, g, hv = pb.evaluate(z, delta)
     mu = 0.0
     for _ in range(max_iterations):
-        if np.abs(g).max() <= gtol:
+        if np.abs(g).max() <= GTOL:
             break
         step = None
         for _ in range(12):  # damping until a descent direction with an Armijo step
             p = pb.solve(hv, mu, -g)
+            big = np.abs(p).max() if p.size else 0.0
+            if big > MAX_STEP:  # at most MAX_STEP edge lengths per node and iteration
+                p *= MAX_STEP / big
             slope = float(g @ p)
             if np.all(np.isfinite(p)) and slope < 0:
                 step = _armijo(pb, z, p, F, slope, delta)
@@ -299,16 +313,19 @@ def _newton(pb: "_Problem", z: np.ndarray, delta: float, max_iterations: int,
             mu = max(10.0 * mu, 1e-6)
         if step is None:
             break
-        z, F = step
+        z, F_new = step
+        done = F - F_new <= ftol * abs(F)
         mu = mu / 10.0 if mu > 1e-6 else 0.0
         F, g, hv = pb.evaluate(z, delta)
+        if done:
+            break
     return z
 
 
 def _armijo(pb: "_Problem", z, p, F, slope, delta):
     """``(z_new, F_new)`` of the first halving of the step that decreases ``F`` enough, or None."""
     t = 1.0
-    for _ in range(30):
+    for _ in range(20):
         zn = pb.clip(z + t * p)
         Fn = pb.value(zn, delta)
         if np.isfinite(Fn) and Fn <= F + 1e-4 * t * slope:
