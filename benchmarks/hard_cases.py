@@ -11,8 +11,8 @@ Cases (Nagata mode, normals estimated from the coarse mesh):
 * machined-part features (``tests/hard_parts.py``: coarse gmsh/OCC meshes
   with curvature sizing, every face snapped): ``plate`` (through-holes,
   counterbore, fillets, pocket), ``thin_wall``, ``concave_cylinder``,
-  ``reentrant_fillet``; 2 uniform levels, then (``--marked``) 2 levels
-  refining the cells in the half ``x < x_mid`` of the part.
+  ``reentrant_fillet``; 2 uniform levels, then 2 levels refining the cells
+  in the quarter of the part of smallest ``x`` (``--no-marked``: without them).
 
 For each level: cells, cells inverted by the snapped boundary before
 smoothing, the repair stage, vertices left short of the geometry
@@ -81,7 +81,7 @@ def model_size(mesh) -> float:
 
 
 def marked_edges(mesh) -> np.ndarray:
-    """Edges of the cells in the half ``x < x_mid`` of the bounding box."""
+    """Edges of the cells in the quarter ``x < x_min + (x_max - x_min) / 4`` of the bounding box."""
     tdim = mesh.topology.dim
     x = mesh.geometry.x
     lo = mesh.comm.allreduce(float(x[:, 0].min()), op=MPI.MIN)
@@ -89,8 +89,8 @@ def marked_edges(mesh) -> np.ndarray:
     cells = np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32)
     mid = dolfinx.mesh.compute_midpoints(mesh, tdim, cells)
     mesh.topology.create_connectivity(tdim, 1)
-    return dolfinx.mesh.compute_incident_entities(mesh.topology, cells[mid[:, 0] < 0.5 * (lo + hi)],
-                                                  tdim, 1)
+    return dolfinx.mesh.compute_incident_entities(mesh.topology,
+                                                  cells[mid[:, 0] < lo + 0.25 * (hi - lo)], tdim, 1)
 
 
 def old_ladder(snapper, mesh_in, edges):

@@ -62,7 +62,7 @@ from .boundary import facet_normal_vectors, local_facet_vertices
 from .neighbourhood import Neighbourhood, layer_distance
 from .quality import QualityReport, _columns, _inverted_mask, _touching, mean_ratio, signed_volumes
 from .slide import SlideFacets, SlidingBoundary
-from .smoothing import _acc, _auto_layers, _options, _prepare, _Smoother
+from .smoothing import _acc, _auto_layers, _max_layers, _options, _prepare, _Smoother
 from .untangle import optimise, targets, volume_ratio_min
 
 __all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "SLIDE_LAYERS",
@@ -71,6 +71,10 @@ __all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "S
 #: Neighbourhood widths (vertex layers around the bad cells) of the untangle
 #: attempts; the slide stage uses the last.
 UNTANGLE_LAYERS = (3, 6, 12)
+#: Largest neighbourhood of a wider untangle attempt: this fraction of the
+#: mesh's cells, or this many cells if more.
+MAX_REGION_FRACTION = 0.25
+MAX_REGION_CELLS = 50_000
 #: Snapped boundary vertices within this many layers of a bad cell may slide.
 SLIDE_LAYERS = 2
 #: Tangent-space / projection rounds of the slide stage.
@@ -246,7 +250,7 @@ def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.nd
                                                                  _Smoother]:
     """Stage ``smooth``: the band smoother (then the optional ``stiffen`` schedule)."""
     schedule = [(method, o)] + [("elastic", dict(o, exponent=o["exponent"] + dp,
-                                                 layers=int(o["layers"]) * int(mult)))
+                                                 layers=np.asarray(o["layers"]) * int(mult)))
                                 for dp, mult in stiffen]
     sm = None
     for k, (meth, oo) in enumerate(schedule):
@@ -260,7 +264,7 @@ def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.nd
         bad, nbad = g.check(x)
         band = sm.band
         g.log("smooth" if k == 0 else "stiffen", t0, nbad, method=meth, exponent=oo["exponent"],
-              layers=int(oo["layers"]), cells=band.n_cells_global if band else 0,
+              layers=_max_layers(oo["layers"]), cells=band.n_cells_global if band else 0,
               nodes=band.n_free_global if band else 0)
         if nbad == 0:
             break
@@ -293,6 +297,19 @@ class _Local:
         xn = x.copy()
         self.nbh.scatter(xn, res.x)
         return xn, res
+
+    def reach(self, g: _Guard, bad: np.ndarray, dist: np.ndarray) -> int:
+        """Largest ``dist`` (canonical, e.g. from the seeds) on the nodes of the bad cells (collective)."""
+        mark = np.zeros(g.sync.n, dtype=bool)
+        mark[g.cells[bad].reshape(-1)] = True
+        on = self.nbh.gather(g.sync.any(mark).astype(np.int8)) > 0
+        far = g.comm.allreduce(bool(np.any(mark & ~self._in_region(g))), op=mpi4py.MPI.LOR)
+        return self.layers + 1 if far else int(dist[on].max(initial=0))
+
+    def _in_region(self, g: _Guard) -> np.ndarray:
+        inside = np.zeros(g.sync.n, dtype=bool)
+        inside[self.nbh.local_nodes] = True
+        return inside
 
     def cells_moving(self, moving: np.ndarray) -> int:
         return int(np.count_nonzero(moving[self.nbh.cells].any(axis=1)))
@@ -336,29 +353,42 @@ def _pinned(g: _Guard, x: np.ndarray, bad: np.ndarray) -> int:
     return g.comm.allreduce(int(np.count_nonzero(pinned)))
 
 
-def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int
+def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: bool
               ) -> tuple[np.ndarray, np.ndarray, int, _Local]:
     """Stage ``untangle``: optimise the interior nodes near the bad cells, wider and wider.
 
     Each attempt keeps its result if it leaves no more bad cells than before;
-    the gathered neighbourhood is reused while it is wide enough.
+    the gathered neighbourhood is reused while it is wide enough.  A wider
+    attempt follows if the last one lowered the count of bad cells or if the
+    cells still bad reach the edge of its moving region (the trouble needs
+    room); otherwise, with ``can_slide``, more interior nodes will not help
+    and the slide stage is next.  No wider attempt takes more than
+    :data:`MAX_REGION_FRACTION` of the mesh (or :data:`MAX_REGION_CELLS`).
     """
     t_stage = time.perf_counter()
     loc = None
-    for layers in UNTANGLE_LAYERS:
+    n_mesh = g.mesh.topology.index_map(g.mesh.topology.dim).size_global
+    for k, layers in enumerate(UNTANGLE_LAYERS):
         t0 = time.perf_counter()
         seeds = bad | g.poor  # poor cells nearby are improved as well
         if loc is None or loc.layers <= layers:
-            loc = _Local(g, seeds, layers + 1)
-        free = (loc.distance(g, seeds) < layers) & ~loc.constrained
+            wider = _Local(g, seeds, layers + 1)
+            if k and wider.nbh.n_cells > max(MAX_REGION_FRACTION * n_mesh, MAX_REGION_CELLS):
+                break
+            loc = wider
+        dist = loc.distance(g, seeds)
+        free = (dist < layers) & ~loc.constrained
         xn, _ = loc.run(g, x, free)
         bn, nb = g.check(xn)
         g.log("untangle", t0, nb, layers=layers, cells=loc.cells_moving(free),
               nodes=int(free.sum()))
+        progress = nb < nbad
         if nb <= nbad:  # keep an improvement (or an equal count: better shapes)
             x, bad, nbad = xn, bn, nb
         if nbad == 0:
             break
+        if can_slide and not progress and loc.reach(g, bn, dist) < layers - 1:
+            break  # pinned by the boundary: sliding is the next step
     _acc(g.timings, "untangle", time.perf_counter() - t_stage)
     return x, bad, nbad, loc
 
@@ -578,7 +608,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
     o = _options(opts)
     g = _Guard(mesh, x_ref, x_target, moved, fixed, rel_floor, min_quality, o)
     if o["layers"] == "auto":
-        o["layers"] = _auto_layers(g.comm, g.x_ref, g.disp, g.cells, g.pool)
+        o["layers"] = _auto_layers(g.comm, g.x_ref, g.disp, g.cells, g.pool, g.sync)
     _, n_unsmoothed = g.check(g.x_tgt)
     x, bad, nbad, sm = _linear(g, method, o, stiffen)
     stage = "smooth" if len(g.attempts) == 1 else "stiffen"
@@ -590,7 +620,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         if nbad and untangle:
             # interior motion first, unless some bad cells need the boundary to move
             if slide is None or _pinned(g, x, bad) == 0:
-                x, bad, nbad, loc = _untangle(g, x, bad, nbad)
+                x, bad, nbad, loc = _untangle(g, x, bad, nbad, slide is not None)
                 stage = "untangle"
             else:
                 loc = _Local(g, bad, UNTANGLE_LAYERS[1] + 1)

@@ -115,6 +115,7 @@ class _NodeSync:
 
     def __init__(self, imap):
         self.imap = imap
+        self.comm = imap.comm
         self.n_owned = imap.size_local
         self.n = imap.size_local + imap.num_ghosts
         self.parallel = imap.comm.size > 1
@@ -176,54 +177,79 @@ AUTO_LAYERS_MAX = 4
 
 
 def _auto_layers(comm, x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
-                 touched: np.ndarray) -> int:
-    """Band width for the prescribed displacement ``disp`` (n, 3) (collective).
+                 touched: np.ndarray, sync: "_NodeSync") -> np.ndarray:
+    """Band width of every node for the prescribed displacement ``disp`` (n, 3) (collective).
 
     ``touched`` (nc,) bool: the cells with a displaced node (a superset does
     no harm: cells without one have relative displacement 0).
 
     The relative displacement of a cell is the largest prescribed
-    displacement of its nodes over its shortest reference edge; its maximum
-    over the cells touching a displaced node decides: below 0.1 (the usual
-    case after refinement, where the snapping distance is O(h^2)) two layers
+    displacement of its nodes over its shortest reference edge; a displaced
+    node takes the largest over its cells: below 0.1 (the usual case after
+    refinement, where the snapping distance is O(h^2)) two layers around it
     are enough to spread the move, below 0.3 three, otherwise four (as for
-    the first levels of a very coarse polygon).  The repair widens the band
-    further if cells still invert.
+    the first levels of a very coarse polygon).  So one far-moving vertex
+    widens the band only around itself.  The repair goes further where
+    cells still invert.
+
+    Returns:
+        (n,) int: layers around each displaced node (0 elsewhere), ghost-consistent.
     """
+    n = x_ref.shape[0]
     dn = np.linalg.norm(disp, axis=1)
+    node_rel = np.zeros(n)
     sel = np.flatnonzero(touched)
-    r = 0.0
     if sel.size:
         sub = cells[sel]
         hmin, _ = edge_length_range(x_ref, sub, sub.shape[1] - 1)
         dmax = dn[sub].max(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = np.where(hmin > 0, dmax / hmin, np.inf)
-        r = float(rel.max())
-    r = comm.allreduce(r, op=mpi4py.MPI.MAX)
-    for limit, layers in AUTO_LAYERS:
-        if r <= limit:
-            return layers
-    return AUTO_LAYERS_MAX
+        for k in range(sub.shape[1]):
+            np.maximum.at(node_rel, sub[:, k], rel)
+    # (a process sees only some cells of a node: a threshold passed on any widens)
+    moving = sync.any(dn > 0)
+    out = np.where(moving, AUTO_LAYERS[0][1], 0)
+    wider = [layers for _, layers in AUTO_LAYERS[1:]] + [AUTO_LAYERS_MAX]
+    for (limit, _), layers in zip(AUTO_LAYERS, wider):
+        out = np.where(moving & sync.any(node_rel > limit), layers, out)
+    return out
 
 
-def _expand(cells: np.ndarray, mark: np.ndarray, layers: int, sync: _NodeSync,
+def _expand(cells: np.ndarray, mark: np.ndarray, layers, sync: _NodeSync,
             cols: list[np.ndarray] | None = None):
     """Grow a node mask by ``layers`` cell layers (collective).
+
+    ``layers``: an int, or ``(n,)`` ints per node of ``mark`` (each such
+    node grows by its own number of layers: the widest start first, the
+    others join when as many steps remain as they need).
 
     Returns (mark_k, mark_{k-1}, cells_in) with cells_in the cells touching a
     node of mark_{k-1}.
     """
     cols = _columns(cells) if cols is None else cols
+    per_node = np.ndim(layers) > 0
+    total = int(np.max(layers, initial=0)) if per_node else int(layers)
+    if per_node:
+        total = int(sync.comm.allreduce(total, op=mpi4py.MPI.MAX))
+        need = np.where(mark, layers, 0)
+        mark = need >= total
     prev = mark
     cin = np.zeros(cells.shape[0], dtype=bool)
-    for _ in range(layers):
+    for step in range(total):
+        if per_node:
+            mark = mark | (need >= total - step)
         cin = _touching(mark, cols)
         new = mark.copy()
         new[cells[cin].reshape(-1)] = True
         new = sync.any(new)
         prev, mark = mark, new
     return mark, prev, cin
+
+
+def _max_layers(layers) -> int:
+    """Band width of an int or per-node ``layers`` (the largest)."""
+    return int(np.max(layers)) if np.ndim(layers) else int(layers)
 
 
 # ---------------------------------------------------------------------------
@@ -353,7 +379,7 @@ class _Band:
     """
 
     def __init__(self, mesh, moved_mask, fixed_mask, sync, layers, cols=None):
-        if layers < 1:
+        if np.ndim(layers) == 0 and layers < 1:
             raise ValueError("layers must be >= 1")
         comm = mesh.comm
         cells = mesh.geometry.dofmaps[0]
@@ -551,7 +577,7 @@ class _Smoother:
         if method == "none" or not any_moved:
             return
         t0 = time.perf_counter()
-        self.band = _Band(mesh, moved_mask, fixed_mask, sync, int(opts["layers"]), cols)
+        self.band = _Band(mesh, moved_mask, fixed_mask, sync, opts["layers"], cols)
         t1 = time.perf_counter()
         _acc(timings, "band", t1 - t0)
         if self.band.n_free_global == 0:
@@ -564,7 +590,7 @@ class _Smoother:
         else:
             sweeps = opts["sweeps"]
             if sweeps is None:
-                sweeps = max(50, 4 * int(opts["layers"]) ** 2)
+                sweeps = max(50, 4 * _max_layers(opts["layers"]) ** 2)
             self.solver = _BandSolver(mesh, self.band, x_ref, "graph", sweeps=sweeps,
                                       petsc_options=opts["petsc_options"])
         _acc(timings, "setup", time.perf_counter() - t1)
@@ -700,7 +726,7 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
         cells = mesh.geometry.dofmaps[0]
         disp = np.where(moved_mask[:, None], x_cur - x_ref, 0.0)
         o["layers"] = _auto_layers(mesh.comm, x_ref, disp, cells,
-                                   _touching(np.any(disp != 0.0, axis=1), _columns(cells)))
+                                   _touching(np.any(disp != 0.0, axis=1), _columns(cells)), sync)
     sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
     try:
         x_new = sm.run(x_cur)
@@ -713,5 +739,5 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
             info["band_nodes"] = sm.band.n_nodes_global
             info["band_free_nodes"] = sm.band.n_free_global
         info["solver_fallbacks"] = getattr(sm.solver, "n_fallback", 0)
-        info["layers"] = int(o["layers"])
+        info["layers"] = _max_layers(o["layers"])
     return x_new

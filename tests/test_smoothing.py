@@ -380,6 +380,7 @@ def test_bad_inputs():
     with pytest.raises(IndexError):
         smooth(msh, x_ref, np.array([x_ref.shape[0]], np.int32), fixed)
     # a zero-area reference cell next to the moved nodes: no stiffness for it
+    msh, x_ref, left, fixed = square_push(0.05 * H)  # (the moved nodes must move)
     flat = x_ref.copy()
     cells = msh.geometry.dofmaps[0]
     one_left = (np.isin(cells, left).sum(axis=1) == 1) & ~np.isin(cells, fixed).any(axis=1)
