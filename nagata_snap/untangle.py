@@ -297,11 +297,14 @@ def _newton(pb: "_Problem", z: np.ndarray, delta: float, max_iterations: int) ->
     F, g, hv = pb.evaluate(z, delta)
     mu = 0.0
     for _ in range(max_iterations):
+        # projected Newton: variables at a bound that the gradient pushes out stay there
+        held = ((z <= pb.lo) & (g > 0)) | ((z >= pb.hi) & (g < 0))
+        g = np.where(held, 0.0, g)
         if np.abs(g).max() <= GTOL:
             break
         step = None
         for _ in range(12):  # damping until a descent direction with an Armijo step
-            p = pb.solve(hv, mu, -g)
+            p = pb.solve(hv, mu, -g, held)
             big = np.abs(p).max() if p.size else 0.0
             if big > MAX_STEP:  # at most MAX_STEP edge lengths per node and iteration
                 p *= MAX_STEP / big
@@ -385,6 +388,7 @@ class _Problem:
         ii, jj = np.broadcast_arrays(ii, jj)
         ok = np.broadcast_to(ok, ii.shape)
         self._hmask = ok
+        self._r, self._c = ii[ok], jj[ok]
         on_diag = ii[ok] == jj[ok]
         self._diag_src, self._diag_pos = np.flatnonzero(on_diag), ii[ok][on_diag]
         diag = np.arange(self.size)
@@ -432,10 +436,13 @@ class _Problem:
         gz[self.dead] = 0.0
         return F, gz, hv
 
-    def solve(self, hv: np.ndarray, mu: float, rhs: np.ndarray) -> np.ndarray:
-        """Solve ``(H + mu diag(H)) p = rhs`` (dead variables: identity rows)."""
+    def solve(self, hv: np.ndarray, mu: float, rhs: np.ndarray, held: np.ndarray) -> np.ndarray:
+        """Solve ``(H + mu diag(H)) p = rhs`` (dead and ``held`` variables: identity rows)."""
         diag = np.bincount(self._diag_pos, weights=hv[self._diag_src], minlength=self.size)
-        extra = mu * np.maximum(diag, 1e-12) + self.dead
+        fixed = self.dead | held
+        if held.any():
+            hv = np.where(fixed[self._r] | fixed[self._c], 0.0, hv)
+        extra = mu * np.maximum(diag, 1e-12) * ~fixed + fixed
         self._A.setValuesCOO(np.r_[hv, extra], addv=PETSc.InsertMode.INSERT_VALUES)
         self._A.assemble()
         self._b.setArray(rhs)

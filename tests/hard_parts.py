@@ -139,3 +139,39 @@ def from_iges(comm, path: str):
 
     return generate._build_and_convert(comm, "iges_part", build, 3, msh_file=None, verbose=False,
                                        root=0)
+
+
+#: facet tags of :func:`touching_hole`
+TOUCH_WALLS, TOUCH_HOLE = 1, 5
+
+
+def touching_hole(comm, n: int = 8, radius: float = 0.1, msh_file: str | None = None):
+    """Channel [0, 1] x [0, 0.3] with a hole of radius ``radius`` touching the bottom wall.
+
+    The hole is an ``n``-gon (vertices on the circle, none at the point of
+    contact (0.5, 0)), so the chord nearest the wall is ``radius (1 - cos(pi / n))``
+    above it and its snapped midpoint lands on the wall (the Nagata curve even
+    a little beyond): no valid mesh has it there, the repair must leave it
+    short (the last resort, reported).  Tags: walls 1, hole 5.
+    """
+
+    def build():
+        geo = gmsh.model.geo
+        c = geo.addPoint(0.5, radius, 0)
+        ang = [math.pi / n + 2 * math.pi * k / n - math.pi / 2 for k in range(n)]
+        pts = [geo.addPoint(0.5 + radius * math.cos(a), radius + radius * math.sin(a), 0) for a in ang]
+        arcs = [geo.addCircleArc(pts[k], c, pts[(k + 1) % n]) for k in range(n)]
+        corners = [geo.addPoint(x, y, 0) for x, y in ((0, 0), (1, 0), (1, 0.3), (0, 0.3))]
+        walls = [geo.addLine(corners[k], corners[(k + 1) % 4]) for k in range(4)]
+        surf = geo.addPlaneSurface([geo.addCurveLoop(walls), geo.addCurveLoop(arcs)])
+        geo.synchronize()
+        for a in arcs:
+            gmsh.model.mesh.setTransfiniteCurve(a, 2)
+        generate._threshold_field(arcs, 1, 0.01, 0.05, 0.2)
+        gmsh.model.addPhysicalGroup(2, [surf], generate.VOLUME)
+        gmsh.model.addPhysicalGroup(1, walls, TOUCH_WALLS)
+        gmsh.model.addPhysicalGroup(1, arcs, TOUCH_HOLE)
+        gmsh.model.mesh.generate(2)
+
+    return generate._build_and_convert(comm, "touching_hole", build, 2, msh_file=msh_file,
+                                       verbose=False, root=0)

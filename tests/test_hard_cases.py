@@ -106,3 +106,31 @@ def test_hard_cases_mpi_same_repair_as_serial():
 
     serial, par = rows([]), rows([mpiexec, "-n", "2"])
     assert len(serial) == 5 and serial == par
+
+
+def test_partial_moves_are_the_last_resort_and_reported(capsys):
+    """A hole touching a wall: its snapped midpoint would land on the wall.
+
+    Untangling and sliding cannot help (no valid mesh has the vertex there);
+    the repair leaves only the vertices at the contact short, by a reported
+    amount, and says so in the report, its ``str`` and ``verbose`` output.
+    """
+    import hard_parts
+
+    md = hard_parts.touching_hole(MPI.COMM_SELF)
+    mesh, ft = md.mesh, md.facet_tags
+    geo = NagataGeometry(mesh, ft, tags=[hard_parts.TOUCH_HOLE])
+    m, f, pc, pf, rep = Snapper(mesh, ft, geo, verbose=True).refine(mesh)
+    stages = [a["stage"] for a in rep.smoothing_attempts]
+    assert rep.repair_stage == "partial" and "untangle" in stages and "slide" in stages
+    assert stages.index("partial") > stages.index("slide")  # the last resort
+    assert 1 <= rep.partially_moved <= 5 and 0 < rep.max_shortfall < 1e-3
+    assert rep.quality.n_inverted_after == 0 and rep.quality.n_shortfall == rep.partially_moved
+    note = f"{rep.partially_moved} vertices left short of the geometry (max shortfall"
+    assert note in str(rep) and note in capsys.readouterr().out
+    # everything else is on the hole's Nagata curve; the short ones sit at the contact
+    x = snapped_coords(m, f, hard_parts.TOUCH_HOLE)
+    r = np.hypot(x[:, 0] - 0.5, x[:, 1] - 0.1)
+    on = np.abs(r - 0.1) < 1e-3
+    assert np.all(x[~on, 1] < 0.02) and np.count_nonzero(~on) <= rep.partially_moved
+    assert np.all(x[:, 1] > 0)  # never through the wall

@@ -411,14 +411,21 @@ def test_mpi_matches_serial():
             assert out["n"] == 33 ** 2 and out["n_inverted_unsmoothed"] > 0
         else:
             assert out["n"] == (N + 1) ** 2
-        assert out["maxdiff"] < 1e-10, out
         assert out["ghost_ok"], out
         assert out["n_inverted"] == 0, out
         if "report_par" in out:
+            # the same repair: stage, every vertex's fraction (the moved nodes bit for
+            # bit), counts.  The interior of this extreme case (the left side pushed
+            # through the right one) is the nonlinear optimiser's: an input perturbed
+            # by round-off may end in another of its equally good minima, so there
+            # only validity is compared
             assert out["report_par"] == out["report_ser"]
-            assert out["report_maxdiff"] < 1e-10 and out["report_mean_ratio_diff"] < 1e-10
+            assert out["report_maxdiff"] < 1e-10
             assert out["stage"] == ["partial", "partial"]
             assert out["report_par"]["n_shortfall"] > 0
+            assert out["maxdiff_moved"] < 1e-12, out
+        else:
+            assert out["maxdiff"] < 1e-10, out
 
 
 SNAPPER_CASES = {  # case -> number of JSON lines per smoother (levels)
