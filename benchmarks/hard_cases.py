@@ -9,7 +9,9 @@ Cases (Nagata mode, normals estimated from the coarse mesh):
   squeezed to 0.15 of its thickness (``generate.squeeze_wall_layer``), 2
   uniform levels;
 * machined-part features (``tests/hard_parts.py``: coarse gmsh/OCC meshes
-  with curvature sizing, every face snapped): ``plate`` (through-holes,
+  with curvature sizing, every face snapped; Nagata mode, and with
+  ``--cad`` also CAD mode: the part written as IGES by gmsh/OCC, meshed from
+  that file and snapped onto its NURBS by ``CadGeometry``): ``plate`` (through-holes,
   counterbore, fillets, pocket), ``thin_wall``, ``concave_cylinder``,
   ``reentrant_fillet``; 2 uniform levels, then 2 levels refining the cells
   in the quarter of the part of smallest ``x`` (``--no-marked``: without them).
@@ -28,7 +30,7 @@ Last lines: ``inverted_after <total>`` (must be 0),
 ``hard_cases_short_fraction <max over levels>`` and
 ``hard_cases_smooth_over_refine <max over levels with >= 1e5 cells>``.
 
-Usage: ``python benchmarks/hard_cases.py [--cases a,b] [--compare] [--no-marked]``
+Usage: ``python benchmarks/hard_cases.py [--cases a,b] [--cad] [--compare] [--no-marked]``
 (also under ``mpiexec -n 2``).
 """
 
@@ -37,6 +39,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 import mpi4py.MPI as MPI
 import numpy as np
@@ -127,12 +130,31 @@ class _Stop(Exception):
     pass
 
 
-def run(name, comm, mesh, ft, tags, levels, say, compare, rows):
-    geo = NagataGeometry(mesh, ft, tags=tags)
+def folded_patches(geo) -> int:
+    """Coarse Nagata patches whose normal turns against the flat facet's somewhere (sampled)."""
+    from nagata_snap import nagata
+
+    if geo.tdim != 3:
+        return 0
+    g = np.linspace(0.0, 1.0, 11)
+    e, z = np.meshgrid(g, g, indexing="ij")
+    keep = z <= e
+    lam = np.stack([1 - e[keep], e[keep] - z[keep], z[keep]], axis=1)
+    sel = np.flatnonzero(geo.snap)
+    n = nagata.patch_normal(geo.x[sel], geo.coef[sel], np.broadcast_to(lam, (sel.size,) + lam.shape).copy())
+    fn = np.cross(geo.x[sel, 1] - geo.x[sel, 0], geo.x[sel, 2] - geo.x[sel, 0])
+    return int(np.count_nonzero((np.einsum("pki,pi->pk", n, fn) <= 0).any(axis=1)))
+
+
+def run(name, comm, mesh, ft, tags, levels, say, compare, rows, geo=None):
+    mode = "cad" if geo is not None else "nagata"
+    geo = NagataGeometry(mesh, ft, tags=tags) if geo is None else geo
     size = model_size(mesh)
     amin0 = coarse_min_angle(mesh)
-    say(f"\n{name}: {mesh.topology.index_map(mesh.topology.dim).size_global} coarse cells, "
-        f"model size {size:.3g}, coarse min angle {amin0:.2f} deg")
+    fold = f", {folded_patches(geo)} of {geo.num_patches} coarse Nagata patches folded" \
+        if mode == "nagata" else ""
+    say(f"\n{name} ({mode}): {mesh.topology.index_map(mesh.topology.dim).size_global} coarse "
+        f"cells, model size {size:.3g}, coarse min angle {amin0:.2f} deg{fold}")
     head = (f"{'level':>6} {'cells':>9} {'inv.':>5} {'stage':>9} {'partial':>8} {'short %':>8} "
             f"{'short/size':>10} {'slid':>5} {'min angle':>9} {'s+c s':>7} {'refine s':>8}")
     if compare:
@@ -149,7 +171,7 @@ def run(name, comm, mesh, ft, tags, levels, say, compare, rows):
         sc = comm.allreduce(sc, op=MPI.MAX)
         rf = comm.allreduce(rf, op=MPI.MAX)
         amin = rep.quality.min_angle.min
-        row = dict(case=name, level=f"{k}{kind}", cells=rep.num_cells,
+        row = dict(case=f"{name} {mode}", level=f"{k}{kind}", cells=rep.num_cells,
                    inverted=rep.quality.n_inverted_after, frac=frac,
                    short=rep.max_shortfall / size, angle_ratio=amin / amin0, sc=sc, refine=rf)
         rows.append(row)
@@ -162,33 +184,52 @@ def run(name, comm, mesh, ft, tags, levels, say, compare, rows):
         say(line)
 
 
-def cases(comm, names, marked):
+def cases(comm, names, marked, cad):
     lv2 = ("u", "u", "m", "m") if marked else ("u", "u")
     if "8gon-bl" in names:
         md = generate.dfg_channel(comm, n_circle=8, boundary_layer=True)
-        yield "8gon-bl", md.mesh, md.facet_tags, [generate.CYLINDER], ("u", "u", "u")
+        yield "8gon-bl", md.mesh, md.facet_tags, [generate.CYLINDER], ("u", "u", "u"), None
     if "sphere-squeezed" in names:
         md = generate.sphere_in_box(comm, h_sphere=0.25, h_box=0.5)
         generate.squeeze_wall_layer(md.mesh)
-        yield "sphere-squeezed", md.mesh, md.facet_tags, [generate.SPHERE], ("u", "u")
+        yield "sphere-squeezed", md.mesh, md.facet_tags, [generate.SPHERE], ("u", "u"), None
     for part in hard_parts.PARTS:
         if part in names:
             md = hard_parts.part(comm, part)
             tags = np.unique(np.concatenate(comm.allgather(md.facet_tags.values))).tolist()
-            yield part, md.mesh, md.facet_tags, tags, lv2
+            yield part, md.mesh, md.facet_tags, tags, lv2, None
+            if cad:
+                import tempfile
+
+                from nagata_snap.cad import CadGeometry
+
+                with tempfile.TemporaryDirectory() as tmp:
+                    path = comm.bcast(os.path.join(tmp, f"{part}.igs") if comm.rank == 0 else None)
+                    if comm.rank == 0:
+                        hard_parts.write_iges(part, path)
+                    comm.barrier()
+                    md = hard_parts.from_iges(comm, path)
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")  # OCC's group entities (type 402)
+                        geo = CadGeometry.from_iges(path)
+                    comm.barrier()  # every process has read the file
+                tags = np.unique(np.concatenate(comm.allgather(md.facet_tags.values))).tolist()
+                yield part, md.mesh, md.facet_tags, tags, lv2, geo
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default="8gon-bl,sphere-squeezed," + ",".join(hard_parts.PARTS))
     ap.add_argument("--compare", action="store_true")
+    ap.add_argument("--cad", action="store_true")
     ap.add_argument("--no-marked", action="store_true")
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     say = print if comm.rank == 0 else (lambda *a, **k: None)
     rows: list[dict] = []
-    for name, mesh, ft, tags, levels in cases(comm, args.cases.split(","), not args.no_marked):
-        run(name, comm, mesh, ft, tags, levels, say, args.compare, rows)
+    for name, mesh, ft, tags, levels, geo in cases(comm, args.cases.split(","), not args.no_marked,
+                                                   args.cad):
+        run(name, comm, mesh, ft, tags, levels, say, args.compare, rows, geo)
     big = [r["sc"] / r["refine"] for r in rows if r["cells"] >= BIG]
     say(f"\nmin angle of changed cells / coarse min angle, smallest: "
         f"{min(r['angle_ratio'] for r in rows):.3f}; max shortfall / model size, largest: "

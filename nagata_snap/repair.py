@@ -264,7 +264,7 @@ def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.nd
         bad, nbad = g.check(x)
         band = sm.band
         g.log("smooth" if k == 0 else "stiffen", t0, nbad, method=meth, exponent=oo["exponent"],
-              layers=_max_layers(oo["layers"]), cells=band.n_cells_global if band else 0,
+              layers=_max_layers(oo["layers"], g.comm), cells=band.n_cells_global if band else 0,
               nodes=band.n_free_global if band else 0)
         if nbad == 0:
             break
@@ -558,7 +558,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
            untangle: bool = True, slide: SlidingBoundary | None = None,
            stiffen: tuple[tuple[float, int], ...] = (),
            allow_partial: bool = True, min_fraction: float = 0.0,
-           bisection_steps: int = 8, implicate_layers: int = 1, max_rounds: int = 3,
+           bisection_steps: int = 6, implicate_layers: int = 1, max_rounds: int = 3,
            report: bool | str = True, **opts) -> RepairResult:
     """Smooth, guard against inverted / degenerate cells, repair or fail.
 

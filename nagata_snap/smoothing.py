@@ -247,9 +247,11 @@ def _expand(cells: np.ndarray, mark: np.ndarray, layers, sync: _NodeSync,
     return mark, prev, cin
 
 
-def _max_layers(layers) -> int:
-    """Band width of an int or per-node ``layers`` (the largest)."""
-    return int(np.max(layers)) if np.ndim(layers) else int(layers)
+def _max_layers(layers, comm) -> int:
+    """Band width of an int or per-node ``layers`` (the largest over all processes)."""
+    if np.ndim(layers) == 0:
+        return int(layers)
+    return int(comm.allreduce(int(np.max(layers, initial=0)), op=mpi4py.MPI.MAX))
 
 
 # ---------------------------------------------------------------------------
@@ -590,7 +592,7 @@ class _Smoother:
         else:
             sweeps = opts["sweeps"]
             if sweeps is None:
-                sweeps = max(50, 4 * _max_layers(opts["layers"]) ** 2)
+                sweeps = max(50, 4 * _max_layers(opts["layers"], mesh.comm) ** 2)
             self.solver = _BandSolver(mesh, self.band, x_ref, "graph", sweeps=sweeps,
                                       petsc_options=opts["petsc_options"])
         _acc(timings, "setup", time.perf_counter() - t1)
@@ -739,5 +741,5 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
             info["band_nodes"] = sm.band.n_nodes_global
             info["band_free_nodes"] = sm.band.n_free_global
         info["solver_fallbacks"] = getattr(sm.solver, "n_fallback", 0)
-        info["layers"] = _max_layers(o["layers"])
+        info["layers"] = _max_layers(o["layers"], mesh.comm)
     return x_new
