@@ -78,8 +78,8 @@ def snapped_vertices(mesh, ft, tags) -> int:
 
 def model_size(mesh) -> float:
     x = mesh.geometry.x[: mesh.geometry.index_map().size_local]
-    lo = mesh.comm.allreduce(x.min(axis=0), op=MPI.MIN)
-    hi = mesh.comm.allreduce(x.max(axis=0), op=MPI.MAX)
+    lo = np.min(mesh.comm.allgather(x.min(axis=0)), axis=0)
+    hi = np.max(mesh.comm.allgather(x.max(axis=0)), axis=0)
     return float(np.linalg.norm(hi - lo))
 
 
