@@ -118,7 +118,7 @@ def old_ladder(snapper, mesh_in, edges):
         hook.repair = orig
     a, k = calls["args"], dict(calls["kw"])
     k.pop("slide", None)
-    k.update(OLD_LADDER, report=False)
+    k.update(OLD_LADDER)
     t0 = time.perf_counter()
     res = repair(*a, **k)
     dt = mesh_in.comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)

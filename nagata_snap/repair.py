@@ -9,13 +9,19 @@ and stops at the first that leaves no bad cell:
     The requested smoother of :mod:`nagata_snap.smoothing` (stiffened linear
     elasticity by default) on the band of cells around the moved vertices:
     the fast path, and the start of every later stage.
+``optimise`` (:func:`_optimise`)
+    No cell is bad, but some changed cells are *poor* (their mean ratio fell
+    below :data:`POOR_RATIO` of the straight cell's): one attempt of the
+    optimiser below on their neighbourhood, kept if it helps.
 ``untangle`` (:func:`_untangle`)
-    The neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS` vertex
-    layers, then more) is gathered (:class:`~nagata_snap.neighbourhood.Neighbourhood`)
-    and its interior nodes are moved by the simultaneous untangling and
-    shape optimisation of :mod:`nagata_snap.untangle` (a regularised
-    mean-ratio objective that accepts an inverted start; a linear extension
-    of the boundary displacement cannot untangle).
+    The neighbourhood of the bad (and poor) cells (:data:`UNTANGLE_LAYERS`
+    vertex layers, wider while that helps, within a size budget) is gathered
+    (:class:`~nagata_snap.neighbourhood.Neighbourhood`) and its interior
+    nodes are moved by the simultaneous untangling and shape optimisation
+    of :mod:`nagata_snap.untangle` (a regularised mean-ratio objective that
+    accepts an inverted start; a linear extension of the boundary
+    displacement cannot untangle).  Skipped for the slide stage when a bad
+    cell has only constrained vertices or a turned-over constrained facet.
 ``slide`` (:func:`_slide`)
     If bad cells remain (their nodes are constrained: all on the boundary,
     or pinned by it), snapped boundary vertices within :data:`SLIDE_LAYERS`
@@ -69,7 +75,7 @@ __all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "S
            "TAPER_LAYERS"]
 
 #: Neighbourhood widths (vertex layers around the bad cells) of the untangle
-#: attempts; the slide stage uses the last.
+#: attempts; the slide stage reuses the last neighbourhood gathered.
 UNTANGLE_LAYERS = (3, 6, 12)
 #: Largest neighbourhood of a wider untangle attempt: this fraction of the
 #: mesh's cells, or this many cells if more.
@@ -113,8 +119,9 @@ class RepairResult:
             node of the input ``moved`` (same order); 1 = at the target.
         shortfall: (k,) remaining distance to the target (length unit); 0 for
             nodes that reached it (or slid to another point of the geometry).
-        stage: ``'smooth'``, ``'untangle'``, ``'slide'`` or ``'partial'``:
-            the stage that produced the valid mesh.
+        stage: ``'smooth'``, ``'optimise'``, ``'untangle'``, ``'slide'`` or
+            ``'partial'`` (``'stiffen'`` with a ``stiffen`` schedule): the
+            stage that produced the valid mesh.
         n_inverted_unsmoothed: global number of bad cells with the boundary
             moved and no smoothing.
         n_inverted_smoothed: global number of bad cells after the first
@@ -315,7 +322,7 @@ class _Local:
         return int(np.count_nonzero(moving[self.nbh.cells].any(axis=1)))
 
 
-def _optimise(g: _Guard, x: np.ndarray, bad: np.ndarray) -> tuple[np.ndarray, bool]:
+def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
     """Stage ``optimise``: the mesh is valid but some changed cells are poor; improve them.
 
     One attempt on the neighbourhood of the poor cells; kept if it leaves no
@@ -615,7 +622,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
     alpha = np.ones(g.sync.n)
     try:
         if nbad == 0 and untangle and g.n_poor:
-            x, kept = _optimise(g, x, bad)
+            x, kept = _optimise(g, x)
             stage = "optimise" if kept else stage
         if nbad and untangle:
             # interior motion first, unless some bad cells need the boundary to move
