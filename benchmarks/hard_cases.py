@@ -30,7 +30,7 @@ Last lines: ``inverted_after <total>`` (must be 0),
 ``hard_cases_short_fraction <max over levels>`` and
 ``hard_cases_smooth_over_refine <max over levels with >= 1e5 cells>``.
 
-Usage: ``python benchmarks/hard_cases.py [--cases a,b] [--cad] [--compare] [--no-marked]``
+Usage: ``python benchmarks/hard_cases.py [--cases a,b] [--cad | --cad-only] [--compare] [--no-marked]``
 (also under ``mpiexec -n 2``).
 """
 
@@ -184,7 +184,7 @@ def run(name, comm, mesh, ft, tags, levels, say, compare, rows, geo=None):
         say(line)
 
 
-def cases(comm, names, marked, cad):
+def cases(comm, names, marked, cad, nagata=True):
     lv2 = ("u", "u", "m", "m") if marked else ("u", "u")
     if "8gon-bl" in names:
         md = generate.dfg_channel(comm, n_circle=8, boundary_layer=True)
@@ -197,7 +197,8 @@ def cases(comm, names, marked, cad):
         if part in names:
             md = hard_parts.part(comm, part)
             tags = np.unique(np.concatenate(comm.allgather(md.facet_tags.values))).tolist()
-            yield part, md.mesh, md.facet_tags, tags, lv2, None
+            if nagata:
+                yield part, md.mesh, md.facet_tags, tags, lv2, None
             if cad:
                 import tempfile
 
@@ -221,14 +222,15 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default="8gon-bl,sphere-squeezed," + ",".join(hard_parts.PARTS))
     ap.add_argument("--compare", action="store_true")
-    ap.add_argument("--cad", action="store_true")
+    ap.add_argument("--cad", action="store_true", help="also CAD mode of the parts")
+    ap.add_argument("--cad-only", action="store_true", help="the parts in CAD mode only")
     ap.add_argument("--no-marked", action="store_true")
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     say = print if comm.rank == 0 else (lambda *a, **k: None)
     rows: list[dict] = []
     for name, mesh, ft, tags, levels, geo in cases(comm, args.cases.split(","), not args.no_marked,
-                                                   args.cad):
+                                                   args.cad or args.cad_only, not args.cad_only):
         run(name, comm, mesh, ft, tags, levels, say, args.compare, rows, geo)
     big = [r["sc"] / r["refine"] for r in rows if r["cells"] >= BIG]
     say(f"\nmin angle of changed cells / coarse min angle, smallest: "

@@ -34,7 +34,7 @@ and stops at the first that leaves no bad cell:
     to 0 over :data:`TAPER_LAYERS` more) and the displacement fractions
     ``alpha(t) = a - (1 - t) w (a - min_fraction)``; a bisection on ``t``
     keeps the largest valid ``t``, the neighbourhood being re-optimised for
-    each trial; rounds widen the blamed region.  As a final round every
+    each trial; rounds double the blamed radius.  As a final round every
     moved vertex is blamed and the linear smoother of the first stage
     (already set up) is re-solved; with ``min_fraction = 0`` that ends at
     the straight mesh, which is valid.
@@ -470,7 +470,7 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother
     alpha = np.ones(g.sync.n)
     base_x = x
     for rnd in range(int(max_rounds)):
-        radius = max(1, int(implicate_layers)) + rnd
+        radius = max(1, int(implicate_layers)) * 2**rnd
         loc = _Local(g, bad, radius + TAPER_LAYERS + 3)
         nbh = loc.nbh
         dist = loc.distance(g, bad)
@@ -491,7 +491,7 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother
                   cells=loc.cells_moving(free), nodes=int(free.sum()))
             return xn, a_t, bn, nb
 
-        good, t_lo, t_hi = None, 0.0, 1.0
+        good, t_lo, t_hi = None, 0.0, 1.0  # good: (x, alpha, bad, nbad) of the best valid trial
         for _ in range(int(bisection_steps)):
             t = 0.5 * (t_lo + t_hi)
             out = trial(t)
@@ -503,7 +503,9 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother
             good = trial(0.0)
         if good[3] == 0:
             return good[0], good[1], good[2], 0
-        base_x, alpha, bad = good[0], good[1], good[2]
+        if good[3] >= nbad:
+            break  # even the blamed vertices at min_fraction do not help: no wider round will
+        base_x, alpha, bad, nbad = good
     # final round: every moved vertex blamed, the band smoother re-solved
     t0 = time.perf_counter()
     alpha = np.where(g.moved_mask, np.minimum(alpha, fmin), 1.0)
@@ -565,7 +567,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
            untangle: bool = True, slide: SlidingBoundary | None = None,
            stiffen: tuple[tuple[float, int], ...] = (),
            allow_partial: bool = True, min_fraction: float = 0.0,
-           bisection_steps: int = 6, implicate_layers: int = 1, max_rounds: int = 3,
+           bisection_steps: int = 6, implicate_layers: int = 1, max_rounds: int = 5,
            report: bool | str = True, **opts) -> RepairResult:
     """Smooth, guard against inverted / degenerate cells, repair or fail.
 
@@ -597,7 +599,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         min_fraction: smallest acceptable displacement fraction per node.
         bisection_steps: bisection steps on ``t`` per partial round.
         implicate_layers: moved nodes within this many layers of a bad cell
-            get the full blame in the first partial round (one more per round).
+            get the full blame in the first partial round (twice as many each round).
         max_rounds: partial rounds before the final, global one.
         report: build a :class:`QualityReport`: ``True`` or ``"changed"``
             (metrics over the cells snapping / smoothing changed, O(band)),
