@@ -57,6 +57,14 @@ __all__ = [
 #: corresponds to normals about 2e-5 rad apart.
 EPS = 1.0e-10
 
+#: Rank threshold of :func:`curve_coefficient_multi`: ``[s]`` counts as rank 2
+#: when its smallest eigenvalue is below this fraction of its largest.
+#: Estimated normals on both sides of a straight crease are never exactly
+#: coplanar at the two ends; the nearly-null direction (along the edge) then
+#: carries ``rhs / lambda_min``, a coefficient of many edge lengths (a folded
+#: patch), where the exact normals give none.
+RANK_TOL = 0.1
+
 #: Local vertex pairs of the edges of a facet with ``nfv`` vertices, in the
 #: order c1, c2, c3 of eq. (39): (v1,v2), (v2,v3), (v1,v3).
 LOCAL_EDGES = {2: np.array([[0, 1]]), 3: np.array([[0, 1], [1, 2], [0, 2]])}
@@ -115,7 +123,11 @@ def curve_coefficient_multi(
     ``[s] = [n]^T [n]`` (eq. 33), ``a_i^(0) = s_j x s_k`` (26c),
     ``a_i^(1) = s_j x e_k + e_j x s_k`` (26b), ``D^(2) = e_i.(s_i + a_i^(1))``,
     ``D^(1) = s_i.a_i^(1) + e_i.a_i^(0)``, ``D^(0) = s_i.a_i^(0)`` (29), each
-    treated as zero below ``eps`` (sec. 2.1.2).
+    treated as zero below ``eps`` (sec. 2.1.2).  A nearly rank-2 ``[s]``
+    (smallest eigenvalue below :data:`RANK_TOL` of the largest) is solved
+    as rank 2: its nearly-null eigen-direction is dropped (the truncated
+    pseudo-inverse, which is eq. (31) with ``D^(0) = 0`` for an exactly
+    rank-2 ``[s]``).
 
     Zero rows are allowed as padding (they add nothing to ``[s]`` nor to
     ``[n]^T{d}``), so edges with different numbers of normals share one array.
@@ -160,6 +172,14 @@ def curve_coefficient_multi(
                 np.where((np.abs(d2) > eps)[:, None], rhs / d2[:, None], 0.0),
             ),
         )
+    near = np.flatnonzero(np.abs(d0) > eps)
+    if near.size:
+        lam, vec = np.linalg.eigh(s[near])  # ascending eigenvalues
+        trunc = lam[:, 0] < RANK_TOL * lam[:, 2]
+        if trunc.any():
+            lam, vec, r = lam[trunc, 1:], vec[trunc][:, :, 1:], rhs[near[trunc]]
+            coef = np.einsum("eik,ei->ek", vec, r) / lam
+            c[near[trunc]] = np.einsum("eik,ek->ei", vec, coef)
     return c
 
 

@@ -90,6 +90,23 @@ def test_multi_normal_reduces_to_two_normal_and_keeps_planes():
     np.testing.assert_allclose(c, nagata.curve_coefficient((b - a)[None], a[None], b[None]), atol=1e-14)
 
 
+
+def test_multi_normal_nearly_coplanar_crease_stays_straight():
+    """A straight crease with estimated normals a little off at each end
+    (the four normals then span 3D with a tiny third eigenvalue): the
+    coefficient stays of the order of the perturbation, not of the edge."""
+    rng = np.random.default_rng(5)
+    d = np.array([[0.222, 0.0, 0.0]])
+    na, nb = np.array([0.0, 1.0, 0.0]), np.array([0.0, -0.733, 0.68]) / np.hypot(0.733, 0.68)
+    for _ in range(20):
+        n0 = np.array([na, nb]) + 1e-3 * rng.normal(size=(2, 3))
+        n1 = np.array([na, nb]) + 1e-3 * rng.normal(size=(2, 3))
+        n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+        n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
+        c = nagata.curve_coefficient_multi(d, n0[None], n1[None])
+        assert np.linalg.norm(c) < 0.01 * 0.222
+
+
 def test_patch_reproduces_vertices_and_planes():
     rng = np.random.default_rng(3)
     x = rng.normal(size=(10, 3, 3))
