@@ -371,14 +371,15 @@ class NagataGeometry:
         if nfv == 2:
             cos = np.einsum("fi,fi->f", n[:, 0], n[:, 1])
             self._check_opposite(cos)
-            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps)[:, None, :]
+            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps,
+                                            nagata.TILT_MAX)[:, None, :]
         local = nagata.LOCAL_EDGES[3]
         a, b = local[:, 0], local[:, 1]
         d = x[:, b] - x[:, a]  # (F, 3, 3)
         n0, n1 = n[:, a], n[:, b]
         cos = np.einsum("fei,fei->fe", n0, n1)
         self._check_opposite(cos)
-        coef = nagata.curve_coefficient(d, n0, n1, eps)
+        coef = nagata.curve_coefficient(d, n0, n1, eps, nagata.TILT_MAX)
         # crease ridges: one coefficient from all normals of both facets (eq. 32)
         cr = np.flatnonzero(cn.crease)
         if len(cr):

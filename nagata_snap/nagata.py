@@ -57,6 +57,16 @@ __all__ = [
 #: corresponds to normals about 2e-5 rad apart.
 EPS = 1.0e-10
 
+#: Bound on the second term of eq. (15), ``|d.v| <= TILT_MAX Dc |d|`` (Nagata,
+#: after eq. 33: "similar constraint can be imposed also on the magnitude of
+#: the solution c").  ``|(d.v) / Dc dv| = |d.v| / sqrt(Dc)`` does not vanish
+#: as the normals become parallel: a chord tilted by ``t`` against nearly
+#: parallel normals ``phi`` apart gets ``|c| ~ |d| t / phi``.  Exact normals of
+#: a smooth curve give ``|d.v| / (Dc |d|) ~ |kappa'| / kappa^2`` (0 on a
+#: circle); estimated ones add noise ``t`` independent of ``phi``, e.g. a
+#: straight edge on a cylinder with normals 0.3 deg apart got ``|c| = 1.7 |d|``.
+TILT_MAX = 1.0
+
 #: Rank threshold of :func:`curve_coefficient_multi`: ``[s]`` counts as rank 2
 #: when its smallest eigenvalue is below this fraction of its largest.
 #: Estimated normals on both sides of a straight crease are never exactly
@@ -75,7 +85,8 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def curve_coefficient(
-    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS
+    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS,
+    tilt_max: float | None = None,
 ) -> np.ndarray:
     """Curvature coefficient ``c(d, n0, n1)`` of the Nagata curve, eq. (15).
 
@@ -86,12 +97,16 @@ def curve_coefficient(
 
     Singular cases (sec. 2.1.1): the first term is dropped when
     ``1 - Dc < eps`` and the second when ``Dc < eps``; parallel normals thus
-    give ``c = 0`` (a straight edge stays exactly straight).
+    give ``c = 0`` (a straight edge stays exactly straight).  With
+    ``tilt_max`` (for estimated normals, see :data:`TILT_MAX`) the second
+    term is bounded, ``|d.v| <= tilt_max Dc |x1 - x0|``; then eq. (6) no
+    longer holds exactly where the bound is active.
 
     Args:
         d: ``(..., 3)`` edge vectors ``x1 - x0`` (length units).
         n0, n1: ``(..., 3)`` unit normals at the two ends.
         eps: dimensionless singularity threshold.
+        tilt_max: bound of the second term (None: eq. (15) as published).
 
     Returns:
         ``(..., 3)`` coefficients ``c`` (length units).  The result is the
@@ -107,6 +122,9 @@ def curve_coefficient(
     dc = _dot(n0, dv)
     with np.errstate(divide="ignore", invalid="ignore"):
         a = np.where(1.0 - dc < eps, 0.0, ddelta / (1.0 - dc))
+        if tilt_max is not None:
+            lim = tilt_max * dc * np.linalg.norm(d, axis=-1)
+            dd = np.clip(dd, -lim, lim)
         b = np.where(dc < eps, 0.0, dd / dc)
     return a[..., None] * v + b[..., None] * dv
 
