@@ -130,28 +130,12 @@ class _Stop(Exception):
     pass
 
 
-def folded_patches(geo) -> int:
-    """Coarse Nagata patches whose normal turns against the flat facet's somewhere (sampled)."""
-    from nagata_snap import nagata
-
-    if geo.tdim != 3:
-        return 0
-    g = np.linspace(0.0, 1.0, 11)
-    e, z = np.meshgrid(g, g, indexing="ij")
-    keep = z <= e
-    lam = np.stack([1 - e[keep], e[keep] - z[keep], z[keep]], axis=1)
-    sel = np.flatnonzero(geo.snap)
-    n = nagata.patch_normal(geo.x[sel], geo.coef[sel], np.broadcast_to(lam, (sel.size,) + lam.shape).copy())
-    fn = np.cross(geo.x[sel, 1] - geo.x[sel, 0], geo.x[sel, 2] - geo.x[sel, 0])
-    return int(np.count_nonzero((np.einsum("pki,pi->pk", n, fn) <= 0).any(axis=1)))
-
-
 def run(name, comm, mesh, ft, tags, levels, say, compare, rows, geo=None):
     mode = "cad" if geo is not None else "nagata"
     geo = NagataGeometry(mesh, ft, tags=tags) if geo is None else geo
     size = model_size(mesh)
     amin0 = coarse_min_angle(mesh)
-    fold = f", {folded_patches(geo)} of {geo.num_patches} coarse Nagata patches folded" \
+    fold = f", {hard_parts.folded_patches(geo)} of {geo.num_patches} coarse Nagata patches folded" \
         if mode == "nagata" else ""
     say(f"\n{name} ({mode}): {mesh.topology.index_map(mesh.topology.dim).size_global} coarse "
         f"cells, model size {size:.3g}, coarse min angle {amin0:.2f} deg{fold}")

@@ -106,6 +106,23 @@ _MAKE = {"plate": _plate, "thin_wall": _thin_wall, "concave_cylinder": _concave_
          "reentrant_fillet": _reentrant_fillet}
 
 
+def folded_patches(geo, samples: int = 11) -> int:
+    """Snapped coarse Nagata patches of ``geo`` (3D) whose normal turns against the flat
+    facet's somewhere on a ``samples`` x ``samples`` barycentric grid."""
+    from nagata_snap import nagata
+
+    if geo.tdim != 3:
+        return 0
+    g = np.linspace(0.0, 1.0, samples)
+    e, z = np.meshgrid(g, g, indexing="ij")
+    lam = np.stack([1 - e, e - z, z], axis=-1)[z <= e]
+    sel = np.flatnonzero(geo.snap)
+    n = nagata.patch_normal(geo.x[sel], geo.coef[sel],
+                            np.broadcast_to(lam, (sel.size,) + lam.shape).copy())
+    fn = np.cross(geo.x[sel, 1] - geo.x[sel, 0], geo.x[sel, 2] - geo.x[sel, 0])
+    return int(np.count_nonzero((np.einsum("pki,pi->pk", n, fn) <= 0).any(axis=1)))
+
+
 def part(comm, name: str):
     """Coarse mesh of part ``name`` (see the module docstring)."""
     return _build(comm, name, _MAKE[name])

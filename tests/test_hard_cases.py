@@ -144,6 +144,19 @@ def test_partial_moves_are_the_last_resort_and_reported(capsys):
 PARTS = ("plate", "thin_wall", "concave_cylinder", "reentrant_fillet")
 
 
+def two_levels_nothing_short(mesh, ft, geo):
+    """Two uniform levels: nothing short, nothing inverted, a third of the coarse min angle kept."""
+    amin0 = coarse_min_angle(mesh)
+    snapper = Snapper(mesh, ft, geo)
+    m, reps = mesh, []
+    for level in range(2):
+        m, f, pc, pf, rep = snapper.refine(m)
+        assert rep.partially_moved == 0 and rep.quality.n_inverted_after == 0
+        assert rep.quality.min_angle.min >= amin0 / 3
+        reps.append(rep)
+    return reps
+
+
 @pytest.mark.parametrize("name", PARTS)
 def test_machined_part_cad_mode(name, tmp_path):
     """Machined-part features (plate with holes, counterbore, fillets and pocket; thin
@@ -161,14 +174,8 @@ def test_machined_part_cad_mode(name, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # OCC's group entity (type 402)
         geo = CadGeometry.from_iges(path)
-    amin0 = coarse_min_angle(mesh)
-    snapper = Snapper(mesh, ft, geo)
-    m = mesh
-    for level in range(2):
-        m, f, pc, pf, rep = snapper.refine(m)
-        assert rep.partially_moved == 0 and rep.quality.n_inverted_after == 0
+    for rep in two_levels_nothing_short(mesh, ft, geo):
         assert rep.geometry["n_unresolved"] == 0
-        assert rep.quality.min_angle.min >= amin0 / 3
 
 
 @pytest.mark.parametrize("name", PARTS)
@@ -178,23 +185,8 @@ def test_machined_part_nagata_mode(name):
     so every vertex reaches its patch, no cell inverts and the angles are kept."""
     import hard_parts
 
-    from nagata_snap import nagata
-
     md = hard_parts.part(MPI.COMM_SELF, name)
     mesh, ft = md.mesh, md.facet_tags
     geo = NagataGeometry(mesh, ft)
-    g = np.linspace(0.0, 1.0, 9)
-    e, z = np.meshgrid(g, g, indexing="ij")
-    lam = np.stack([1 - e, e - z, z], axis=-1)[z <= e]
-    sel = np.flatnonzero(geo.snap)
-    n = nagata.patch_normal(geo.x[sel], geo.coef[sel],
-                            np.broadcast_to(lam, (sel.size,) + lam.shape).copy())
-    fn = np.cross(geo.x[sel, 1] - geo.x[sel, 0], geo.x[sel, 2] - geo.x[sel, 0])
-    assert np.all(np.einsum("pki,pi->pk", n, fn) > 0)
-    amin0 = coarse_min_angle(mesh)
-    snapper = Snapper(mesh, ft, geo)
-    m = mesh
-    for level in range(2):
-        m, f, pc, pf, rep = snapper.refine(m)
-        assert rep.partially_moved == 0 and rep.quality.n_inverted_after == 0
-        assert rep.quality.min_angle.min >= amin0 / 3
+    assert hard_parts.folded_patches(geo) == 0
+    two_levels_nothing_short(mesh, ft, geo)
