@@ -63,6 +63,10 @@ __all__ = ["TransferInfo", "transfer", "pull_back"]
 #: Points processed per basix tabulation (bounds the temporary memory).
 CHUNK = 1 << 17
 
+#: Newton steps below this many units in the last place of the coordinates, over the
+#: cell size, are round-off: the pull-back has converged as far as it can.
+ROUNDOFF = 16 * np.finfo(float).eps
+
 #: Smallest barycentric coordinate below which a point counts as outside its parent.
 OUTSIDE = 1e-10
 
@@ -200,7 +204,10 @@ def pull_back(
         y: ``(n, gdim)`` physical points.
         element: the coordinate element (basix, ``m`` basis functions).
         X: ``(n, tdim)`` initial reference coordinates (e.g. the affine pull-back).
-        tol: Newton step size (reference units) at which a point has converged.
+        tol: Newton step size (reference units) at which a point has
+            converged, raised to the round-off level ``ROUNDOFF`` x (largest
+            node coordinate) / (cell size) for cells much smaller than their
+            distance from the origin.
         max_iterations: iterations before giving up.
 
     Returns:
@@ -210,17 +217,21 @@ def pull_back(
         RuntimeError: Newton did not converge for some points.
     """
     X = np.array(X, dtype=float, copy=True)
+    tdim = X.shape[1]
+    size = np.abs(nodes).max(axis=(1, 2))  # coordinate magnitude: round-off scale of F
     active = np.arange(len(X))
     for it in range(1, max_iterations + 1):
         tab = element.tabulate(1, X[active])[:, :, :, 0]  # (1 + tdim, na, m)
         xn = nodes[active]
         F = np.einsum("nm,nmd->nd", tab[0], xn) - y[active]
         J = np.einsum("tnm,nmd->ndt", tab[1:], xn)
-        Jinv, _ = inverse_small(J)
+        Jinv, det = inverse_small(J)
         dX = np.einsum("ntd,nd->nt", Jinv, F)
         X[active] -= dX
         step = np.linalg.norm(dX, axis=1)
-        active = active[~(step < tol)]  # NaN steps stay active
+        # reference-unit size of the round-off in F (cells small against their coordinates)
+        floor = ROUNDOFF * size[active] / np.abs(det) ** (1.0 / tdim)
+        active = active[~(step < np.maximum(tol, floor))]  # NaN steps stay active
         if not active.size:
             return X, it
     raise RuntimeError(

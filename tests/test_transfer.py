@@ -29,13 +29,32 @@ HERE = os.path.dirname(__file__)
 COMM = MPI.COMM_WORLD
 
 
-def _snapped(dim):
+def coarse_snapper(comm, dim):
+    """Snapper on a coarse disk (8-gon) or ball: Nagata snapping moves new boundary
+    vertices well outside their parent cells.  Returns ``(snapper, mesh, facet_tags, tag)``."""
     if dim == 2:
-        md, tag = generate.unit_disk(COMM, n=8), generate.DISK_BOUNDARY
+        md, tag = generate.unit_disk(comm, n=8), generate.DISK_BOUNDARY
     else:
-        md, tag = generate.ball(COMM, radius=1.0, h=0.6), generate.BALL_SPHERE
-    mesh0, ft0 = md.mesh, md.facet_tags
-    snapper = Snapper(mesh0, ft0, NagataGeometry(mesh0, ft0, tags=[tag]))
+        md, tag = generate.ball(comm, radius=1.0, h=0.6), generate.BALL_SPHERE
+    mesh, ft = md.mesh, md.facet_tags
+    return Snapper(mesh, ft, NagataGeometry(mesh, ft, tags=[tag])), mesh, ft, tag
+
+
+def exactness_error(snapper, mesh0, mesh1, key):
+    """Max error (relative to the field's size) of a transferred polynomial of the space's
+    degree against DOLFINx's interpolant on the refined mesh, and the transfer's info."""
+    V0, deg = space(mesh0, key)
+    V1, _ = space(mesh1, key)
+    f = polynomial(mesh0.topology.dim, deg, tuple(V0.element.value_shape))
+    u0, exact = fem.Function(V0), fem.Function(V1)
+    u0.interpolate(f)
+    exact.interpolate(f)
+    w, info = snapper.transfer(u0, V1, return_info=True)
+    return max_abs(w.x.array - exact.x.array) / max_abs(exact.x.array), info
+
+
+def _snapped(dim):
+    snapper, mesh0, ft0, _ = coarse_snapper(COMM, dim)
     curved0, _ = snapper.curved_mesh()
     mesh1, *_ = snapper.refine(mesh0)
     curved1, _ = snapper.curved_mesh()
@@ -98,14 +117,8 @@ def test_polynomial_of_the_space_degree_is_transferred_exactly(level, key):
     """Parent interpolant of a degree-p polynomial -> transfer = child interpolant (1e-12),
     though snapping put child points well outside their parents."""
     dim, snapper, mesh0, mesh1, *_ = level
-    V0, deg = space(mesh0, key)
-    V1, _ = space(mesh1, key)
-    f = polynomial(dim, deg, tuple(V0.element.value_shape))
-    u0, exact = fem.Function(V0), fem.Function(V1)
-    u0.interpolate(f)
-    exact.interpolate(f)
-    w, info = snapper.transfer(u0, V1, return_info=True)
-    assert max_abs(w.x.array - exact.x.array) <= 1e-12 * max_abs(exact.x.array)
+    err, info = exactness_error(snapper, mesh0, mesh1, key)
+    assert err <= 1e-12
     assert info.outside > 0 and info.max_outside > 1e-2  # boundary points left their parents
     assert info.newton_points == 0  # straight parents: one affine inverse each
 
@@ -277,6 +290,11 @@ def test_pull_back_newton_against_a_known_quadratic_map():
     n = len(X)
     Xb, its = pull_back(np.repeat(nodes[None], n, axis=0), y, e, np.full((n, 2), 1 / 3))
     assert np.abs(Xb - X).max() < 1e-13 and its <= 8
+    # a tiny cell far from the origin: Newton ends at round-off (steps stop halving)
+    far, scale = np.array([300.0, -200.0]), 1e-5
+    Xf, _ = pull_back(np.repeat(far + scale * nodes[None], n, axis=0), far + scale * y, e,
+                      np.full((n, 2), 1 / 3))
+    assert np.abs(Xf - X).max() < 1e-6
     with pytest.raises(RuntimeError, match="did not converge"):
         pull_back(np.repeat(nodes[None], 1, axis=0), np.array([[1e3, -1e3]]), e,
                   np.full((1, 2), 1 / 3), max_iterations=2)
@@ -285,11 +303,11 @@ def test_pull_back_newton_against_a_known_quadratic_map():
 @pytest.mark.mpi
 @pytest.mark.parametrize("dim", [2, 3])
 def test_mpi_matches_serial(dim, tmp_path):
-    """Serial = mpiexec -n 2 = -n 3 to 1e-12, ghosts consistent, over two levels (the second
-    with a ghosted parent).  2D: every dof value at the same coordinates.  3D: DOLFINx's
-    tetrahedron refinement picks interior diagonals by a partition-dependent tie-break, so
-    only the exactness and the level-1 boundary dofs (same gmsh parent, same snapped
-    coordinates) are comparable."""
+    """Serial = mpiexec -n 2 = -n 3 to 1e-12, owned and ghost dofs, over two levels (the
+    second with a ghosted parent).  2D: every dof value at the same coordinates.  3D:
+    DOLFINx's tetrahedron refinement picks interior diagonals by a partition-dependent
+    tie-break, so only the exactness and the level-1 boundary dofs (same gmsh parent, same
+    snapped coordinates) are comparable."""
     mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
     res = {}
     for n in (1, 2, 3):
@@ -303,15 +321,17 @@ def test_mpi_matches_serial(dim, tmp_path):
         for key in res[n].files:
             if key.startswith("exact_err"):
                 assert res[n][key] < 1e-12, (n, key)
-            if key.startswith("ghost_err"):
-                assert res[n][key] == 0.0, (n, key)
         if n > 1:  # the refined meshes have ghost cells on every process
             assert np.all(res[n]["ghost_cells_1"] > 0) and np.all(res[n]["ghost_cells_2"] > 0)
     keys = ["dofs_all_1", "dofs_all_2"] if dim == 2 else ["dofs_boundary_1"]
     for n in (2, 3):
-        for key in keys:
-            a, b = res[1][key], res[n][key]  # rows: x, y, z, values
-            assert a.shape == b.shape, key
+        for key in keys + (["dofs_ghost_1", "dofs_ghost_2"] if dim == 2 else []):
+            a, b = res[1][key.replace("ghost", "all")], res[n][key]  # rows: x, y, z, values
+            if "ghost" not in key:
+                assert a.shape == b.shape, key
+            assert len(b) > 0, key
             d, i = cKDTree(a[:, :3]).query(b[:, :3])
-            assert d.max() <= 1e-12 and len(np.unique(i)) == len(a), key
+            assert d.max() <= 1e-12, key
+            if "ghost" not in key:
+                assert len(np.unique(i)) == len(a), key
             assert np.abs(a[i, 3:] - b[:, 3:]).max() < 1e-12, key
