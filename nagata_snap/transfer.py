@@ -346,7 +346,7 @@ def _point_dofs(u, src: _Space, tgt: _Space, P: np.ndarray, X: np.ndarray, score
     pick = _best(dof, score.reshape(-1), n_loc)
     have = np.flatnonzero(pick >= 0)
     pairs = pick[have]
-    vals = np.zeros((n_loc, src.bs))
+    vals = np.zeros((n_loc, src.bs), dtype=u.x.array.dtype)
     vals[have] = _evaluate(u, src, P[pairs // q], X.reshape(tdim, -1)[:, pairs].T)
     sc = np.full(n_loc, -np.inf)
     sc[have] = score.reshape(-1)[pairs]
