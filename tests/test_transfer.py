@@ -23,6 +23,7 @@ import dolfinx.fem as fem
 import generate
 
 from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.lineage import parent_cells
 from nagata_snap.transfer import pull_back, transfer
 
 HERE = os.path.dirname(__file__)
@@ -248,6 +249,27 @@ def test_two_levels_through_composed_maps():
     assert max_abs(transfer(u0, V2, P1[P2]).x.array - exact.x.array) < 1e-12 * max_abs(exact.x.array)
     with pytest.raises(ValueError, match="must live on the mesh given to the last"):
         snapper.transfer(u0, V2)  # level 0 is not the last refine's parent
+
+
+def test_plain_refine_with_the_lineage_parent_map():
+    """Without a Snapper: dolfinx.mesh.refine + lineage.parent_cells (the 0.11 index quirk
+    handled there) + transfer, adaptive refinement, vector P2 exact."""
+    import dolfinx.mesh
+
+    mesh0 = generate.unit_disk(COMM, n=12).mesh
+    mesh0.topology.create_entities(1)
+    edges = np.arange(0, mesh0.topology.index_map(1).size_local, 3, dtype=np.int32)
+    mesh1, parent_cell, _ = dolfinx.mesh.refine(mesh0, edges)
+    n0 = mesh0.topology.index_map(2).size_local
+    P = parent_cells(mesh1, mesh0, parent_cell, np.ones(n0, dtype=bool))
+    V0, V1 = (fem.functionspace(m, ("Lagrange", 2, (2,))) for m in (mesh0, mesh1))
+    f = polynomial(2, 2, (2,))
+    u0, exact = fem.Function(V0), fem.Function(V1)
+    u0.interpolate(f)
+    exact.interpolate(f)
+    w, info = transfer(u0, V1, P, return_info=True)
+    assert max_abs(w.x.array - exact.x.array) < 1e-12 * max_abs(exact.x.array)
+    assert info.outside == 0  # nested levels: every point inside its parent
 
 
 @pytest.mark.parametrize("family, name", [("N1curl", "N1E"), ("RT", "RT"), ("Bubble", "bubble")])
