@@ -469,8 +469,33 @@ def model_size(name: str) -> float:
     return math.dist(b[:3], b[3:])
 
 
+def occ_mass(brep: str | Path, dim: int) -> float:
+    """Volume (dim 3) or area (dim 2) of the shape in a BREP file, by OpenCASCADE's adaptive
+    integration (OCP ``BRepGProp``, relative error 1e-9).
+
+    gmsh's ``occ.getMass`` uses OpenCASCADE's fixed-order Gauss integration:
+    exact on analytic faces, but 1e-5 (profile_2d) to 5.7e-3 (extruded_bspline)
+    off on B-spline faces and 17 % low on the lofted blade (9365 against 11216
+    mm^3; the blade's mesh and Simpson's rule on its four sections give 11180
+    and 11200).
+    """
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepGProp import BRepGProp
+    from OCP.BRepTools import BRepTools
+    from OCP.GProp import GProp_GProps
+    from OCP.TopoDS import TopoDS_Shape
+
+    shape = TopoDS_Shape()
+    if not BRepTools.Read_s(shape, str(brep), BRep_Builder()):
+        raise RuntimeError(f"OCP could not read {brep}")
+    props = GProp_GProps()
+    (BRepGProp.VolumeProperties_s if dim == 3 else BRepGProp.SurfaceProperties_s)(shape, props, 1e-9)
+    return props.Mass()
+
+
 def measure(dim: int) -> tuple[int, float]:
-    """(number of faces, total volume (dim 3) or area (dim 2)) of the current gmsh model."""
+    """(number of faces, total volume (dim 3) or area (dim 2) by gmsh's ``occ.getMass``) of the
+    current gmsh model; faces are curves for dim 2."""
     faces = len(gmsh.model.getEntities(2)) if dim == 3 else len(gmsh.model.getEntities(1))
     mass = sum(gmsh.model.occ.getMass(dim, t) for _, t in gmsh.model.getEntities(dim))
     return faces, mass

@@ -33,13 +33,17 @@ mean of the facet's other nodes, so the facet's (u, v) triangle is the one
 gmsh meshed.  In 2D the nodes carry the parameter t on the curve (a point
 closing a closed curve: the end of the range next to the facet's other node).
 
-Units: OpenCASCADE converts STEP and IGES coordinates to
-``Geometry.OCCTargetUnit`` when it reads them; OpenCASCADE's own default (the
-option left empty) is millimetres.  :func:`mesh_cad_file` sets it explicitly
-(``unit="MM"`` by default) and reports it; a reader of the same file (OCP's
-``STEPControl_Reader`` / ``IGESControl_Reader``, whose default
-``xstep.cascade.unit`` is also millimetres) must use the same unit.  BREP files
-carry no unit: their coordinates are taken as stored (``CadMesh.unit`` None).
+Units: OpenCASCADE converts STEP and IGES coordinates to its session unit
+(the static ``xstep.cascade.unit``, millimetres by default; gmsh's option
+``Geometry.OCCTargetUnit`` sets it, and it stays set for later imports in the
+process).  :func:`import_cad` therefore sets it to millimetres explicitly for
+every import and scales to the requested ``unit`` with ``Geometry.OCCScaling``
+(gmsh 4.15 cannot set the target unit for an IGES file before any STEP file
+has been read in the process, but then the static still has its default,
+millimetres).  ``CadMesh.unit`` states the unit; a reader of the same file
+(OCP's ``STEPControl_Reader`` / ``IGESControl_Reader``, whose default is also
+millimetres) must use the same.  BREP files carry no unit: their coordinates
+are taken as stored (``CadMesh.unit`` None, no scaling).
 
 IGES files carry faces, not solids (unless written in B-rep mode): the faces
 are sewn into a solid (``occ.healShapes`` with sewing only: OpenCASCADE's
@@ -82,6 +86,10 @@ CAD_SUFFIXES = {".step": "step", ".stp": "step", ".igs": "iges", ".iges": "iges"
 
 #: sewing tolerance for faces-only files (IGES), relative to the model's diagonal
 SEW_TOLERANCE = 1e-5
+
+#: millimetres per length unit (OpenCASCADE's names for ``xstep.cascade.unit``)
+UNITS_MM = {"MM": 1.0, "CM": 10.0, "M": 1000.0, "KM": 1.0e6, "UM": 1.0e-3, "INCH": 25.4,
+            "FT": 304.8, "MI": 1609344.0, "MIL": 0.0254, "UIN": 2.54e-5}
 
 
 # ----------------------------------------------------------------------
@@ -143,8 +151,8 @@ class CadMesh:
             edge (3D), ``tdim - 1``: inside ``facet_entity``).
         entities: ``{(dim, tag): EntityInfo}`` for every gmsh entity of
             dimension < tdim (the boundary's faces, edges and corners).
-        unit: the length unit of the coordinates (``"MM"``: OpenCASCADE's
-            default for STEP and IGES), None for BREP (no unit in the file).
+        unit: the length unit of the coordinates (STEP, IGES: the ``unit``
+            asked for, default ``"MM"``), None for BREP (no unit in the file).
         size: the mesh size used (``Mesh.MeshSizeMax``) [unit].
         model_size: diagonal of the model's bounding box [unit].
         path: the file.
@@ -224,34 +232,33 @@ def _diagonal() -> float:
     return math.dist(b[:3], b[3:])
 
 
-def import_cad(path: str | Path) -> tuple[int, list[int]]:
+def import_cad(path: str | Path, unit: str = "MM") -> tuple[int, list[int]]:
     """Import a STEP, IGES or BREP file into the current gmsh model (OpenCASCADE) and synchronise.
 
     Solids are kept (several are fragmented into one conformal model); a
     faces-only file is sewn into a solid; a file of planar faces in z = 0 and
-    no solid is a 2D part.  ``Geometry.OCCTargetUnit`` (set by the caller)
-    gives the unit of the coordinates.
+    no solid is a 2D part.  STEP and IGES coordinates are converted to
+    ``unit`` (a key of ``UNITS_MM``; see the module docstring), BREP
+    coordinates are taken as stored.
 
     Returns:
         ``(tdim, tags)``: 3 and the volume tags, or 2 and the surface tags.
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: an unknown suffix, a file gmsh cannot read, no shapes in
-            it, or shapes that make neither a solid nor a planar part.
+        ValueError: an unknown suffix or unit, a file gmsh cannot read, no
+            shapes in it, or shapes that make neither a solid nor a planar part.
     """
     path = Path(path)
     if path.suffix.lower() not in CAD_SUFFIXES:
         raise ValueError(f"{path}: unknown CAD file suffix {path.suffix!r}; "
                          f"use one of {', '.join(CAD_SUFFIXES)}")
+    if unit.upper() not in UNITS_MM:
+        raise ValueError(f"unknown length unit {unit!r}; use one of {', '.join(UNITS_MM)}")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such CAD file")
+    _read_shapes(path, unit.upper())
     occ = gmsh.model.occ
-    try:
-        occ.importShapes(str(path), highestDimOnly=True, format=CAD_SUFFIXES[path.suffix.lower()])
-    except Exception as exc:
-        raise ValueError(f"{path}: gmsh/OpenCASCADE cannot read this file ({exc})") from None
-    occ.synchronize()
     if not gmsh.model.getEntities():
         raise ValueError(f"{path}: the file contains no shapes (empty model)")
     if len(gmsh.model.getEntities(3)) > 1:
@@ -275,6 +282,28 @@ def import_cad(path: str | Path) -> tuple[int, list[int]]:
     return 3, vols
 
 
+def _read_shapes(path: Path, unit: str) -> None:
+    """``occ.importShapes`` in millimetres scaled to ``unit`` (STEP, IGES); options restored."""
+    fmt = CAD_SUFFIXES[path.suffix.lower()]
+    saved = gmsh.option.getString("Geometry.OCCTargetUnit"), gmsh.option.getNumber("Geometry.OCCScaling")
+    try:
+        if fmt != "brep":
+            gmsh.option.setNumber("Geometry.OCCScaling", 1.0 / UNITS_MM[unit])
+        for target in ("MM", ""):  # "": the static was never set in this process, so it is MM
+            gmsh.option.setString("Geometry.OCCTargetUnit", target if fmt != "brep" else "")
+            try:
+                gmsh.model.occ.importShapes(str(path), highestDimOnly=True, format=fmt)
+                break
+            except Exception as exc:
+                if target == "MM" and "target unit" in str(exc):
+                    continue
+                raise ValueError(f"{path}: gmsh/OpenCASCADE cannot read this file ({exc})") from None
+    finally:
+        gmsh.option.setString("Geometry.OCCTargetUnit", saved[0])
+        gmsh.option.setNumber("Geometry.OCCScaling", saved[1])
+    gmsh.model.occ.synchronize()
+
+
 def _planar_in_xy(faces: list[int]) -> bool:
     """Whether every face is a plane z = 0 (normal and a point checked at the parametric centre)."""
     tol = 1e-9 * _diagonal()
@@ -294,17 +323,29 @@ def _sew_into_solid(faces: list[int]) -> None:
     occ.healShapes([], tolerance=SEW_TOLERANCE * _diagonal(), fixDegenerated=False,
                    fixSmallEdges=False, fixSmallFaces=False, sewFaces=True, makeSolids=True)
     occ.synchronize()
-    if not gmsh.model.getEntities(3):  # sewn but not made a solid: close the shell
+    if not gmsh.model.getEntities(3) and _closed_shell():  # sewn but not made a solid: close it
         with contextlib.suppress(Exception):
             occ.addVolume([occ.addSurfaceLoop([t for _, t in gmsh.model.getEntities(2)], sewing=True)])
         occ.synchronize()
 
 
+def _closed_shell() -> bool:
+    """Whether every curve bounds two faces, or one face twice (a seam), or is degenerate."""
+    for _, c in gmsh.model.getEntities(1):  # a few hundred curves at most
+        up = gmsh.model.getAdjacencies(1, c)[0]
+        if len(up) == 1:
+            uses = [t for _, t in gmsh.model.getBoundary([(2, int(up[0]))], combined=False, oriented=False)]
+            if uses.count(c) < 2 and gmsh.model.getType(1, c) != "Unknown":
+                return False
+        elif len(up) != 2:
+            return False
+    return True
+
+
 # ----------------------------------------------------------------------
 # meshing (on the gmsh process)
 # ----------------------------------------------------------------------
-def _mesh_options(size: float, min_size: float, curvature: float, order: int, unit: str,
-                  verbose: bool) -> dict:
+def _mesh_options(size: float, min_size: float, curvature: float, order: int, verbose: bool) -> dict:
     return {
         "General.Terminal": 1 if verbose else 0,
         "General.Verbosity": 4 if verbose else 1,
@@ -313,7 +354,6 @@ def _mesh_options(size: float, min_size: float, curvature: float, order: int, un
         "Mesh.MaxNumThreads2D": 1,
         "Mesh.MaxNumThreads3D": 1,
         "Geometry.OCCParallel": 0,
-        "Geometry.OCCTargetUnit": unit,
         "Mesh.Algorithm": 6,
         "Mesh.Algorithm3D": 1,
         "Mesh.MeshSizeMax": size,
@@ -381,78 +421,128 @@ def _classified_nodes(tdim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _candidates(tdim: int, ent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Parametric coordinates on boundary entity ``ent`` of the nodes in its closure.
 
-    Returns ``(nodes, p0, p1, free)``: sorted input indices ``(n,)``, two
-    candidates ``(n, pdim)`` (equal except on a seam and at the ends of a
-    closed curve), and ``(n, pdim)`` flags of the parameters that are free at
-    a node (pole or apex: the surface's derivative with respect to it vanishes).
+    Returns ``(nodes, params, inner, free)``: sorted input indices ``(n,)``,
+    ``(n, pdim)`` parameters (nodes on the face's curves and points
+    reparametrised on it; on a seam either side), ``(n,)`` whether the node is
+    inside the entity, and ``(n, pdim)`` flags of the parameters that are free
+    at a node (pole or apex: the surface's derivative with respect to it vanishes).
     """
     fdim = tdim - 1
-    tags, _, uv = gmsh.model.mesh.getNodes(fdim, ent, includeBoundary=False, returnParametricCoord=True)
-    nodes, p0, p1 = [tags.astype(np.int64) - 1], [np.reshape(uv, (-1, fdim))], [np.reshape(uv, (-1, fdim))]
+    tags, x, uv = gmsh.model.mesh.getNodes(fdim, ent, includeBoundary=False, returnParametricCoord=True)
+    params = [np.reshape(uv, (-1, fdim))]
+    nodes, X = [tags.astype(np.int64) - 1], [np.reshape(x, (-1, 3))]
     below = {(d, t) for d, t in gmsh.model.getBoundary([(fdim, ent)], combined=False, oriented=False)}
     if fdim == 2:
         below |= set(gmsh.model.getBoundary(list(below), combined=False, oriented=False))
     for d, t in sorted(below):  # the face's curves and points: a few each
-        tags, _, tp = gmsh.model.mesh.getNodes(d, t, includeBoundary=False, returnParametricCoord=True)
-        if len(tags) == 0:
-            continue
-        a, b = _reparametrize(fdim, ent, d, t, tp)
-        nodes.append(tags.astype(np.int64) - 1)
-        p0.append(a)
-        p1.append(b)
-    nodes, p0, p1 = np.concatenate(nodes), np.concatenate(p0), np.concatenate(p1)
+        tags, x, tp = gmsh.model.mesh.getNodes(d, t, includeBoundary=False, returnParametricCoord=True)
+        if len(tags):
+            nodes.append(tags.astype(np.int64) - 1)
+            X.append(np.reshape(x, (-1, 3)))
+            params.append(_reparametrize(fdim, ent, d, t, tp))
+    n_inner = len(params[0])
+    nodes, X, params = (np.concatenate(a) for a in (nodes, X, params))
+    inner = np.arange(len(nodes)) < n_inner
+    free = np.zeros(params.shape, dtype=bool)
+    if fdim == 2 and len(params) > n_inner:
+        D = np.reshape(gmsh.model.getDerivative(2, ent, params[n_inner:].ravel()), (-1, 2, 3))
+        free[n_inner:] = np.linalg.norm(D, axis=2) <= 1e-12 * _diagonal()
+        polish = np.flatnonzero(~inner & ~free.any(axis=1))
+        params[polish] = _foot_point(ent, X[polish], params[polish])
     order = np.argsort(nodes)
-    nodes, p0, p1 = nodes[order], p0[order], p1[order]
-    free = np.zeros(p0.shape, dtype=bool)
-    if fdim == 2 and len(p0):
-        D = np.reshape(gmsh.model.getDerivative(2, ent, p0.ravel()), (-1, 2, 3))
-        free = np.linalg.norm(D, axis=2) <= 1e-12 * _diagonal()
-    return nodes, p0, p1, free
+    return nodes[order], params[order], inner[order], free[order]
 
 
-def _reparametrize(fdim: int, ent: int, d: int, t: int, tp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Both candidate parameters on ``ent`` of the nodes of entity ``(d, t)`` (curve parameters ``tp``)."""
+def _foot_point(face: int, x: np.ndarray, uv: np.ndarray, iterations: int = 2) -> np.ndarray:
+    """(u, v) of the points of surface ``face`` closest to ``x (n, 3)``, by Gauss-Newton from ``uv``.
+
+    A node on a CAD edge is on the edge's 3D curve; its p-curve on the face
+    agrees with it only to the edge's tolerance (e.g. 1e-7 on intersection
+    curves): the foot point puts (u, v) where the face is nearest the node.
+    A step is kept only where it brings the surface point nearer.
+    """
+    if len(x) == 0:
+        return uv
+    for _ in range(iterations):
+        S = np.reshape(gmsh.model.getValue(2, face, uv.ravel()), (-1, 3))
+        J = np.reshape(gmsh.model.getDerivative(2, face, uv.ravel()), (-1, 2, 3))
+        r = x - S
+        A = np.einsum("nij,nkj->nik", J, J)
+        g = np.einsum("nij,nj->ni", J, r)
+        det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] ** 2
+        ok = det > 1e-300
+        det = np.where(ok, det, 1.0)
+        step = np.stack([A[:, 1, 1] * g[:, 0] - A[:, 0, 1] * g[:, 1],
+                         A[:, 0, 0] * g[:, 1] - A[:, 0, 1] * g[:, 0]], axis=1) / det[:, None]
+        new = uv + np.where(ok[:, None], step, 0.0)
+        Sn = np.reshape(gmsh.model.getValue(2, face, new.ravel()), (-1, 3))
+        better = np.linalg.norm(x - Sn, axis=1) < np.linalg.norm(r, axis=1)
+        uv = np.where(better[:, None], new, uv)
+    return uv
+
+
+def _reparametrize(fdim: int, ent: int, d: int, t: int, tp: np.ndarray) -> np.ndarray:
+    """``(n, pdim)`` parameters on ``ent`` of the nodes of entity ``(d, t)`` (curve parameters ``tp``)."""
     if fdim == 2:
-        a, b = (np.reshape(gmsh.model.reparametrizeOnSurface(d, t, tp if d == 1 else [], ent, which=w),
-                           (-1, 2)) for w in (0, 1))
-        return a, b
-    # 2D: a point at an end of curve ent (both ends if the curve is closed)
+        return np.reshape(gmsh.model.reparametrizeOnSurface(d, t, tp if d == 1 else [], ent), (-1, 2))
+    # 2D: a point at an end of curve ent (the nearer end; a closed curve is unwrapped later)
     lo, hi = gmsh.model.getParametrizationBounds(1, ent)
     ends = np.array([lo[0], hi[0]])
     x = np.reshape(gmsh.model.getValue(1, ent, ends), (2, 3))
-    p = np.asarray(gmsh.model.getValue(0, t, []))
-    dist = np.linalg.norm(x - p, axis=1)
-    on = dist <= 1e-9 * _diagonal()
-    if not on.any():
-        on = dist == dist.min()
-    a = ends[np.flatnonzero(on)[0]]
-    b = ends[np.flatnonzero(on)[-1]]
-    return np.array([[a]]), np.array([[b]])
+    dist = np.linalg.norm(x - np.asarray(gmsh.model.getValue(0, t, [])), axis=1)
+    return ends[[np.argmin(dist)]][:, None]
+
+
+def _closed_directions(fdim: int, ent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(lo, hi, closed)``: parametric bounds and, per parameter, whether the entity closes on itself
+    there (its values at the two bounds agree: a seam, or a closed curve)."""
+    lo, hi = (np.asarray(b, dtype=float) for b in gmsh.model.getParametrizationBounds(fdim, ent))
+    tol = 1e-9 * _diagonal()
+    if fdim == 1:
+        a, b = np.reshape(gmsh.model.getValue(1, ent, [lo[0], hi[0]]), (2, 3))
+        return lo, hi, np.array([np.linalg.norm(a - b) <= tol])
+    s = lo[::-1] + (hi - lo)[::-1] * np.array([[0.2], [0.5], [0.8]])  # samples of the other parameter
+    closed = np.zeros(2, dtype=bool)
+    for k in range(2):
+        at = np.empty((2, 3, 2))
+        at[:, :, k] = np.array([[lo[k]], [hi[k]]])
+        at[:, :, 1 - k] = s[:, k]
+        S = np.reshape(gmsh.model.getValue(2, ent, at.ravel()), (2, 3, 3))
+        closed[k] = np.linalg.norm(S[0] - S[1], axis=1).max() <= tol
+    return lo, hi, closed
 
 
 def _element_params(tdim: int, ent: int, enodes: np.ndarray) -> np.ndarray:
     """``(E, nfv, pdim)`` parameters on ``ent`` of the vertices ``enodes (E, nfv)`` of its elements.
 
-    Per element, a vertex with two candidates (seam) takes the one nearer the
-    element's reference vertex (its first vertex with one candidate); a free
+    gmsh meshed each element inside the parametric bounds; a vertex on a
+    seam takes the bound (lower or upper) nearer the element's reference
+    vertex (inside the entity if it has one, else one off the seam); a free
     parameter (pole) takes the mean of the element's other vertices.
     """
-    nodes, p0, p1, free = _candidates(tdim, ent)
+    fdim = tdim - 1
+    nodes, p, inner, free = _candidates(tdim, ent)
     pos = np.searchsorted(nodes, enodes)
     if len(nodes) == 0 or np.any(nodes[np.minimum(pos, len(nodes) - 1)] != enodes):
-        raise RuntimeError(f"gmsh entity ({tdim - 1}, {ent}): element nodes missing from its closure")
-    c0, c1, fr = p0[pos], p1[pos], free[pos]  # (E, nfv, pdim)
-    two = np.any(np.abs(c0 - c1) > 1e-12 * (1.0 + np.abs(c0)), axis=2) | np.any(fr, axis=2)
-    ref_col = np.argmax(~two, axis=1)  # first unambiguous vertex (0 if none)
-    ref = c0[np.arange(len(c0)), ref_col][:, None, :]
-    use1 = np.linalg.norm(c1 - ref, axis=2) < np.linalg.norm(c0 - ref, axis=2)
-    p = np.where(use1[:, :, None], c1, c0)
+        raise RuntimeError(f"gmsh entity ({fdim}, {ent}): element nodes missing from its closure")
+    c, fr = p[pos], free[pos]  # (E, nfv, pdim)
+    lo, hi, closed = _closed_directions(fdim, ent)
+    if closed.any():
+        period = hi - lo
+        on_seam = closed & ((np.abs(c - lo) <= 1e-9 * period) | (np.abs(c - hi) <= 1e-9 * period))
+        score = np.where(inner[pos], 0, np.where((on_seam | fr).any(axis=2), 2, 1))
+        ref = c[np.arange(len(c)), np.argmin(score, axis=1)][:, None, :]
+        shifted = c[..., None] + period[:, None] * np.array([-1.0, 0.0, 1.0])  # (E, nfv, pdim, 3)
+        inside = (shifted >= (lo - 1e-9 * period)[:, None]) & (shifted <= (hi + 1e-9 * period)[:, None])
+        dist = np.where(inside, np.abs(shifted - ref[..., None]), np.inf)
+        best = np.take_along_axis(shifted, np.argmin(dist, axis=3)[..., None], axis=3)[..., 0]
+        c = np.where(closed, best, c)
     if fr.any():
-        fixed = np.where(fr, 0.0, p)
+        fixed = np.where(fr, 0.0, c)
         count = (~fr).sum(axis=1, keepdims=True) - (~fr)  # other vertices with that parameter fixed
         mean = (fixed.sum(axis=1, keepdims=True) - fixed) / np.maximum(count, 1)
-        p = np.where(fr & (count > 0), mean, p)
-    return p
+        c = np.where(fr & (count > 0), mean, c)
+    return c
 
 
 def _entity_info(d: int, t: int, samples: tuple[np.ndarray, np.ndarray] | None) -> EntityInfo:
@@ -580,8 +670,9 @@ def mesh_cad_file(
             gmsh's entity tag; else tag 1 on the whole exterior boundary.
         order: 1 (affine, what :class:`nagata_snap.Snapper` refines) or 2 (mid-nodes
             on the CAD, from gmsh); the per-vertex data cover the facets' vertices.
-        unit: ``Geometry.OCCTargetUnit``, the unit OpenCASCADE converts STEP and
-            IGES coordinates to (``"MM"``, ``"M"``, ``"IN"``, ...).
+        unit: the length unit STEP and IGES coordinates are converted to
+            (``"MM"``, OpenCASCADE's default; ``"M"``, ``"INCH"``, ... : ``UNITS_MM``);
+            BREP coordinates are taken as stored.
         rank: the process that runs gmsh.
         partitioner: passed to :func:`dolfinx.io.gmsh.model_to_mesh` (None:
             DOLFINx's default, no ghost cells).
@@ -625,15 +716,14 @@ def mesh_cad_file(
 def _mesh_on_root(path, size, size_factor, min_size, curvature, per_face_tags, order, unit, verbose, times,
                   set_option) -> dict:
     """Import, mesh and tabulate on the gmsh process (options through ``set_option``)."""
-    set_option("Geometry.OCCTargetUnit", unit)
     set_option("General.Terminal", 1 if verbose else 0)
     t0 = time.perf_counter()
-    tdim, tops = import_cad(path)
+    tdim, tops = import_cad(path, unit)
     times["import"] = time.perf_counter() - t0
     model_size = _diagonal()
     h = float(size) if size is not None else size_factor * model_size
     h_min = h / 50.0 if min_size is None else float(min_size)
-    for key, value in _mesh_options(h, h_min, curvature, order, unit, verbose).items():
+    for key, value in _mesh_options(h, h_min, curvature, order, verbose).items():
         set_option(key, value)
     _physical_groups(tdim, tops, per_face_tags)
     t0 = time.perf_counter()
@@ -643,5 +733,5 @@ def _mesh_on_root(path, size, size_factor, min_size, curvature, per_face_tags, o
     table = _boundary_table(tdim)
     times["table"] = time.perf_counter() - t0
     table.update(tdim=tdim, size=h, model_size=model_size,
-                 unit=None if CAD_SUFFIXES[path.suffix.lower()] == "brep" else unit.upper() or "MM")
+                 unit=None if CAD_SUFFIXES[path.suffix.lower()] == "brep" else unit.upper())
     return table

@@ -86,25 +86,29 @@ def test_part_builds(name):
 
 @pytest.mark.parametrize("name", list(parts.PARTS))
 def test_part_valid_in_occ(written, name):
-    """OpenCASCADE's checker accepts the shape; solids are closed and positive."""
+    """OpenCASCADE's checker accepts the shape; its adaptive volume (area) is the closed form's
+    where there is one, and near gmsh's fixed-order one elsewhere (except on the loft)."""
     from OCP.BRep import BRep_Builder
     from OCP.BRepCheck import BRepCheck_Analyzer
-    from OCP.BRepGProp import BRepGProp
     from OCP.BRepTools import BRepTools
-    from OCP.GProp import GProp_GProps
     from OCP.TopoDS import TopoDS_Shape
 
     shape = TopoDS_Shape()
     assert BRepTools.Read_s(shape, str(written[name]["brep"]), BRep_Builder())
     assert BRepCheck_Analyzer(shape).IsValid()
-    props = GProp_GProps()
-    if parts.PARTS[name].dim == 3:
-        BRepGProp.VolumeProperties_s(shape, props)
-    else:
-        BRepGProp.SurfaceProperties_s(shape, props)
+    dim = parts.PARTS[name].dim
+    mass = parts.occ_mass(written[name]["brep"], dim)
+    if name in EXACT:
+        assert mass == pytest.approx(EXACT[name], rel=1e-9)
     with parts.part_model(name):
-        _, mass = parts.measure(parts.PARTS[name].dim)
-    assert props.Mass() == pytest.approx(mass, rel=1e-9)
+        _, gmsh_mass = parts.measure(dim)
+    if name == "lofted_blade":  # fixed-order Gauss integration is 17 % low here (see parts.occ_mass)
+        assert gmsh_mass == pytest.approx(0.835 * mass, rel=0.01)
+        # Simpson's 3/8 rule on the four sections' areas pi/4 chord thickness
+        a = [math.pi / 4 * c * t for c, t in ((40, 10), (34, 8), (29, 6.5), (24, 5))]
+        assert mass == pytest.approx(3 * 20 / 8 * (a[0] + 3 * a[1] + 3 * a[2] + a[3]), rel=0.01)
+    else:  # fixed-order integration: 1e-5 (profile) to 5.7e-3 (extruded spline) off on B-splines
+        assert gmsh_mass == pytest.approx(mass, rel=1e-2)
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
