@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -434,14 +435,29 @@ def write_part(name: str, directory: str | Path,
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = {fmt: directory / f"{name}{EXTENSIONS[fmt]}" for fmt in formats}
-    with part_model(name):
+    with part_model(name), _quiet_stdout():
         for fmt, path in paths.items():
             gmsh.write(str(path if fmt != "iges_brep" else path.with_suffix("")))  # .brep for OCP
     if "iges_brep" in paths:
-        _write_brep_iges(paths["iges_brep"].with_suffix(""), paths["iges_brep"])
+        with _quiet_stdout():
+                _write_brep_iges(paths["iges_brep"].with_suffix(""), paths["iges_brep"])
         if "brep" not in paths:
             paths["iges_brep"].with_suffix("").unlink()
     return paths
+
+
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Silence OpenCASCADE's writers, which print transfer statistics to the C-level stdout."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _write_brep_iges(brep: Path, out: Path) -> None:

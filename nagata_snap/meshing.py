@@ -345,17 +345,24 @@ def _closed_shell() -> bool:
 # ----------------------------------------------------------------------
 # meshing (on the gmsh process)
 # ----------------------------------------------------------------------
+#: gmsh options that make a mesh reproducible, node for node (one thread, fixed algorithms:
+#: Frontal-Delaunay in 2D, Delaunay in 3D)
+DETERMINISTIC_OPTIONS = {
+    "General.NumThreads": 1,
+    "Mesh.MaxNumThreads1D": 1,
+    "Mesh.MaxNumThreads2D": 1,
+    "Mesh.MaxNumThreads3D": 1,
+    "Geometry.OCCParallel": 0,
+    "Mesh.Algorithm": 6,
+    "Mesh.Algorithm3D": 1,
+}
+
+
 def _mesh_options(size: float, min_size: float, curvature: float, order: int, verbose: bool) -> dict:
     return {
+        **DETERMINISTIC_OPTIONS,
         "General.Terminal": 1 if verbose else 0,
         "General.Verbosity": 4 if verbose else 1,
-        "General.NumThreads": 1,
-        "Mesh.MaxNumThreads1D": 1,
-        "Mesh.MaxNumThreads2D": 1,
-        "Mesh.MaxNumThreads3D": 1,
-        "Geometry.OCCParallel": 0,
-        "Mesh.Algorithm": 6,
-        "Mesh.Algorithm3D": 1,
         "Mesh.MeshSizeMax": size,
         "Mesh.MeshSizeMin": min_size,
         "Mesh.MeshSizeFromCurvature": curvature,

@@ -250,3 +250,12 @@ def test_mesh_mpi_matches_serial(tmp_path):
     lines = [ln for ln in r.stdout.splitlines() if ln.startswith("meshing_mpi")]
     assert lines == [f"meshing_mpi {name} ok" for name in ("plate_holes_2d", "plate_filleted", "seamed",
                                                           "assembly", "missing")], r.stdout[-3000:]
+
+
+def test_verbose_progress(files, capfd):
+    mesh_cad_file(files["thin_wall"]["step"], MPI.COMM_SELF, verbose=True)
+    out = capfd.readouterr().out
+    for d in (1, 2, 3):
+        assert f"nagata_snap.meshing: thin_wall.step: {d}D mesh," in out
+    mesh_cad_file(files["thin_wall"]["step"], MPI.COMM_SELF)
+    assert "nagata_snap.meshing" not in capfd.readouterr().out
