@@ -226,19 +226,23 @@ class Snapper:
         """The mesh of the current level (the one :meth:`refine` expects)."""
         return self._level.mesh
 
-    def curved_mesh(self, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
-        """Degree-2 version of the current level's mesh, boundary mid-nodes on the geometry.
+    def curved_mesh(self, degree: int = 2, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
+        """Degree-``degree`` version of the current level's mesh, boundary nodes on the geometry.
 
         The result shares the straight mesh's topology, so its facet tags and
         ``parent_cell`` maps apply unchanged; keep refining the straight mesh.
-        See :func:`nagata_snap.curved.curved_mesh` (``kwargs``: ``min_ratio``,
-        ``max_bisections``).
+        See :func:`nagata_snap.curved.curved_mesh` (``kwargs``: ``variant``,
+        ``min_ratio``, ``max_bisections``).
+
+        Args:
+            degree: degree of the coordinate element, 2 (default), 3 or 4.
 
         Returns:
             ``(mesh, info)``.
         """
         lv = self._level
-        return curved_mesh(lv.mesh, lv.boundary, lv.snapped, lv.records, self.geometry, **kwargs)
+        return curved_mesh(lv.mesh, lv.boundary, lv.snapped, lv.records, self.geometry,
+                           degree=degree, **kwargs)
 
     def refine(
         self, mesh: dolfinx.mesh.Mesh, edges: npt.NDArray[np.int32] | None = None
