@@ -183,7 +183,7 @@ def _degree_of(ndofs: int, tdim: int) -> int:
     raise ValueError(f"{ndofs} nodes per cell is no Lagrange simplex of dimension {tdim}")
 
 
-def jacobian_determinants(x: np.ndarray, cells: np.ndarray, tdim: int,
+def jacobian_determinants(x: np.ndarray, cells: np.ndarray | None, tdim: int,
                           variant: str | None = None) -> np.ndarray:
     """``det J`` of degree-k simplices at the check points.
 
@@ -191,9 +191,10 @@ def jacobian_determinants(x: np.ndarray, cells: np.ndarray, tdim: int,
     the Lagrange nodes.
 
     Args:
-        x: ``(n, 3)`` node coordinates.
+        x: ``(n, 3)`` node coordinates, or ``(nc, ndofs, 3)`` the nodes of each
+            cell if ``cells`` is None.
         cells: ``(nc, ndofs)`` nodes of each cell in basix order (the degree
-            follows from ``ndofs``).
+            follows from ``ndofs``), or None.
         tdim: 2 or 3.
         variant: the coordinate element's Lagrange variant (default
             :func:`default_variant` of the degree).
@@ -201,11 +202,12 @@ def jacobian_determinants(x: np.ndarray, cells: np.ndarray, tdim: int,
     Returns:
         ``(nc, npts)`` determinants.
     """
-    k = _degree_of(cells.shape[1], tdim)
+    nc, ndofs = (x.shape[0], x.shape[1]) if cells is None else cells.shape
+    k = _degree_of(ndofs, tdim)
     dphi = _reference(tdim, k, variant or default_variant(k)).dphi
-    out = np.empty((len(cells), dphi.shape[1]))
-    for s in range(0, len(cells), _BLOCK):  # blocks of cells (memory)
-        X = x[cells[s : s + _BLOCK]][:, :, :tdim]  # (nc, ndofs, tdim)
+    out = np.empty((nc, dphi.shape[1]))
+    for s in range(0, nc, _BLOCK):  # blocks of cells (memory)
+        X = (x[s : s + _BLOCK] if cells is None else x[cells[s : s + _BLOCK]])[:, :, :tdim]
         out[s : s + _BLOCK] = np.linalg.det(np.einsum("cki,dqk->cqid", X, dphi))
     return out
 
@@ -289,60 +291,78 @@ def curved_mesh(
     curved = dolfinx.fem.interpolate_geometry(mesh, ce)
     imap = curved.geometry.index_map()
     dofs = curved.geometry.dofmaps[0]
-    X0 = curved.geometry.x.copy()  # straight positions of all nodes
     n_nodes = imap.size_local + imap.num_ghosts
+    x = curved.geometry.x  # straight positions until the end
+    # the vertices exactly where snapping put them (interpolate_geometry evaluates the affine map)
+    x[dofs[:, : tdim + 1]] = mesh.geometry.x[mesh.geometry.dofmaps[0]]
 
     # 1. nodes of snapped facets on the geometry
-    target, moved = _place_boundary_nodes(curved, boundary, snapped, records, geometry, ref, X0)
-    disp = target - X0
+    mv, disp = _place_boundary_nodes(curved, boundary, snapped, records, geometry, ref)
 
-    # 2. cells to curve, their snapped faces, the nodes blending sets
+    # 2. cells to curve (owned, with a placed node), their snapped faces, the nodes blending sets
+    moved = np.zeros(n_nodes, dtype=bool)
+    moved[mv] = True
     n_own = mesh.topology.index_map(tdim).size_local
     cand = np.flatnonzero(moved[dofs[:n_own]].any(axis=1))
     faces = None
     if tdim == 3:
         faces = np.zeros((len(cand), tdim + 1), dtype=bool)
         sel = np.flatnonzero(snapped)
-        pos = np.searchsorted(cand, boundary.cells[sel])
-        faces[pos, boundary.local[sel]] = True
+        faces[np.searchsorted(cand, boundary.cells[sel]), boundary.local[sel]] = True
     cdofs = dofs[cand]
+    X0 = x[cdofs]  # (nc, ndofs, 3) straight
+    where = np.full(n_nodes, -1)
+    where[mv] = np.arange(len(mv))
+    wc = where[cdofs]  # (nc, ndofs) row of each cell node in mv, or -1
+    on = wc >= 0
     bmask = _blended_dofs(ref, faces, len(cand))
     has_blend = comm.allreduce(bool(bmask.any()), op=_mpi_op("LOR"))
+    blended = np.zeros(n_nodes, dtype=bool)
+    scratch = np.zeros((n_nodes, 3)) if has_blend else None
 
-    def positions(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Node positions with boundary displacements scaled by ``alpha`` (collective)."""
-        d = np.where(moved[:, None], alpha[:, None] * disp, 0.0)
-        hit = np.zeros(n_nodes, dtype=bool)
+    def displacements(alpha: np.ndarray) -> np.ndarray:
+        """``(nc, ndofs, 3)`` cell-node displacements for boundary scaling ``alpha`` (collective).
+
+        Blended values go through one node array (``scratch``) so that every
+        cell and process sees the same value for a node.
+        """
+        nonlocal blended
+        D = np.zeros(cdofs.shape + (3,))
+        D[on] = alpha[wc[on], None] * disp[wc[on]]
         if has_blend:
-            b = blend(d[cdofs], faces, ref)
-            hit = update_nodes(curved, d, cdofs[bmask], b[bmask], index_map=imap)
-        return X0 + d, hit
+            b = blend(D, faces, ref)
+            blended = update_nodes(curved, scratch, cdofs[bmask], b[bmask], index_map=imap)
+            D[bmask] = scratch[cdofs[bmask]]
+        return D
 
     # 3. Jacobian guard: bisection on the boundary displacements of bad cells
-    det0 = jacobian_determinants(X0, cdofs, tdim, variant)[:, :1]  # straight: constant
-    alpha = np.ones(n_nodes)
+    det0 = jacobian_determinants(X0, None, tdim, variant)[:, :1]  # straight: constant
+    alpha = np.ones(len(mv))
+    own_mv = mv < imap.size_local
     for it in itertools.count():
-        X, blended = positions(alpha)
-        ratio = jacobian_determinants(X, cdofs, tdim, variant) / det0
+        D = displacements(alpha)
+        ratio = jacobian_determinants(X0 + D, None, tdim, variant) / det0
         bad = ratio.min(axis=1, initial=np.inf) < min_ratio
         flag = np.zeros(n_nodes)
         flag[np.unique(cdofs[bad])] = 1.0
-        flag = _sync_max(mesh, imap, flag) * moved
-        if it > max_bisections or comm.allreduce(int(flag[: imap.size_local].sum())) == 0:
+        hit = _sync_max(mesh, imap, flag)[mv] > 0
+        if it > max_bisections or comm.allreduce(int(np.count_nonzero(hit & own_mv))) == 0:
             break
-        hit = flag > 0
         # after max_bisections halvings the offending nodes go back to their straight position
         alpha[hit] = 0.0 if it == max_bisections else 0.5 * alpha[hit]
-    curved.geometry.x[:] = X
+    x[mv] += alpha[:, None] * disp
+    if has_blend:
+        bn = np.flatnonzero(blended)
+        x[bn] += scratch[bn]
 
     own = np.arange(n_nodes) < imap.size_local
-    short = np.linalg.norm((1.0 - alpha)[:, None] * disp, axis=1)[moved & own]
+    short = np.linalg.norm((1.0 - alpha[own_mv])[:, None] * disp[own_mv], axis=1)
     info = CurvedInfo(
         degree=int(degree),
         variant=variant,
-        boundary_nodes=comm.allreduce(int(np.count_nonzero(moved & own))),
+        boundary_nodes=comm.allreduce(int(np.count_nonzero(own_mv))),
         blended_nodes=comm.allreduce(int(np.count_nonzero(blended & own))),
-        reduced_nodes=comm.allreduce(int(np.count_nonzero(moved & own & (alpha < 1.0)))),
+        reduced_nodes=comm.allreduce(int(np.count_nonzero(own_mv & (alpha < 1.0)))),
         max_shortfall=comm.allreduce(float(short.max(initial=0.0)), op=_mpi_op("MAX")),
         min_jacobian_ratio=comm.allreduce(float(ratio.min(initial=np.inf)), op=_mpi_op("MIN")),
     )
@@ -351,26 +371,26 @@ def curved_mesh(
 
 def _place_boundary_nodes(
     curved: dolfinx.mesh.Mesh, boundary: BoundaryFacets, snapped: np.ndarray, records: Records,
-    geometry, ref: _Reference, X0: np.ndarray,
+    geometry, ref: _Reference,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Targets of the non-vertex nodes of snapped facets (collective).
+    """Places on the geometry of the non-vertex nodes of snapped facets (collective).
 
     Each facet's closure nodes get the record's parameters combined with the
     node's barycentric coordinates in the facet, and are placed by
-    ``geometry.place`` (with the straight positions as the CAD projection's
-    starting points).
+    ``geometry.place`` (the straight positions ``curved.geometry.x`` are the
+    CAD projection's starting points).
 
     Returns:
-        ``(target (n, 3), moved (n,) bool)``: node coordinates (straight where
-        not moved) and which nodes were placed, consistent over processes.
+        ``(nodes (m,), displacement (m, 3))``: the placed nodes (owned and
+        ghost, the same values on every process) and their moves.
     """
     sel = np.flatnonzero(snapped)
     c, lf = boundary.cells[sel], boundary.local[sel]
-    dofs = curved.geometry.dofmaps[0]
-    fdofs = np.take_along_axis(dofs[c], ref.facet_closure[lf], axis=1)  # (nf, ncl)
+    x = curved.geometry.x
+    fdofs = np.take_along_axis(curved.geometry.dofmaps[0][c], ref.facet_closure[lf], axis=1)
     W = ref.facet_weights[lf]  # (nf, ncl, nfv)
     rec = Records(records.root, np.einsum("fpv,fvk->fpk", W, records.params))
-    pts, _, report = collective(curved.comm, geometry.place, rec, X0[fdofs])
+    pts, _, report = collective(curved.comm, geometry.place, rec, x[fdofs])
     unresolved = curved.comm.allreduce(int(report.get("n_unresolved", 0)))
     if unresolved:
         raise CadError(
@@ -379,12 +399,12 @@ def _place_boundary_nodes(
             "landed farther than the facet's size); no curved mesh was built"
         )
     # vertices (basix numbers them first) stay where snapping put them
-    nv = ref.lam.shape[1]
-    is_vertex = np.isin(ref.facet_closure[lf], np.arange(nv))
-    target = X0.copy()
-    moved = update_nodes(curved, target, fdofs[~is_vertex], pts[~is_vertex],
+    nonvertex = ref.facet_closure[lf] >= ref.lam.shape[1]
+    target = x.copy()
+    moved = update_nodes(curved, target, fdofs[nonvertex], pts[nonvertex],
                          index_map=curved.geometry.index_map())
-    return target, moved
+    mv = np.flatnonzero(moved)
+    return mv, target[mv] - x[mv]
 
 
 def _sync_max(mesh, imap, flag: np.ndarray) -> np.ndarray:
