@@ -1,8 +1,9 @@
 """Area/volume error of snapped straight cells vs curved geometry of degree k = 2, 3, 4.
 
-DFG channel minus the cylinder (IGES circle, exact) and the unit ball (NURBS
-sphere written to IGES), uniform refinement; CAD mode so that the exact
-geometry is the reference.  Columns: the straight snapped cells, then
+DFG channel minus the cylinder (IGES circle, exact), the unit ball (NURBS
+sphere written to IGES) and a solid torus (NURBS torus: a surface with two
+different principal curvatures), uniform refinement; CAD mode so that the
+exact geometry is the reference.  Columns: the straight snapped cells, then
 ``Snapper.curved_mesh(degree=k)`` with its default nodes (equispaced for
 k = 2, ``gll_warped`` above) and, to show what the node distribution does,
 k = 3 with equispaced nodes.  Prints errors and observed orders.
@@ -40,7 +41,7 @@ import make_iges  # noqa: E402
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
 from nagata_snap.iges import write_iges  # noqa: E402
-from nagata_snap.nurbs import sphere  # noqa: E402
+from nagata_snap.nurbs import sphere, torus  # noqa: E402
 
 #: (label, degree, variant) of the curved columns
 RUNS = [("k=2", 2, None), ("k=3 equisp.", 3, "equispaced"), ("k=3", 3, None), ("k=4", 4, None)]
@@ -115,6 +116,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--levels-2d", type=int, default=6, help="levels of the DFG channel")
     p.add_argument("--levels-3d", type=int, default=4, help="levels of the ball")
+    p.add_argument("--levels-torus", type=int, default=4, help="levels of the solid torus (0: skip)")
     args = p.parse_args(argv)
     comm = MPI.COMM_WORLD
     tmp = tempfile.mkdtemp() if comm.rank == 0 else None
@@ -131,6 +133,12 @@ def main(argv=None):
     rows = study("unit ball (volume error)", md.mesh, md.facet_tags,
                  CadGeometry.from_iges(os.path.join(tmp, "sphere.igs")), generate.BALL_SPHERE,
                  lambda s, c, ft, k: abs(measure(c, k) - 4 / 3 * np.pi), args.levels_3d, comm)
+    if args.levels_torus:
+        md = generate.solid_torus(comm, major_radius=1.0, minor_radius=0.5, h=0.3)
+        study("solid torus R = 1, r = 0.5 (volume error)", md.mesh, md.facet_tags,
+              CadGeometry([torus((0.0, 0.0, 0.0), 1.0, 0.5)]), generate.TORUS_SURFACE,
+              lambda s, c, ft, k: abs(measure(c, k) - 2 * np.pi**2 * 1.0 * 0.5**2),
+              args.levels_torus, comm)
     if comm.rank == 0:
         print(f"\ncurved_order_ball {np.log2(rows[-2][4] / rows[-1][4]):.3f}")
 

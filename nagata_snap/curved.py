@@ -60,8 +60,7 @@ import dolfinx.la
 import dolfinx.mesh
 
 from .boundary import BoundaryFacets, local_facet_vertices, update_nodes
-from .cad import CadError
-from .parallel import collective
+from .parallel import collective_place
 from .records import Records
 
 __all__ = ["CurvedInfo", "curved_mesh", "jacobian_determinants", "VARIANTS"]
@@ -390,14 +389,8 @@ def _place_boundary_nodes(
     fdofs = np.take_along_axis(curved.geometry.dofmaps[0][c], ref.facet_closure[lf], axis=1)
     W = ref.facet_weights[lf]  # (nf, ncl, nfv)
     rec = Records(records.root, np.einsum("fpv,fvk->fpk", W, records.params))
-    pts, _, report = collective(curved.comm, geometry.place, rec, x[fdofs])
-    unresolved = curved.comm.allreduce(int(report.get("n_unresolved", 0)))
-    if unresolved:
-        raise CadError(
-            f"{unresolved} boundary nodes of the degree-{ref.element.degree} geometry have no "
-            "acceptable projection onto the CAD geometry (Newton and every fallback failed or "
-            "landed farther than the facet's size); no curved mesh was built"
-        )
+    pts, _, _ = collective_place(curved.comm, geometry, rec, x[fdofs],
+                                 f"boundary nodes of the degree-{ref.element.degree} geometry")
     # vertices (basix numbers them first) stay where snapping put them
     nonvertex = ref.facet_closure[lf] >= ref.lam.shape[1]
     target = x.copy()

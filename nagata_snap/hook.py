@@ -28,10 +28,9 @@ import dolfinx.mesh
 
 from .boundary import (BoundaryFacets, boundary_facets, cell_facets_of, check_p1_simplex,
                        facets_of_cells, tag_values, update_nodes)
-from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, child_facets, child_interior_facets
-from .parallel import collective
+from .parallel import collective, collective_place
 from .quality import QualityReport, degenerate_cells
 from .records import Records, refine_records
 from .smoothing import InvertedCellsError, repair
@@ -302,14 +301,9 @@ class Snapper:
         x = mesh1.geometry.x
         x_ref = x.copy()
         nodes = ch.boundary.nodes[sel]
-        pts, records, geo_report = collective(self.comm, self.geometry.place, records, x[nodes])
-        unresolved = self.comm.allreduce(int(geo_report.get("n_unresolved", 0)))
-        if unresolved:
-            raise CadError(
-                f"{unresolved} new boundary vertices at level {self.level + 1} have no acceptable "
-                "projection onto the CAD geometry (Newton and every fallback failed or landed "
-                "farther than the local edge length); nothing was returned"
-            )
+        pts, records, geo_report = collective_place(
+            self.comm, self.geometry, records, x[nodes],
+            f"new boundary vertices at level {self.level + 1}")
         moved = update_nodes(mesh1, x, nodes.ravel(), pts.reshape(-1, 3))
         times["place"] = time.perf_counter() - t0
 
