@@ -306,3 +306,37 @@ def test_curved_mpi_matches_serial(args, tmp_path):
     same = d < 1e-12
     assert same.mean() > (0.999 if args[0].startswith("dfg") else 0.8)
     assert np.abs(serial["x"][same] - par["x"][i[same]]).max() < 1e-12
+
+
+def test_cad_part_edge_and_face_nodes_on_their_faces(tmp_path):
+    """OCC part (box minus a cylindrical hole, 7 trimmed faces): every node of the degree-3
+    boundary facets is on its face (planes flat, the hole's wall at r = 0.2), so the nodes of
+    the rim edges are on both faces: the CAD edge (the curved-edge rule of ``place``)."""
+    import warnings
+
+    paths = make_iges.write_occ_models(tmp_path)
+    part = str(next(p for p in paths if p.name == "occ_part.igs"))
+    md = generate.iges_solid(MPI.COMM_WORLD, part, h=0.2)
+    mesh, ft = md.mesh, md.facet_tags
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # OCC's group entity (type 402)
+        geo = CadGeometry.from_iges(part)
+    snapper = Snapper(mesh, ft, geo)
+    mesh, ft, *_ = snapper.refine(mesh)
+    cm, info = snapper.curved_mesh(degree=3)
+    assert info.reduced_nodes == 0 and info.min_jacobian_ratio > 0.2
+    x = cm.geometry.x
+    rim = 0
+    for f in np.unique(ft.values):
+        nodes = boundary_nodes(cm, ft.find(f))
+        p = x[nodes]
+        r = np.hypot(p[:, 0] - 0.5, p[:, 1] - 0.5)
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        flat = np.flatnonzero(hi - lo < 1e-9)
+        if len(flat):  # an axis-aligned plane
+            assert np.abs(p[:, flat[0]] - p[0, flat[0]]).max() < 1e-13
+            rim += np.count_nonzero(np.abs(r - 0.2) < 1e-12)
+        else:  # the hole's wall
+            assert np.abs(r - 0.2).max() < 1e-12
+            assert p[:, 2].min() > -1e-13 and p[:, 2].max() < 1 + 1e-13
+    assert rim > 0  # the top and bottom planes' nodes on the rim circles
