@@ -288,84 +288,116 @@ def curved_mesh(
     ce = dolfinx.fem.coordinate_element(mesh.topology.cell_type, int(degree),
                                         int(basix.LagrangeVariant[variant]))
     curved = dolfinx.fem.interpolate_geometry(mesh, ce)
-    imap = curved.geometry.index_map()
-    dofs = curved.geometry.dofmaps[0]
-    n_nodes = imap.size_local + imap.num_ghosts
     x = curved.geometry.x  # straight positions until the end
     # the vertices exactly where snapping put them (interpolate_geometry evaluates the affine map)
-    x[dofs[:, : tdim + 1]] = mesh.geometry.x[mesh.geometry.dofmaps[0]]
+    x[curved.geometry.dofmaps[0][:, : tdim + 1]] = mesh.geometry.x[mesh.geometry.dofmaps[0]]
 
-    # 1. nodes of snapped facets on the geometry
     mv, disp = _place_boundary_nodes(curved, boundary, snapped, records, geometry, ref)
-
-    # 2. cells to curve (owned, with a placed node), their snapped faces, the nodes blending sets
-    moved = np.zeros(n_nodes, dtype=bool)
-    moved[mv] = True
-    n_own = mesh.topology.index_map(tdim).size_local
-    cand = np.flatnonzero(moved[dofs[:n_own]].any(axis=1))
-    faces = None
-    if tdim == 3:
-        faces = np.zeros((len(cand), tdim + 1), dtype=bool)
-        sel = np.flatnonzero(snapped)
-        faces[np.searchsorted(cand, boundary.cells[sel]), boundary.local[sel]] = True
-    cdofs = dofs[cand]
-    X0 = x[cdofs]  # (nc, ndofs, 3) straight
-    where = np.full(n_nodes, -1)
-    where[mv] = np.arange(len(mv))
-    wc = where[cdofs]  # (nc, ndofs) row of each cell node in mv, or -1
-    on = wc >= 0
-    bmask = _blended_dofs(ref, faces, len(cand))
-    has_blend = comm.allreduce(bool(bmask.any()), op=_mpi_op("LOR"))
-    blended = np.zeros(n_nodes, dtype=bool)
-    scratch = np.zeros((n_nodes, 3)) if has_blend else None
-
-    def displacements(alpha: np.ndarray) -> np.ndarray:
-        """``(nc, ndofs, 3)`` cell-node displacements for boundary scaling ``alpha`` (collective).
-
-        Blended values go through one node array (``scratch``) so that every
-        cell and process sees the same value for a node.
-        """
-        nonlocal blended
-        D = np.zeros(cdofs.shape + (3,))
-        D[on] = alpha[wc[on], None] * disp[wc[on]]
-        if has_blend:
-            b = blend(D, faces, ref)
-            blended = update_nodes(curved, scratch, cdofs[bmask], b[bmask], index_map=imap)
-            D[bmask] = scratch[cdofs[bmask]]
-        return D
-
-    # 3. Jacobian guard: bisection on the boundary displacements of bad cells
-    det0 = jacobian_determinants(X0, None, tdim, variant)[:, :1]  # straight: constant
-    alpha = np.ones(len(mv))
-    own_mv = mv < imap.size_local
-    for it in itertools.count():
-        D = displacements(alpha)
-        ratio = jacobian_determinants(X0 + D, None, tdim, variant) / det0
-        bad = ratio.min(axis=1, initial=np.inf) < min_ratio
-        flag = np.zeros(n_nodes)
-        flag[np.unique(cdofs[bad])] = 1.0
-        hit = _sync_max(mesh, imap, flag)[mv] > 0
-        if it > max_bisections or comm.allreduce(int(np.count_nonzero(hit & own_mv))) == 0:
-            break
-        # after max_bisections halvings the offending nodes go back to their straight position
-        alpha[hit] = 0.0 if it == max_bisections else 0.5 * alpha[hit]
+    cells = _CurvedCells(curved, boundary, snapped, ref, mv, disp)
+    alpha, ratio = _bisect(cells, min_ratio, max_bisections)
     x[mv] += alpha[:, None] * disp
-    if has_blend:
-        bn = np.flatnonzero(blended)
-        x[bn] += scratch[bn]
+    if cells.scratch is not None:
+        bn = np.flatnonzero(cells.blended)
+        x[bn] += cells.scratch[bn]
 
-    own = np.arange(n_nodes) < imap.size_local
+    imap = curved.geometry.index_map()
+    own_mv = mv < imap.size_local
     short = np.linalg.norm((1.0 - alpha[own_mv])[:, None] * disp[own_mv], axis=1)
     info = CurvedInfo(
         degree=int(degree),
         variant=variant,
         boundary_nodes=comm.allreduce(int(np.count_nonzero(own_mv))),
-        blended_nodes=comm.allreduce(int(np.count_nonzero(blended & own))),
+        blended_nodes=comm.allreduce(int(np.count_nonzero(cells.blended[: imap.size_local]))),
         reduced_nodes=comm.allreduce(int(np.count_nonzero(own_mv & (alpha < 1.0)))),
         max_shortfall=comm.allreduce(float(short.max(initial=0.0)), op=_mpi_op("MAX")),
         min_jacobian_ratio=comm.allreduce(float(ratio.min(initial=np.inf)), op=_mpi_op("MIN")),
     )
     return curved, info
+
+
+class _CurvedCells:
+    """The owned cells with a placed node: their nodes, snapped faces and displacements.
+
+    Args:
+        curved: the degree-k mesh (straight node positions).
+        boundary, snapped: the exterior facets and which are snapped.
+        ref: reference data of the coordinate element.
+        mv: ``(m,)`` placed nodes; disp: ``(m, 3)`` their full displacements.
+    """
+
+    def __init__(self, curved, boundary: BoundaryFacets, snapped: np.ndarray, ref: _Reference,
+                 mv: np.ndarray, disp: np.ndarray):
+        tdim = curved.topology.dim
+        self.curved, self.ref, self.mv, self.disp = curved, ref, mv, disp
+        self.imap = curved.geometry.index_map()
+        n_nodes = self.imap.size_local + self.imap.num_ghosts
+        dofs = curved.geometry.dofmaps[0]
+        moved = np.zeros(n_nodes, dtype=bool)
+        moved[mv] = True
+        n_own = curved.topology.index_map(tdim).size_local
+        cand = np.flatnonzero(moved[dofs[:n_own]].any(axis=1))
+        self.faces = None  # 3D: (nc, 4) which local faces are snapped
+        if tdim == 3:
+            self.faces = np.zeros((len(cand), tdim + 1), dtype=bool)
+            sel = np.flatnonzero(snapped)
+            self.faces[np.searchsorted(cand, boundary.cells[sel]), boundary.local[sel]] = True
+        self.dofs = dofs[cand]  # (nc, ndofs)
+        self.x0 = curved.geometry.x[self.dofs]  # (nc, ndofs, 3) straight
+        where = np.full(n_nodes, -1)
+        where[mv] = np.arange(len(mv))
+        self.row = where[self.dofs]  # (nc, ndofs) row of each cell node in mv, or -1
+        self.bmask = _blended_dofs(ref, self.faces, len(cand))
+        has_blend = curved.comm.allreduce(bool(self.bmask.any()), op=_mpi_op("LOR"))
+        self.scratch = np.zeros((n_nodes, 3)) if has_blend else None
+        self.blended = np.zeros(n_nodes, dtype=bool)
+
+    def displacements(self, alpha: np.ndarray) -> np.ndarray:
+        """``(nc, ndofs, 3)`` node displacements with the boundary ones scaled by ``alpha (m,)``.
+
+        Collective.  Blended values go through one node array (``scratch``),
+        so that every cell and process sees the same value for a node.
+        """
+        on = self.row >= 0
+        D = np.zeros(self.dofs.shape + (3,))
+        D[on] = alpha[self.row[on], None] * self.disp[self.row[on]]
+        if self.scratch is not None:
+            b = blend(D, self.faces, self.ref)
+            nodes = self.dofs[self.bmask]
+            self.blended = update_nodes(self.curved, self.scratch, nodes, b[self.bmask],
+                                        index_map=self.imap)
+            D[self.bmask] = self.scratch[nodes]
+        return D
+
+    def placed_in(self, bad: np.ndarray) -> np.ndarray:
+        """``(m,)`` bool: placed nodes of the cells ``bad`` on any process (collective)."""
+        flag = np.zeros(self.imap.size_local + self.imap.num_ghosts)
+        flag[np.unique(self.dofs[bad])] = 1.0
+        return _sync_max(self.curved, self.imap, flag)[self.mv] > 0
+
+
+def _bisect(cells: _CurvedCells, min_ratio: float, max_bisections: int):
+    """Jacobian guard: halve the boundary displacements of cells below ``min_ratio``.
+
+    ``det J / det J_straight`` at the check points; after ``max_bisections``
+    halvings the offending nodes go back to their straight position.
+
+    Returns:
+        ``(alpha (m,), ratio (nc, npts))``: the scale of each placed node's
+        displacement, and the ratios of the final positions.  Collective.
+    """
+    tdim = cells.curved.topology.dim
+    variant = basix.LagrangeVariant(cells.curved.geometry.cmaps[0].variant).name
+    det0 = jacobian_determinants(cells.x0, None, tdim, variant)[:, :1]  # straight: constant
+    alpha = np.ones(len(cells.mv))
+    own = cells.mv < cells.imap.size_local
+    comm = cells.curved.comm
+    for it in itertools.count():
+        D = cells.displacements(alpha)
+        ratio = jacobian_determinants(cells.x0 + D, None, tdim, variant) / det0
+        hit = cells.placed_in(ratio.min(axis=1, initial=np.inf) < min_ratio)
+        if it > max_bisections or comm.allreduce(int(np.count_nonzero(hit & own))) == 0:
+            return alpha, ratio
+        alpha[hit] = 0.0 if it == max_bisections else 0.5 * alpha[hit]
 
 
 def _place_boundary_nodes(
