@@ -31,9 +31,10 @@ Last line: ``speedup_vs_ngspetsc <time ratio of the refinement on the finest lev
 Needs ngsPETSc, which is not a dependency of nagata_snap (its petsc4py
 requirement would build PETSc from source; the DOLFINx wheel brings its own)::
 
-    pip install netgen-mesher packaging
-    pip install --no-deps ngsPETSc
-    python benchmarks/vs_ngspetsc.py
+    python3.12 -m venv /work/venvs/ngs     # a venv of its own: netgen brings its own OpenCASCADE
+    /work/venvs/ngs/bin/pip install dolfinx-solver-real scipy netgen-mesher packaging
+    /work/venvs/ngs/bin/pip install --no-deps ngsPETSc
+    PYTHONPATH=$PWD /work/venvs/ngs/bin/python benchmarks/vs_ngspetsc.py [--dim 3]
 
 Serial only (the comparison is of the refinement step itself).
 """
