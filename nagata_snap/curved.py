@@ -404,7 +404,7 @@ def _place_boundary_nodes(
     curved: dolfinx.mesh.Mesh, boundary: BoundaryFacets, snapped: np.ndarray, records: Records,
     geometry, ref: _Reference,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Places on the geometry of the non-vertex nodes of snapped facets (collective).
+    """Place the non-vertex nodes of snapped facets on the geometry (collective).
 
     Each facet's closure nodes get the record's parameters combined with the
     node's barycentric coordinates in the facet, and are placed by
