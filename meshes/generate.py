@@ -22,6 +22,7 @@ DFG channel (:func:`dfg_channel`): ``INLET=1, OUTLET=2, WALLS=3, CYLINDER=4``,
 cells ``FLUID=1``.
 :func:`sphere_in_box`: ``BOX=1, SPHERE=2`` (cells ``VOLUME=1``).
 :func:`ball`: ``BALL_SPHERE=1`` (cells ``VOLUME=1``).
+:func:`solid_torus`: ``TORUS_SURFACE=1`` (cells ``VOLUME=1``).
 :func:`cylinder_in_box`: ``CIB_WALLS=1`` (all box faces, including the two
 faces the hole passes through), ``CIB_CYLINDER=2`` (lateral surface of the
 hole) (cells ``VOLUME=1``).
@@ -67,6 +68,8 @@ BOX = 1
 SPHERE = 2
 #: ball facet tag
 BALL_SPHERE = 1
+#: solid_torus facet tag
+TORUS_SURFACE = 1
 #: cylinder_in_box facet tags
 CIB_WALLS = 1
 CIB_CYLINDER = 2
@@ -539,6 +542,14 @@ def squeeze_wall_layer(mesh, radius: float = 0.5, reach: float = 0.3, factor: fl
     x[sel] *= ((radius + factor * (r[sel] - radius)) / r[sel])[:, None]
 
 
+def _constant_size(h: float) -> None:
+    """Uniform mesh size ``h``: a constant background field."""
+    fld = gmsh.model.mesh.field
+    f = fld.add("MathEval")
+    fld.setString(f, "F", repr(float(h)))
+    fld.setAsBackgroundMesh(f)
+
+
 def ball(
     comm,
     radius: float = 1.0,
@@ -561,17 +572,48 @@ def ball(
         s = occ.addSphere(*center, radius)
         occ.synchronize()
         surfs = _boundary_surfaces([(3, s)])
-        # uniform size: a constant field
-        fld = gmsh.model.mesh.field
-        f = fld.add("MathEval")
-        fld.setString(f, "F", repr(float(h)))
-        fld.setAsBackgroundMesh(f)
+        _constant_size(h)
         gmsh.model.addPhysicalGroup(3, [s], VOLUME, name="volume")
         gmsh.model.addPhysicalGroup(2, surfs, BALL_SPHERE, name="sphere")
         gmsh.model.mesh.generate(3)
 
     return _build_and_convert(
         comm, "ball", build, 3, msh_file=msh_file, verbose=verbose, root=root,
+        partitioner=partitioner,
+    )
+
+
+def solid_torus(
+    comm,
+    major_radius: float = 1.0,
+    minor_radius: float = 0.5,
+    h: float = 0.3,
+    *,
+    msh_file: str | None = None,
+    verbose: bool = False,
+    root: int = 0,
+    partitioner=None,
+) -> MeshData:
+    """Tetrahedral mesh of the solid torus about the z axis, centre at the origin, size ``h``.
+
+    Volume ``2 pi^2 major_radius minor_radius^2``; its surface has two
+    different principal curvatures (unlike the ball's sphere).
+
+    Returns:
+        MeshData with facet tag TORUS_SURFACE=1 and cell tag VOLUME=1.
+    """
+
+    def build():
+        occ = gmsh.model.occ
+        t = occ.addTorus(0.0, 0.0, 0.0, major_radius, minor_radius)
+        occ.synchronize()
+        _constant_size(h)
+        gmsh.model.addPhysicalGroup(3, [t], VOLUME, name="volume")
+        gmsh.model.addPhysicalGroup(2, _boundary_surfaces([(3, t)]), TORUS_SURFACE, name="torus")
+        gmsh.model.mesh.generate(3)
+
+    return _build_and_convert(
+        comm, "solid_torus", build, 3, msh_file=msh_file, verbose=verbose, root=root,
         partitioner=partitioner,
     )
 
