@@ -31,10 +31,9 @@ import dolfinx.mesh
 
 from .boundary import (BoundaryFacets, boundary_facets, cell_facets_of, check_p1_simplex,
                        facets_of_cells, tag_values, update_nodes)
-from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, child_facets, child_interior_facets
-from .parallel import collective
+from .parallel import collective, collective_place
 from .quality import QualityReport, degenerate_cells
 from .records import Records, refine_records
 from .smoothing import InvertedCellsError, repair
@@ -237,19 +236,23 @@ class Snapper:
         """The mesh of the current level (the one :meth:`refine` expects)."""
         return self._level.mesh
 
-    def curved_mesh(self, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
-        """Degree-2 version of the current level's mesh, boundary mid-nodes on the geometry.
+    def curved_mesh(self, degree: int = 2, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
+        """Degree-``degree`` version of the current level's mesh, boundary nodes on the geometry.
 
         The result shares the straight mesh's topology, so its facet tags and
         ``parent_cell`` maps apply unchanged; keep refining the straight mesh.
-        See :func:`nagata_snap.curved.curved_mesh` (``kwargs``: ``min_ratio``,
-        ``max_bisections``).
+        See :func:`nagata_snap.curved.curved_mesh` (``kwargs``: ``variant``,
+        ``min_ratio``, ``max_bisections``).
+
+        Args:
+            degree: degree of the coordinate element, 2 (default), 3 or 4.
 
         Returns:
             ``(mesh, info)``.
         """
         lv = self._level
-        return curved_mesh(lv.mesh, lv.boundary, lv.snapped, lv.records, self.geometry, **kwargs)
+        return curved_mesh(lv.mesh, lv.boundary, lv.snapped, lv.records, self.geometry,
+                           degree=degree, **kwargs)
 
     def refine(
         self, mesh: dolfinx.mesh.Mesh, edges: npt.NDArray[np.int32] | None = None
@@ -309,14 +312,9 @@ class Snapper:
         x = mesh1.geometry.x
         x_ref = x.copy()
         nodes = ch.boundary.nodes[sel]
-        pts, records, geo_report = collective(self.comm, self.geometry.place, records, x[nodes])
-        unresolved = self.comm.allreduce(int(geo_report.get("n_unresolved", 0)))
-        if unresolved:
-            raise CadError(
-                f"{unresolved} new boundary vertices at level {self.level + 1} have no acceptable "
-                "projection onto the CAD geometry (Newton and every fallback failed or landed "
-                "farther than the local edge length); nothing was returned"
-            )
+        pts, records, geo_report = collective_place(
+            self.comm, self.geometry, records, x[nodes],
+            f"new boundary vertices at level {self.level + 1}")
         moved = update_nodes(mesh1, x, nodes.ravel(), pts.reshape(-1, 3))
         times["place"] = time.perf_counter() - t0
 

@@ -146,6 +146,20 @@ def test_sphere_p2_curved_beats_straight_snapped(tmp_path):
     assert curved[-1]["sphere_distance"] < 1e-12  # vertices and mid-nodes on the sphere
 
 
+def test_sphere_p3_runs_on_cubic_geometry(tmp_path):
+    """P3 in the ball solves on the degree-3 curved mesh and prints its order last (the
+    orders themselves are asserted on the disk in tests/test_curved.py: this mesh is coarse)."""
+    out = tmp_path / "sphere3.json"
+    r = run([SPHERE, "--degree", "3", "--geometry", "cad", "--levels", "1", "--h", "0.6",
+             "--quiet", "--json", out])
+    data = json.loads(out.read_text())
+    snapped, curved = data["runs"]["snapped"], data["runs"]["curved"]
+    assert curved[-1]["L2"] < snapped[-1]["L2"] / 10
+    assert curved[-1]["sphere_distance"] < 1e-12  # every boundary node on the sphere
+    last = r.stdout.strip().splitlines()[-1].split()
+    assert last[0] == "curved_p3_l2_order" and float(last[1]) == pytest.approx(curved[-1]["order_L2"], abs=1e-3)
+
+
 @pytest.mark.parametrize("script", [FLOW, SPHERE])
 def test_demo_help(script):
     r = run([script, "--help"])
