@@ -23,7 +23,10 @@ import dolfinx.fem as fem
 import generate
 
 from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.cad import CadGeometry
+from nagata_snap.iges import write_iges
 from nagata_snap.lineage import parent_cells
+from nagata_snap.nurbs import sphere as nurbs_sphere
 from nagata_snap.transfer import pull_back, transfer
 
 HERE = os.path.dirname(__file__)
@@ -54,11 +57,15 @@ def exactness_error(snapper, mesh0, mesh1, key):
     return max_abs(w.x.array - exact.x.array) / max_abs(exact.x.array), info
 
 
+DEGREES = (2, 3, 4)  # curved coordinate degrees
+
+
 def _snapped(dim):
+    """Snapper refined once; straight meshes and curved ones {degree: mesh} of both levels."""
     snapper, mesh0, ft0, _ = coarse_snapper(COMM, dim)
-    curved0, _ = snapper.curved_mesh()
+    curved0 = {k: snapper.curved_mesh(degree=k)[0] for k in DEGREES}
     mesh1, *_ = snapper.refine(mesh0)
-    curved1, _ = snapper.curved_mesh()
+    curved1 = {k: snapper.curved_mesh(degree=k)[0] for k in DEGREES}
     return snapper, mesh0, mesh1, curved0, curved1, ft0
 
 
@@ -124,45 +131,68 @@ def test_polynomial_of_the_space_degree_is_transferred_exactly(level, key):
     assert info.newton_points == 0  # straight parents: one affine inverse each
 
 
-def _candidates_eval(u0, V1, P):
-    """Per (owned child cell, local dof): DOLFINx's eval of u0 at the dof point in P[cell]."""
-    mesh1 = V1.mesh
-    n1 = mesh1.topology.index_map(mesh1.topology.dim).size_local
-    X = V1.tabulate_dof_coordinates()
-    dofs = V1.dofmap.list[:n1]
-    cells = np.repeat(P, dofs.shape[1]).astype(np.int32)
-    vals = u0.eval(X[dofs.ravel()], cells)
-    return dofs.ravel(), vals.reshape(len(cells), -1)
-
-
-@pytest.mark.parametrize("combo", ["straight-straight", "curved-curved", "straight-curved",
-                                   "curved-straight"])
-def test_value_is_the_parent_polynomial_at_the_child_point(level, combo):
-    """A smooth non-polynomial field: every dof is u0 evaluated (by DOLFINx, in the parent
-    cell of one of the children holding it) at the child's point, straight or curved."""
-    dim, snapper, mesh0, mesh1, curved0, curved1, _ = level
-    m0 = curved0 if combo.startswith("curved") else mesh0
-    m1 = curved1 if combo.endswith("curved") else mesh1
+def _max_eval_mismatch(snapper, m0, m1):
+    """Transfer a smooth P2 vector field from ``m0`` to ``m1``; return the largest difference
+    of a dof from DOLFINx's ``Function.eval`` of the source at the dof's point in the parent
+    of one of the cells holding it, and the transfer's info."""
+    dim = m1.topology.dim
     el = ("Lagrange", 2, (dim,))
     V0, V1 = fem.functionspace(m0, el), fem.functionspace(m1, el)
     u0 = fem.Function(V0)
     u0.interpolate(lambda x: np.stack([np.sin(2 * x[0]) * np.exp(x[1]) + 2, np.cos(x[dim - 1])
                                        + x[0] ** 3, *([x[2] ** 4] if dim == 3 else [])]))
     w, info = snapper.transfer(u0, V1, return_info=True)
-    dof, cand = _candidates_eval(u0, V1, snapper.parent_cells)
-    got = w.x.array.reshape(-1, dim)[dof]
+    n1 = m1.topology.index_map(dim).size_local
+    dofs = V1.dofmap.list[:n1]
+    cells = np.repeat(snapper.parent_cells, dofs.shape[1]).astype(np.int32)
+    cand = u0.eval(V1.tabulate_dof_coordinates()[dofs.ravel()], cells).reshape(len(cells), -1)
+    got = w.x.array.reshape(-1, dim)[dofs.ravel()]
     diff = np.full(V1.dofmap.index_map.size_local + V1.dofmap.index_map.num_ghosts, np.inf)
-    np.minimum.at(diff, dof, np.abs(got - cand).max(axis=1))
+    np.minimum.at(diff, dofs.ravel(), np.abs(got - cand).max(axis=1))
     n_own = V1.dofmap.index_map.size_local
-    assert COMM.allreduce(float(diff[:n_own].max()), op=MPI.MAX) < 1e-12
+    return COMM.allreduce(float(diff[:n_own].max()), op=MPI.MAX), info
+
+
+@pytest.mark.parametrize("combo", ["straight-straight", "curved2-curved2", "straight-curved2",
+                                   "curved2-straight", "curved3-curved3", "curved4-curved4",
+                                   "curved2-curved4"])
+def test_value_is_the_parent_polynomial_at_the_child_point(level, combo):
+    """A smooth non-polynomial field: every dof is u0 evaluated (by DOLFINx, in the parent
+    cell of one of the children holding it) at the child's point, on straight meshes and
+    curved ones of degree 2-4 (gll_warped nodes for 3 and 4)."""
+    dim, snapper, mesh0, mesh1, curved0, curved1, _ = level
+    a, b = combo.split("-")
+    m0 = curved0[int(a[-1])] if a.startswith("curved") else mesh0
+    m1 = curved1[int(b[-1])] if b.startswith("curved") else mesh1
+    err, info = _max_eval_mismatch(snapper, m0, m1)
+    assert err < 1e-12
     if combo.startswith("curved"):
         assert info.newton_points > 0 and 1 <= info.newton_iterations <= 8
-    # linear fields are reproduced exactly on any (curved) P2 geometry
+    # linear fields are reproduced exactly by P2 on these (Nagata: quadratic) geometries
+    el = ("Lagrange", 2, (dim,))
+    V0, V1 = fem.functionspace(m0, el), fem.functionspace(m1, el)
     lin = lambda x: np.stack([1 + x[0] - 2 * x[1] + 0.5 * x[dim - 1]] * dim)  # noqa: E731
+    u0, exact = fem.Function(V0), fem.Function(V1)
     u0.interpolate(lin)
-    exact = fem.Function(V1)
     exact.interpolate(lin)
     assert max_abs(snapper.transfer(u0, V1).x.array - exact.x.array) < 1e-13
+
+
+def test_cubic_cad_geometry_points_outside_curved_parents(tmp_path):
+    """Degree-3 meshes of a ball on the NURBS sphere (truly cubic cells): the child's nodes on
+    the sphere lie outside the parent's cubic surface, Newton pulls them back there."""
+    path = tmp_path / "sphere.igs"
+    if COMM.rank == 0:
+        write_iges(path, surfaces=[nurbs_sphere((0.0, 0.0, 0.0), 1.0)])
+    COMM.barrier()
+    md = generate.ball(COMM, radius=1.0, h=0.6)
+    snapper = Snapper(md.mesh, md.facet_tags, CadGeometry.from_iges(path), tags=[generate.BALL_SPHERE])
+    c0, _ = snapper.curved_mesh(degree=3)
+    snapper.refine(md.mesh)
+    c1, _ = snapper.curved_mesh(degree=3)
+    err, info = _max_eval_mismatch(snapper, c0, c1)
+    assert err < 1e-12
+    assert info.outside > 0 and info.newton_points > 0 and info.newton_iterations <= 8
 
 
 def _sup_error(u, f):
