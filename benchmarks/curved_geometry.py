@@ -23,8 +23,8 @@ import make_iges  # noqa: E402
 
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.iges import write_iges  # noqa: E402
-from nagata_snap.nurbs import sphere  # noqa: E402
+from nagata_snap.cad.iges import write_iges  # noqa: E402
+from nagata_snap.cad.nurbs import sphere  # noqa: E402
 
 
 def measure(m):

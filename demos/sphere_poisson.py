@@ -28,7 +28,7 @@ Three runs from the same coarse gmsh ball (``meshes/generate.py``):
   straight snapped cells limit the L2 error to order 2 (the domain error);
   the curved cells give order 3.  The Nagata patches are fixed by the coarse
   mesh, so their own (small) distance from the sphere is an error floor; with
-  ``--geometry cad`` the sphere is an exact NURBS (``nagata_snap.nurbs.sphere``)
+  ``--geometry cad`` the sphere is an exact NURBS (``nagata_snap.cad.nurbs.sphere``)
   and there is no floor.
 
 Examples::
@@ -155,7 +155,7 @@ def run(kind: str, args, comm) -> dict[str, list[dict]]:
     if kind == "snapped":
         if args.geometry == "cad":
             from nagata_snap.cad import CadGeometry
-            from nagata_snap.nurbs import sphere
+            from nagata_snap.cad.nurbs import sphere
 
             geometry = CadGeometry([sphere((0.0, 0.0, 0.0), 1.0)])
             snapper = nagata_snap.Snapper(mesh, ft, geometry, tags=[generate.BALL_SPHERE])

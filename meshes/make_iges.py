@@ -20,7 +20,7 @@ Files:
   do not depend on when or by whom they were made.
 * ``dfg_circle.igs``: the DFG benchmark cylinder, circle of radius 0.05 at
   (0.2, 0.2, 0), as an exact rational quadratic NURBS (entity 126, weights
-  ``sqrt(2)/2``) written by :func:`nagata_snap.iges.write_iges`.
+  ``sqrt(2)/2``) written by :func:`nagata_snap.cad.iges.write_iges`.
 
 Run ``python meshes/make_iges.py [outdir]``.
 """
@@ -38,8 +38,8 @@ HERE = Path(__file__).resolve().parent
 if str(HERE.parent) not in sys.path:
     sys.path.insert(0, str(HERE.parent))
 
-from nagata_snap.iges import _pack, _tokenize, write_iges  # noqa: E402
-from nagata_snap.nurbs import NurbsCurve  # noqa: E402
+from nagata_snap.cad.iges import _pack, _tokenize, write_iges  # noqa: E402
+from nagata_snap.cad.nurbs import NurbsCurve  # noqa: E402
 
 FIXED_DATE = "20000101.000000"
 

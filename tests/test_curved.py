@@ -16,8 +16,8 @@ import make_iges
 from nagata_snap import NagataGeometry, Snapper
 from nagata_snap.cad import CadGeometry
 from nagata_snap.curved import jacobian_determinants
-from nagata_snap.iges import write_iges
-from nagata_snap.nurbs import sphere
+from nagata_snap.cad.iges import write_iges
+from nagata_snap.cad.nurbs import sphere
 
 HERE = os.path.dirname(__file__)
 

@@ -1,4 +1,4 @@
-"""Tests of the IGES reader/writer (nagata_snap.iges) and meshes/make_iges.py.
+"""Tests of the IGES reader/writer (nagata_snap.cad.iges) and meshes/make_iges.py.
 
 Expected values come from the source documents (Kadir 2010, App. C: centre
 and radius printed in the Start section of the example files) or from
@@ -17,8 +17,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import make_iges  # meshes/ is on sys.path (conftest.py)
-from nagata_snap import iges as I
-from nagata_snap.iges import (
+from nagata_snap.cad import iges as I
+from nagata_snap.cad.iges import (
     IgesError,
     IgesModel,
     IgesWarning,
@@ -27,7 +27,7 @@ from nagata_snap.iges import (
     read_iges,
     write_iges,
 )
-from nagata_snap.nurbs import NurbsCurve, NurbsSurface
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
 
 import gmsh  # noqa: E402  (a dependency: a missing gmsh must fail, not skip)
 

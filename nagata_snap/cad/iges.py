@@ -57,7 +57,7 @@ from typing import Callable, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from nagata_snap.nurbs import NurbsCurve, NurbsError, NurbsSurface
+from .nurbs import NurbsCurve, NurbsError, NurbsSurface
 
 __all__ = [
     "IgesError",

@@ -4,7 +4,7 @@
 
 * :meth:`CadGeometry.attach` is the initialisation of the coarse mesh
   (Kadir 2.3.1): every boundary vertex is located on the CAD geometry by a
-  global search (:class:`nagata_snap.projection.GlobalSearcher`) and each
+  global search (:class:`nagata_snap.cad.projection.GlobalSearcher`) and each
   boundary facet is assigned ONE entity (curve or surface patch) on which all
   its vertices lie (the assumption of Kadir 2.3.4).  The per-vertex
   parameters are stored per facet (Kadir 2.3.2: the ``(n, u)`` / ``(n, u, v)``
@@ -36,7 +36,7 @@ midpoints are correct across seams.  Evaluation wraps them.
 Example (2D, a NURBS circle and a polygon of its points)::
 
     >>> import numpy as np
-    >>> from nagata_snap.nurbs import NurbsCurve
+    >>> from nagata_snap.cad.nurbs import NurbsCurve
     >>> from nagata_snap.cad import CadGeometry
     >>> s = np.sqrt(0.5)
     >>> P = [[1, 0], [1, 1], [0, 1], [-1, 1], [-1, 0], [-1, -1], [0, -1], [1, -1], [1, 0]]
@@ -73,7 +73,7 @@ from scipy.spatial import cKDTree
 from .iges import points_in_polygon
 from .nurbs import NurbsCurve, NurbsSurface
 from .projection import GlobalSearcher, evaluate_params, normalize_params
-from .records import Records
+from ..records import Records
 
 __all__ = ["CadError", "CadGeometry", "TrimLoops"]
 
@@ -164,7 +164,7 @@ class TrimLoops:
 
     IGES 144/142 faces (Kadir 2010, sec. 2.3): per surface an outer loop and
     holes, polygons in the surface's ``(u, v)`` NURBS parameters through points
-    of the true trimming curves (see :class:`nagata_snap.iges.IgesModel`).
+    of the true trimming curves (see :class:`nagata_snap.cad.iges.IgesModel`).
 
     Between two polygon vertices the true curve deviates from the chord by up
     to its sagitta, estimated as ``L * phi / 8`` (``L`` the chord, ``phi`` the
@@ -299,9 +299,9 @@ class CadGeometry:
     """Snapping geometry from NURBS curves (2D meshes) or surfaces (3D meshes).
 
     Args:
-        entities: the CAD entities, all :class:`~nagata_snap.nurbs.NurbsCurve`
+        entities: the CAD entities, all :class:`~nagata_snap.cad.nurbs.NurbsCurve`
             (2D: boundary segments are snapped to curves) or all
-            :class:`~nagata_snap.nurbs.NurbsSurface` (3D: triangles to surfaces).
+            :class:`~nagata_snap.cad.nurbs.NurbsSurface` (3D: triangles to surfaces).
         trim_loops: surfaces only: per entity the outer trimming loop, a
             ``(k, 2)`` polygon in its ``(u, v)`` parameters, or ``None`` (the
             whole surface is the face); e.g. ``IgesModel.trim_loops``.
@@ -396,7 +396,7 @@ class CadGeometry:
     ) -> "CadGeometry":
         """Geometry from the NURBS entities of an IGES file.
 
-        Uses :func:`nagata_snap.iges.read_iges`, whose result has ``.curves``
+        Uses :func:`nagata_snap.cad.iges.read_iges`, whose result has ``.curves``
         and ``.surfaces`` (as NURBS) and, per surface, ``.trim_loops`` and
         ``.trim_holes`` (144/142 trimming loops in parameter space), which are
         passed on for the surfaces.
