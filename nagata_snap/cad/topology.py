@@ -1,0 +1,306 @@
+"""The B-rep of a CAD file as plain objects: faces, edges, vertices, trimming loops.
+
+:class:`CadModel` is built from the data of :func:`nagata_snap.cad.read.read_shape`
+(no OpenCASCADE needed here):
+
+* every face gets its surface: :mod:`~nagata_snap.cad.surfaces` for planes,
+  cylinders, cones, spheres and tori, else a
+  :class:`~nagata_snap.cad.nurbs.NurbsSurface`;
+* every edge its 3D curve: :mod:`~nagata_snap.cad.curves` for lines and
+  circles, else a :class:`~nagata_snap.cad.nurbs.NurbsCurve`; degenerate edges
+  (sphere poles, cone apexes) have none;
+* every face its trimming loops: the p-curves of its wires, in the order of
+  the wire, sampled into closed polygons in the face's ``(u, v)`` plane.  Each
+  polygon segment remembers the edge it samples and how far (in length
+  units, through the surface's first derivatives) the true p-curve may be
+  from the chord: lines are exact (2 points), circles are sampled every
+  ``pi/16``, B-splines 8 times per knot span, and the deviation is measured
+  at every segment's mid-parameter.  Seam edges appear twice in a wire, with
+  their two p-curves, so a full revolution is a closed polygon of width one
+  period.
+* the adjacency: the faces of every edge and the (non-degenerate, non-seam)
+  edges of every face, the vertices of every edge.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .curves import Circle, Line, analytic_curve
+from .nurbs import NurbsCurve, NurbsError, NurbsSurface
+from .surfaces import AnalyticSurface, analytic_surface
+
+__all__ = ["CadModel", "Face", "Edge", "Loop", "sample_pcurve", "nurbs_curve", "nurbs_surface"]
+
+#: samples of a circular p-curve per radian (``pi / 16`` steps)
+CIRCLE_STEP = np.pi / 16
+#: samples of a B-spline p-curve per knot span
+SPLINE_SAMPLES = 8
+
+
+@dataclass
+class Loop:
+    """A closed trimming polygon in a face's ``(u, v)`` plane.
+
+    Attributes:
+        points: ``(m, 2)`` vertices; segment ``i`` runs from ``points[i]`` to
+            ``points[(i + 1) % m]``.
+        edges: ``(m,)`` edge index sampled by each segment.
+        band: ``(m,)`` bound on the distance (length units) between each
+            segment and the true trimming curve, plus the edge's tolerance.
+        senses: ``(m,)`` +1 where the wire runs along its edge's 3D curve,
+            -1 where against it (the edge is used reversed).
+        outer: the face's outer wire (``BRepTools::OuterWire``).
+    """
+
+    points: np.ndarray
+    edges: np.ndarray
+    band: np.ndarray
+    senses: np.ndarray
+    outer: bool = False
+
+
+@dataclass
+class Edge:
+    """A CAD edge: its 3D curve (``None`` if degenerate), vertices, faces."""
+
+    curve: Line | Circle | NurbsCurve | None
+    vertices: tuple[int, int]
+    faces: tuple[int, ...] = ()
+    tolerance: float = 0.0
+
+    @property
+    def degenerate(self) -> bool:
+        """A degenerate edge (a pole or an apex) has no 3D curve."""
+        return self.curve is None
+
+
+@dataclass
+class Face:
+    """A CAD face: surface, trimming loops, orientation and bounding edges.
+
+    Attributes:
+        surface: analytic surface or NURBS.
+        loops: trimming polygons (:class:`Loop`), outer and inner wires.
+        reversed: the face's orientation in the shape is ``REVERSED``: its
+            outward normal is ``-(S_u x S_v)``.
+        converted: the surface was converted to NURBS from another type, so
+            its parameters differ from the file's (and gmsh's).
+        edges: ``(k,)`` sorted non-degenerate, non-seam edges bounding the face.
+        solids: solids the face belongs to.
+    """
+
+    surface: AnalyticSurface | NurbsSurface
+    loops: list[Loop]
+    reversed: bool = False
+    converted: bool = False
+    edges: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    solids: tuple[int, ...] = ()
+
+
+def nurbs_curve(desc: dict) -> NurbsCurve:
+    """A :class:`NurbsCurve` from a B-spline description (2D poles get z = 0)."""
+    poles = np.asarray(desc["poles"], dtype=float)
+    if poles.shape[1] == 2:
+        poles = np.c_[poles, np.zeros(len(poles))]
+    w = desc.get("weights")
+    return NurbsCurve(int(desc["degree"]), np.asarray(desc["knots"], dtype=float), poles,
+                      np.ones(len(poles)) if w is None else np.asarray(w, dtype=float))
+
+
+def nurbs_surface(desc: dict) -> NurbsSurface:
+    """A :class:`NurbsSurface` from a B-spline surface description."""
+    poles = np.asarray(desc["poles"], dtype=float)
+    w = desc.get("weights")
+    p, q = desc["degree"]
+    return NurbsSurface(int(p), int(q), np.asarray(desc["knots_u"], dtype=float),
+                        np.asarray(desc["knots_v"], dtype=float), poles,
+                        np.ones(poles.shape[:2]) if w is None else np.asarray(w, dtype=float))
+
+
+def sample_pcurve(desc: dict, reverse: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Polygon of a p-curve and its deviation from the chords.
+
+    Returns:
+        ``(points (m, 2), dev (m - 1, 2))``: samples in traversal order
+        (reversed if the edge is used reversed) and, per segment, the true
+        curve at the mid-parameter minus the chord's midpoint.
+    """
+    t0, t1 = desc["range"]
+    kind = desc["type"]
+    if kind == "line":
+        t = np.array([t0, t1])
+        o, d = np.asarray(desc["origin"], float), np.asarray(desc["direction"], float)
+        pts = o + t[:, None] * d
+        dev = np.zeros((1, 2))
+    elif kind == "circle":
+        n = max(2, int(np.ceil(abs(t1 - t0) / CIRCLE_STEP)))
+        t = np.linspace(t0, t1, n + 1)
+        c, X, Y, R = (np.asarray(desc["center"], float), np.asarray(desc["x"], float),
+                      np.asarray(desc["y"], float), float(desc["radius"]))
+
+        def at(s):
+            return c + R * (np.cos(s)[:, None] * X + np.sin(s)[:, None] * Y)
+
+        pts = at(t)
+        dev = at(0.5 * (t[1:] + t[:-1])) - 0.5 * (pts[1:] + pts[:-1])
+    else:
+        curve = nurbs_curve(desc)
+        k = np.unique(curve.knots)
+        k = k[(k >= t0) & (k <= t1)]
+        k = np.unique(np.concatenate([[t0, t1], k]))
+        s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+        t = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
+        pts = curve.evaluate(t)[0][:, :2]
+        dev = curve.evaluate(0.5 * (t[1:] + t[:-1]))[0][:, :2] - 0.5 * (pts[1:] + pts[:-1])
+    if reverse:
+        pts, dev = pts[::-1], dev[::-1]
+    return pts, dev
+
+
+def _surface(desc: dict, uv) -> AnalyticSurface | NurbsSurface:
+    bounds = [[uv[0], uv[1]], [uv[2], uv[3]]]
+    if desc["type"] == "bspline":
+        return nurbs_surface(desc)
+    return analytic_surface(desc, bounds)
+
+
+def _loop(face_surface, wire: dict, tolerances: np.ndarray) -> Loop:
+    """Closed polygon of one wire: its edge uses' p-curve samples, joined."""
+    pts, dev, edge, sense = [], [], [], []
+    for use in wire["uses"]:
+        p, d = sample_pcurve(use["pcurve"], use["reversed"])
+        pts.append(p[:-1])  # the next use starts where this one ends
+        dev.append(d)
+        edge.append(np.full(len(d), use["edge"], dtype=np.int64))
+        sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
+    P = np.concatenate(pts)
+    D = np.concatenate(dev)
+    E = np.concatenate(edge)
+    # deviation in length units through the surface's first derivatives at the chord midpoints
+    mid = 0.5 * (P + np.roll(P, -1, axis=0))
+    T = _tangents(face_surface, mid)  # (m, 2, 3)
+    dev3 = np.linalg.norm(D[:, 0, None] * T[:, 0] + D[:, 1, None] * T[:, 1], axis=1)
+    band = 2.0 * dev3 + tolerances[E]
+    return Loop(P, E, band, np.concatenate(sense), bool(wire["outer"]))
+
+
+def _tangents(surface, params: np.ndarray) -> np.ndarray:
+    """``(k, 2, 3)`` first derivatives at parameters (wrapped/clamped for NURBS)."""
+    from .projection import evaluate_params, normalize_params
+
+    _, T = evaluate_params(surface, normalize_params(surface, params), 1)
+    return T
+
+
+class CadModel:
+    """Faces, edges and vertices of a CAD file (see the module docstring).
+
+    Attributes:
+        faces: list of :class:`Face`.
+        edges: list of :class:`Edge`.
+        vertices: ``(nv, 3)`` vertex points.
+        path, format, unit, file_units: where it came from and its units
+            (``unit``: of the coordinates here; ``file_units``: the file's own).
+        size: diagonal of the shape's bounding box.
+        times: seconds spent in OpenCASCADE (``read``, ``heal``, ``convert``)
+            and here (``build``).
+        num_solids: solids in the shape.
+    """
+
+    def __init__(self, faces, edges, vertices, *, path="", format="", unit="", file_units=(),
+                 size=0.0, times=None, num_solids=0, healed=None):
+        self.faces = list(faces)
+        self.edges = list(edges)
+        self.vertices = np.asarray(vertices, dtype=float).reshape(-1, 3)
+        self.path, self.format, self.unit = path, format, unit
+        self.file_units = list(file_units)
+        self.size = float(size)
+        self.times = dict(times or {})
+        self.num_solids = int(num_solids)
+        self.healed = dict(healed or {})
+
+    @classmethod
+    def from_data(cls, data: dict) -> "CadModel":
+        """Build the model from :func:`~nagata_snap.cad.read.read_shape`'s result.
+
+        Raises:
+            ValueError: a face or edge whose geometry is invalid (the message
+                names it; e.g. a B-spline with bad knots).
+        """
+        import time
+
+        t0 = time.perf_counter()
+        path = data.get("path", "")
+        edges = []
+        for i, e in enumerate(data["edges"]):
+            c = e["curve"]
+            try:
+                curve = None if c is None else (
+                    analytic_curve(c) if c["type"] in ("line", "circle") else nurbs_curve(c))
+            except (ValueError, NurbsError) as err:
+                raise ValueError(f"{path}: edge {i} ({c['type']} curve): {err}") from None
+            edges.append(Edge(curve, tuple(int(v) for v in e["vertices"]), (),
+                              float(e.get("tolerance", 0.0))))
+        tol = np.array([e.tolerance for e in edges] + [0.0])
+        faces = []
+        face_edges: list[set] = []
+        for i, f in enumerate(data["faces"]):
+            desc = f["surface"]
+            try:
+                surface = _surface(desc, f["uv"])
+                loops = [_loop(surface, w, tol) for w in f["wires"] if w["uses"]]
+            except (ValueError, NurbsError) as err:
+                raise ValueError(f"{path}: face {i} ({desc['type']} surface): {err}") from None
+            own = {u["edge"] for w in f["wires"] for u in w["uses"]
+                   if not u["seam"] and edges[u["edge"]].curve is not None}
+            face_edges.append(own)
+            faces.append(Face(surface, loops, bool(f["reversed"]), bool(f["converted"]),
+                              np.array(sorted(own), dtype=np.int64), tuple(f.get("solids", ()))))
+        users: list[list[int]] = [[] for _ in edges]
+        for i, own in enumerate(face_edges):
+            for e in own:
+                users[e].append(i)
+        for e, u in zip(edges, users):
+            e.faces = tuple(sorted(u))
+        times = dict(data.get("times", {}))
+        times["build"] = time.perf_counter() - t0
+        return cls(faces, edges, data["vertices"], path=path, format=data.get("format", ""),
+                   unit=data.get("unit", ""), file_units=data.get("file_units", ()),
+                   size=data.get("size", 0.0), times=times,
+                   num_solids=data.get("num_solids", 0), healed=data.get("healed"))
+
+    @property
+    def num_faces(self) -> int:
+        return len(self.faces)
+
+    def curve_edges(self) -> np.ndarray:
+        """Indices of the edges with a 3D curve (not degenerate)."""
+        return np.array([i for i, e in enumerate(self.edges) if e.curve is not None], dtype=np.int64)
+
+    def is_planar_2d(self, rtol: float = 1e-9) -> bool:
+        """All faces are planes in ``z = 0`` (a profile for 2D meshes), or there are no faces."""
+        if not self.faces:
+            return len(self.curve_edges()) > 0
+        tol = rtol * max(self.size, 1e-300)
+        for f in self.faces:
+            s = f.surface
+            if getattr(s, "kind", "") != "plane" or abs(s.origin[2]) > tol or \
+                    abs(abs(s.Z[2]) - 1.0) > rtol:
+                return False
+        return True
+
+    def summary(self) -> str:
+        kinds: dict[str, int] = {}
+        for f in self.faces:
+            k = getattr(f.surface, "kind", "nurbs")
+            k = "nurbs" if isinstance(f.surface, NurbsSurface) else k
+            kinds[k] = kinds.get(k, 0) + 1
+        what = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
+        return (f"{len(self.faces)} faces ({what}), {len(self.curve_edges())} edges, "
+                f"{len(self.vertices)} vertices, {self.num_solids} solids, unit {self.unit}")
+
+    def __repr__(self) -> str:
+        return f"CadModel({self.path!r}: {self.summary()})"
