@@ -20,7 +20,8 @@ class OccShape:
     def __init__(self, path: str, unit: str = "MM"):
         from OCP.TopoDS import TopoDS
 
-        self.shape, _, _, _, self.size = load_shape(path, unit)
+        self.shape, info = load_shape(path, unit)
+        self.size = info["size"]
         fm, em, vm, _ = shape_maps(self.shape)
         self.faces = [TopoDS.Face(fm.FindKey(i)) for i in range(1, fm.Extent() + 1)]
         self.edges = [TopoDS.Edge(em.FindKey(i)) for i in range(1, em.Extent() + 1)]

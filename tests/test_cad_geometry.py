@@ -180,7 +180,7 @@ def test_place_input_checks():
         geo.place(Records(rec.root[:-1], rec.params[:-1]), facets)
     with pytest.raises(ValueError, match="entities"):
         geo.place(Records(rec.root + 3, rec.params), facets)
-    with pytest.raises(ValueError, match="all NurbsCurve or all NurbsSurface"):
+    with pytest.raises(ValueError, match="all curves or all surfaces"):
         CadGeometry([circle(), sphere()])
     empty = geo.attach(np.zeros((0, 2, 3)))
     assert empty.root.shape == (0,) and empty.params.shape == (0, 2, 1)
@@ -266,7 +266,7 @@ def test_attach_with_node_ids_and_2d_input():
 
 
 # ----------------------------------------------------------------------
-# IGES input (nagata_snap.cad.iges, written by another engineer)
+# IGES input (written by nagata_snap.cad.iges, read by OpenCASCADE)
 # ----------------------------------------------------------------------
 def test_from_iges_round_trip(tmp_path):
     from nagata_snap.cad import iges
@@ -282,7 +282,7 @@ def test_from_iges_round_trip(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(pts - c, axis=2), R, rtol=1e-12, atol=0)
     only_curves = tmp_path / "c.igs"
     iges.write_iges(only_curves, curves=[circle(c, R)])
-    with pytest.raises(CadError, match="no NURBS surfaces"):
+    with pytest.raises(CadError, match="no faces to snap a 3D mesh onto"):
         CadGeometry.from_iges(only_curves, dim=3)
 
 

@@ -234,6 +234,7 @@ class _Topology:
         face_curves: per face, ``(k,)`` curve indices of its edges.
         face_vertices: per face, ``(k,)`` indices into :attr:`points` of its CAD vertices.
         points: ``(nv, 3)`` CAD vertices.
+        curve_faces, vertex_faces: the faces of each curve's edge / around each vertex.
         searcher: closest points on given edges (closed form / Newton).
     """
 
@@ -252,6 +253,14 @@ class _Topology:
             self.face_curves.append(c[c >= 0])
             vs = {v for e in f.edges for v in edges[e].vertices if v >= 0}
             self.face_vertices.append(np.array(sorted(vs), dtype=np.int64))
+        #: faces of each curve's edge, and faces around each CAD vertex
+        self.curve_faces = [np.array(edges[i].faces, dtype=np.int64)
+                            for i in np.flatnonzero(self.curve_of_edge >= 0)]
+        around: list[set] = [set() for _ in range(len(self.points))]
+        for f, vs in enumerate(self.face_vertices):
+            for v in vs:
+                around[v].add(f)
+        self.vertex_faces = [np.array(sorted(a), dtype=np.int64) for a in around]
         self.searcher = GlobalSearcher(self.curves) if self.curves else None
         if self.curves:
             self.lo = np.array([c.bbox[0] for c in self.curves])
@@ -406,8 +415,8 @@ class CadGeometry:
             unit: length unit of the geometry (STEP and IGES coordinates are
                 converted to it from the file's unit, as OpenCASCADE and gmsh
                 do: their default, and this one, is millimetres ``"MM"``; use
-                the same as gmsh's ``Geometry.OCCTargetUnit`` for the mesh).
-                BREP files have no unit.
+                the same as gmsh's ``Geometry.OCCTargetUnit`` for the mesh);
+                ``"FILE"``: the file's own unit.  BREP files have no unit.
             heal: run OpenCASCADE's shape healing.
             isolate: read in a child process (:mod:`nagata_snap.cad.worker`),
                 so that a file that crashes or hangs OpenCASCADE raises
@@ -443,9 +452,10 @@ class CadGeometry:
         return cls.from_model(model, dim=dim, **kwargs)
 
     @classmethod
-    def from_iges(cls, path: str | os.PathLike, *, dim: int | None = None, **kwargs) -> "CadGeometry":
-        """Geometry of an IGES file: :meth:`from_file` (OpenCASCADE reads it)."""
-        return cls.from_file(path, dim=dim, **kwargs)
+    def from_iges(cls, path: str | os.PathLike, *, dim: int | None = None, unit: str = "FILE",
+                  **kwargs) -> "CadGeometry":
+        """Geometry of an IGES file: :meth:`from_file`, by default in the file's own unit."""
+        return cls.from_file(path, dim=dim, unit=unit, **kwargs)
 
     # ------------------------------------------------------------------
     # basic queries
@@ -748,6 +758,18 @@ class CadGeometry:
         par, dist = res[0], res[2]
         if self._accept is not None:
             dist = np.where(res[3], dist, np.inf)
+        near = np.zeros(nv, dtype=bool)
+        near[pv[dist <= tv[pv]]] = True
+        lost = np.flatnonzero(~near)
+        if lost.size:  # off every candidate: the nearest entity anywhere (for the message)
+            g = self.searcher.search(V[lost], accept=self._accept)
+            gd = g[2] if self._accept is None else np.where(g[3], g[2], np.inf)
+            pv, pe = np.concatenate([pv, lost]), np.concatenate([pe, g[0]])
+            par, dist = np.concatenate([par, g[1]]), np.concatenate([dist, gd])
+            k = pv * ne + pe
+            o = np.lexsort((dist, k))  # the nearest result per (vertex, entity)
+            o = o[np.concatenate([[True], k[o][1:] != k[o][:-1]])]
+            pv, pe, par, dist = pv[o], pe[o], par[o], dist[o]
         key = pv * ne + pe
         order = np.argsort(key)
         key, par, dist = key[order], par[order], dist[order]
@@ -1137,19 +1159,30 @@ class CadGeometry:
     def _merge(self, ent, X, proj, par, seed, dist, valid, on_root, hs, chan):
         """One position per mesh vertex; CAD edges and corners; parameters of every slot.
 
+        Every slot of a vertex gets the position of its best slot (an edge or
+        corner slot first, then valid, on its own entity, nearest).  With
+        topology, a vertex on a CAD edge (corner) is taken to the nearest edge
+        curve (CAD vertex) of its face and from there onto the intersection of
+        the faces of that edge (vertex): the edge curves of a file are only
+        within their tolerance of the faces.  Every slot then takes the
+        parameters of the final position on its own entity.
+
         Returns ``(proj, par, dist, gid, rep_of_group, n_edge, max_edge_gap)``.
         """
         ns = len(ent)
         gid = _groups(X, MERGE_RTOL * self.size)
         cls = np.zeros(ns, dtype=np.int64)
+        fid = np.zeros(ns, dtype=np.int64)
         n_edge, gap = 0, 0.0
         if self.topology is not None and chan.shape[1]:
             cls = np.count_nonzero(chan == 1.0, axis=1)  # 0 face, 1 edge, >= 2 corner
             feat = np.flatnonzero(cls > 0)
             if feat.size:
-                fx, fok = self._features(ent[feat], X[feat], hs[feat], cls[feat])
-                proj[feat[fok]] = fx[fok]
-                cls[feat[~fok]] = 0
+                fx, ff = self._features(ent[feat], X[feat], hs[feat], cls[feat])
+                ok = ff != 0
+                proj[feat[ok]] = fx[ok]
+                fid[feat] = ff
+                cls[feat[~ok]] = 0
         order = np.lexsort((dist, ~on_root, ~valid, -np.minimum(cls, 2), gid))
         g_sorted = gid[order]
         first = np.ones(ns, dtype=bool)
@@ -1157,30 +1190,123 @@ class CadGeometry:
         rep_of_group = np.empty(int(gid.max()) + 1, dtype=np.int64)
         rep_of_group[g_sorted[first]] = order[first]
         rep = rep_of_group[gid]
-        moved = np.linalg.norm(proj - proj[rep], axis=1) > 1e-9 * self.size
         feat_slot = cls[rep] > 0
+        if feat_slot.any():  # onto the intersection of the feature's faces
+            gap = self._onto_feature(rep_of_group, gid, ent, proj, par, fid, hs)
+            n_edge = int(np.unique(gid[feat_slot]).size)
+        moved = np.linalg.norm(proj - proj[rep], axis=1) > 1e-9 * self.size
         redo = (feat_slot | moved) & (ent == ent[rep]) if self.topology is None else (feat_slot | moved)
         proj = proj[rep]
         if redo.any():  # the slot's parameters of the representative position, on its own entity
             p, _, dd, _, _ = self._project(ent[redo], proj[redo], par[redo])
             par[redo] = self._unwrap(ent[redo], p, seed[redo])
-            if self.topology is not None and np.any(feat_slot):
-                n_edge = int(np.unique(gid[feat_slot]).size)
-                gap = float(dd[feat_slot[redo]].max(initial=0.0))
+            if feat_slot.any():
+                gap = max(gap, float(dd[feat_slot[redo]].max(initial=0.0)))
         if self.topology is None:
             n_edge, gap = self._edge_vertices(gid, ent, proj, par, seed, X, hs)
         dist = np.linalg.norm(proj - X, axis=1)
         return proj, par, dist, gid, rep_of_group, n_edge, gap
 
+    def _onto_feature(self, rep_of_group, gid, ent, proj, par, fid, hs) -> float:
+        """Move feature vertices onto the intersection of their edge's (vertex's) faces.
+
+        ``fid``: per slot ``c + 1`` for edge curve ``c``, ``-(v + 1)`` for CAD
+        vertex ``v``.  Updates ``proj`` of the representative slots in place;
+        returns the largest remaining distance to one of the faces.
+        """
+        top = self.topology
+        reps = rep_of_group[np.unique(gid)]
+        reps = reps[fid[reps] != 0]
+        faces = [top.curve_faces[f - 1] if f > 0 else top.vertex_faces[-f - 1] for f in fid[reps]]
+        cnt = np.array([len(f) for f in faces])
+        multi = cnt > 1
+        reps, cnt = reps[multi], cnt[multi]
+        if reps.size == 0:
+            return 0.0
+        gpos = np.repeat(np.arange(reps.size), cnt)
+        pe = np.concatenate([f for f, m in zip(faces, multi) if m])
+        # seeds: the representative's own parameters on its own face
+        seeds = np.full((len(pe), self.param_dim), np.nan)
+        own = pe == ent[reps][gpos]
+        seeds[own] = par[reps][gpos[own]]
+        x, _, g = self._intersect(proj[reps], gpos, pe, seeds, hs[reps], proj[reps])
+        proj[reps] = x
+        return float(g.max(initial=0.0))
+
+    def _intersect(self, x0, gpos, pe, seeds, hg, anchor):
+        """Gauss-Newton onto the intersection of several entities per point.
+
+        Points ``x0 (G, 3)``; pairs ``(gpos (m,), pe (m,))`` (point, entity),
+        sorted by point, with Newton seeds ``(m, d)`` (NaN: from the entity's
+        search samples).  Each step projects ``x`` onto every entity of the
+        point and moves it to the nearest point of the intersection of the
+        tangent planes there (``n_i . (y - p_i) = 0``, least squares, step
+        capped to ``hg``).  The best point over :data:`EDGE_SWEEPS` steps is
+        kept if it is nearer all the entities than the start and within ``hg``
+        of ``anchor``.
+
+        Returns ``(x (G, 3), params (m, d), gap (G,))``: ``gap`` the largest
+        distance of the final point to one of its entities.
+        """
+        G, m = len(x0), len(gpos)
+        start = np.searchsorted(gpos, np.arange(G))
+        rank = np.arange(m) - start[gpos]
+        etol = EDGE_RTOL * self.size
+
+        def distances(x, sd):
+            pp, px, pd = np.zeros((m, self.param_dim)), np.zeros((m, 3)), np.zeros(m)
+            known = np.all(np.isfinite(sd), axis=1)
+            if known.any():
+                k = np.flatnonzero(known)
+                pp[k], px[k], pd[k], _, _ = self.searcher.refine(gpos[k], pe[k], sd[k], x, self.max_iter)
+            if not known.all():
+                k = np.flatnonzero(~known)
+                pp[k], px[k], pd[k] = self.searcher.search_on(x[gpos[k]], pe[k])
+            score = np.zeros(G)
+            np.maximum.at(score, gpos, pd)
+            return pp, px, score
+
+        x = x0.copy()
+        pp, px, score = distances(x, seeds)
+        pp0, score0 = pp.copy(), score.copy()
+        best_x, best_pp, best = x.copy(), pp.copy(), score.copy()
+        todo = best > etol
+        mr = int(rank.max()) + 1
+        for _sweep in range(EDGE_SWEEPS):
+            if not todo.any():
+                break
+            nrm = self._normals(pe, pp)  # (m, 3), zero where degenerate (pole)
+            N = np.zeros((G, mr, 3))
+            N[gpos, rank] = nrm
+            res = np.zeros((G, mr))
+            res[gpos, rank] = np.einsum("ij,ij->i", nrm, x[gpos] - px)
+            gram = np.einsum("gij,gkj->gik", N, N)
+            gram[:, np.arange(mr), np.arange(mr)] += 1e-12 + (np.linalg.norm(N, axis=2) == 0)
+            lam = np.linalg.solve(gram, res[:, :, None])[:, :, 0]
+            step = np.einsum("gi,gij->gj", lam, N)
+            sl_ = np.linalg.norm(step, axis=1)
+            step *= np.minimum(1.0, hg / np.maximum(sl_, 1e-300))[:, None]
+            x = np.where(todo[:, None], x - step, x)
+            pp, px, score = distances(x, pp)
+            better = todo & (score < best)
+            best_x[better], best[better] = x[better], score[better]
+            best_pp[better[gpos]] = pp[better[gpos]]
+            todo &= best > etol
+        keep = (best < score0) & (np.linalg.norm(best_x - anchor, axis=1) <= hg)
+        x_fin = np.where(keep[:, None], best_x, x0)
+        pp_fin = np.where(keep[gpos][:, None], best_pp, pp0)
+        return x_fin, pp_fin, np.where(keep, best, score0)
+
     def _features(self, ent, X, hs, cls):
         """Positions of edge and corner slots: nearest edge curve / CAD vertex of their face.
 
-        Returns ``(points (k, 3), found (k,))``.
+        Returns ``(points (k, 3), feature (k,))``: ``c + 1`` for edge curve
+        ``c``, ``-(v + 1)`` for CAD vertex ``v``, 0 where none was found.
         """
         top = self.topology
         k = len(ent)
         out = np.zeros((k, 3))
-        found = np.zeros(k, dtype=bool)
+        fid = np.zeros(k, dtype=np.int64)
         # corners: the nearest CAD vertex of the face within the facet's tolerance
         corner = np.flatnonzero(cls >= 2)
         if corner.size:
@@ -1193,9 +1319,9 @@ class CadGeometry:
                               dv <= self.tol_factor * hs[slot], corner.size)
             hit = best >= 0
             out[corner[hit]] = top.points[vert[best[hit]]]
-            found[corner[hit]] = True
+            fid[corner[hit]] = -(vert[best[hit]] + 1)
         # edges (and corners without a vertex nearby): the nearest edge curve of the face
-        todo = np.flatnonzero(~found)
+        todo = np.flatnonzero(fid == 0)
         if todo.size and top.searcher is not None:
             cnt = np.array([len(top.face_curves[e]) for e in ent[todo]])
             slot = np.repeat(todo, cnt)
@@ -1209,8 +1335,8 @@ class CadGeometry:
             best = _best_rows(grp, res[2], res[2] <= hs[slot], todo.size)
             hit = best >= 0
             out[todo[hit]] = res[1][best[hit]]
-            found[todo[hit]] = True
-        return out, found
+            fid[todo[hit]] = crv[best[hit]] + 1
+        return out, fid
 
     def _normals(self, ent: np.ndarray, params: np.ndarray) -> np.ndarray:
         """Unit ``S_u x S_v`` (zero where degenerate) of surfaces; curves: zero."""
@@ -1333,49 +1459,12 @@ class CadGeometry:
         gpos = gpos.reshape(-1)
         G = groups.size
         start = np.searchsorted(gpos, np.arange(G))  # pairs are sorted by group
-        rank = np.arange(m) - start[gpos]
         gslot = first_slot[pidx][start]  # one slot per edge vertex
         x = proj[gslot].copy()
         hg = np.zeros(G)
         sl = np.flatnonzero(np.isin(gid, groups))
         np.maximum.at(hg, np.searchsorted(groups, gid[sl]), hs[sl])
-        etol = EDGE_RTOL * self.size
-
-        def distances(x, seeds):
-            pp, px, pd, _, _ = self.searcher.refine(np.arange(m), pe, seeds, x[gpos], self.max_iter)
-            score = np.zeros(G)
-            np.maximum.at(score, gpos, pd)
-            return pp, px, score
-
-        pp, px, score = distances(x, par[first_slot[pidx]])
-        pp0, score0 = pp.copy(), score.copy()
-        best_x, best_pp, best = x.copy(), pp.copy(), score.copy()
-        todo = best > etol
-        mr = int(rank.max()) + 1
-        for _sweep in range(EDGE_SWEEPS):
-            if not todo.any():
-                break
-            nrm = self._normals(pe, pp)  # (m, 3), zero where degenerate (pole)
-            N = np.zeros((G, mr, 3))
-            N[gpos, rank] = nrm
-            res = np.zeros((G, mr))
-            res[gpos, rank] = np.einsum("ij,ij->i", nrm, x[gpos] - px)
-            gram = np.einsum("gij,gkj->gik", N, N)
-            gram[:, np.arange(mr), np.arange(mr)] += 1e-12 + (np.linalg.norm(N, axis=2) == 0)
-            lam = np.linalg.solve(gram, res[:, :, None])[:, :, 0]
-            step = np.einsum("gi,gij->gj", lam, N)
-            sl_ = np.linalg.norm(step, axis=1)
-            step *= np.minimum(1.0, hg / np.maximum(sl_, 1e-300))[:, None]
-            x = np.where(todo[:, None], x - step, x)
-            pp, px, score = distances(x, pp)
-            better = todo & (score < best)
-            best_x[better], best[better] = x[better], score[better]
-            best_pp[better[gpos]] = pp[better[gpos]]
-            todo &= best > etol
-        keep = (best < score0) & (np.linalg.norm(best_x - X[gslot], axis=1) <= hg)
-        x_fin = np.where(keep[:, None], best_x, proj[gslot])
-        pp_fin = np.where(keep[gpos][:, None], best_pp, pp0)
-        gap = np.where(keep, best, score0)
+        x_fin, pp_fin, gap = self._intersect(x, gpos, pe, par[first_slot[pidx]], hg, X[gslot])
         pos = np.full(len(ukey), -1, dtype=np.int64)
         pos[pidx] = np.arange(m)
         ps = pos[inv]

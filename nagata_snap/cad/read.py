@@ -87,7 +87,7 @@ def _check_finite(values, what: str) -> None:
 # reading and healing
 # ----------------------------------------------------------------------
 def _read(path: str, fmt: str, unit: str):
-    """The shape of the file and the file's own length unit names."""
+    """``(shape, the file's own length unit names, unit of the shape's coordinates)``."""
     from OCP.BRep import BRep_Builder
     from OCP.BRepTools import BRepTools
     from OCP.IFSelect import IFSelect_ReturnStatus
@@ -98,32 +98,68 @@ def _read(path: str, fmt: str, unit: str):
         shape = TopoDS_Shape()
         if not BRepTools.Read_s(shape, path, BRep_Builder()):
             raise ReadError(f"{path}: OpenCASCADE cannot read it as a BREP file")
-        return shape, []
-    if fmt == "step":
-        from OCP.STEPControl import STEPControl_Reader
+        return shape, [], unit
+    from OCP.IGESControl import IGESControl_Reader
+    from OCP.STEPControl import STEPControl_Reader
 
-        reader = STEPControl_Reader()
-    else:
-        from OCP.IGESControl import IGESControl_Reader
-
-        reader = IGESControl_Reader()
-    Interface_Static.SetCVal_s("xstep.cascade.unit", unit)
+    reader = STEPControl_Reader() if fmt == "step" else IGESControl_Reader()
+    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM" if unit == "FILE" else unit)
+    if fmt == "iges":  # keep B-splines whole (OpenCASCADE splits them at C0 knots by default)
+        Interface_Static.SetIVal_s("read.iges.bspline.continuity", 0)
     status = reader.ReadFile(path)
     if status != IFSelect_ReturnStatus.IFSelect_RetDone:
         raise ReadError(f"{path}: OpenCASCADE cannot read it as a {fmt.upper()} file ({status.name})")
+    file_units = _file_units(reader, fmt)
+    if unit == "FILE":  # the file's own unit: set it (IGES applies it while reading: read again)
+        own = _unit_key(file_units[0]) if len(file_units) == 1 else None
+        if own is None:
+            raise ReadError(f"{path}: cannot keep the file's length unit {file_units} (give unit=)")
+        Interface_Static.SetCVal_s("xstep.cascade.unit", own)
+        if fmt == "iges":
+            reader = IGESControl_Reader()
+            reader.ReadFile(path)
+        unit = own
+    reader.TransferRoots()
+    if reader.NbShapes() == 0:
+        raise ReadError(f"{path}: the file holds no shape OpenCASCADE can transfer (empty shape)")
+    return reader.OneShape(), file_units, unit
+
+
+#: unit names of STEP (``FileUnits``) and IGES (global section) files -> :data:`UNITS` keys
+_UNIT_NAMES = {"millimetre": "MM", "millimeter": "MM", "metre": "M", "meter": "M",
+               "centimetre": "CM", "centimeter": "CM", "kilometre": "KM", "kilometer": "KM",
+               "inch": "INCH", "foot": "FT", "mile": "MI", "micrometre": "UM", "micrometer": "UM",
+               "nanometre": "NM", "nanometer": "NM", "mil": "MIL"}
+
+
+#: IGES unit flags (Global parameter 14)
+_IGES_FLAGS = {1: "INCH", 2: "MM", 4: "FT", 5: "MI", 6: "M", 7: "KM", 8: "MIL", 9: "UM", 10: "CM"}
+
+
+def _unit_key(name: str) -> str | None:
+    n = name.strip()
+    return _UNIT_NAMES.get(n.lower()) or (n.upper() if n.upper() in UNITS else None)
+
+
+def _file_units(reader, fmt: str) -> list[str]:
+    """The file's own length unit names (STEP: of every representation; IGES: global section)."""
     if fmt == "step":
         from OCP.OCP.collections import Sequence_TCollection_AsciiString as Names
 
         names, angles, solid = Names(), Names(), Names()
         reader.FileUnits(names, angles, solid)
-        file_units = sorted({names.Value(i + 1).ToCString() for i in range(names.Length())})
-    else:
-        g = reader.IGESModel().GlobalSection()
-        file_units = [g.UnitName().ToCString()] if g.UnitName() is not None else []
-    reader.TransferRoots()
-    if reader.NbShapes() == 0:
-        raise ReadError(f"{path}: the file holds no shape OpenCASCADE can transfer (empty shape)")
-    return reader.OneShape(), file_units
+        return sorted({names.Value(i + 1).ToCString() for i in range(names.Length())})
+    g = reader.IGESModel().GlobalSection()
+    name = g.UnitName().ToCString() if g.UnitName() is not None else ""
+    if not _unit_key(name):  # the unit flag (IGES 5.3 Global parameter 14) names it
+        name = _IGES_FLAGS.get(g.UnitFlag(), name)
+    return [name] if name else []
+
+
+#: sewing tolerances tried, relative to the model size: the first that leaves no free
+#: edge is used (IGES edge curves of faces of revolution can be ~1e-5 off their
+#: neighbours'), else the last
+SEW_RTOL = (1e-6, 1e-5, 1e-4)
 
 
 def _heal(shape, size: float, sew: bool | None):
@@ -136,11 +172,14 @@ def _heal(shape, size: float, sew: bool | None):
     if sew is None:
         sew = _count(shape, TopAbs_FACE) > 1 and _count(shape, TopAbs_SHELL) == 0
     if sew:
-        s = BRepBuilderAPI_Sewing(1e-6 * size)
-        s.Add(shape)
-        s.Perform()
+        for rtol in SEW_RTOL:
+            s = BRepBuilderAPI_Sewing(rtol * size)
+            s.Add(shape)
+            s.Perform()
+            if s.NbFreeEdges() == 0:
+                break
         shape = s.SewedShape()
-        done["sewn"] = True
+        done = {"sewn": True, "tolerance": rtol * size, "free_edges": s.NbFreeEdges()}
     fix = ShapeFix_Shape(shape)
     fix.Perform()
     return fix.Shape(), done
@@ -358,8 +397,8 @@ def _face(face, index: int, edge_map) -> dict:
                 f"face {index} ({surface['type']} surface): OpenCASCADE cannot convert it to NURBS: "
                 f"{type(e).__name__}: {e}") from None
 
-        def edge_of(e, conv=conv):
-            return TopoDS.Edge(conv.ModifiedShape(e))
+        def edge_of(e, conv=conv):  # the converted edge, used as the original (seams!)
+            return TopoDS.Edge(conv.ModifiedShape(e).Oriented(e.Orientation()))
     uv = BRepTools.UVBounds_s(pface)
     return {
         "surface": surface,
@@ -390,7 +429,11 @@ def _ancestors(shape, kind, parent, maps_child, maps_parent) -> list[list[int]]:
 
 def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
                sew: bool | None = None) -> tuple:
-    """Read and heal a file: ``(shape, file_units, healed, times, size)`` (see :func:`read_shape`)."""
+    """Read and heal a file: ``(shape, info)`` (see :func:`read_shape`).
+
+    ``info``: ``file_units``, ``unit`` (of the coordinates), ``healed``,
+    ``times`` and ``size`` (bounding-box diagonal).
+    """
     from OCP.TopAbs import TopAbs_VERTEX
 
     path = os.fspath(path)
@@ -398,13 +441,13 @@ def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     if fmt is None:
         raise ReadError(f"{path}: unknown CAD file extension (expected one of {', '.join(sorted(FORMATS))})")
     unit = str(unit).upper()
-    if unit not in UNITS:
-        raise ReadError(f"unknown length unit {unit!r} (expected one of {', '.join(UNITS)})")
+    if unit not in UNITS and unit != "FILE":
+        raise ReadError(f"unknown length unit {unit!r} (expected one of {', '.join(UNITS)} or FILE)")
     if not os.path.isfile(path):
         raise ReadError(f"{path}: no such file")
     times = {}
     t0 = time.perf_counter()
-    shape, file_units = _read(path, fmt, unit)
+    shape, file_units, unit = _read(path, fmt, unit)
     times["read"] = time.perf_counter() - t0
     if shape.IsNull() or _count(shape, TopAbs_VERTEX) == 0:
         raise ReadError(f"{path}: the file holds an empty shape (no vertices, edges or faces)")
@@ -416,7 +459,8 @@ def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     if heal:
         shape, healed = _heal(shape, size, sew)
     times["heal"] = time.perf_counter() - t0
-    return shape, file_units, healed, times, size
+    return shape, {"file_units": file_units, "unit": unit, "healed": healed, "times": times,
+                   "size": size, "format": fmt}
 
 
 def shape_maps(shape) -> tuple:
@@ -440,12 +484,14 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     Args:
         path: the file; the format is taken from its extension.
         unit: length unit of the coordinates returned (a key of :data:`UNITS`,
-            as OpenCASCADE's ``xstep.cascade.unit``); STEP and IGES
-            coordinates are converted to it, BREP coordinates are kept.
+            as OpenCASCADE's ``xstep.cascade.unit``), to which STEP and IGES
+            coordinates are converted; ``"FILE"`` keeps the file's own unit.
+            BREP coordinates are always kept.
         heal: run ``ShapeFix_Shape`` on the shape.
-        sew: sew the faces into shells (``BRepBuilderAPI_Sewing``, tolerance
-            1e-6 of the model size); default: when the shape has several faces
-            and no shell (IGES files usually).
+        sew: sew the faces into shells (``BRepBuilderAPI_Sewing``, at the
+            smallest tolerance of :data:`SEW_RTOL` that leaves no free edge);
+            default: when the shape has several faces and no shell (IGES files
+            usually).
 
     Raises:
         ReadError: unknown extension, unreadable file, empty shape, a face
@@ -457,7 +503,8 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     from OCP.TopoDS import TopoDS
 
     path = os.fspath(path)
-    shape, file_units, healed, times, size = load_shape(path, unit, heal, sew)
+    shape, info = load_shape(path, unit, heal, sew)
+    times = info["times"]
     t0 = time.perf_counter()
     fmap, emap, vmap, smap = shape_maps(shape)
     vertices = np.array([_xyz(BRep_Tool.Pnt_s(TopoDS.Vertex(vmap.FindKey(i))))
@@ -482,7 +529,7 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     for f, s in zip(faces, solids):
         f["solids"] = s
     times["convert"] = time.perf_counter() - t0
-    fmt = FORMATS[os.path.splitext(path)[1].lower()]
-    return {"path": path, "format": fmt, "unit": str(unit).upper(), "file_units": file_units,
-            "size": size, "healed": healed, "times": times, "num_solids": smap.Extent(),
-            "vertices": vertices, "vertex_tolerance": vtol, "edges": edges, "faces": faces}
+    return {"path": path, "format": info["format"], "unit": info["unit"],
+            "file_units": info["file_units"], "size": info["size"], "healed": info["healed"],
+            "times": times, "num_solids": smap.Extent(), "vertices": vertices,
+            "vertex_tolerance": vtol, "edges": edges, "faces": faces}
