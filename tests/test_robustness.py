@@ -392,7 +392,7 @@ def test_cad_curves_for_a_3d_mesh():
     mesh = dolfinx.mesh.create_unit_cube(COMM, 2, 2, 2)
     ft = exterior_tags(mesh)
     cad = CadGeometry([circle((0.5, 0.5, 0.0), 0.5)])
-    raises(CadError, "need NURBS surfaces", Snapper, mesh, ft, cad)
+    raises(CadError, "need surfaces", Snapper, mesh, ft, cad)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, 1e300], ids=["nan", "inf", "1e300"])

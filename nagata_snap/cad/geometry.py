@@ -772,7 +772,7 @@ class CadGeometry:
             pv, pe, par, dist = pv[o], pe[o], par[o], dist[o]
         key = pv * ne + pe
         order = np.argsort(key)
-        key, par, dist = key[order], par[order], dist[order]
+        key, par, dist, pv, pe = key[order], par[order], dist[order], pv[order], pe[order]
         # candidate (facet, entity): entities within tolerance of a facet vertex
         cnt_v = np.bincount(pv, minlength=nv)
         start_v = np.concatenate([[0], np.cumsum(cnt_v)])[:-1]
@@ -780,25 +780,20 @@ class CadGeometry:
         rows = np.repeat(start_v[vid], cnt) + _ramp(cnt)
         fac = np.repeat(np.repeat(np.arange(nf), nfv), cnt)
         near = dist[rows] <= tol[fac]
-        pair = np.unique(fac[near] * ne + key[rows[near]] % ne)
-        cf, ce = pair // ne, pair % ne
+        # ... and each vertex's nearest entity (the facet's distance for the error message)
+        best = _best_rows(pv, dist, np.ones(len(pv), dtype=bool), nv)[vid]
+        bf = np.repeat(np.arange(nf), nfv)[best >= 0]
+        pair = np.unique(np.concatenate([fac[near] * ne + key[rows[near]] % ne,
+                                         bf * ne + pe[best[best >= 0]]]))
+        cf, ce = pair // ne, pair % ne  # every facet has one (its vertices' nearest entities)
         need = gid[cf].reshape(-1) * ne + np.repeat(ce, nfv)
-        pos = np.minimum(np.searchsorted(key, need), max(len(key) - 1, 0))
-        found = key[pos] == need if len(key) else np.zeros(len(need), dtype=bool)
-        dv = np.where(found, dist[pos] if len(key) else np.inf, np.inf).reshape(-1, nfv)
-        dmax = dv.max(axis=1)
+        pos = np.minimum(np.searchsorted(key, need), len(key) - 1)
+        dmax = np.where(key[pos] == need, dist[pos], np.inf).reshape(-1, nfv).max(axis=1)
+        # choose per facet: smallest largest distance, ties to the lowest entity index
         order = np.lexsort((ce, dmax, cf))
-        first = np.searchsorted(cf[order], np.arange(nf))
-        ok = first < len(order)
-        choice = order[np.minimum(first, max(len(order) - 1, 0))]
-        ok &= cf[choice] == np.arange(nf) if len(order) else ok
-        root = np.where(ok, ce[choice] if len(order) else 0, 0).astype(np.int64)
-        score = np.where(ok, dmax[choice] if len(order) else np.inf, np.inf)
-        params = np.zeros((nf, nfv, d))
-        if len(order):
-            p = par[pos].reshape(-1, nfv, d)[choice]
-            params[ok] = p[ok]
-        return root, params, score
+        choice = order[np.searchsorted(cf[order], np.arange(nf))]
+        params = par[pos].reshape(-1, nfv, d)[choice]
+        return ce[choice].astype(np.int64), params, dmax[choice]
 
     def _on_faces(self, fp: np.ndarray, gid: np.ndarray, faces, seeds):
         """Parameters of every facet vertex on a given entity (known faces, optional seeds)."""

@@ -13,9 +13,10 @@
   the wire, sampled into closed polygons in the face's ``(u, v)`` plane.  Each
   polygon segment remembers the edge it samples and how far (in length
   units, through the surface's first derivatives) the true p-curve may be
-  from the chord: lines are exact (2 points), circles are sampled every
-  ``pi/16``, B-splines 8 times per knot span, and the deviation is measured
-  at every segment's mid-parameter.  Seam edges appear twice in a wire, with
+  from the chord: lines are exact (2 points); circles (first every ``pi/16``)
+  and B-splines (first 8 times per knot span) are refined until the
+  deviation, measured at every segment's mid-parameter, is below 1e-5 of the
+  face's size.  Seam edges appear twice in a wire, with
   their two p-curves, so a full revolution is a closed polygon of width one
   period.
 * the adjacency: the faces of every edge and the (non-degenerate, non-seam)
@@ -36,8 +37,13 @@ __all__ = ["CadModel", "Face", "Edge", "Loop", "sample_pcurve", "nurbs_curve", "
 
 #: samples of a circular p-curve per radian (``pi / 16`` steps)
 CIRCLE_STEP = np.pi / 16
-#: samples of a B-spline p-curve per knot span
+#: samples of a B-spline p-curve per knot span (before refinement)
 SPLINE_SAMPLES = 8
+#: trimming polygons are refined until every chord is within this fraction of the
+#: face's size of its p-curve (``SAMPLE_RTOL x size``; at most :data:`MAX_REFINE`
+#: halvings of a segment)
+SAMPLE_RTOL = 1e-5
+MAX_REFINE = 10
 
 
 @dataclass
@@ -120,44 +126,58 @@ def nurbs_surface(desc: dict) -> NurbsSurface:
                         np.ones(poles.shape[:2]) if w is None else np.asarray(w, dtype=float))
 
 
-def sample_pcurve(desc: dict, reverse: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Polygon of a p-curve and its deviation from the chords.
-
-    Returns:
-        ``(points (m, 2), dev (m - 1, 2))``: samples in traversal order
-        (reversed if the edge is used reversed) and, per segment, the true
-        curve at the mid-parameter minus the chord's midpoint.
-    """
+def pcurve_evaluator(desc: dict):
+    """``f(t (k,)) -> (k, 2)`` points of a p-curve description, and its initial samples."""
     t0, t1 = desc["range"]
     kind = desc["type"]
     if kind == "line":
-        t = np.array([t0, t1])
         o, d = np.asarray(desc["origin"], float), np.asarray(desc["direction"], float)
-        pts = o + t[:, None] * d
-        dev = np.zeros((1, 2))
-    elif kind == "circle":
-        n = max(2, int(np.ceil(abs(t1 - t0) / CIRCLE_STEP)))
-        t = np.linspace(t0, t1, n + 1)
+        return (lambda t: o + np.asarray(t)[:, None] * d), np.array([t0, t1])
+    if kind == "circle":
         c, X, Y, R = (np.asarray(desc["center"], float), np.asarray(desc["x"], float),
                       np.asarray(desc["y"], float), float(desc["radius"]))
+        n = max(2, int(np.ceil(abs(t1 - t0) / CIRCLE_STEP)))
+        return (lambda t: c + R * (np.cos(t)[:, None] * X + np.sin(t)[:, None] * Y)), \
+            np.linspace(t0, t1, n + 1)
+    curve = nurbs_curve(desc)
+    k = np.unique(curve.knots)
+    k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
+    s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+    t = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
+    return (lambda t: curve.evaluate(t)[0][:, :2]), t
 
-        def at(s):
-            return c + R * (np.cos(s)[:, None] * X + np.sin(s)[:, None] * Y)
 
-        pts = at(t)
-        dev = at(0.5 * (t[1:] + t[:-1])) - 0.5 * (pts[1:] + pts[:-1])
-    else:
-        curve = nurbs_curve(desc)
-        k = np.unique(curve.knots)
-        k = k[(k >= t0) & (k <= t1)]
-        k = np.unique(np.concatenate([[t0, t1], k]))
-        s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
-        t = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
-        pts = curve.evaluate(t)[0][:, :2]
-        dev = curve.evaluate(0.5 * (t[1:] + t[:-1]))[0][:, :2] - 0.5 * (pts[1:] + pts[:-1])
+def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Polygon of a p-curve, refined until its chords are within ``tol`` of the curve.
+
+    Segments whose mid-parameter point is farther than ``tol`` from the chord's
+    midpoint (in length units through the ``surface``'s first derivatives;
+    parametric distance without a surface) are split, up to
+    :data:`MAX_REFINE` times.
+
+    Returns:
+        ``(points (m, 2), dev (m - 1,))``: samples in traversal order (reversed
+        if the edge is used reversed) and each segment's deviation.
+    """
+    f, t = pcurve_evaluator(desc)
+    P = f(t)
+    for _ in range(MAX_REFINE + 1):
+        tm = 0.5 * (t[1:] + t[:-1])
+        off = f(tm) - 0.5 * (P[1:] + P[:-1])  # (m - 1, 2)
+        if surface is None:
+            dev = np.linalg.norm(off, axis=1)
+        else:
+            T = _tangents(surface, 0.5 * (P[1:] + P[:-1]))
+            dev = np.linalg.norm(off[:, 0, None] * T[:, 0] + off[:, 1, None] * T[:, 1], axis=1)
+        split = dev > tol
+        if desc["type"] == "line" or not split.any() or _ == MAX_REFINE:
+            break
+        t = np.sort(np.concatenate([t, tm[split]]))
+        P = f(t)
     if reverse:
-        pts, dev = pts[::-1], dev[::-1]
-    return pts, dev
+        P, dev = P[::-1], dev[::-1]
+    return P, dev
 
 
 def _surface(desc: dict, uv) -> AnalyticSurface | NurbsSurface:
@@ -168,23 +188,22 @@ def _surface(desc: dict, uv) -> AnalyticSurface | NurbsSurface:
 
 
 def _loop(face_surface, wire: dict, tolerances: np.ndarray) -> Loop:
-    """Closed polygon of one wire: its edge uses' p-curve samples, joined."""
+    """Closed polygon of one wire: its edge uses' p-curve samples, joined.
+
+    Each segment's band is twice its deviation from the p-curve (length
+    units, see :func:`sample_pcurve`) plus the edge's tolerance.
+    """
+    tol = SAMPLE_RTOL * face_surface.bbox_size
     pts, dev, edge, sense = [], [], [], []
     for use in wire["uses"]:
-        p, d = sample_pcurve(use["pcurve"], use["reversed"])
+        p, d = sample_pcurve(use["pcurve"], use["reversed"], face_surface, tol)
         pts.append(p[:-1])  # the next use starts where this one ends
         dev.append(d)
         edge.append(np.full(len(d), use["edge"], dtype=np.int64))
         sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
-    P = np.concatenate(pts)
-    D = np.concatenate(dev)
     E = np.concatenate(edge)
-    # deviation in length units through the surface's first derivatives at the chord midpoints
-    mid = 0.5 * (P + np.roll(P, -1, axis=0))
-    T = _tangents(face_surface, mid)  # (m, 2, 3)
-    dev3 = np.linalg.norm(D[:, 0, None] * T[:, 0] + D[:, 1, None] * T[:, 1], axis=1)
-    band = 2.0 * dev3 + tolerances[E]
-    return Loop(P, E, band, np.concatenate(sense), bool(wire["outer"]))
+    band = 2.0 * np.concatenate(dev) + tolerances[E]
+    return Loop(np.concatenate(pts), E, band, np.concatenate(sense), bool(wire["outer"]))
 
 
 def _tangents(surface, params: np.ndarray) -> np.ndarray:
