@@ -20,7 +20,11 @@ surfaces, curves and trimming loops:
   plane (``"line"``, ``"circle"`` or ``"bspline"`` with its parameter range).
   Seam edges appear twice in a wire, once per p-curve.  A face whose surface
   is neither analytic nor a B-spline (surface of revolution or extrusion,
-  offset surface, Bezier, ...) is converted with
+  offset surface, ...) but is a plane, cylinder, cone, sphere or torus
+  (``GeomConvert_SurfToAnaSurf``, as IGES files write them) gets that
+  analytic surface and a grid of its own parameters and points, from which
+  the parameter map is fitted; a Bezier surface becomes a B-spline with the
+  same parameters; anything else is converted with
   ``BRepBuilderAPI_NurbsConvert``, together with its p-curves, and marked
   ``converted`` (its ``(u, v)`` then differ from the file's).
 * ``edges``: the 3D curve (``"line"``, ``"circle"``, else a B-spline from
@@ -159,28 +163,51 @@ def _file_units(reader, fmt: str) -> list[str]:
 #: sewing tolerances tried, relative to the model size: the first that leaves no free
 #: edge is used (IGES edge curves of faces of revolution can be ~1e-5 off their
 #: neighbours'), else the last
-SEW_RTOL = (1e-6, 1e-5, 1e-4)
+SEW_RTOL = (1e-5, 1e-4)
 
 
 def _heal(shape, size: float, sew: bool | None):
-    """``ShapeFix_Shape``; faces that share no edge (IGES) are sewn first."""
+    """Faces that share no edge (IGES files) are sewn, closed shells made solids, and the
+    result fixed with ``ShapeFix_Shape``.  STEP and IGES transfers already run
+    OpenCASCADE's shape processing (``FixShape``), so other shapes are kept."""
+    from OCP.BRep import BRep_Builder, BRep_Tool
     from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
-    from OCP.ShapeFix import ShapeFix_Shape
+    from OCP.ShapeFix import ShapeFix_Shape, ShapeFix_Solid
     from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS, TopoDS_Compound
 
-    done = {"sewn": False}
     if sew is None:
         sew = _count(shape, TopAbs_FACE) > 1 and _count(shape, TopAbs_SHELL) == 0
-    if sew:
-        for rtol in SEW_RTOL:
-            s = BRepBuilderAPI_Sewing(rtol * size)
-            s.Add(shape)
-            s.Perform()
-            if s.NbFreeEdges() == 0:
-                break
-        shape = s.SewedShape()
-        done = {"sewn": True, "tolerance": rtol * size, "free_edges": s.NbFreeEdges()}
-    fix = ShapeFix_Shape(shape)
+    if not sew:
+        return shape, {"sewn": False}
+    for rtol in SEW_RTOL:
+        s = BRepBuilderAPI_Sewing(rtol * size)
+        s.Add(shape)
+        s.Perform()
+        if s.NbFreeEdges() == 0:
+            break
+    done = {"sewn": True, "tolerance": rtol * size, "free_edges": s.NbFreeEdges(), "solids": 0}
+    sewn = s.SewedShape()
+    # closed shells -> solids (oriented outward), the rest as it is
+    comp, b = TopoDS_Compound(), BRep_Builder()
+    b.MakeCompound(comp)
+    ex = TopExp_Explorer(sewn, TopAbs_SHELL)
+    shells = 0
+    while ex.More():
+        shell = TopoDS.Shell(ex.Current())
+        shells += 1
+        if BRep_Tool.IsClosed_s(shell):
+            b.Add(comp, ShapeFix_Solid().SolidFromShell(shell))
+            done["solids"] += 1
+        else:
+            b.Add(comp, shell)
+        ex.Next()
+    ex = TopExp_Explorer(sewn, TopAbs_FACE, TopAbs_SHELL)  # faces in no shell
+    while ex.More():
+        b.Add(comp, ex.Current())
+        ex.Next()
+    fix = ShapeFix_Shape(comp if shells else sewn)
     fix.Perform()
     return fix.Shape(), done
 
@@ -247,7 +274,61 @@ def _bspline_curve(c, dim: int) -> dict:
             "knots": np.array(knots)}
 
 
-def _surface(face) -> tuple[dict, bool]:
+def _elementary(s) -> dict | None:
+    """Description of an OpenCASCADE elementary surface (``Geom_Plane``, ...), else None."""
+    from OCP.Geom import (Geom_ConicalSurface, Geom_CylindricalSurface, Geom_Plane,
+                          Geom_SphericalSurface, Geom_ToroidalSurface)
+
+    if isinstance(s, Geom_Plane):
+        return {"type": "plane", **_ax3(s.Position())}
+    if isinstance(s, Geom_CylindricalSurface):
+        return {"type": "cylinder", **_ax3(s.Position()), "radius": s.Radius()}
+    if isinstance(s, Geom_ConicalSurface):
+        return {"type": "cone", **_ax3(s.Position()), "radius": s.RefRadius(),
+                "semi_angle": s.SemiAngle()}
+    if isinstance(s, Geom_SphericalSurface):
+        return {"type": "sphere", **_ax3(s.Position()), "radius": s.Radius()}
+    if isinstance(s, Geom_ToroidalSurface):
+        return {"type": "torus", **_ax3(s.Position()), "major": s.MajorRadius(),
+                "minor": s.MinorRadius()}
+    return None
+
+
+#: samples per direction of a recognised surface (its parameter map is fitted to them)
+MAP_SAMPLES = 9
+
+
+def _recognised(face, size: float) -> dict | None:
+    """An analytic twin of a face's other surface (surface of revolution or extrusion, ...).
+
+    ``GeomConvert_SurfToAnaSurf`` finds the plane, cylinder, cone, sphere or
+    torus within 1e-9 of the model size; its parameters differ from the
+    face's, so the description carries a grid of the face's ``(u, v)`` and the
+    points there (``"samples"``), to which :mod:`nagata_snap.cad.topology`
+    fits the parameter map.
+    """
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepTools import BRepTools
+    from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
+
+    geo = BRep_Tool.Surface_s(face)  # with the face's location applied
+    try:
+        conv = GeomConvert_SurfToAnaSurf(geo)
+        ana = conv.ConvertToAnalytical(1e-9 * size)
+    except Exception:
+        return None
+    desc = None if ana is None else _elementary(ana)
+    if desc is None or not conv.Gap() <= 1e-9 * size:
+        return None
+    u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+    uu, vv = np.meshgrid(np.linspace(u0, u1, MAP_SAMPLES), np.linspace(v0, v1, MAP_SAMPLES),
+                         indexing="ij")
+    uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    desc["samples"] = (uv, np.array([_xyz(geo.Value(u, v)) for u, v in uv]))
+    return desc
+
+
+def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
     """Description of a face's surface; ``(desc, needs NurbsConvert)``."""
     from OCP.BRepAdaptor import BRepAdaptor_Surface
     from OCP.GeomAbs import GeomAbs_SurfaceType as T
@@ -275,6 +356,10 @@ def _surface(face) -> tuple[dict, bool]:
         return _bspline_surface(a.BSpline()), False
     if t == T.GeomAbs_BezierSurface:
         return _bspline_surface(GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
+    desc = _recognised(face, size)
+    if desc is not None:
+        desc["source"] = t.name.replace("GeomAbs_", "")
+        return desc, False
     return {"type": t.name.replace("GeomAbs_", "")}, True
 
 
@@ -374,20 +459,20 @@ def _wires(face, pface, edge_map, edge_of) -> list[dict]:
     return wires
 
 
-def _face(face, index: int, edge_map) -> dict:
+def _face(face, index: int, edge_map, size: float) -> dict:
     """Surface, bounds, orientation and wires of one face (converting it if needed)."""
     from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
     from OCP.BRepTools import BRepTools
     from OCP.TopAbs import TopAbs_Orientation
     from OCP.TopoDS import TopoDS
 
-    surface, convert = _surface(face)
+    surface, convert = _surface(face, size)
     pface, edge_of = face, (lambda e: e)
     if convert:
         try:
             conv = BRepBuilderAPI_NurbsConvert(face, True)
             pface = TopoDS.Face(conv.Shape())
-            surface, convert_again = _surface(pface)
+            surface, convert_again = _surface(pface, size)
             if convert_again:
                 raise ReadError(f"BRepBuilderAPI_NurbsConvert gave a {surface['type']} surface")
         except ReadError as e:
@@ -487,7 +572,8 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
             as OpenCASCADE's ``xstep.cascade.unit``), to which STEP and IGES
             coordinates are converted; ``"FILE"`` keeps the file's own unit.
             BREP coordinates are always kept.
-        heal: run ``ShapeFix_Shape`` on the shape.
+        heal: sew faces that share no edge (see ``sew``), make solids of the
+            closed shells and fix the result (``ShapeFix_Shape``).
         sew: sew the faces into shells (``BRepBuilderAPI_Sewing``, at the
             smallest tolerance of :data:`SEW_RTOL` that leaves no free edge);
             default: when the shape has several faces and no shell (IGES files
@@ -523,7 +609,8 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
             "tolerance": BRep_Tool.Tolerance_s(e),
             "degenerate": BRep_Tool.Degenerated_s(e),
         })
-    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap) for i in range(1, fmap.Extent() + 1)]
+    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, info["size"])
+             for i in range(1, fmap.Extent() + 1)]
     solids = _ancestors(shape, TopAbs_FACE, TopAbs_SOLID, fmap, smap) if smap.Extent() else \
         [[] for _ in faces]
     for f, s in zip(faces, solids):

@@ -78,9 +78,20 @@ class AnalyticSurface:
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
         self.bounds = b
         self._frame = np.stack([self.X, self.Y, self.Z])  # (3, 3) rows X, Y, Z
-        lo, hi = self._sample_box()
-        self.bbox = (lo, hi)
-        self.bbox_size = float(np.linalg.norm(hi - lo))
+        self._box = None
+
+    @property
+    def bbox(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)`` box of the face's parameter box (grid samples plus their sagitta)."""
+        if self._box is None:
+            self._box = self._sample_box()
+        return self._box
+
+    @property
+    def bbox_size(self) -> float:
+        """Diagonal of :attr:`bbox` (length units)."""
+        lo, hi = self.bbox
+        return float(np.linalg.norm(hi - lo))
 
     # -- protocol ------------------------------------------------------
     closed = (False, False)
@@ -109,8 +120,8 @@ class AnalyticSurface:
 
     def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box of the face's parameter box (grid samples plus their sagitta)."""
-        u = np.linspace(*self.bounds[0], 33)
-        v = np.linspace(*self.bounds[1], 33)
+        u = np.linspace(*self.bounds[0], 17)
+        v = np.linspace(*self.bounds[1], 17)
         uu, vv = np.meshgrid(u, v, indexing="ij")
         S = self._points(uu.ravel(), vv.ravel())
         pad = self._sagitta(u[1] - u[0], v[1] - v[0])

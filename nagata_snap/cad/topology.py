@@ -96,6 +96,9 @@ class Face:
             its parameters differ from the file's (and gmsh's).
         edges: ``(k,)`` sorted non-degenerate, non-seam edges bounding the face.
         solids: solids the face belongs to.
+        uv_map: ``(3, 2)`` affine map ``[u, v, 1] M`` of the file's (and gmsh's)
+            parameters to the surface's, for faces recognised as analytic
+            (IGES surfaces of revolution, ...), else None.
     """
 
     surface: AnalyticSurface | NurbsSurface
@@ -104,6 +107,7 @@ class Face:
     converted: bool = False
     edges: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     solids: tuple[int, ...] = ()
+    uv_map: np.ndarray | None = None
 
 
 def nurbs_curve(desc: dict) -> NurbsCurve:
@@ -147,7 +151,7 @@ def pcurve_evaluator(desc: dict):
     return (lambda t: curve.evaluate(t)[0][:, :2]), t
 
 
-def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0
+def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_map=None
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Polygon of a p-curve, refined until its chords are within ``tol`` of the curve.
 
@@ -158,9 +162,15 @@ def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0
 
     Returns:
         ``(points (m, 2), dev (m - 1,))``: samples in traversal order (reversed
-        if the edge is used reversed) and each segment's deviation.
+        if the edge is used reversed), mapped by ``uv_map`` ``(3, 2)`` if
+        given, and each segment's deviation.
     """
     f, t = pcurve_evaluator(desc)
+    if uv_map is not None:
+        f0 = f
+
+        def f(t):
+            return np.c_[f0(t), np.ones(len(t))] @ uv_map
     P = f(t)
     for _ in range(MAX_REFINE + 1):
         tm = 0.5 * (t[1:] + t[:-1])
@@ -180,23 +190,64 @@ def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0
     return P, dev
 
 
-def _surface(desc: dict, uv) -> AnalyticSurface | NurbsSurface:
+def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
+    """The face's surface, and the map of the file's ``(u, v)`` to its parameters (or None)."""
     bounds = [[uv[0], uv[1]], [uv[2], uv[3]]]
     if desc["type"] == "bspline":
-        return nurbs_surface(desc)
-    return analytic_surface(desc, bounds)
+        return nurbs_surface(desc), None
+    if "samples" not in desc:
+        return analytic_surface(desc, bounds), None
+    return fit_uv_map(desc, bounds)
 
 
-def _loop(face_surface, wire: dict, tolerances: np.ndarray) -> Loop:
+def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
+    """Analytic surface of a recognised face and the affine map of the face's parameters.
+
+    ``desc["samples"] = (uv (k, 2), points (k, 3))``: a grid over the face's
+    own ``(u, v)`` box and its points.  Their closed-form parameters on the
+    analytic surface (unwrapped along the grid in closed directions) are fitted
+    by ``(u', v') = [u, v, 1] M`` (least squares on the grid's interior, clear
+    of poles and apexes, where a parameter is free); the map is accepted if
+    it reproduces every sample point within 1e-9 of the face's size.
+
+    Returns:
+        ``(surface, M (3, 2))``, the surface's bounds the image of the face's box.
+
+    Raises:
+        ValueError: no affine map fits (the caller converts to NURBS instead).
+    """
+    uv, xyz = (np.asarray(a, dtype=float) for a in desc["samples"])
+    n = int(round(np.sqrt(len(uv))))
+    size = float(np.linalg.norm(xyz.max(axis=0) - xyz.min(axis=0)))
+    probe = analytic_surface(desc, [[0.0, 2 * np.pi], [-1.0, 1.0]])
+    P = probe.closest(xyz)[0]
+    for a, per in enumerate(probe.periods):
+        if np.isfinite(per):
+            g = np.unwrap(P[:, a].reshape(n, n), period=per, axis=1)
+            P[:, a] = np.unwrap(g, period=per, axis=0).ravel()
+    inner = np.zeros((n, n), dtype=bool)
+    inner[1:-1, 1:-1] = True
+    inner = inner.ravel() if n > 2 else np.ones(len(uv), dtype=bool)
+    A = np.c_[uv, np.ones(len(uv))]
+    M = np.linalg.lstsq(A[inner], P[inner], rcond=None)[0]  # (3, 2)
+    err = np.linalg.norm(probe._points(*(A @ M).T) - xyz, axis=1).max()
+    if not err <= 1e-9 * max(size, 1e-300):
+        raise ValueError(f"no affine parameter map onto the {desc['type']} (error {err:.2e})")
+    corners = np.c_[np.array([[b0, b1] for b0 in bounds[0] for b1 in bounds[1]]), np.ones(4)] @ M
+    return analytic_surface(desc, np.stack([corners.min(axis=0), corners.max(axis=0)], axis=1)), M
+
+
+def _loop(face_surface, wire: dict, tolerances: np.ndarray, uv_map=None) -> Loop:
     """Closed polygon of one wire: its edge uses' p-curve samples, joined.
 
     Each segment's band is twice its deviation from the p-curve (length
-    units, see :func:`sample_pcurve`) plus the edge's tolerance.
+    units, see :func:`sample_pcurve`) plus the edge's tolerance.  ``uv_map``
+    ``(3, 2)`` maps the file's parameters to the surface's.
     """
     tol = SAMPLE_RTOL * face_surface.bbox_size
     pts, dev, edge, sense = [], [], [], []
     for use in wire["uses"]:
-        p, d = sample_pcurve(use["pcurve"], use["reversed"], face_surface, tol)
+        p, d = sample_pcurve(use["pcurve"], use["reversed"], face_surface, tol, uv_map)
         pts.append(p[:-1])  # the next use starts where this one ends
         dev.append(d)
         edge.append(np.full(len(d), use["edge"], dtype=np.int64))
@@ -269,15 +320,18 @@ class CadModel:
         for i, f in enumerate(data["faces"]):
             desc = f["surface"]
             try:
-                surface = _surface(desc, f["uv"])
-                loops = [_loop(surface, w, tol) for w in f["wires"] if w["uses"]]
+                surface, uv_map = _surface(desc, f["uv"])
+                loops = [_loop(surface, w, tol, uv_map) for w in f["wires"] if w["uses"]]
             except (ValueError, NurbsError) as err:
                 raise ValueError(f"{path}: face {i} ({desc['type']} surface): {err}") from None
+            # a map that flips the parameter plane flips S_u x S_v
+            flip = uv_map is not None and np.linalg.det(uv_map[:2]) < 0
             own = {u["edge"] for w in f["wires"] for u in w["uses"]
                    if not u["seam"] and edges[u["edge"]].curve is not None}
             face_edges.append(own)
-            faces.append(Face(surface, loops, bool(f["reversed"]), bool(f["converted"]),
-                              np.array(sorted(own), dtype=np.int64), tuple(f.get("solids", ()))))
+            faces.append(Face(surface, loops, bool(f["reversed"]) != flip, bool(f["converted"]),
+                              np.array(sorted(own), dtype=np.int64), tuple(f.get("solids", ())),
+                              uv_map))
         users: list[list[int]] = [[] for _ in edges]
         for i, own in enumerate(face_edges):
             for e in own:
