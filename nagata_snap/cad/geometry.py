@@ -327,8 +327,8 @@ class CadGeometry:
         self.model = model
         self.trims = self._trims(trim_loops, trim_holes, trim_rtol)
         extra = None if self.trims is None else [self.trims.loop_points(e) for e in range(len(entities))]
-        filt = None if self.trims is None else (
-            lambda e, P: self.trims.inside(np.full(len(P), e), P))
+        filt = None if self.trims is None else (  # search samples inside the loops only
+            lambda e, P: self.trims.inside(np.full(len(P), e), P, band=False))
         self.searcher = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds,
                                        sample_filter=filt, extra_samples=extra)
         self.size = self.searcher.size
@@ -447,9 +447,11 @@ class CadGeometry:
             raise CadError(err)
         try:
             model = CadModel.from_data(data)
-        except ValueError as e:
-            raise CadError(str(e)) from None
-        return cls.from_model(model, dim=dim, **kwargs)
+            return cls.from_model(model, dim=dim, **kwargs)
+        except ValueError as e:  # geometry OpenCASCADE accepted but that cannot be used
+            msg = str(e)
+            raise CadError(msg if os.fspath(path) in msg or data["path"] in msg
+                           else f"{data['path']}: {msg}") from None
 
     @classmethod
     def from_iges(cls, path: str | os.PathLike, *, dim: int | None = None, unit: str = "FILE",

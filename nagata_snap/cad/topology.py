@@ -253,8 +253,13 @@ def _loop(face_surface, wire: dict, tolerances: np.ndarray, uv_map=None) -> Loop
         edge.append(np.full(len(d), use["edge"], dtype=np.int64))
         sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
     E = np.concatenate(edge)
+    P = np.concatenate(pts)
+    if len(np.unique(np.round(P / max(np.ptp(P), 1e-300), 12), axis=0)) < 3 or \
+            not np.all(np.isfinite(P)):
+        raise ValueError("a trimming wire has fewer than 3 distinct (finite) points in the "
+                         "parameter plane")
     band = 2.0 * np.concatenate(dev) + tolerances[E]
-    return Loop(np.concatenate(pts), E, band, np.concatenate(sense), bool(wire["outer"]))
+    return Loop(P, E, band, np.concatenate(sense), bool(wire["outer"]))
 
 
 def _tangents(surface, params: np.ndarray) -> np.ndarray:

@@ -223,9 +223,22 @@ class TrimLoops:
             out[sel] = best
         return out
 
-    def inside(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:
-        """``(n,)`` bool: ``params`` lies on face ``ent`` (within its band)."""
-        return self.excess(ent, params) <= 0.0
+    def inside(self, ent: npt.ArrayLike, params: npt.ArrayLike, band: bool = True) -> np.ndarray:
+        """``(n,)`` bool: ``params`` lies on face ``ent`` (within its band; without
+        ``band``: inside the polygons, even-odd, at the wrapped parameter only)."""
+        if band:
+            return self.excess(ent, params) <= 0.0
+        from .projection import normalize_params
+
+        ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
+        out = np.ones(len(ent), dtype=bool)
+        for e in np.unique(ent[self.trimmed[ent]]):  # loop over trimmed entities
+            sel = np.flatnonzero(ent == e)
+            q = normalize_params(self.entities[e], params[sel])
+            cross = sum(_crossings(P, q) for P, _, _ in self._loops[e])
+            out[sel] = cross % 2 == 1
+        return out
 
     def loop_points(self, e: int) -> np.ndarray | None:
         """All loop vertices of surface ``e`` ``(k, 2)``, or ``None`` if untrimmed."""

@@ -5,12 +5,12 @@ and IGES files; inside the user's (possibly MPI) process that would be fatal.
 :func:`read_cad` therefore sends the request to a reader server: a plain
 Python process started once per session (``python worker.py``, without the
 package, so it never initialises MPI) that has imported OCP and forks a
-fresh child for every file.  The child runs :func:`nagata_snap.cad.read.read_shape`
-and sends back its plain-data result; a crash, a non-zero exit or a
-time-out of the child is reported as :class:`~nagata_snap.cad.CadError`
-naming the file, and the server keeps serving.  Forking an already
-initialised server makes a read cost milliseconds more than in-process
-(``isolate=False`` reads in this process).
+reader child.  The child runs :func:`nagata_snap.cad.read.read_shape` and
+sends back its plain-data result; if it crashes or does not answer within
+the time-out, the server kills it, reports :class:`~nagata_snap.cad.CadError`
+naming the file, and a spare child forked in advance takes over (a fork of
+the server, with OpenCASCADE loaded, costs tens of milliseconds; a reader
+serves requests until it fails).  ``isolate=False`` reads in this process.
 
 Protocol on the server's stdin/stdout: length-prefixed pickles, request
 ``(path, kwargs, timeout)``, reply ``(status, payload)`` with status
@@ -36,9 +36,13 @@ __all__ = ["read_cad", "shutdown"]
 _MPI_ENV = ("PMI_", "PMIX_", "MPI_", "HYDRA_", "OMPI_", "MPICH_", "I_MPI_", "SLURM_")
 
 
-def _send(f, obj) -> None:
+def _frame(obj) -> bytes:
     data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
-    f.write(struct.pack("<Q", len(data)) + data)
+    return struct.pack("<Q", len(data)) + data
+
+
+def _send(f, obj) -> None:
+    f.write(_frame(obj))
     f.flush()
 
 
@@ -78,51 +82,78 @@ def _load_reader():
     return mod
 
 
-def _child(reader, path, kwargs, w: int) -> None:
-    try:
-        res = ("ok", reader.read_shape(path, **kwargs))
-    except reader.ReadError as e:
-        res = ("error", str(e))
-    except BaseException as e:  # OpenCASCADE's exceptions arrive as Python exceptions
-        res = ("error", f"{path}: OpenCASCADE failed: {type(e).__name__}: {e}")
-    data = pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL)
-    with os.fdopen(w, "wb") as f:
-        f.write(data)
-
-
-def _serve_one(reader, path, kwargs, timeout) -> tuple:
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: read, reply, exit without cleanup
-        os.close(r)
+def _child(reader, r: int, w: int) -> None:
+    """A forked reader: serve requests on ``r``, replies on ``w``, until ``r`` closes."""
+    out = os.fdopen(w, "wb")
+    while True:
+        msg = _recv(r)
+        if msg is None:
+            return
+        path, kwargs, _ = msg
         try:
-            _child(reader, path, kwargs, w)
+            res = ("ok", reader.read_shape(path, **kwargs))
+        except reader.ReadError as e:
+            res = ("error", str(e))
+        except BaseException as e:  # OpenCASCADE's exceptions arrive as Python exceptions
+            res = ("error", f"{path}: OpenCASCADE failed: {type(e).__name__}: {e}")
+        _send(out, res)
+
+
+def _spare(reader) -> tuple[int, int, int]:
+    """Fork a reader that waits for requests: ``(pid, request fd, reply fd)``.
+
+    Forking the server costs tens of milliseconds (its OpenCASCADE libraries
+    are large), so a reader serves requests until it crashes or times out,
+    and a spare one is forked in advance to take over at once.
+    """
+    req_r, req_w = os.pipe()
+    res_r, res_w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: serve, exit without cleanup
+        os.close(req_w)
+        os.close(res_r)
+        try:
+            _child(reader, req_r, res_w)
         finally:
             os._exit(0)
-    os.close(w)
-    deadline = time.monotonic() + timeout
-    buf = bytearray()
-    timed_out = False
-    while True:
-        ready, _, _ = select.select([r], [], [], max(0.0, deadline - time.monotonic()))
-        if not ready:
-            timed_out = True
-            break
-        chunk = os.read(r, 1 << 20)
-        if not chunk:
-            break
-        buf += chunk
-    os.close(r)
-    if timed_out:
+    os.close(req_r)
+    os.close(res_w)
+    return pid, req_w, res_r
+
+
+def _kill(child) -> None:
+    pid, req_w, res_r = child
+    for fd in (req_w, res_r):
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    try:
         os.kill(pid, signal.SIGKILL)
         os.waitpid(pid, 0)
-        return ("timeout", timeout)
-    _, status = os.waitpid(pid, 0)
+    except (ProcessLookupError, ChildProcessError):  # already reaped
+        pass
+
+
+def _ask(child, msg) -> tuple:
+    """A reader's reply to ``msg``; ``("crash" | "timeout", ...)`` if it died or hung."""
+    pid, req_w, res_r = child
+    try:
+        os.write(req_w, _frame(msg))
+    except OSError:
+        pass
+    deadline = time.monotonic() + msg[2]
+    reply = _recv(res_r, deadline)
+    if reply is not None:
+        return reply
+    if time.monotonic() >= deadline:  # still running: hung
+        return ("timeout", msg[2])
+    _, status = os.waitpid(pid, 0)  # it closed the pipe: it died
+    os.close(req_w)
+    os.close(res_r)
     if os.WIFSIGNALED(status):
         return ("crash", f"signal {os.WTERMSIG(status)} ({signal.Signals(os.WTERMSIG(status)).name})")
-    if not buf:
-        return ("crash", f"exit status {os.WEXITSTATUS(status)} without a result")
-    return pickle.loads(bytes(buf))
+    return ("crash", f"exit status {os.WEXITSTATUS(status)} without a result")
 
 
 def serve() -> None:
@@ -133,14 +164,22 @@ def serve() -> None:
     os.dup2(devnull, 2)
     reader = _load_reader()
     reader.preload()
+    child, spare = _spare(reader), _spare(reader)
     _send(out, ("ready", None))
     fd = sys.stdin.fileno()
-    while True:
-        msg = _recv(fd)
-        if msg is None:
-            break
-        path, kwargs, timeout = msg
-        _send(out, _serve_one(reader, path, kwargs, timeout))
+    try:
+        while True:
+            msg = _recv(fd)
+            if msg is None:
+                break
+            reply = _ask(child, msg)
+            if reply[0] in ("crash", "timeout"):  # the spare takes over; fork a new spare
+                _kill(child)
+                child, spare = spare, _spare(reader)
+            _send(out, reply)
+    finally:
+        _kill(child)
+        _kill(spare)
 
 
 # ----------------------------------------------------------------------
