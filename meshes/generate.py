@@ -37,6 +37,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import sys
 import typing
 
 import mpi4py.MPI  # noqa: F401  (must precede dolfinx with the PyPI wheel)
@@ -45,6 +46,10 @@ import gmsh
 import numpy as np
 
 from dolfinx.io import gmsh as _dxgmsh
+
+if os.path.dirname(os.path.dirname(os.path.abspath(__file__))) not in sys.path:  # run as a script
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from nagata_snap.meshing import DETERMINISTIC_OPTIONS, gmsh_session  # noqa: E402
 
 # --------------------------------------------------------------------------
 # Tags
@@ -90,14 +95,9 @@ _MESHES_DIR = os.path.dirname(os.path.abspath(__file__))
 # --------------------------------------------------------------------------
 def _fixed_options(verbose: bool) -> dict[str, float]:
     return {
+        **DETERMINISTIC_OPTIONS,
         "General.Terminal": 1 if verbose else 0,
         "General.Verbosity": 5 if verbose else 0,
-        "General.NumThreads": 1,
-        "Mesh.MaxNumThreads1D": 1,
-        "Mesh.MaxNumThreads2D": 1,
-        "Mesh.MaxNumThreads3D": 1,
-        "Mesh.Algorithm": 6,
-        "Mesh.Algorithm3D": 1,
         "Mesh.MeshSizeFromPoints": 0,
         "Mesh.MeshSizeFromCurvature": 0,
         "Mesh.MeshSizeExtendFromBoundary": 0,
@@ -109,38 +109,14 @@ def _fixed_options(verbose: bool) -> dict[str, float]:
         "Mesh.RandomFactor": 1e-9,
         "Mesh.MshFileVersion": 4.1,
         "Mesh.Binary": 0,
-        "Geometry.OCCParallel": 0,
     }
 
 
 @contextlib.contextmanager
 def _gmsh_session(name: str, verbose: bool):
     """Open a fresh gmsh model with the fixed options; clean up afterwards."""
-    was_init = gmsh.isInitialized()
-    if not was_init:
-        gmsh.initialize(argv=[], readConfigFiles=False, interruptible=False)
-    previous_model = gmsh.model.getCurrent() if was_init else None
-    options = _fixed_options(verbose)
-    saved = {}
-    for key, value in options.items():
-        try:
-            saved[key] = gmsh.option.getNumber(key)
-            gmsh.option.setNumber(key, value)
-        except Exception:  # option unknown in this gmsh version
-            pass
-    gmsh.model.add(name)
-    try:
+    with gmsh_session(name, _fixed_options(verbose)):
         yield gmsh.model
-    finally:
-        gmsh.model.remove()
-        if was_init:
-            for key, value in saved.items():
-                gmsh.option.setNumber(key, value)
-            if previous_model:
-                with contextlib.suppress(Exception):
-                    gmsh.model.setCurrent(previous_model)
-        else:
-            gmsh.finalize()
 
 
 def _build_and_convert(
