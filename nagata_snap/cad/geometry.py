@@ -298,6 +298,10 @@ class CadGeometry:
             the wrong count.
     """
 
+    #: facet tags ``Snapper`` snaps by default (:func:`~nagata_snap.cad.meshed.mesh_cad`
+    #: sets the exterior faces'); None: all tags
+    tags: list[int] | None = None
+
     def __init__(
         self,
         entities: Sequence,
@@ -621,8 +625,8 @@ class CadGeometry:
                 facets to snap (2D: ``nfv = 2`` segments in the z = 0 plane,
                 matched to curves; 3D: ``nfv = 3`` triangles, matched to surfaces).
             nodes: optional ``(nf, nfv)`` global vertex ids (vertex identity;
-                with :meth:`set_mesh_hints` also the key of the gmsh
-                classification); by default vertices are identified by their
+                with :meth:`set_mesh_hints` also the key of the mesher's
+                facets); by default vertices are identified by their
                 coordinates.
             faces: optional ``(nf,)`` entity of each facet (e.g. the CAD face
                 gmsh generated it on): no search.
@@ -860,62 +864,47 @@ class CadGeometry:
     # ------------------------------------------------------------------
     # hints from the mesher
     # ------------------------------------------------------------------
-    def set_mesh_hints(self, nodes: npt.ArrayLike, faces: npt.ArrayLike,
-                       params: npt.ArrayLike | None = None,
-                       facet_nodes: npt.ArrayLike | None = None,
-                       facet_faces: npt.ArrayLike | None = None) -> None:
-        """Record where the mesh generator put the coarse mesh, for :meth:`attach`.
+    def set_mesh_hints(self, facet_nodes: npt.ArrayLike, faces: npt.ArrayLike,
+                       params: npt.ArrayLike | None = None) -> None:
+        """Record where the mesh generator put the coarse boundary facets, for :meth:`attach`.
 
         Args:
-            nodes: ``(n,)`` global node ids (as :meth:`attach` gets them).
-            faces: ``(n,)`` entity (face in 3D, curve in 2D) each node was
-                generated on, or -1 for nodes on edges or corners.
-            params: ``(n, d)`` the nodes' parameters on those entities (NaN
-                where unknown), used as Newton seeds.
-            facet_nodes: ``(nf, nfv)`` node ids of boundary facets and
-            facet_faces: ``(nf,)`` their entities (needed for facets whose
-                nodes all lie on edges; else the face of a node is used).
+            facet_nodes: ``(nf, nfv)`` global node ids of the boundary facets
+                (as :meth:`attach` gets them, e.g. DOLFINx's input-global indices).
+            faces: ``(nf,)`` entity (face in 3D, curve in 2D) of each facet.
+            params: ``(nf, nfv, d)`` the vertices' parameters on those entities
+                (Newton seeds; NaN where unknown).
+
+        :meth:`attach` of facets with ``nodes`` then uses them (a facet is
+        found by its set of node ids, on any process).  See
+        :func:`nagata_snap.cad.meshed.use_cad_mesh`.
         """
-        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1)
-        faces = np.asarray(faces, dtype=np.int64).reshape(-1)
+        fn = np.asarray(facet_nodes, dtype=np.int64)
+        nf = len(fn)
+        faces = np.asarray(faces, dtype=np.int64).reshape(nf)
         d = self.param_dim
-        par = np.full((len(nodes), d), np.nan) if params is None else \
-            np.asarray(params, dtype=float).reshape(len(nodes), d)
-        order = np.argsort(nodes)
-        hints = {"nodes": nodes[order], "faces": faces[order], "params": par[order]}
-        if facet_nodes is not None:
-            hints["facet_nodes"] = np.sort(np.asarray(facet_nodes, dtype=np.int64), axis=1)
-            hints["facet_faces"] = np.asarray(facet_faces, dtype=np.int64).reshape(-1)
-        self._hints = hints
+        par = np.full((nf, fn.shape[1], d), np.nan) if params is None else \
+            np.asarray(params, dtype=float).reshape(nf, fn.shape[1], d)
+        order = np.argsort(fn, axis=1)
+        self._hints = {"nodes": np.take_along_axis(fn, order, axis=1), "faces": faces,
+                       "params": np.take_along_axis(par, order[:, :, None], axis=1)}
 
     def _hinted(self, gid: np.ndarray):
-        """``(faces (nf,), seeds (nf, nfv, d))`` from the mesh hints, or ``(None, None)``."""
+        """``(faces (nf,), seeds (nf, nfv, d))`` from the mesh hints, or ``(None, None)``
+        if some facet is not among them."""
         H = self._hints
-        nf, nfv = gid.shape
-        pos = np.minimum(np.searchsorted(H["nodes"], gid), len(H["nodes"]) - 1)
-        known = H["nodes"][pos] == gid
-        if not known.all():
+        order = np.argsort(gid, axis=1)
+        srt = np.take_along_axis(gid, order, axis=1)
+        tbl = H["nodes"]
+        row = _row_index(np.concatenate([tbl, srt]))
+        where = np.full(int(row.max()) + 1, -1, dtype=np.int64)
+        where[row[: len(tbl)]] = np.arange(len(tbl))
+        hit = where[row[len(tbl):]]
+        if np.any(hit < 0):
             return None, None
-        nface = np.where(known, H["faces"][pos], -1)  # (nf, nfv)
-        faces = np.full(nf, -1, dtype=np.int64)
-        if "facet_nodes" in H:  # facets gmsh generated, by their sorted node ids
-            tbl = H["facet_nodes"]
-            row = _row_index(np.concatenate([tbl, np.sort(gid, axis=1)]))
-            where = np.full(int(row.max()) + 1, -1, dtype=np.int64)
-            where[row[: len(tbl)]] = np.arange(len(tbl))
-            hit = where[row[len(tbl):]]
-            faces[hit >= 0] = H["facet_faces"][hit[hit >= 0]]
-        need = faces < 0
-        if need.any():
-            cand = np.where(nface[need] >= 0, nface[need], np.iinfo(np.int64).max).min(axis=1)
-            faces[np.flatnonzero(need)] = np.where(cand == np.iinfo(np.int64).max, -1, cand)
-        if np.any(faces < 0):
-            return None, None
-        seeds = np.where((nface == faces[:, None])[:, :, None], H["params"][pos], np.nan)
-        if self.model is not None and self.param_dim == 2:
-            conv = np.array([f.converted for f in self.model.faces])
-            seeds[conv[faces]] = np.nan  # parameters of converted faces differ from the file's
-        return faces, seeds
+        rank = np.argsort(order, axis=1)  # position of each facet vertex among its sorted ids
+        seeds = np.take_along_axis(H["params"][hit], rank[:, :, None], axis=1)
+        return H["faces"][hit], seeds
 
     # ------------------------------------------------------------------
     # place / project: snap facet vertices
