@@ -198,6 +198,23 @@ def _ramp(counts: np.ndarray) -> np.ndarray:
     return np.arange(total) - np.repeat(starts, counts)
 
 
+#: singular values of the stacked face normals below this fraction of the largest are
+#: dropped in the intersection steps (faces meeting at less than ~1 degree)
+TANGENT_RCOND = 2e-2
+
+
+def _truncated_lstsq(N: np.ndarray, res: np.ndarray, rcond: float = TANGENT_RCOND) -> np.ndarray:
+    """Minimum-norm ``y (G, 3)`` with ``N y ~ res`` per group, small singular values dropped.
+
+    ``N (G, m, 3)`` stacked unit normals (zero rows ignored), ``res (G, m)``.
+    """
+    U, sv, Vt = np.linalg.svd(N, full_matrices=False)  # (G, m, k), (G, k), (G, k, 3)
+    keep = sv > rcond * sv[:, :1]
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0), 0.0)
+    coef = np.einsum("gmk,gm->gk", U, res) * inv
+    return np.einsum("gk,gkj->gj", coef, Vt)
+
+
 def _row_index(rows: np.ndarray) -> np.ndarray:
     """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1``)."""
     if len(rows) == 0:
@@ -934,10 +951,11 @@ class CadGeometry:
             longest edge), ``n_off_root`` (positions taken from another
             entity: geometries without topology only), ``n_unresolved`` (no
             acceptable projection), ``n_left_face`` (seeded results outside
-            their face's loops: geometries without topology; with topology a
-            vertex's face is known and it is not tested), ``n_edge_vertices``
-            (vertices put on CAD edges or corners) and ``max_edge_gap``
-            (largest distance of such a vertex from one of its faces).
+            their face's loops; without topology they fall back to other
+            entities, with topology they go to the face's boundary),
+            ``n_edge_vertices`` (vertices put on CAD edges or corners) and
+            ``max_edge_gap`` (largest distance of such a vertex from one of
+            its faces).
 
         Fallbacks, in order: the other vertices' parameters of the facet and
         their mean as seeds; the entity's own search samples.  Without
@@ -973,8 +991,10 @@ class CadGeometry:
             info["n_left_face"] = 0
         n_unresolved = int(np.sum(~valid))
         par = self._unwrap_result(root, ent, par, seed)
-        proj, par, dist, gid, rep_of_group, n_edge, gap = self._merge(
+        proj, par, dist, gid, rep_of_group, n_edge, gap, n_left = self._merge(
             ent, X, proj, par, seed, dist, valid, on_root, hs, chan.reshape(ns, -1))
+        if self.topology is not None:
+            info["n_left_face"] = n_left
         vd = dist[rep_of_group]  # one value per distinct vertex
         report = {
             "max_residual": float(vd.max()) if vd.size else 0.0,
@@ -1153,15 +1173,30 @@ class CadGeometry:
         within their tolerance of the faces.  Every slot then takes the
         parameters of the final position on its own entity.
 
-        Returns ``(proj, par, dist, gid, rep_of_group, n_edge, max_edge_gap)``.
+        A face slot of a trimmed face whose projection lies outside the face's
+        loops is treated as an edge slot: the parametric midpoints of a
+        facet's vertices can leave a face where its boundary is concave, and
+        the nearest point of the face is then on its boundary.
+
+        Returns ``(proj, par, dist, gid, rep_of_group, n_edge, max_edge_gap,
+        n_left)``, ``n_left`` the slots found outside their face's loops.
         """
         ns = len(ent)
         gid = _groups(X, MERGE_RTOL * self.size)
         cls = np.zeros(ns, dtype=np.int64)
         fid = np.zeros(ns, dtype=np.int64)
         n_edge, gap = 0, 0.0
+        n_left = 0
         if self.topology is not None and chan.shape[1]:
             cls = np.count_nonzero(chan == 1.0, axis=1)  # 0 face, 1 edge, >= 2 corner
+            if self.trims is not None:
+                # a face slot outside its face's loops (the surface's extension beyond a
+                # curved face boundary: parametric midpoints in a concave part of the face)
+                # goes to the nearest point of the face's boundary
+                fs = np.flatnonzero((cls == 0) & self.trims.trimmed[ent])
+                off = fs[~self.trims.inside(ent[fs], par[fs])]
+                cls[off] = 1
+                n_left = int(off.size)
             feat = np.flatnonzero(cls > 0)
             if feat.size:
                 fx, ff = self._features(ent[feat], X[feat], hs[feat], cls[feat])
@@ -1191,7 +1226,7 @@ class CadGeometry:
         if self.topology is None:
             n_edge, gap = self._edge_vertices(gid, ent, proj, par, seed, X, hs)
         dist = np.linalg.norm(proj - X, axis=1)
-        return proj, par, dist, gid, rep_of_group, n_edge, gap
+        return proj, par, dist, gid, rep_of_group, n_edge, gap, n_left
 
     def _onto_feature(self, rep_of_group, gid, ent, proj, par, fid, hs) -> float:
         """Move feature vertices onto the intersection of their edge's (vertex's) faces.
@@ -1226,8 +1261,12 @@ class CadGeometry:
         sorted by point, with Newton seeds ``(m, d)`` (NaN: from the entity's
         search samples).  Each step projects ``x`` onto every entity of the
         point and moves it to the nearest point of the intersection of the
-        tangent planes there (``n_i . (y - p_i) = 0``, least squares, step
-        capped to ``hg``).  The best point over :data:`EDGE_SWEEPS` steps is
+        tangent planes there (``n_i . (y - p_i) = 0``, minimum-norm least
+        squares, step capped to ``hg``).  Directions in which the normals are
+        (nearly) dependent -- faces meeting tangentially, as a fillet or a
+        chamfer cone meets its plane -- get no step (:func:`_truncated_lstsq`):
+        along a tangent contact the intersection is ill-posed and the start
+        (the edge curve's point) is kept there.  The best point over :data:`EDGE_SWEEPS` steps is
         kept if it is nearer all the entities than the start and within ``hg``
         of ``anchor``.
 
@@ -1266,10 +1305,7 @@ class CadGeometry:
             N[gpos, rank] = nrm
             res = np.zeros((G, mr))
             res[gpos, rank] = np.einsum("ij,ij->i", nrm, x[gpos] - px)
-            gram = np.einsum("gij,gkj->gik", N, N)
-            gram[:, np.arange(mr), np.arange(mr)] += 1e-12 + (np.linalg.norm(N, axis=2) == 0)
-            lam = np.linalg.solve(gram, res[:, :, None])[:, :, 0]
-            step = np.einsum("gi,gij->gj", lam, N)
+            step = _truncated_lstsq(N, res)
             sl_ = np.linalg.norm(step, axis=1)
             step *= np.minimum(1.0, hg / np.maximum(sl_, 1e-300))[:, None]
             x = np.where(todo[:, None], x - step, x)

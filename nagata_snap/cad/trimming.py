@@ -54,9 +54,21 @@ def points_in_polygon(polygon: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return _crossings(np.asarray(polygon, dtype=float), np.atleast_2d(np.asarray(pts, dtype=float))) % 2 == 1
 
 
-def _crossings(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Number of polygon edges crossed by the ray ``+x`` from each point, ``(m,)``."""
+def _crossings(poly: np.ndarray, pts: np.ndarray, slabs: "_Slabs | None" = None) -> np.ndarray:
+    """Number of polygon edges crossed by the ray ``+x`` from each point, ``(m,)``.
+
+    With ``slabs`` (:class:`_Slabs` of the polygon) only the edges in the
+    point's horizontal slab are tested.
+    """
     a, b = poly, np.roll(poly, -1, axis=0)
+    if slabs is not None:
+        pt, seg = slabs.candidates(pts[:, 1])
+        y, x = pts[pt, 1], pts[pt, 0]
+        ay, by = a[seg, 1], b[seg, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xint = a[seg, 0] + (y - ay) * (b[seg, 0] - a[seg, 0]) / (by - ay)
+        hit = ((ay > y) != (by > y)) & (x < xint)
+        return np.bincount(pt[hit], minlength=len(pts))
     out = np.zeros(len(pts), dtype=np.int64)
     step = max(1, CHUNK // max(len(poly), 1))
     for i in range(0, len(pts), step):  # chunks bound the (c, k) work arrays
@@ -67,6 +79,39 @@ def _crossings(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
             xint = a[None, :, 0] + (y - ay) * (b[None, :, 0] - a[None, :, 0]) / (by - ay)
         out[i:i + step] = np.count_nonzero(crosses & (x < xint), axis=1)
     return out
+
+
+class _Slabs:
+    """Horizontal slabs of a polygon: the edges spanning each slab (CSR), for crossing tests.
+
+    A query point's ray ``+x`` can only cross edges whose ``y`` range holds the
+    point's ``y``: those listed for its slab (``k / 2`` slabs for ``k`` edges).
+    """
+
+    def __init__(self, P: np.ndarray):
+        a, b = P, np.roll(P, -1, axis=0)
+        lo, hi = np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 1], b[:, 1])
+        self.y0, y1 = float(lo.min()), float(hi.max())
+        self.n = int(np.clip(len(P) // 2, 1, 4096))
+        self.dy = max((y1 - self.y0) / self.n, 1e-300)
+        s0 = np.clip(((lo - self.y0) / self.dy).astype(np.int64), 0, self.n - 1)
+        s1 = np.clip(((hi - self.y0) / self.dy).astype(np.int64), 0, self.n - 1)
+        cnt = s1 - s0 + 1
+        seg = np.repeat(np.arange(len(P)), cnt)
+        slab = np.repeat(s0, cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+        order = np.argsort(slab, kind="stable")
+        self.seg = seg[order]
+        self.ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=self.n))])
+
+    def candidates(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, edge)`` pairs to test for query ordinates ``y``."""
+        s = ((y - self.y0) / self.dy).astype(np.int64)
+        inside = (s >= 0) & (s < self.n)
+        s = np.where(inside, s, 0)
+        cnt = np.where(inside, self.ptr[s + 1] - self.ptr[s], 0)
+        pt = np.repeat(np.arange(len(y)), cnt)
+        off = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
 
 
 def _user_band(P: np.ndarray) -> np.ndarray:
@@ -125,7 +170,7 @@ class TrimLoops:
                 else:
                     band = np.asarray(bands[e][k], dtype=float).reshape(len(P))
                 band = band + self.rtol * self.entities[e].bbox_size
-                prepared.append((P, np.roll(P, -1, axis=0) - P, band))
+                prepared.append((P, np.roll(P, -1, axis=0) - P, band, _Slabs(P)))
             self._loops.append(prepared)
         self.trimmed = np.array([bool(lp) for lp in self._loops])
         self._period = np.array([entity_periods(ent) for ent in self.entities])
@@ -166,14 +211,14 @@ class TrimLoops:
         """
         loops = self._loops[e]
         cross = np.zeros(len(q), dtype=np.int64)
-        for P, _, _ in loops:
-            cross += _crossings(P, q)
+        for P, _, _, slabs in loops:
+            cross += _crossings(P, q, slabs)
         ex = np.full(len(q), -np.inf)
         out = np.flatnonzero(cross % 2 == 0)
         if out.size == 0:
             return ex
         best = np.full(out.size, np.inf)
-        for P, seg, band in loops:
+        for P, seg, band, _ in loops:
             step = max(1, CHUNK // len(P))
             for i in range(0, out.size, step):  # chunks bound the (c, k, 2) work arrays
                 sel = out[i:i + step]
@@ -236,7 +281,7 @@ class TrimLoops:
         for e in np.unique(ent[self.trimmed[ent]]):  # loop over trimmed entities
             sel = np.flatnonzero(ent == e)
             q = normalize_params(self.entities[e], params[sel])
-            cross = sum(_crossings(P, q) for P, _, _ in self._loops[e])
+            cross = sum(_crossings(P, q, slabs) for P, _, _, slabs in self._loops[e])
             out[sel] = cross % 2 == 1
         return out
 
