@@ -1219,8 +1219,14 @@ class CadGeometry:
         redo = (feat_slot | moved) & (ent == ent[rep]) if self.topology is None else (feat_slot | moved)
         proj = proj[rep]
         if redo.any():  # the slot's parameters of the representative position, on its own entity
-            p, _, dd, _, _ = self._project(ent[redo], proj[redo], par[redo])
-            par[redo] = self._unwrap(ent[redo], p, seed[redo])
+            idx = np.flatnonzero(redo)
+            p, _, dd, _, _ = self._project(ent[idx], proj[idx], par[idx])
+            far = np.flatnonzero(~(dd <= 1e-9 * self.size))
+            if far.size:  # the seed led Newton astray (e.g. across a seam): the face's own samples
+                res = self.searcher.search_on(proj[idx[far]], ent[idx[far]])
+                better = res[2] < dd[far]
+                p[far[better]], dd[far[better]] = res[0][better], res[2][better]
+            par[idx] = self._unwrap(ent[idx], p, seed[idx])
             if feat_slot.any():
                 gap = max(gap, float(dd[feat_slot[redo]].max(initial=0.0)))
         if self.topology is None:

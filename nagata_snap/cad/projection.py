@@ -735,12 +735,7 @@ class GlobalSearcher:
             empty = (np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0))
             return empty if accept is None else empty + (np.zeros(0, dtype=bool),)
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
-        if accept is None:
-            best = _best_per_point(n, pt, dist)
-            return ent[best], params[best], dist[best]
-        ok = np.asarray(accept(ent, params), dtype=bool)
-        best = _best_per_point(n, pt, dist, ~ok)
-        return ent[best], params[best], dist[best], ok[best]
+        return _pick(n, pt, ent, params, dist, (ent, params), accept)
 
     def search_all(
         self, points: npt.ArrayLike, k_seeds: int | None = None
@@ -807,12 +802,21 @@ class GlobalSearcher:
             seeds.append(self.sample_params[idx.ravel()])
         pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
         params, proj, dist, _, _ = self.refine(pt, en, sd, X)
-        if accept is None:
-            best = _best_per_point(n, pt, dist)
-            return params[best], proj[best], dist[best]
-        ok = np.asarray(accept(en, params), dtype=bool)
-        best = _best_per_point(n, pt, dist, ~ok)
-        return params[best], proj[best], dist[best], ok[best]
+        return _pick(n, pt, en, params, dist, (params, proj), accept)
+
+
+def _pick(n: int, pt, ent, params, dist, columns: tuple, accept) -> tuple:
+    """Per point ``0..n-1`` the rows of ``columns`` and ``dist`` of its nearest result.
+
+    With ``accept(ent, params) -> bool`` accepted results come first and the
+    flag is appended (see :meth:`GlobalSearcher.search`).
+    """
+    if accept is None:
+        best = _best_per_point(n, pt, dist)
+        return tuple(c[best] for c in columns) + (dist[best],)
+    ok = np.asarray(accept(ent, params), dtype=bool)
+    best = _best_per_point(n, pt, dist, ~ok)
+    return tuple(c[best] for c in columns) + (dist[best], ok[best])
 
 
 def _points3(points: npt.ArrayLike) -> np.ndarray:

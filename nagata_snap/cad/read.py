@@ -363,36 +363,49 @@ def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
     return {"type": t.name.replace("GeomAbs_", "")}, True
 
 
+def _described(a, pt, dim: int, other) -> dict:
+    """Description of a curve adaptor (3D edge or 2D p-curve) with its range.
+
+    Lines and circles in closed form, B-splines as they are, anything else
+    as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).
+    """
+    from OCP.GeomAbs import GeomAbs_CurveType as T
+
+    t0, t1 = a.FirstParameter(), a.LastParameter()
+    t = a.GetType()
+    if t == T.GeomAbs_Line:
+        ln = a.Line()
+        return {"type": "line", "origin": pt(ln.Location()), "direction": pt(ln.Direction()),
+                "range": (t0, t1)}
+    if t == T.GeomAbs_Circle:
+        c = a.Circle()
+        ax = c.Position()
+        return {"type": "circle", "center": pt(ax.Location()), "x": pt(ax.XDirection()),
+                "y": pt(ax.YDirection()), "radius": c.Radius(), "range": (t0, t1)}
+    if t == T.GeomAbs_BSplineCurve:
+        d = _bspline_curve(a.BSpline(), dim)
+    else:
+        d = _bspline_curve(other(t0, t1), dim)
+        t0, t1 = float(d["knots"][d["degree"]]), float(d["knots"][-d["degree"] - 1])
+    d["range"] = (t0, t1)
+    return d
+
+
 def _curve3d(edge) -> dict | None:
     """Description of an edge's 3D curve (None for degenerate edges)."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepAdaptor import BRepAdaptor_Curve
     from OCP.Geom import Geom_TrimmedCurve
-    from OCP.GeomAbs import GeomAbs_CurveType as T
     from OCP.GeomConvert import GeomConvert
 
     if BRep_Tool.Degenerated_s(edge) or not BRep_Tool.IsGeometric_s(edge):
         return None
-    a = BRepAdaptor_Curve(edge)
-    t0, t1 = a.FirstParameter(), a.LastParameter()
-    t = a.GetType()
-    if t == T.GeomAbs_Line:
-        ln = a.Line()
-        return {"type": "line", "origin": _xyz(ln.Location()), "direction": _xyz(ln.Direction()),
-                "range": (t0, t1)}
-    if t == T.GeomAbs_Circle:
-        c = a.Circle()
-        ax = c.Position()
-        return {"type": "circle", "center": _xyz(ax.Location()), "x": _xyz(ax.XDirection()),
-                "y": _xyz(ax.YDirection()), "radius": c.Radius(), "range": (t0, t1)}
-    if t == T.GeomAbs_BSplineCurve:
-        d = _bspline_curve(a.BSpline(), 3)
-    else:
-        geo = BRep_Tool.Curve_s(edge, t0, t1)  # with the edge's location applied
-        d = _bspline_curve(GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geo, t0, t1)), 3)
-        t0, t1 = float(d["knots"][d["degree"]]), float(d["knots"][-d["degree"] - 1])
-    d["range"] = (t0, t1)
-    return d
+
+    def other(t0, t1):  # with the edge's location applied
+        geo = BRep_Tool.Curve_s(edge, t0, t1)
+        return GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geo, t0, t1))
+
+    return _described(BRepAdaptor_Curve(edge), _xyz, 3, other)
 
 
 def _curve2d(edge, face) -> dict:
@@ -401,28 +414,12 @@ def _curve2d(edge, face) -> dict:
     from OCP.BRepAdaptor import BRepAdaptor_Curve2d
     from OCP.Geom2d import Geom2d_TrimmedCurve
     from OCP.Geom2dConvert import Geom2dConvert
-    from OCP.GeomAbs import GeomAbs_CurveType as T
 
-    a = BRepAdaptor_Curve2d(edge, face)
-    t0, t1 = a.FirstParameter(), a.LastParameter()
-    t = a.GetType()
-    if t == T.GeomAbs_Line:
-        ln = a.Line()
-        return {"type": "line", "origin": _xy(ln.Location()), "direction": _xy(ln.Direction()),
-                "range": (t0, t1)}
-    if t == T.GeomAbs_Circle:
-        c = a.Circle()
-        ax = c.Position()
-        return {"type": "circle", "center": _xy(ax.Location()), "x": _xy(ax.XDirection()),
-                "y": _xy(ax.YDirection()), "radius": c.Radius(), "range": (t0, t1)}
-    if t == T.GeomAbs_BSplineCurve:
-        d = _bspline_curve(a.BSpline(), 2)
-    else:
+    def other(t0, t1):
         geo = BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
-        d = _bspline_curve(Geom2dConvert.CurveToBSplineCurve_s(Geom2d_TrimmedCurve(geo, t0, t1)), 2)
-        t0, t1 = float(d["knots"][d["degree"]]), float(d["knots"][-d["degree"] - 1])
-    d["range"] = (t0, t1)
-    return d
+        return Geom2dConvert.CurveToBSplineCurve_s(Geom2d_TrimmedCurve(geo, t0, t1))
+
+    return _described(BRepAdaptor_Curve2d(edge, face), _xy, 2, other)
 
 
 # ----------------------------------------------------------------------

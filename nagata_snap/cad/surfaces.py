@@ -44,6 +44,13 @@ __all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "a
 TWO_PI = 2.0 * np.pi
 
 
+def _positive(value, what: str) -> float:
+    v = float(value)
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"{what} must be positive, got {value}")
+    return v
+
+
 def _unit(v: npt.ArrayLike, what: str) -> np.ndarray:
     a = np.asarray(v, dtype=float).reshape(3)
     n = np.linalg.norm(a)
@@ -241,9 +248,7 @@ class Cylinder(AnalyticSurface):
     _curved = (True, False)
 
     def __init__(self, origin, x, y, z, radius, bounds):
-        self.radius = float(radius)
-        if not (np.isfinite(self.radius) and self.radius > 0):
-            raise ValueError(f"cylinder radius must be positive, got {radius}")
+        self.radius = _positive(radius, "cylinder radius")
         super().__init__(origin, x, y, z, bounds)
 
     def _sagitta(self, du, dv):
@@ -346,9 +351,7 @@ class Sphere(AnalyticSurface):
     limits = np.array([[-np.inf, np.inf], [-np.pi / 2, np.pi / 2]])
 
     def __init__(self, origin, x, y, z, radius, bounds):
-        self.radius = float(radius)
-        if not (np.isfinite(self.radius) and self.radius > 0):
-            raise ValueError(f"sphere radius must be positive, got {radius}")
+        self.radius = _positive(radius, "sphere radius")
         super().__init__(origin, x, y, z, bounds)
 
     def _sagitta(self, du, dv):
@@ -389,10 +392,8 @@ class Torus(AnalyticSurface):
     _curved = (True, True)
 
     def __init__(self, origin, x, y, z, major, minor, bounds):
-        self.major, self.minor = float(major), float(minor)
-        if not (np.isfinite(self.major) and np.isfinite(self.minor) and self.minor > 0
-                and self.major > 0):
-            raise ValueError(f"torus radii must be positive, got {major}, {minor}")
+        self.major = _positive(major, "torus major radius")
+        self.minor = _positive(minor, "torus minor radius")
         super().__init__(origin, x, y, z, bounds)
 
     def _sagitta(self, du, dv):
