@@ -49,6 +49,15 @@ from nagata_snap.quality import inverted_cells  # noqa: E402
 comm = MPI.COMM_WORLD
 
 
+def _abort(*exc_info):
+    """An exception on one process ends all of them (no hang in a collective of the others)."""
+    sys.__excepthook__(*exc_info)
+    comm.Abort(1)
+
+
+sys.excepthook = _abort
+
+
 def marked_edges(mesh, centre, radius):
     """Edges of the cells whose midpoint is within ``radius`` of ``centre``."""
     tdim = mesh.topology.dim
@@ -122,8 +131,9 @@ def run(name, fmt, size_factor, curvature):
     t_attach = time.perf_counter() - t0
     occ = OccShape(path, cm.unit or "MM")
     size = occ.size
-    lo = comm.allreduce(mesh.geometry.x.min(axis=0), op=MPI.MIN)
-    hi = comm.allreduce(mesh.geometry.x.max(axis=0), op=MPI.MAX)
+    lo, hi = np.empty(3), np.empty(3)
+    comm.Allreduce(mesh.geometry.x.min(axis=0), lo, op=MPI.MIN)
+    comm.Allreduce(mesh.geometry.x.max(axis=0), hi, op=MPI.MAX)
     modes = ["uniform"] * 3 if tdim == 2 else ["uniform", "uniform", "marked", "marked"]
     levels = []
     for k, mode in enumerate(modes):
