@@ -10,8 +10,8 @@ the :class:`CadGeometry` of the same file (``nagata_snap.cad.mesh_cad``):
 two uniform and two marked levels (2D: three uniform), by
 ``tests/mpi/cad_parts.py`` serially and under ``mpiexec -n 2`` (STEP).
 After every level: every snapped vertex lies on OCC's face of its facet,
-every vertex on two faces on an edge of each, every vertex on three faces at
-a CAD vertex (all within 1e-9 of the model size), no cell is inverted
+every vertex on two faces on an edge of each, every vertex on three faces
+(2D: two edge curves) at a CAD vertex (all within 1e-9 of the model size), no cell is inverted
 against the straight refinement, no vertex was left short.
 
 The gmsh sizes are coarse but fine enough that the current smoother needs
@@ -79,6 +79,8 @@ def check(result):
         assert lv["partially_moved"] == 0 and lv["unresolved"] == 0, where
         if part.dim == 3:
             assert lv["edge_vertices"] > 0 and lv["max_edge_gap"] <= TOL, where
+        else:  # the profile's corners (and tangent joins) are among the snapped vertices
+            assert lv["corner_vertices"] > 0, where
 
 
 @pytest.mark.mpi

@@ -16,7 +16,8 @@ file, faces and edges numbered as the geometry's):
   nearest CAD edge of each of those faces (3D), also less the edge's
   tolerance (the edge curves of an IGES file are approximations within it;
   the vertex is put on the faces' intersection);
-* every vertex on three or more faces: its distance to the nearest CAD vertex;
+* every vertex on three or more faces (2D: on two edge curves): its distance to the
+  nearest CAD vertex;
 * inverted cells against the straight refinement of the previous level.
 
 (gmsh: ``size_factor`` x the model's diagonal, ``curvature`` elements per
@@ -81,9 +82,10 @@ def file_params(geo, faces, uv):
     return out
 
 
-def feature_distances(geo, occ, nodes, root, x):
+def feature_distances(geo, occ, nodes, root, x, tdim):
     """Largest distance of edge vertices to the nearest CAD edge of each of their faces, and
-    of corner vertices (on three or more faces) to the nearest CAD vertex (this process's facets).
+    of corner vertices (3D: on three or more faces; 2D: on two edge curves) to the nearest
+    CAD vertex (this process's facets).
 
     Edges are compared per face, not as the faces' common edge: the solids of
     an assembly touch without sharing edges in the file (gmsh fragments them).
@@ -96,8 +98,9 @@ def feature_distances(geo, occ, nodes, root, x):
     for n, fs in faces_of.items():
         if len(fs) < 2:
             continue
-        pairs += [(n, f) for f in fs]
-        if len(fs) >= 3:
+        if tdim == 3:
+            pairs += [(n, f) for f in fs]
+        if len(fs) >= tdim:
             corner.append(x[n])
     de = de_tol = 0.0
     if pairs:  # per (vertex, face): the nearest of the face's edges
@@ -156,7 +159,7 @@ def run(name, fmt, size_factor, curvature):
             d_own = occ.face_distance(F, P, accept, uv)
         else:
             d_own = occ.edge_distance(geo._curve_edges[F], P, accept)
-        de, de_tol, dc, ne, nc = feature_distances(geo, occ, nodes, root, x) if tdim == 3 else (0.0,) * 3 + (0, 0)
+        de, de_tol, dc, ne, nc = feature_distances(geo, occ, nodes, root, x, tdim)
         # inverted cells against the straight refinement of the previous level
         prev.topology.create_entities(1)
         straight, *_ = dolfinx.mesh.refine(prev, edges, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
