@@ -340,7 +340,8 @@ class Snapper:
         opts = dict(self.smoothing_options)
         hold = ch.boundary.nodes.ravel() if opts.pop("fix_boundary", True) else np.zeros(0, np.int32)
         # snapped vertices may slide on the geometry (not those of unsnapped facets)
-        slide = SlidingBoundary(nodes, records, self.geometry, ch.boundary.nodes[~snapped])
+        slide = SlidingBoundary(nodes, records, self.geometry, ch.boundary.nodes[~snapped]) \
+            if self.repair and hasattr(self.geometry, "project") else None
         res = repair(
             mesh1,
             x_ref,
@@ -350,7 +351,7 @@ class Snapper:
             method=self.smoothing,
             min_quality=self.min_quality,
             untangle=self.repair,
-            slide=slide if self.repair else None,
+            slide=slide,
             allow_partial=self.repair,
             min_fraction=self.min_fraction,
             report=self.quality_report,
@@ -358,7 +359,7 @@ class Snapper:
             **opts,
         )
         x[:] = res.x
-        records = slide.records
+        records = slide.records if slide is not None else records
         times["smooth+check"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()

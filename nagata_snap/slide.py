@@ -12,10 +12,9 @@ The geometry is asked through one call, ``project(records, points) ->
 (points (nf, nfv, 3), records)``: the closest point of each facet vertex on
 its facet's own entity, seeded by the record, with sharp edges and corners
 kept on their feature (:meth:`nagata_snap.geometry.NagataGeometry.project`:
-a vertex on a coarse edge moves along it, a coarse vertex not at all).  A
-geometry without ``project`` but with ``place(records, straight)`` that
-projects ``straight`` (:class:`~nagata_snap.cad.CadGeometry`) is used through
-``place``.  The tangent space of a vertex is that of the projection: the
+a vertex on a coarse edge moves along it, a coarse vertex not at all;
+:meth:`nagata_snap.cad.CadGeometry.project`: a vertex on a CAD edge moves
+along that edge, a CAD vertex not at all).  The tangent space of a vertex is that of the projection: the
 span of the projection's finite-difference Jacobian ``(P(p + h e_j) - P(p)) / h``
 (rank 2 on a face, 1 on an edge, 0 at a corner), so the feature rules live
 in the geometry only.
@@ -41,11 +40,10 @@ TANGENT_STEP = 1e-4
 
 def _projector(geometry) -> Callable[[Records, np.ndarray], tuple[np.ndarray, Records]]:
     """``project(records, points) -> (points, records)`` of a snapping geometry."""
-    if hasattr(geometry, "project"):
-        return lambda rec, pts: tuple(geometry.project(rec, pts)[:2])
-    if hasattr(geometry, "place"):  # CadGeometry: place projects `straight` from the seeds
-        return lambda rec, pts: tuple(geometry.place(rec, pts)[:2])
-    raise TypeError(f"{type(geometry).__name__} offers neither project() nor place()")
+    if not hasattr(geometry, "project"):
+        raise TypeError(f"{type(geometry).__name__} has no project(records, points): its "
+                        "boundary vertices cannot slide (pass repair options without sliding)")
+    return lambda rec, pts: tuple(geometry.project(rec, pts)[:2])
 
 
 class SlidingBoundary:
@@ -54,7 +52,7 @@ class SlidingBoundary:
     Args:
         nodes: ``(nf, nfv)`` local geometry nodes of this process's snapped facets.
         records: their :class:`~nagata_snap.records.Records` (copied).
-        geometry: the snapping geometry (``project`` or ``place``, see the module docstring).
+        geometry: the snapping geometry (its ``project``, see the module docstring).
         blocked: ``(m,)`` local nodes that never slide (e.g. on boundary facets
             that are not snapped).
 
