@@ -411,10 +411,13 @@ def _slide(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, loc: _Local,
     sl = np.flatnonzero(eligible & nbh.complete & (dist <= SLIDE_LAYERS))
     free = (dist < UNTANGLE_LAYERS[0]) & ~loc.constrained
     free[sl] = False
-    if sl.size == 0:  # (the neighbourhood is the same on every process)
+    facets = SlideFacets(boundary, nbh, sl) if sl.size else None
+    if facets is not None and facets.corner.any():  # corners stay (the same on every process)
+        sl = sl[~facets.corner]
+        facets = SlideFacets(boundary, nbh, sl) if sl.size else None
+    if facets is None:  # (the neighbourhood is the same on every process)
         g.log("slide", t0, nbad, layers=loc.layers - 1, cells=0, nodes=0, slid=0)
         return x, bad, nbad
-    facets = SlideFacets(boundary, nbh, sl)
     xc = nbh.gather(x[:, :d])
     x0 = xc[sl].copy()
     best = -np.inf

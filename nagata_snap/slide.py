@@ -7,6 +7,9 @@ boundary vertices *along* the geometry: each sliding vertex moves in its
 tangent space (optimised together with the interior, :mod:`nagata_snap.untangle`)
 and is projected back onto its facets' geometric entity, so it stays exactly
 on the geometry and its lineage record follows it (no drift at later levels).
+Corners (vertices whose facets lie on ``nfv`` or more distinct entities:
+three faces in 3D, two curves in 2D) never slide, whatever the geometry's
+projection does with them.
 
 The geometry is asked through one call, ``project(records, points) ->
 (points (nf, nfv, 3), records)``: the closest point of each facet vertex on
@@ -90,6 +93,8 @@ class SlideFacets:
         facets: ``(F, nfv)`` canonical vertices of the gathered facets (canonical order).
         records: their records.
         first: ``(k, 2)`` (facet, slot) that gives each sliding vertex its point.
+        corner: ``(k,)`` bool, the sliding vertices at a corner (their facets
+            on ``nfv`` or more distinct entities): they must not slide.
     """
 
     def __init__(self, boundary: SlidingBoundary, nbh, slide: np.ndarray):
@@ -127,6 +132,11 @@ class SlideFacets:
         sel = where[self.slide]
         self.first = np.stack([f[sel], v[sel]], axis=1)
         self._params = self.records.params
+        # corners: vertices whose facets lie on gdim or more distinct entities (3D:
+        # where three CAD faces / coarse facets meet; 2D: two curves / segments)
+        pairs = np.unique(np.stack([node, self.records.root[f]], axis=1), axis=0)
+        n_roots = np.bincount(pairs[:, 0], minlength=nbh.n_nodes)
+        self.corner = n_roots[self.slide] >= self.facets.shape[1]
 
     def project(self, x: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Closest points ``(k, d)`` on the geometry of the sliding vertices moved to ``points``.

@@ -70,3 +70,55 @@ def test_slide_mpi_same_as_serial(mode):
         assert out["par"]["slide"][k] == out["ser"]["slide"][k]
     np.testing.assert_allclose(out["par"]["slide"]["angles"], out["ser"]["slide"]["angles"],
                                rtol=0, atol=1e-8)
+
+
+def test_cad_project_keeps_vertices_on_their_feature(tmp_path):
+    """What sliding asks of a 3D CadGeometry (OpenCASCADE): every facet vertex pushed
+    off the part comes back onto its own face, a vertex on a CAD edge onto that edge
+    (on both its faces).  Checked on the concave cylinder (groove r = 0.6, axis
+    y = 0.5, z = 1) against its exact faces.  CAD vertices (on three faces) may move
+    along one of their edges under ``project``: the slide stage never lets them
+    slide (``SlideFacets.corner``: facets on three distinct entities), so they are
+    left out here."""
+    import warnings
+
+    import hard_parts
+    from nagata_snap import Snapper
+    from nagata_snap.cad import CadGeometry
+
+    path = hard_parts.write_iges("concave_cylinder", str(tmp_path / "cc.igs"))
+    md = hard_parts.from_iges(MPI.COMM_SELF, path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        geo = CadGeometry.from_iges(path)
+    level = Snapper(md.mesh, md.facet_tags, geo)._level  # the coarse facets and their records
+    nodes = level.boundary.nodes[level.snapped]
+    x = md.mesh.geometry.x[nodes]  # (nf, 3, 3)
+    push = np.random.default_rng(0).normal(size=(int(nodes.max()) + 1, 3))
+    out, rec = geo.project(level.records, x + 0.03 * push[nodes])  # one push per vertex
+
+    def r(p):
+        return np.hypot(p[..., 1] - 0.5, p[..., 2] - 1.0)
+
+    def on(p):  # which exact faces a point lies on
+        return np.stack([np.abs(p[..., 0]) < 1e-9, np.abs(p[..., 0] - 2) < 1e-9,
+                         np.abs(p[..., 1]) < 1e-9, np.abs(p[..., 1] - 1) < 1e-9,
+                         np.abs(p[..., 2]) < 1e-9, np.abs(r(p) - 0.6) < 1e-9], axis=-1)
+
+    before, after = on(x), on(out)
+    assert np.all(before.sum(-1) >= 1) and np.all(before.sum(-1) <= 3)
+    corner = before.sum(-1) == 3
+    edge = before.sum(-1) == 2
+    assert edge.any() and corner.any()
+    # the slide stage's corner rule finds exactly the CAD vertices
+    roots = np.unique(np.stack([nodes.ravel(), np.repeat(level.records.root, 3)], 1), axis=0)
+    n_roots = np.bincount(roots[:, 0], minlength=int(nodes.max()) + 1)
+    np.testing.assert_array_equal(n_roots[nodes] >= 3, corner)
+    # still on every face it was on (an edge vertex on both faces of its edge)
+    keep = before & ~corner[..., None]
+    assert np.all(after[keep])
+    # an edge vertex gets the same point from all its facets
+    for v in np.unique(nodes[edge]):
+        p = out[edge & (nodes == v)]
+        assert np.abs(p - p[0]).max() < 1e-9
+    assert np.abs(out - x)[edge].max() > 1e-3  # they did move (along their edge)
