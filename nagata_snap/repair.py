@@ -12,7 +12,8 @@ and stops at the first that leaves no bad cell:
 ``optimise`` (:func:`_optimise`)
     No cell is bad, but some changed cells are *poor* (their mean ratio fell
     below :data:`POOR_RATIO` of the straight cell's): one attempt of the
-    optimiser below on their neighbourhood, kept if it helps.
+    optimiser below on their neighbourhood, kept if it helps.  Not with
+    ``method='none'`` (no interior motion unless a cell is bad).
 ``untangle`` (:func:`_untangle`)
     The neighbourhood of the bad (and poor) cells (:data:`UNTANGLE_LAYERS`
     vertex layers, wider while that helps, within a size budget) is gathered
@@ -626,7 +627,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
     stage = "smooth" if len(g.attempts) == 1 else "stiffen"
     alpha = np.ones(g.sync.n)
     try:
-        if nbad == 0 and untangle and g.n_poor:
+        if nbad == 0 and untangle and g.n_poor and method != "none":
             x, kept = _optimise(g, x)
             stage = "optimise" if kept else stage
         if nbad and untangle:
