@@ -526,9 +526,11 @@ def _run(args, comm) -> None:
                 mesh, ft, _, _, report = snapper.refine(mesh)
         except Exception as e:
             raise SnapFailure(f"level {level}: {type(e).__name__}: {e}") from None
+        short = f", {report.shortfall_note()}" if report.partially_moved else ""
         say(f"{PROG}: level {level}/{args.levels}: {report.num_cells} cells, "
             f"{report.num_vertices} vertices, {report.boundary_vertices_moved} boundary vertices "
-            f"snapped (max move {report.max_displacement:.3e}), {time.perf_counter() - t0:.2f} s")
+            f"snapped (max move {report.max_displacement:.3e}){short}, "
+            f"{time.perf_counter() - t0:.2f} s")
         if args.report:
             say(f"  {report}")
             if report.geometry:

@@ -9,7 +9,10 @@ A snapping geometry offers two methods used by :class:`nagata_snap.Snapper`:
 
 * ``attach(points, nodes) -> Records``: records of the coarse mesh's facets;
 * ``place(records, straight) -> (points, records, report)``: positions of the
-  facet vertices described by ``records``.
+  facet vertices described by ``records``;
+* ``project(records, points) -> (points, records)``: closest points on each
+  facet's own patch, for boundary vertices that slide during the repair
+  (:mod:`nagata_snap.slide`).
 """
 
 from __future__ import annotations
@@ -368,14 +371,15 @@ class NagataGeometry:
         if nfv == 2:
             cos = np.einsum("fi,fi->f", n[:, 0], n[:, 1])
             self._check_opposite(cos)
-            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps)[:, None, :]
+            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps,
+                                            nagata.TILT_MAX)[:, None, :]
         local = nagata.LOCAL_EDGES[3]
         a, b = local[:, 0], local[:, 1]
         d = x[:, b] - x[:, a]  # (F, 3, 3)
         n0, n1 = n[:, a], n[:, b]
         cos = np.einsum("fei,fei->fe", n0, n1)
         self._check_opposite(cos)
-        coef = nagata.curve_coefficient(d, n0, n1, eps)
+        coef = nagata.curve_coefficient(d, n0, n1, eps, nagata.TILT_MAX)
         # crease ridges: one coefficient from all normals of both facets (eq. 32)
         cr = np.flatnonzero(cn.crease)
         if len(cr):
@@ -482,6 +486,74 @@ class NagataGeometry:
         r = records.root
         pts = nagata.evaluate(self.x[r], self.coef[r], records.params)
         return pts, records, {"n_points": int(pts.shape[0] * pts.shape[1])}
+
+    def project(self, records: Records, points: np.ndarray) -> tuple[np.ndarray, Records]:
+        """Closest points on each facet's own coarse patch, seeded by the records.
+
+        Every facet vertex (slot) is projected onto the Nagata patch of its
+        record's coarse facet (:func:`~nagata_snap.nagata.closest_on_patch`,
+        Newton from the record's barycentrics), and stays inside that facet:
+        a slot whose record has one zero barycentric coordinate lies on a
+        coarse edge (shared with the neighbouring patch, or a crease) and
+        moves along that edge's curve only; two zeros (a coarse vertex, e.g.
+        a corner) never move.  In 2D a curve slot moves along its curve, a
+        coarse vertex does not.  A patch slot whose closest point lies outside
+        the triangle continues on the nearest edge.  So the same vertex gets
+        the same point from the slots of both patches that share its edge.
+
+        Args:
+            records: records of ``nf`` facets (``params`` barycentric, ``(nf, nfv, nfv)``).
+            points: ``(nf, nfv, 3)`` points to project, one per slot.
+
+        Returns:
+            ``(points (nf, nfv, 3), records)``: the closest points (each an
+            evaluation of its new record) and records with the new barycentrics
+            (zero coordinates stay exactly zero).
+        """
+        pts = np.asarray(points, dtype=float)
+        lam = np.array(records.params, dtype=float)
+        nf, nfv = lam.shape[:2]
+        if pts.shape != (nf, nfv, 3):
+            raise ValueError(f"points must have shape ({nf}, {nfv}, 3), got {pts.shape}")
+        root = np.repeat(np.asarray(records.root), nfv)
+        lam = lam.reshape(nf * nfv, nfv)
+        p = pts.reshape(-1, 3)
+        nz = np.count_nonzero(lam == 0.0, axis=1)
+        if nfv == 3:
+            inner = np.flatnonzero(nz == 0)
+            r = root[inner]
+            lam[inner] = nagata.closest_on_patch(self.x[r], self.coef[r], lam[inner], p[inner])
+            # off the triangle: drop the most negative coordinate, go on along that edge
+            out = inner[lam[inner].min(axis=1) < 0.0]
+            lam[out, np.argmin(lam[out], axis=1)] = 0.0
+            edge = np.flatnonzero(np.count_nonzero(lam == 0.0, axis=1) == 1)
+        else:
+            edge = np.flatnonzero(nz == 0)
+        if edge.size:
+            lam[edge] = self._closest_on_edge(root[edge], lam[edge], p[edge])
+        new = Records(np.asarray(records.root).copy(), lam.reshape(nf, nfv, nfv))
+        return self.evaluate(root, lam[:, None, :])[:, 0].reshape(nf, nfv, 3), new
+
+    def _closest_on_edge(self, patch: np.ndarray, lam: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Barycentrics ``(k, nfv)`` of the closest points on the patch edge of the nonzero ``lam``."""
+        k, nfv = lam.shape
+        if nfv == 2:
+            a, b, slot = np.zeros(k, int), np.ones(k, int), np.zeros(k, int)
+        else:
+            zero = np.argmax(lam == 0.0, axis=1)  # the coordinate that stays 0
+            a = np.where(zero == 0, 1, 0)
+            b = np.where(zero == 2, 1, 2)
+            slot = np.where(zero == 2, 0, np.where(zero == 0, 1, 2))  # LOCAL_EDGES order
+        rows = np.arange(k)
+        xs = self.x[patch]
+        la, lb = lam[rows, a], lam[rows, b]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0 = np.where(la + lb > 0, lb / (la + lb), 0.5)
+        t = nagata.closest_on_curve(xs[rows, a], xs[rows, b], self.coef[patch, slot], t0, p)
+        out = np.zeros_like(lam)
+        out[rows, a] = 1.0 - t
+        out[rows, b] = t
+        return out
 
     def evaluate(self, patch: npt.ArrayLike, lam: np.ndarray) -> np.ndarray:
         """Points on patches ``patch (P,)`` at barycentric ``lam (P, k, nfv)``: ``(P, k, 3)``."""

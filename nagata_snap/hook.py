@@ -37,7 +37,8 @@ from .lineage import LineageError, child_facets, child_interior_facets
 from .parallel import collective, collective_place
 from .quality import QualityReport, degenerate_cells
 from .records import Records, refine_records
-from .smoothing import InvertedCellsError, repair
+from .repair import InvertedCellsError, repair
+from .slide import SlidingBoundary
 from .transfer import TransferInfo, transfer
 
 __all__ = ["Snapper", "Refined", "SnapReport", "InvertedCellsError", "LineageError"]
@@ -55,18 +56,21 @@ class SnapReport:
         inverted_before_smoothing: cells inverted or degenerate with the boundary
             snapped and the interior not yet smoothed.
         inverted_after_smoothing: always 0 in a returned report.
-        repair_stage: ``'smooth'``, ``'stiffen'`` or ``'partial'`` (see
-            :func:`nagata_snap.smoothing.repair`).
+        repair_stage: ``'smooth'``, ``'untangle'``, ``'slide'`` or ``'partial'``
+            (see :mod:`nagata_snap.repair`).
         partially_moved, max_shortfall: vertices left short of the geometry and
-            the largest remaining distance.
+            the largest remaining distance (length unit); printed by ``str``.
+        slid_vertices: boundary vertices that slid along the geometry to make
+            room (still on it; their records follow them).
         times: seconds per stage (``refine``, ``lineage``, ``place``, ``smooth+check``,
             ``tags``: the facet tags of the refined mesh, i.e. its facet entities
             and the MeshTags, which a loop without snapping pays in
             ``transfer_meshtag`` too).
         geometry: the geometry's placement report (CAD: residuals, Newton histogram).
         quality: :class:`~nagata_snap.quality.QualityReport` (None if switched off).
-        smoothing_attempts: one dict per smoothing attempt (stage, method,
-            stiffening exponent, band ``layers``, number of bad cells).
+        smoothing_attempts: one dict per smoothing / repair attempt: ``stage``,
+            ``layers``, ``cells`` and ``nodes`` it worked on, ``seconds``,
+            ``n_bad`` (bad cells left), see :class:`~nagata_snap.repair.RepairResult`.
     """
 
     level: int
@@ -83,18 +87,24 @@ class SnapReport:
     geometry: dict = field(default_factory=dict)
     quality: QualityReport | None = None
     smoothing_attempts: list[dict] = field(default_factory=list)
+    slid_vertices: int = 0
+
+    def shortfall_note(self) -> str:
+        """``"N vertices left short of the geometry (max shortfall D)"``, or ``""`` if none."""
+        if not self.partially_moved:
+            return ""
+        return (f"{self.partially_moved} vertices left short of the geometry (max shortfall "
+                f"{self.max_shortfall:.3e})")
 
     def __str__(self) -> str:
         t = ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in self.times.items())
-        part = (
-            f"; {self.partially_moved} vertices moved only part of the way (max shortfall "
-            f"{self.max_shortfall:.3e})" if self.partially_moved else ""
-        )
+        part = f"; {self.shortfall_note()}" if self.partially_moved else ""
+        slid = f", {self.slid_vertices} slid on the geometry" if self.slid_vertices else ""
         return (
             f"level {self.level}: {self.num_cells} cells, {self.num_vertices} vertices, "
             f"{self.boundary_vertices_moved} boundary vertices moved (max {self.max_displacement:.3e}), "
             f"inverted cells {self.inverted_before_smoothing} before smoothing, "
-            f"{self.inverted_after_smoothing} after ({self.repair_stage}){part}; {t}"
+            f"{self.inverted_after_smoothing} after ({self.repair_stage}{slid}){part}; {t}"
         )
 
 
@@ -138,9 +148,11 @@ class Snapper:
         smoothing: interior smoothing after the boundary moved: ``'elastic'``
             (default; stiffened linear-elastic extension in a band of cells,
             PETSc CG + Jacobi), ``'laplace'`` (Jacobi averaging sweeps) or ``'none'``.
-        repair: on inverted or degenerate cells, re-smooth with stronger
-            stiffening, then move the offending boundary vertices only part of
-            the way (reported).  With ``False`` any bad cell raises.
+        repair: on inverted or degenerate cells, untangle the neighbourhood of
+            the bad cells (interior nodes), then let nearby snapped boundary
+            vertices slide on the geometry, then, as the last resort, move the
+            offending boundary vertices only part of the way (reported).  With
+            ``False`` any bad cell raises.
         min_fraction: smallest acceptable fraction of a vertex's move (0..1);
             if repair needs less, :class:`InvertedCellsError` is raised.
         min_quality: mean-ratio floor (0..1) below which a changed cell counts
@@ -327,6 +339,9 @@ class Snapper:
         # lineage) spares smoothing the O(mesh) search for exterior facets
         opts = dict(self.smoothing_options)
         hold = ch.boundary.nodes.ravel() if opts.pop("fix_boundary", True) else np.zeros(0, np.int32)
+        # snapped vertices may slide on the geometry (not those of unsnapped facets)
+        slide = SlidingBoundary(nodes, records, self.geometry, ch.boundary.nodes[~snapped]) \
+            if self.repair and hasattr(self.geometry, "project") else None
         res = repair(
             mesh1,
             x_ref,
@@ -335,7 +350,8 @@ class Snapper:
             hold,
             method=self.smoothing,
             min_quality=self.min_quality,
-            stiffen=((0.0, 3), (1.0, 3), (1.0, 6)) if self.repair and self.smoothing != "none" else (),
+            untangle=self.repair,
+            slide=slide,
             allow_partial=self.repair,
             min_fraction=self.min_fraction,
             report=self.quality_report,
@@ -343,6 +359,7 @@ class Snapper:
             **opts,
         )
         x[:] = res.x
+        records = slide.records if slide is not None else records
         times["smooth+check"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -371,6 +388,7 @@ class Snapper:
             geometry=geo_report,
             quality=res.report,
             smoothing_attempts=list(res.attempts),
+            slid_vertices=res.slid,
         )
         self._level = _Level(mesh1, ch.boundary, tag, snapped, records, c_int, l_int, tag_int)
         self._last = _LastRefine(mesh, ch.parent_cells, mesh1)

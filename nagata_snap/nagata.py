@@ -20,6 +20,14 @@ Triangular patch (eq. 44), written with barycentric coordinates
 with ``c12 = c(x2 - x1, n1, n2)`` etc. (eqs. 39a-39c).  The same barycentric
 form with a single edge is the curve (eq. 1), so :func:`evaluate` serves both.
 
+Closest points (:func:`closest_on_curve`, :func:`closest_on_patch`) solve
+the orthogonality conditions ``x_u . r = x_v . r = 0``, ``r = x(u, v) - p``,
+by Newton's method with the Jacobian ``[[|x_u|^2 + r.x_uu, x_u.x_v + r.x_uv],
+[x_u.x_v + r.x_uv, |x_v|^2 + r.x_vv]]`` (Neto 2010, eqs. 32-36, written there
+for NURBS).  The derivatives: on a curve (eq. 1) ``x_xi = d - c + 2 c xi``,
+``x_xixi = 2 c``; on a patch, from the monomial form (eq. 37),
+``x_etaeta = 2 c20``, ``x_zetazeta = 2 c02``, ``x_etazeta = c11``.
+
 Arrays: ``(..., 3)`` vectors (a 2D mesh uses ``z = 0``), leading axes are
 edges or patches; nothing loops in Python over edges or points.
 """
@@ -38,6 +46,8 @@ __all__ = [
     "patch_derivatives",
     "patch_normal",
     "patch_coefficients",
+    "closest_on_curve",
+    "closest_on_patch",
     "LOCAL_EDGES",
 ]
 
@@ -46,6 +56,24 @@ __all__ = [
 #: Both quantities are dimensionless; neither seed gives a value.  1e-10
 #: corresponds to normals about 2e-5 rad apart.
 EPS = 1.0e-10
+
+#: Bound on the second term of eq. (15), ``|d.v| <= TILT_MAX Dc |d|`` (Nagata,
+#: after eq. 33: "similar constraint can be imposed also on the magnitude of
+#: the solution c").  ``|(d.v) / Dc dv| = |d.v| / sqrt(Dc)`` does not vanish
+#: as the normals become parallel: a chord tilted by ``t`` against nearly
+#: parallel normals ``phi`` apart gets ``|c| ~ |d| t / phi``.  Exact normals of
+#: a smooth curve give ``|d.v| / (Dc |d|) ~ |kappa'| / kappa^2`` (0 on a
+#: circle); estimated ones add noise ``t`` independent of ``phi``, e.g. a
+#: straight edge on a cylinder with normals 0.3 deg apart got ``|c| = 1.7 |d|``.
+TILT_MAX = 1.0
+
+#: Rank threshold of :func:`curve_coefficient_multi`: ``[s]`` counts as rank 2
+#: when its smallest eigenvalue is below this fraction of its largest.
+#: Estimated normals on both sides of a straight crease are never exactly
+#: coplanar at the two ends; the nearly-null direction (along the edge) then
+#: carries ``rhs / lambda_min``, a coefficient of many edge lengths (a folded
+#: patch), where the exact normals give none.
+RANK_TOL = 0.1
 
 #: Local vertex pairs of the edges of a facet with ``nfv`` vertices, in the
 #: order c1, c2, c3 of eq. (39): (v1,v2), (v2,v3), (v1,v3).
@@ -57,7 +85,8 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def curve_coefficient(
-    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS
+    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS,
+    tilt_max: float | None = None,
 ) -> np.ndarray:
     """Curvature coefficient ``c(d, n0, n1)`` of the Nagata curve, eq. (15).
 
@@ -68,12 +97,16 @@ def curve_coefficient(
 
     Singular cases (sec. 2.1.1): the first term is dropped when
     ``1 - Dc < eps`` and the second when ``Dc < eps``; parallel normals thus
-    give ``c = 0`` (a straight edge stays exactly straight).
+    give ``c = 0`` (a straight edge stays exactly straight).  With
+    ``tilt_max`` (for estimated normals, see :data:`TILT_MAX`) the second
+    term is bounded, ``|d.v| <= tilt_max Dc |x1 - x0|``; then eq. (6) no
+    longer holds exactly where the bound is active.
 
     Args:
         d: ``(..., 3)`` edge vectors ``x1 - x0`` (length units).
         n0, n1: ``(..., 3)`` unit normals at the two ends.
         eps: dimensionless singularity threshold.
+        tilt_max: bound of the second term (None: eq. (15) as published).
 
     Returns:
         ``(..., 3)`` coefficients ``c`` (length units).  The result is the
@@ -89,6 +122,9 @@ def curve_coefficient(
     dc = _dot(n0, dv)
     with np.errstate(divide="ignore", invalid="ignore"):
         a = np.where(1.0 - dc < eps, 0.0, ddelta / (1.0 - dc))
+        if tilt_max is not None:
+            lim = tilt_max * dc * np.linalg.norm(d, axis=-1)
+            dd = np.clip(dd, -lim, lim)
         b = np.where(dc < eps, 0.0, dd / dc)
     return a[..., None] * v + b[..., None] * dv
 
@@ -105,7 +141,11 @@ def curve_coefficient_multi(
     ``[s] = [n]^T [n]`` (eq. 33), ``a_i^(0) = s_j x s_k`` (26c),
     ``a_i^(1) = s_j x e_k + e_j x s_k`` (26b), ``D^(2) = e_i.(s_i + a_i^(1))``,
     ``D^(1) = s_i.a_i^(1) + e_i.a_i^(0)``, ``D^(0) = s_i.a_i^(0)`` (29), each
-    treated as zero below ``eps`` (sec. 2.1.2).
+    treated as zero below ``eps`` (sec. 2.1.2).  A nearly rank-2 ``[s]``
+    (smallest eigenvalue below :data:`RANK_TOL` of the largest) is solved
+    as rank 2: its nearly-null eigen-direction is dropped (the truncated
+    pseudo-inverse, which is eq. (31) with ``D^(0) = 0`` for an exactly
+    rank-2 ``[s]``).
 
     Zero rows are allowed as padding (they add nothing to ``[s]`` nor to
     ``[n]^T{d}``), so edges with different numbers of normals share one array.
@@ -150,6 +190,14 @@ def curve_coefficient_multi(
                 np.where((np.abs(d2) > eps)[:, None], rhs / d2[:, None], 0.0),
             ),
         )
+    near = np.flatnonzero(np.abs(d0) > eps)
+    if near.size:
+        lam, vec = np.linalg.eigh(s[near])  # ascending eigenvalues
+        trunc = lam[:, 0] < RANK_TOL * lam[:, 2]
+        if trunc.any():
+            lam, vec, r = lam[trunc, 1:], vec[trunc][:, :, 1:], rhs[near[trunc]]
+            coef = np.einsum("eik,ei->ek", vec, r) / lam
+            c[near[trunc]] = np.einsum("eik,ek->ei", vec, coef)
     return c
 
 
@@ -248,3 +296,91 @@ def patch_coefficients(x: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
         "c20": c1.copy(),  # (43e)
         "c02": c2.copy(),  # (43f)
     }
+
+
+#: Newton iterations of the closest-point kernels (quadratic convergence
+#: from a seed within a cell size: 2-4 are used, the rest are no-ops).
+CLOSEST_ITERATIONS = 12
+
+
+def _newton_step_1d(g: np.ndarray, h: np.ndarray, gn: np.ndarray) -> np.ndarray:
+    """Step ``-g / h``, with the Gauss-Newton curvature ``gn`` where ``h`` is not safely positive."""
+    h = np.where(h > 0.1 * gn, h, gn)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(h > 0, -g / h, 0.0)
+
+
+def closest_on_curve(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, xi: np.ndarray,
+                     p: np.ndarray, iterations: int = CLOSEST_ITERATIONS) -> np.ndarray:
+    """Parameter of the closest point of Nagata curves to points, kept in [0, 1].
+
+    Newton on ``f(xi) = x_xi . (x(xi) - p) = 0`` (Neto 2010, eqs. 32-36 in one
+    variable), ``x_xi = d - c + 2 c xi``, ``x_xixi = 2 c`` (eq. 1); a step
+    where the second derivative of the distance is not positive falls back to
+    Gauss-Newton, steps are at most 0.5 and the parameter is clipped to the
+    curve, so a point beyond an end converges to that end.
+
+    Args:
+        x0, x1: ``(P, 3)`` end points; c: ``(P, 3)`` coefficients.
+        xi: ``(P,)`` seeds in [0, 1]; p: ``(P, 3)`` points.
+
+    Returns:
+        ``(P,)`` parameters in [0, 1].
+    """
+    d = x1 - x0
+    t = np.clip(np.asarray(xi, dtype=float), 0.0, 1.0)
+    for _ in range(iterations):
+        tt = t[:, None]
+        r = x0 + (d - c) * tt + c * tt * tt - p
+        xt = d - c + 2.0 * c * tt
+        gn = _dot(xt, xt)
+        step = _newton_step_1d(_dot(xt, r), gn + 2.0 * _dot(r, c), gn)
+        t = np.clip(t + np.clip(step, -0.5, 0.5), 0.0, 1.0)
+    return t
+
+
+def closest_on_patch(x: np.ndarray, c: np.ndarray, lam: np.ndarray, p: np.ndarray,
+                     iterations: int = CLOSEST_ITERATIONS) -> np.ndarray:
+    """Barycentric coordinates of the closest point of triangular patches, unconstrained.
+
+    Newton in ``(eta, zeta)`` (``eta = 1 - l1``, ``zeta = l3``, eq. 34) on the
+    orthogonality conditions (Neto 2010, eqs. 32-36) with the monomial
+    derivatives of eq. (37): ``x_eta = c10 + c11 zeta + 2 c20 eta``,
+    ``x_zeta = c01 + c11 eta + 2 c02 zeta``, ``x_etaeta = 2 c20``,
+    ``x_zetazeta = 2 c02``, ``x_etazeta = c11``.  Where the Jacobian is not
+    positive definite the Gauss-Newton matrix ``J^T J`` is used; steps are at
+    most 0.5 in parameter length.  The result may lie outside the triangle
+    (a negative coordinate): the caller decides (:meth:`NagataGeometry.project`
+    continues on the nearest edge).
+
+    Args:
+        x: ``(P, 3, 3)`` patch vertices; c: ``(P, 3, 3)`` edge coefficients.
+        lam: ``(P, 3)`` barycentric seeds; p: ``(P, 3)`` points.
+
+    Returns:
+        ``(P, 3)`` barycentric coordinates (rows sum to one).
+    """
+    m = patch_coefficients(x, c)
+    eta = 1.0 - lam[:, 0]
+    zeta = lam[:, 2].copy()
+    for _ in range(iterations):
+        e, z = eta[:, None], zeta[:, None]
+        r = m["c00"] + m["c10"] * e + m["c01"] * z + m["c11"] * e * z + m["c20"] * e * e \
+            + m["c02"] * z * z - p
+        xe = m["c10"] + m["c11"] * z + 2.0 * m["c20"] * e
+        xz = m["c01"] + m["c11"] * e + 2.0 * m["c02"] * z
+        a, b, d = _dot(xe, xe), _dot(xe, xz), _dot(xz, xz)  # J^T J
+        ha = a + 2.0 * _dot(r, m["c20"])
+        hb = b + _dot(r, m["c11"])
+        hd = d + 2.0 * _dot(r, m["c02"])
+        pd = (ha > 0) & (ha * hd - hb * hb > 1e-2 * (a * d - b * b))
+        ha, hb, hd = np.where(pd, ha, a), np.where(pd, hb, b), np.where(pd, hd, d)
+        ge, gz = _dot(xe, r), _dot(xz, r)
+        det = ha * hd - hb * hb
+        with np.errstate(divide="ignore", invalid="ignore"):
+            de = np.where(det > 0, -(hd * ge - hb * gz) / det, 0.0)
+            dz = np.where(det > 0, -(ha * gz - hb * ge) / det, 0.0)
+        scale = np.minimum(1.0, 0.5 / np.maximum(np.hypot(de, dz), 1e-300))
+        eta = eta + scale * de
+        zeta = zeta + scale * dz
+    return np.stack([1.0 - eta, eta - zeta, zeta], axis=1)

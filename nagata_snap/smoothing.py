@@ -49,9 +49,7 @@ The band
 
 The only per-mesh (not per-band) work is the layer marking and a few cheap
 numpy passes over the nodes and the geometry dofmap (node masks, ghost
-scatters); the validity check of :func:`repair` only evaluates cells in the
-band or touching a prescribed node, and so does the :class:`QualityReport`
-unless ``report="all"`` (O(mesh)).
+scatters).
 
 Parallel
     Node masks and coordinates are kept ghost-consistent with
@@ -65,15 +63,13 @@ Parallel
     a parallel refinement of the same coarse mesh can differ in their
     interior diagonals, and the smoothed coordinates then differ too.
 
-:func:`repair` wraps :func:`smooth` in the guard: check, stiffen / widen,
-partial moves (per-vertex displacement fractions found by a blame-weighted
-bisection), and :class:`InvertedCellsError` if the required minimum
-displacement fraction cannot be met.
+:func:`nagata_snap.repair.repair` wraps the band smoother in the guard:
+check, untangle the neighbourhood of bad cells, slide boundary vertices,
+partial moves as the last resort.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import time
 from typing import Any
@@ -88,10 +84,9 @@ from petsc4py import PETSc
 
 from ._batched import inverse_small
 
-from .quality import (QualityReport, _columns, _inverted_mask, _touching, edge_length_range,
-                      mean_ratio, signed_volumes)
+from .quality import _columns, _touching, edge_length_range
 
-__all__ = ["smooth", "repair", "RepairResult", "InvertedCellsError", "SMOOTH_DEFAULTS"]
+__all__ = ["smooth", "SMOOTH_DEFAULTS"]
 
 #: Default options of :func:`smooth` (``**opts``).
 SMOOTH_DEFAULTS: dict[str, Any] = {
@@ -110,21 +105,6 @@ SMOOTH_DEFAULTS: dict[str, Any] = {
 _counter = itertools.count()
 
 
-class InvertedCellsError(RuntimeError):
-    """Smoothing and repair could not produce a valid mesh.
-
-    Attributes:
-        cells: (m,) int64 global cell indices (``topology.index_map(tdim)``
-            numbering) of the offending cells, identical on all ranks.
-        count: global number of offending cells.
-    """
-
-    def __init__(self, message: str, cells: np.ndarray | None = None, count: int = 0):
-        super().__init__(message)
-        self.cells = np.asarray([] if cells is None else cells, dtype=np.int64)
-        self.count = int(count)
-
-
 # ---------------------------------------------------------------------------
 # MPI helpers on the geometry-node index map
 # ---------------------------------------------------------------------------
@@ -135,6 +115,7 @@ class _NodeSync:
 
     def __init__(self, imap):
         self.imap = imap
+        self.comm = imap.comm
         self.n_owned = imap.size_local
         self.n = imap.size_local + imap.num_ghosts
         self.parallel = imap.comm.size > 1
@@ -193,63 +174,84 @@ def _mask(n: int, idx) -> np.ndarray:
 AUTO_LAYERS = ((0.1, 2), (0.3, 3))
 AUTO_LAYERS_MAX = 4
 
-#: Default blame taper of the partial moves (vertex layers, at most the band
-#: width): wide enough for a smooth fraction field along the boundary, narrow
-#: enough that only the vertices near the offending cells stay short (a taper
-#: as wide as a stiffened band of 24 layers left 780 vertices short where 53
-#: suffice, benchmarks/hard_cases.py).
-TAPER_LAYERS = 2
 
 
 def _auto_layers(comm, x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
-                 touched: np.ndarray) -> int:
-    """Band width for the prescribed displacement ``disp`` (n, 3) (collective).
+                 touched: np.ndarray, sync: "_NodeSync") -> np.ndarray:
+    """Band width of every node for the prescribed displacement ``disp`` (n, 3) (collective).
 
     ``touched`` (nc,) bool: the cells with a displaced node (a superset does
     no harm: cells without one have relative displacement 0).
 
     The relative displacement of a cell is the largest prescribed
-    displacement of its nodes over its shortest reference edge; its maximum
-    over the cells touching a displaced node decides: below 0.1 (the usual
-    case after refinement, where the snapping distance is O(h^2)) two layers
+    displacement of its nodes over its shortest reference edge; a displaced
+    node takes the largest over its cells: below 0.1 (the usual case after
+    refinement, where the snapping distance is O(h^2)) two layers around it
     are enough to spread the move, below 0.3 three, otherwise four (as for
-    the first levels of a very coarse polygon).  The repair widens the band
-    further if cells still invert.
+    the first levels of a very coarse polygon).  So one far-moving vertex
+    widens the band only around itself.  The repair goes further where
+    cells still invert.
+
+    Returns:
+        (n,) int: layers around each displaced node (0 elsewhere), ghost-consistent.
     """
+    n = x_ref.shape[0]
     dn = np.linalg.norm(disp, axis=1)
+    node_rel = np.zeros(n)
     sel = np.flatnonzero(touched)
-    r = 0.0
     if sel.size:
         sub = cells[sel]
         hmin, _ = edge_length_range(x_ref, sub, sub.shape[1] - 1)
         dmax = dn[sub].max(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = np.where(hmin > 0, dmax / hmin, np.inf)
-        r = float(rel.max())
-    r = comm.allreduce(r, op=mpi4py.MPI.MAX)
-    for limit, layers in AUTO_LAYERS:
-        if r <= limit:
-            return layers
-    return AUTO_LAYERS_MAX
+        for k in range(sub.shape[1]):
+            np.maximum.at(node_rel, sub[:, k], rel)
+    # (a process sees only some cells of a node: a threshold passed on any widens)
+    moving = sync.any(dn > 0)
+    out = np.where(moving, AUTO_LAYERS[0][1], 0)
+    wider = [layers for _, layers in AUTO_LAYERS[1:]] + [AUTO_LAYERS_MAX]
+    for (limit, _), layers in zip(AUTO_LAYERS, wider):
+        out = np.where(moving & sync.any(node_rel > limit), layers, out)
+    return out
 
 
-def _expand(cells: np.ndarray, mark: np.ndarray, layers: int, sync: _NodeSync,
+def _expand(cells: np.ndarray, mark: np.ndarray, layers, sync: _NodeSync,
             cols: list[np.ndarray] | None = None):
     """Grow a node mask by ``layers`` cell layers (collective).
+
+    ``layers``: an int, or ``(n,)`` ints per node of ``mark`` (each such
+    node grows by its own number of layers: the widest start first, the
+    others join when as many steps remain as they need).
 
     Returns (mark_k, mark_{k-1}, cells_in) with cells_in the cells touching a
     node of mark_{k-1}.
     """
     cols = _columns(cells) if cols is None else cols
+    per_node = np.ndim(layers) > 0
+    total = int(np.max(layers, initial=0)) if per_node else int(layers)
+    if per_node:
+        total = int(sync.comm.allreduce(total, op=mpi4py.MPI.MAX))
+        need = np.where(mark, layers, 0)
+        mark = need >= total
     prev = mark
     cin = np.zeros(cells.shape[0], dtype=bool)
-    for _ in range(layers):
+    for step in range(total):
+        if per_node:
+            mark = mark | (need >= total - step)
         cin = _touching(mark, cols)
         new = mark.copy()
         new[cells[cin].reshape(-1)] = True
         new = sync.any(new)
         prev, mark = mark, new
     return mark, prev, cin
+
+
+def _max_layers(layers, comm) -> int:
+    """Band width of an int or per-node ``layers`` (the largest over all processes)."""
+    if np.ndim(layers) == 0:
+        return int(layers)
+    return int(comm.allreduce(int(np.max(layers, initial=0)), op=mpi4py.MPI.MAX))
 
 
 # ---------------------------------------------------------------------------
@@ -379,7 +381,7 @@ class _Band:
     """
 
     def __init__(self, mesh, moved_mask, fixed_mask, sync, layers, cols=None):
-        if layers < 1:
+        if np.ndim(layers) == 0 and layers < 1:
             raise ValueError("layers must be >= 1")
         comm = mesh.comm
         cells = mesh.geometry.dofmaps[0]
@@ -577,7 +579,7 @@ class _Smoother:
         if method == "none" or not any_moved:
             return
         t0 = time.perf_counter()
-        self.band = _Band(mesh, moved_mask, fixed_mask, sync, int(opts["layers"]), cols)
+        self.band = _Band(mesh, moved_mask, fixed_mask, sync, opts["layers"], cols)
         t1 = time.perf_counter()
         _acc(timings, "band", t1 - t0)
         if self.band.n_free_global == 0:
@@ -590,7 +592,7 @@ class _Smoother:
         else:
             sweeps = opts["sweeps"]
             if sweeps is None:
-                sweeps = max(50, 4 * int(opts["layers"]) ** 2)
+                sweeps = max(50, 4 * _max_layers(opts["layers"], mesh.comm) ** 2)
             self.solver = _BandSolver(mesh, self.band, x_ref, "graph", sweeps=sweeps,
                                       petsc_options=opts["petsc_options"])
         _acc(timings, "setup", time.perf_counter() - t1)
@@ -726,7 +728,7 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
         cells = mesh.geometry.dofmaps[0]
         disp = np.where(moved_mask[:, None], x_cur - x_ref, 0.0)
         o["layers"] = _auto_layers(mesh.comm, x_ref, disp, cells,
-                                   _touching(np.any(disp != 0.0, axis=1), _columns(cells)))
+                                   _touching(np.any(disp != 0.0, axis=1), _columns(cells)), sync)
     sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
     try:
         x_new = sm.run(x_cur)
@@ -739,360 +741,5 @@ def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
             info["band_nodes"] = sm.band.n_nodes_global
             info["band_free_nodes"] = sm.band.n_free_global
         info["solver_fallbacks"] = getattr(sm.solver, "n_fallback", 0)
-        info["layers"] = int(o["layers"])
+        info["layers"] = _max_layers(o["layers"], mesh.comm)
     return x_new
-
-
-@dataclasses.dataclass
-class RepairResult:
-    """Outcome of :func:`repair` (a valid mesh; identical on all ranks).
-
-    Attributes:
-        x: (n, 3) new coordinates of all local geometry nodes.
-        fraction: (k,) fraction of its prescribed displacement reached by each
-            node of the input ``moved`` (same order); 1 = at the target.
-        shortfall: (k,) remaining distance to the target (length unit); 0 for
-            nodes that reached it.
-        stage: ``'smooth'`` (first attempt valid), ``'stiffen'`` (after
-            stronger stiffening / wider band) or ``'partial'`` (some nodes
-            moved only part of the way).
-        n_inverted_unsmoothed: global number of bad cells with the boundary
-            moved and no smoothing.
-        n_inverted_smoothed: global number of bad cells after the first
-            smoothing attempt.
-        attempts: log, one dict per smoothing run (stage, method, exponent,
-            layers, n_bad).
-        timings: stage -> seconds on this rank.
-        report: :class:`QualityReport` of the result (None if not requested).
-    """
-
-    x: np.ndarray
-    fraction: np.ndarray
-    shortfall: np.ndarray
-    stage: str
-    n_inverted_unsmoothed: int
-    n_inverted_smoothed: int
-    attempts: list[dict]
-    timings: dict[str, float]
-    report: QualityReport | None = None
-
-    @property
-    def n_shortfall(self) -> int:
-        """Local number of moved nodes that did not reach their target."""
-        return int(np.count_nonzero(self.shortfall > 0))
-
-
-def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
-           fixed: np.ndarray, method: str = "elastic", *,
-           rel_floor: float = 1e-12, min_quality: float = 0.01,
-           stiffen: tuple[tuple[float, int], ...] = ((1.0, 2), (2.0, 3)),
-           allow_partial: bool = True, min_fraction: float = 0.0,
-           bisection_steps: int = 8, implicate_layers: int = 1,
-           taper_layers: int | None = None, max_rounds: int = 4,
-           report: bool | str = True, **opts) -> RepairResult:
-    """Smooth, guard against inverted / degenerate cells, repair or fail.
-
-    Collective on ``mesh.comm``. Neither ``mesh`` nor any input array is
-    modified; the caller writes ``result.x`` into its mesh on success.
-
-    A cell ``K`` is *bad* if it is inverted or collapsed w.r.t. ``x_ref``
-    (:func:`~nagata_snap.quality.inverted_cells` with ``rel_floor``), or if its
-    mean ratio falls below ``min(min_quality, 0.5 * q_ref(K))`` (``q_ref`` its
-    mean ratio in the straight mesh, so cells that were already poor are only
-    blamed if they lose half their quality). Only cells with a node whose
-    coordinates differ from ``x_ref`` are examined (an unchanged cell cannot
-    have been made bad), so the check costs O(changed cells) after one
-    O(mesh) pass of numpy comparisons.
-
-    Steps:
-
-    0. ``smooth(method, **opts)``; done if no bad cell.
-    1. Stiffen: for each ``(dp, m)`` in ``stiffen`` re-solve with ``'elastic'``,
-       exponent ``p + dp`` and a band ``m`` times wider; done if no bad cell.
-    2. Partial move (``allow_partial``), with the last stiffened smoother
-       (factorised once, re-solved per trial): the moved nodes near the bad
-       cells get a *blame weight* ``w`` (1 within ``implicate_layers``
-       vertex layers of a bad cell, tapering linearly to 0 over
-       ``taper_layers`` further layers), and their
-       displacement fractions become
-       ``alpha_i(t) = a_i - (1 - t) w_i (a_i - min_fraction)`` (``a`` the
-       fractions of the previous round, initially 1). ``bisection_steps``
-       bisections on ``t`` in [0, 1] keep the largest valid ``t``. The
-       first try is local (taper ``TAPER_LAYERS`` = 2 layers: only the
-       vertices next to the bad cells stay short, e.g. around a boundary
-       sliver whose nodes are all constrained); if no ``t`` is valid, the
-       rounds use a taper as wide as the band. If even
-       ``t = 0`` leaves bad cells (elsewhere), a new round blames those
-       with a wider radius, up to ``max_rounds``; the last round blames
-       every moved node. So every node gets its own fraction, and the
-       fraction field is smooth along the boundary: an independent
-       bisection per vertex (tried first) produced alternating fractions
-       (0 / 0.25 on neighbouring nodes) whose jagged boundary caused new
-       inversions. With ``min_fraction = 0`` the result is always valid
-       (``alpha = 0`` everywhere reproduces ``x_ref``).
-    3. If cells are still bad: raise :class:`InvertedCellsError` naming the
-       global indices of the first offending cells and their count.
-
-    Args:
-        mesh: P1 simplex ``dolfinx.mesh.Mesh`` (topology / parallel layout;
-            its coordinates are not read).
-        x_ref: (n, 3) straight reference coordinates (all local nodes).
-        x_target: (n, 3) coordinates with the moved nodes at their targets;
-            its other rows (fixed nodes, nodes outside the band) are kept.
-        moved, fixed: (k,), (m,) int32 local geometry-node indices, as in
-            :func:`smooth`.
-        method: first smoother, ``'elastic'``, ``'laplace'`` or ``'none'``.
-        rel_floor: relative volume floor for inversion.
-        min_quality: mean-ratio floor in [0, 1] (0 disables the quality
-            guard; 1 = equilateral).
-        stiffen: escalation schedule of (exponent increment, band multiplier).
-        allow_partial: allow partial moves; if False, step 2 is skipped.
-        min_fraction: smallest acceptable displacement fraction per node.
-        bisection_steps: bisection steps on ``t`` per round.
-        implicate_layers: moved nodes within this many vertex layers of a
-            bad cell get the full blame (>= 1); grows by the band width per
-            round.
-        taper_layers: layers over which the blame decays to 0. Default: a
-            first, local bisection with a taper of ``TAPER_LAYERS`` (2), then
-            rounds with the band width of the last smoother.
-        max_rounds: number of blame rounds (the last blames all moved nodes).
-        report: build a :class:`QualityReport`: ``True`` or ``"changed"``
-            (metrics over the cells snapping / smoothing changed, O(band)),
-            ``"all"`` (every cell, O(mesh)) or ``False`` (none).
-        **opts: smoothing options of :func:`smooth` (``layers``, ``exponent``,
-            ...).
-
-    Returns:
-        :class:`RepairResult`.
-
-    Raises:
-        InvertedCellsError: no valid mesh within the constraints.
-    """
-    t_start = time.perf_counter()
-    o = _options(opts)
-    timings: dict[str, float] = {}
-    comm = mesh.comm
-    gdim = mesh.geometry.dim
-    tdim = mesh.topology.dim
-    sync, x_ref, moved_mask, fixed_mask = _prepare(mesh, x_ref, moved, fixed,
-                                                    bool(o["fix_boundary"]))
-    x_target = np.asarray(x_target, dtype=np.float64)
-    if x_target.shape != x_ref.shape:
-        raise ValueError(f"x_target must have shape {x_ref.shape}, got {x_target.shape}")
-    moved_idx = np.asarray(moved, dtype=np.int64).reshape(-1)
-    x_tgt = sync.forward(x_target)  # owner-consistent copy
-    disp = np.where(moved_mask[:, None], x_tgt - x_ref, 0.0)
-    cells = mesh.geometry.dofmaps[0]
-    n_cells = cells.shape[0]
-    n_own_cells = mesh.topology.index_map(tdim).size_local
-    cols = _columns(cells)
-    # Every coordinate array checked below differs from x_ref only at nodes
-    # where x_tgt does (scaled prescribed moves) or at nodes a smoother moved,
-    # which lie in its band cells. So the check only looks at the cells
-    # touching a node with x_tgt != x_ref plus the band cells (O(band), not
-    # O(mesh)); reference volumes and quality floors are computed lazily for
-    # the cells actually examined.
-    touched_tgt = _touching(np.any(x_tgt != x_ref, axis=1), cols)
-    if o["layers"] == "auto":
-        o["layers"] = _auto_layers(comm, x_ref, disp, cells, touched_tgt)
-    v_ref = np.empty(n_cells)
-    q_floor = np.empty(n_cells) if min_quality > 0 else None
-    have_ref = np.zeros(n_cells, dtype=bool)
-    attempts: list[dict] = []
-
-    def ref_data(cand):
-        need = cand[~have_ref[cand]]
-        if need.size:
-            sub = cells[need]
-            v_ref[need] = signed_volumes(x_ref, sub, gdim)
-            if q_floor is not None:
-                q_floor[need] = np.minimum(min_quality, 0.5 * mean_ratio(x_ref, sub, gdim))
-            have_ref[need] = True
-
-    pools: dict = {}
-
-    def bad_mask(x, sm_cells):
-        """Bad local cells (owned + ghost) and their global (owned) count.
-
-        Only cells with a node that differs from x_ref are examined; an
-        unchanged cell cannot have been made bad. ``sm_cells``: band cells
-        of the smoother that produced ``x`` (the only other cells whose
-        nodes can differ from x_ref, see above).
-        """
-        t0 = time.perf_counter()
-        if pools.get("key") is not sm_cells:  # candidate pool of this smoother
-            pool = touched_tgt.copy()
-            pool[sm_cells] = True
-            pool = np.flatnonzero(pool)
-            pc = cells[pool]
-            pools.update(key=sm_cells, pool=pool, cols=_columns(pc), nodes=np.unique(pc))
-        pool, nodes = pools["pool"], pools["nodes"]
-        changed = np.zeros(x.shape[0], dtype=bool)
-        changed[nodes] = np.any(x[nodes] != x_ref[nodes], axis=1)
-        cand = pool[_touching(changed, pools["cols"])]
-        ref_data(cand)
-        sub = cells[cand]
-        badc = _inverted_mask(signed_volumes(x, sub, gdim), v_ref[cand], rel_floor)
-        if q_floor is not None:
-            badc |= mean_ratio(x, sub, gdim) < q_floor[cand]
-        bad = np.zeros(n_cells, dtype=bool)
-        bad[cand[badc]] = True
-        nbad = comm.allreduce(int(np.count_nonzero(bad[:n_own_cells])))
-        _acc(timings, "check", time.perf_counter() - t0)
-        return bad, nbad
-
-    def positions(alpha):
-        """Prescribed positions for displacement fractions alpha (n,)."""
-        x = x_tgt.copy()
-        part = moved_mask & (alpha < 1.0)
-        x[part] = x_ref[part] + alpha[part, None] * disp[part]
-        return x
-
-    def blame(bad, radius, taper):
-        """Blame weight (n,) in [0, 1] of the moved nodes for the bad cells.
-
-        1 within ``radius`` vertex layers of a bad cell, then decreasing
-        linearly to 0 over ``taper`` further layers (so the fraction field
-        stays smooth along the boundary).
-        """
-        mark = np.zeros(sync.n, dtype=bool)
-        mark[cells[bad].reshape(-1)] = True
-        mark = sync.any(mark)
-        w = mark.astype(np.float64)
-        for j in range(1, radius + taper + 1):
-            new, _, _ = _expand(cells, mark, 1, sync, cols)
-            val = 1.0 if j <= radius else 1.0 - (j - radius) / (taper + 1.0)
-            w[new & ~mark] = val
-            mark = new
-        return np.where(moved_mask, w, 0.0)
-
-    def finish(x, alpha, stage, n_unsm, n_sm):
-        frac = alpha[moved_idx] if moved_idx.size else np.zeros(0)
-        dist = np.linalg.norm(disp, axis=1)
-        short_all = np.where(moved_mask, (1.0 - alpha) * dist, 0.0)
-        shortfall = short_all[moved_idx] if moved_idx.size else np.zeros(0)
-        timings["total"] = time.perf_counter() - t_start
-        rep = None
-        if report:
-            t0 = time.perf_counter()
-            scope = "changed" if report is True else str(report)
-            n_own = sync.n_owned
-            own_moved = np.flatnonzero(moved_mask[:n_own])
-            rep = QualityReport.from_mesh(
-                mesh, x, x_ref=x_ref, x_before=x_tgt, rel_floor=rel_floor,
-                timings=dict(timings), shortfall=short_all[own_moved], scope=scope)
-            timings["report"] = time.perf_counter() - t0
-            rep.timings["report"] = comm.allreduce(timings["report"], op=mpi4py.MPI.MAX)
-        return RepairResult(x=x, fraction=np.asarray(frac, dtype=np.float64),
-                            shortfall=np.asarray(shortfall, dtype=np.float64),
-                            stage=stage, n_inverted_unsmoothed=n_unsm,
-                            n_inverted_smoothed=n_sm, attempts=attempts,
-                            timings=timings, report=rep)
-
-    ones = np.ones(sync.n)
-    no_cells = np.zeros(0, dtype=np.int32)
-    _, n_unsmoothed = bad_mask(x_tgt, no_cells)
-
-    # -- step 0: requested smoother ---------------------------------------
-    sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings, cols)
-    try:
-        x = sm.run(x_tgt)
-    finally:
-        sm.destroy()
-    bad, nbad = bad_mask(x, sm.cells)
-    n_smoothed = nbad
-    attempts.append({"stage": "smooth", "method": method, "exponent": o["exponent"],
-                     "layers": o["layers"], "n_bad": nbad})
-    if nbad == 0:
-        return finish(x, ones, "smooth", n_unsmoothed, n_smoothed)
-
-    # -- step 1: stiffen and widen -------------------------------------------
-    sm = None
-    try:
-        for dp, mult in stiffen:
-            if sm is not None:
-                sm.destroy()
-            os_ = dict(o, exponent=o["exponent"] + dp, layers=int(o["layers"]) * int(mult))
-            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, "elastic", os_, timings,
-                           cols)
-            x = sm.run(x_tgt)
-            bad, nbad = bad_mask(x, sm.cells)
-            attempts.append({"stage": "stiffen", "method": "elastic",
-                             "exponent": os_["exponent"], "layers": os_["layers"],
-                             "n_bad": nbad})
-            if nbad == 0:
-                return finish(x, ones, "stiffen", n_unsmoothed, n_smoothed)
-        if sm is None:  # empty schedule
-            sm = _Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings, cols)
-        layers_used = int(attempts[-1]["layers"])
-
-        # -- step 2: partial moves, blame-weighted bisection ----------------
-        if allow_partial:
-            fmin = float(min_fraction)
-            r0 = max(1, int(implicate_layers))
-
-            def bisect(w, base, rnd):
-                """Largest valid t of alpha(t) = base - (1 - t) w (base - fmin), or None."""
-                t_lo, t_hi, good = 0.0, 1.0, None
-                for _ in range(int(bisection_steps)):
-                    t = 0.5 * (t_lo + t_hi)
-                    a_t = base - (1.0 - t) * w * (base - fmin)
-                    x = sm.run(positions(a_t))
-                    _, nbad = bad_mask(x, sm.cells)
-                    attempts.append({"stage": "bisect", "round": rnd, "t": t,
-                                     "method": sm.method, "layers": layers_used,
-                                     "n_bad": nbad})
-                    if nbad == 0:
-                        t_lo, good = t, (x, a_t)
-                    else:
-                        t_hi = t
-                return good
-
-            alpha = np.ones(sync.n)
-            # 2a. local: only the moved nodes next to the bad cells, narrow
-            # taper (a bad cell all of whose nodes are constrained, e.g. a
-            # boundary sliver, leaves only a few vertices short)
-            if taper_layers is None and TAPER_LAYERS < layers_used:
-                good = bisect(blame(bad, r0, TAPER_LAYERS), alpha, "local")
-                if good is not None:
-                    return finish(good[0], good[1], "partial", n_unsmoothed, n_smoothed)
-            # 2b. rounds with the taper as wide as the band (smooth fractions
-            # when many nodes must stay short), widening the blamed region
-            taper = max(1, layers_used if taper_layers is None else int(taper_layers))
-            for rnd in range(int(max_rounds)):
-                last = rnd == int(max_rounds) - 1
-                w = moved_mask.astype(np.float64) if last else \
-                    blame(bad, r0 + rnd * layers_used, taper)
-                w = np.where(alpha > fmin, w, 0.0)
-                if not comm.allreduce(bool(np.any(w > 0)), op=mpi4py.MPI.LOR):
-                    w = np.where(alpha > fmin, moved_mask.astype(np.float64), 0.0)
-                    if not comm.allreduce(bool(np.any(w > 0)), op=mpi4py.MPI.LOR):
-                        break  # every moved node already at min_fraction
-                good = bisect(w, alpha, rnd)
-                if good is not None:
-                    return finish(good[0], good[1], "partial", n_unsmoothed, n_smoothed)
-                alpha = alpha - w * (alpha - fmin)
-                x = sm.run(positions(alpha))
-                bad, nbad = bad_mask(x, sm.cells)
-                attempts.append({"stage": "partial", "round": rnd, "t": 0.0,
-                                 "method": sm.method, "layers": layers_used,
-                                 "n_bad": nbad})
-                if nbad == 0:
-                    return finish(x, alpha, "partial", n_unsmoothed, n_smoothed)
-    finally:
-        if sm is not None:
-            sm.destroy()
-
-    # -- step 3: give up -------------------------------------------------------
-    cim = mesh.topology.index_map(tdim)
-    own_bad = np.flatnonzero(bad[:n_own_cells]).astype(np.int32)
-    gbad = cim.local_to_global(own_bad) if own_bad.size else np.zeros(0, dtype=np.int64)
-    allbad = np.sort(np.concatenate(comm.allgather(np.asarray(gbad, dtype=np.int64))))
-    first = ", ".join(str(c) for c in allbad[:10])
-    more = " ..." if allbad.size > 10 else ""
-    why = ("partial moves disabled" if not allow_partial
-           else f"even with every implicated node moved only {min_fraction:g} of the way")
-    raise InvertedCellsError(
-        f"{allbad.size} cell(s) inverted or below the quality floor after smoothing "
-        f"and repair ({why}); global cell indices: [{first}{more}]",
-        cells=allbad[:100], count=allbad.size)

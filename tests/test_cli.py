@@ -47,6 +47,18 @@ def circle_dist(x):
     return np.abs(np.hypot(x[:, 0] - CENTRE[0], x[:, 1] - CENTRE[1]) - R)
 
 
+def test_level_line_states_vertices_left_short(tmp_path):
+    """A vertex that cannot reach the geometry (a hole touching a wall) is reported on the level's line."""
+    import hard_parts
+
+    path = tmp_path / "touching.msh"
+    hard_parts.touching_hole(MPI.COMM_SELF, msh_file=str(path))
+    r = cli(path, "--tags", hard_parts.TOUCH_HOLE, "--levels", 1)
+    assert r.returncode == 0, r.stdout + r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if "level 1/1" in ln)
+    assert "vertices left short of the geometry (max shortfall" in line, line
+
+
 def test_help():
     r = cli("--help")
     assert r.returncode == 0

@@ -90,6 +90,44 @@ def test_multi_normal_reduces_to_two_normal_and_keeps_planes():
     np.testing.assert_allclose(c, nagata.curve_coefficient((b - a)[None], a[None], b[None]), atol=1e-14)
 
 
+
+def test_multi_normal_nearly_coplanar_crease_stays_straight():
+    """A straight crease with estimated normals a little off at each end
+    (the four normals then span 3D with a tiny third eigenvalue): the
+    coefficient stays of the order of the perturbation, not of the edge."""
+    rng = np.random.default_rng(5)
+    d = np.array([[0.222, 0.0, 0.0]])
+    na, nb = np.array([0.0, 1.0, 0.0]), np.array([0.0, -0.733, 0.68]) / np.hypot(0.733, 0.68)
+    for _ in range(20):
+        n0 = np.array([na, nb]) + 1e-3 * rng.normal(size=(2, 3))
+        n1 = np.array([na, nb]) + 1e-3 * rng.normal(size=(2, 3))
+        n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+        n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
+        c = nagata.curve_coefficient_multi(d, n0[None], n1[None])
+        assert np.linalg.norm(c) < 0.01 * 0.222
+
+
+
+def test_tilt_bound_keeps_nearly_parallel_normals_straight():
+    """Eq. (15) with normals 0.35 deg apart and a chord tilted 0.3 deg against
+    them (estimated normals on a straight edge of a cylinder): |c| = 1.7 |d|
+    as published, of the order of the normals' difference with the bound;
+    a circle (no tilt) is unchanged."""
+    d = np.array([[0.0, 0.0, 0.12]])
+    n0 = np.array([[-1.0, 0.0, 0.002]])
+    n1 = np.array([[-1.0, 0.0, 0.008]])
+    n0 /= np.linalg.norm(n0)
+    n1 /= np.linalg.norm(n1)
+    assert np.linalg.norm(nagata.curve_coefficient(d, n0, n1)) > 1.5 * 0.12
+    c = nagata.curve_coefficient(d, n0, n1, tilt_max=nagata.TILT_MAX)
+    assert np.linalg.norm(c) < 0.01 * 0.12
+    th = np.linspace(0, np.pi / 2, 7)
+    x = np.c_[np.cos(th), np.sin(th), 0 * th]
+    np.testing.assert_array_equal(
+        nagata.curve_coefficient(x[1:] - x[:-1], x[:-1], x[1:], tilt_max=nagata.TILT_MAX),
+        nagata.curve_coefficient(x[1:] - x[:-1], x[:-1], x[1:]))
+
+
 def test_patch_reproduces_vertices_and_planes():
     rng = np.random.default_rng(3)
     x = rng.normal(size=(10, 3, 3))

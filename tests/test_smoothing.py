@@ -14,7 +14,8 @@ import dolfinx
 import dolfinx.mesh
 
 from nagata_snap.quality import inverted_cells, mean_ratio
-from nagata_snap.smoothing import InvertedCellsError, RepairResult, repair, smooth
+from nagata_snap.repair import InvertedCellsError, RepairResult, repair
+from nagata_snap.smoothing import smooth
 
 COMM = MPI.COMM_SELF
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -275,14 +276,21 @@ def test_repair_accepts_valid_smoothing(pushed):
     assert r.report.n_shortfall == 0
 
 
-def test_repair_stiffens_when_band_too_narrow():
+def test_repair_untangles_when_band_too_narrow():
     msh, x_ref, left, fixed = square_push(0.4)  # 6.4 h, beyond a 4-layer band
     x_t = msh.geometry.x.copy()
     assert n_inverted(msh, smooth(msh, x_ref, left, fixed), x_ref) > 0
     r = repair(msh, x_ref, x_t, left, fixed)
-    assert r.stage == "stiffen"
+    assert r.stage == "untangle"
     assert n_inverted(msh, r.x, x_ref) == 0
-    np.testing.assert_array_equal(r.x[left], x_t[left])
+    np.testing.assert_array_equal(r.x[left], x_t[left])  # every node at its target
+    np.testing.assert_array_equal(r.x[fixed], x_ref[fixed])
+    ut = [a for a in r.attempts if a["stage"] == "untangle"]
+    assert ut and all(a["cells"] > 0 and a["nodes"] > 0 and a["seconds"] >= 0 for a in ut)
+    assert ut[-1]["n_bad"] == 0
+    # the old ladder (band-wide stiffened re-solves, no untangler) also gets there
+    r2 = repair(msh, x_ref, x_t, left, fixed, untangle=False, stiffen=((1.0, 2), (2.0, 3)))
+    assert r2.stage == "stiffen" and n_inverted(msh, r2.x, x_ref) == 0
 
 
 def test_repair_partial_move():
@@ -329,11 +337,11 @@ def test_repair_impossible_raises():
     msg = str(e)
     assert f"{e.count} cell(s)" in msg and str(int(e.cells[0])) in msg
     # independent re-check: the named cells are bad when the node is moved
-    # min_fraction of the way with the strongest smoother of the schedule
-    # (exponent 1 + 2, band 4 * 3 layers)
+    # min_fraction of the way and the first smoother (the default elastic
+    # band) is re-solved, the repair's final round
     msh_c, _, _, _ = square_push(0.0)
     msh_c.geometry.x[mid] = x_ref[mid] + 0.9 * (x_t[mid] - x_ref[mid])
-    x_c = smooth(msh_c, x_ref, np.array([mid], np.int32), fixed, exponent=3.0, layers=12)
+    x_c = smooth(msh_c, x_ref, np.array([mid], np.int32), fixed)
     cells = msh.geometry.dofmaps[0]
     q_ref = mean_ratio(x_ref, cells, 2)
     bad = set(inverted_cells(x_c, x_ref, cells, 2).tolist())
@@ -372,6 +380,7 @@ def test_bad_inputs():
     with pytest.raises(IndexError):
         smooth(msh, x_ref, np.array([x_ref.shape[0]], np.int32), fixed)
     # a zero-area reference cell next to the moved nodes: no stiffness for it
+    msh, x_ref, left, fixed = square_push(0.05 * H)  # (the moved nodes must move)
     flat = x_ref.copy()
     cells = msh.geometry.dofmaps[0]
     one_left = (np.isin(cells, left).sum(axis=1) == 1) & ~np.isin(cells, fixed).any(axis=1)
@@ -402,14 +411,21 @@ def test_mpi_matches_serial():
             assert out["n"] == 33 ** 2 and out["n_inverted_unsmoothed"] > 0
         else:
             assert out["n"] == (N + 1) ** 2
-        assert out["maxdiff"] < 1e-10, out
         assert out["ghost_ok"], out
         assert out["n_inverted"] == 0, out
         if "report_par" in out:
+            # the same repair: stage, every vertex's fraction (the moved nodes bit for
+            # bit), counts.  The interior of this extreme case (the left side pushed
+            # through the right one) is the nonlinear optimiser's: an input perturbed
+            # by round-off may end in another of its equally good minima, so there
+            # only validity is compared
             assert out["report_par"] == out["report_ser"]
-            assert out["report_maxdiff"] < 1e-10 and out["report_mean_ratio_diff"] < 1e-10
+            assert out["report_maxdiff"] < 1e-10
             assert out["stage"] == ["partial", "partial"]
             assert out["report_par"]["n_shortfall"] > 0
+            assert out["maxdiff_moved"] < 1e-12, out
+        else:
+            assert out["maxdiff"] < 1e-10, out
 
 
 SNAPPER_CASES = {  # case -> number of JSON lines per smoother (levels)

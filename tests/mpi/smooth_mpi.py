@@ -19,7 +19,8 @@ import dolfinx
 import dolfinx.mesh
 
 from nagata_snap.quality import inverted_cells
-from nagata_snap.smoothing import repair, smooth
+from nagata_snap.repair import repair
+from nagata_snap.smoothing import smooth
 
 N = 16
 H = 1.0 / N
@@ -111,7 +112,10 @@ def main():
                 gx_all = np.concatenate(allgx)
                 assert gi_all.size == xs.shape[0] and np.unique(gi_all).size == gi_all.size
                 maxdiff = float(np.abs(gx_all - xs[gi_all]).max())
+                xr = sx_ref[order][gi_all]
+                on_left = (xr[:, 0] < TOL) & (xr[:, 1] > TOL) & (xr[:, 1] < 1 - TOL)
                 out = {"case": case, "ghost_mode": str(gm), "maxdiff": maxdiff,
+                       "maxdiff_moved": float(np.abs(gx_all - xs[gi_all])[on_left].max()),
                        "n": int(gi_all.size), "ghost_ok": ghost_ok, "n_inverted": n_inv}
                 if r_par is not None:
                     keys = ("n_cells", "n_inverted_before", "n_inverted_after", "n_moved",

@@ -55,7 +55,7 @@ import dolfinx.mesh  # noqa: E402
 import nagata_snap.hook as hook  # noqa: E402
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.quality import inverted_cells  # noqa: E402
-from nagata_snap.smoothing import repair  # noqa: E402
+from nagata_snap.repair import repair  # noqa: E402
 
 WORLD = MPI.COMM_WORLD
 METHODS = ("elastic", "laplace")

@@ -1,0 +1,652 @@
+"""The guard: smooth, check, repair bad cells where they are, report what was left short.
+
+After the snapper moved the new boundary vertices onto the geometry,
+:func:`repair` returns a valid mesh (no inverted cell, none below the
+quality floor) or raises :class:`InvertedCellsError`.  It runs these stages
+and stops at the first that leaves no bad cell:
+
+``smooth`` (:func:`_linear`)
+    The requested smoother of :mod:`nagata_snap.smoothing` (stiffened linear
+    elasticity by default) on the band of cells around the moved vertices:
+    the fast path, and the start of every later stage.
+``optimise`` (:func:`_optimise`)
+    No cell is bad, but some changed cells are *poor* (their mean ratio fell
+    below :data:`POOR_RATIO` of the straight cell's): one attempt of the
+    optimiser below on their neighbourhood, kept if it helps.  Not with
+    ``method='none'`` (no interior motion unless a cell is bad).
+``untangle`` (:func:`_untangle`)
+    The neighbourhood of the bad (and poor) cells (:data:`UNTANGLE_LAYERS`
+    vertex layers, wider while that helps, within a size budget) is gathered
+    (:class:`~nagata_snap.neighbourhood.Neighbourhood`) and its interior
+    nodes are moved by the simultaneous untangling and shape optimisation
+    of :mod:`nagata_snap.untangle` (a regularised mean-ratio objective that
+    accepts an inverted start; a linear extension of the boundary
+    displacement cannot untangle).  Skipped for the slide stage when a bad
+    cell has only constrained vertices or a turned-over constrained facet.
+``slide`` (:func:`_slide`)
+    If bad cells remain (their nodes are constrained: all on the boundary,
+    or pinned by it), snapped boundary vertices within :data:`SLIDE_LAYERS`
+    of them also move, tangentially on the geometry (:mod:`nagata_snap.slide`;
+    needs ``slide=``, which :class:`~nagata_snap.hook.Snapper` passes): they
+    stay on the geometry and their records are updated.
+``partial`` (:func:`_partial`)
+    The last resort, always reported: the moved vertices near the remaining
+    bad cells get a blame weight ``w`` (1 within ``radius`` layers, tapering
+    to 0 over :data:`TAPER_LAYERS` more) and the displacement fractions
+    ``alpha(t) = a - (1 - t) w (a - min_fraction)``; a bisection on ``t``
+    keeps the largest valid ``t``, the neighbourhood being re-optimised for
+    each trial; rounds double the blamed radius.  As a final round every
+    moved vertex is blamed and the linear smoother of the first stage
+    (already set up) is re-solved; with ``min_fraction = 0`` that ends at
+    the straight mesh, which is valid.
+``InvertedCellsError``
+    If ``min_fraction`` forbids the moves that would be needed.
+
+Each stage works on the cells it can change only: the band, or the
+neighbourhood of the bad cells, whose set-up (gather, targets, scales) is
+reused by the attempts of the untangle and slide stages.  The check
+(:class:`_Guard.check`) looks only at cells that a stage could have changed,
+so it is O(band) too.  ``RepairResult.attempts`` lists every attempt (stage,
+cells, moving nodes, seconds, bad cells left).
+
+MPI: the band solve is distributed (PETSc); the neighbourhood problems are
+gathered in a canonical order and solved identically on every process (see
+:mod:`nagata_snap.neighbourhood`), so decisions (bad-cell counts, stages)
+are collective and the result does not depend on the partition beyond the
+round-off of the band solve.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import mpi4py.MPI
+import numpy as np
+
+from .boundary import facet_normal_vectors, local_facet_vertices
+from .neighbourhood import Neighbourhood, layer_distance
+from .quality import QualityReport, _columns, _inverted_mask, _touching, mean_ratio, signed_volumes
+from .slide import SlideFacets, SlidingBoundary
+from .smoothing import _acc, _auto_layers, _max_layers, _options, _prepare, _Smoother
+from .untangle import optimise, targets, volume_ratio_min
+
+__all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "SLIDE_LAYERS",
+           "TAPER_LAYERS"]
+
+#: Neighbourhood widths (vertex layers around the bad cells) of the untangle
+#: attempts; the slide stage reuses the last neighbourhood gathered.
+UNTANGLE_LAYERS = (3, 6, 12)
+#: Largest neighbourhood of a wider untangle attempt: this fraction of the
+#: mesh's cells, or this many cells if more.
+MAX_REGION_FRACTION = 0.25
+MAX_REGION_CELLS = 50_000
+#: Snapped boundary vertices within this many layers of a bad cell may slide.
+SLIDE_LAYERS = 2
+#: Tangent-space / projection rounds of the slide stage.
+SLIDE_ROUNDS = 3
+#: Blame taper of the partial moves (vertex layers): only the vertices next
+#: to the bad cells stay short, with a smooth fraction along the boundary.
+TAPER_LAYERS = 2
+#: A valid changed cell is *poor* if its mean ratio fell below this fraction
+#: of its straight (reference) value: the optimise stage improves it when it
+#: can (the check's floor is ``min(min_quality, 0.5 q_ref)``, far below).
+POOR_RATIO = 0.7
+
+
+class InvertedCellsError(RuntimeError):
+    """Smoothing and repair could not produce a valid mesh.
+
+    Attributes:
+        cells: (m,) int64 global cell indices (``topology.index_map(tdim)``
+            numbering) of the offending cells, identical on all ranks.
+        count: global number of offending cells.
+    """
+
+    def __init__(self, message: str, cells: np.ndarray | None = None, count: int = 0):
+        super().__init__(message)
+        self.cells = np.asarray([] if cells is None else cells, dtype=np.int64)
+        self.count = int(count)
+
+
+@dataclasses.dataclass
+class RepairResult:
+    """Outcome of :func:`repair` (a valid mesh; identical on all ranks).
+
+    Attributes:
+        x: (n, 3) new coordinates of all local geometry nodes.
+        fraction: (k,) fraction of its prescribed displacement reached by each
+            node of the input ``moved`` (same order); 1 = at the target.
+        shortfall: (k,) remaining distance to the target (length unit); 0 for
+            nodes that reached it (or slid to another point of the geometry).
+        stage: ``'smooth'``, ``'optimise'``, ``'untangle'``, ``'slide'`` or
+            ``'partial'`` (``'stiffen'`` with a ``stiffen`` schedule): the
+            stage that produced the valid mesh.
+        n_inverted_unsmoothed: global number of bad cells with the boundary
+            moved and no smoothing.
+        n_inverted_smoothed: global number of bad cells after the first
+            smoothing attempt.
+        attempts: one dict per attempt: ``stage``, ``layers``, ``cells`` and
+            ``nodes`` (global number of cells it worked on and of nodes it
+            moved), ``seconds``, ``n_bad`` (bad cells left), and per stage
+            ``method`` / ``exponent`` (smooth), ``slid`` (slide), ``round``,
+            ``t`` (partial).
+        timings: stage -> seconds on this rank.
+        slid: global number of boundary vertices that slid on the geometry.
+        report: :class:`QualityReport` of the result (None if not requested).
+    """
+
+    x: np.ndarray
+    fraction: np.ndarray
+    shortfall: np.ndarray
+    stage: str
+    n_inverted_unsmoothed: int
+    n_inverted_smoothed: int
+    attempts: list[dict]
+    timings: dict[str, float]
+    slid: int = 0
+    report: QualityReport | None = None
+
+    @property
+    def n_shortfall(self) -> int:
+        """Local number of moved nodes that did not reach their target."""
+        return int(np.count_nonzero(self.shortfall > 0))
+
+
+class _Guard:
+    """What every stage shares: masks, targets, the bad-cell check, the attempt log."""
+
+    def __init__(self, mesh, x_ref, x_target, moved, fixed, rel_floor, min_quality, opts):
+        self.mesh, self.comm = mesh, mesh.comm
+        self.gdim = mesh.geometry.dim
+        self.sync, self.x_ref, self.moved_mask, self.fixed_mask = _prepare(
+            mesh, x_ref, moved, fixed, bool(opts["fix_boundary"]))
+        x_target = np.asarray(x_target, dtype=np.float64)
+        if x_target.shape != self.x_ref.shape:
+            raise ValueError(f"x_target must have shape {self.x_ref.shape}, got {x_target.shape}")
+        self.moved_idx = np.asarray(moved, dtype=np.int64).reshape(-1)
+        self.x_before = self.sync.forward(x_target)  # owner-consistent copy
+        self.x_tgt = self.x_before.copy()  # targets (slid vertices: where they slid to)
+        self.cells = mesh.geometry.dofmaps[0]
+        self.cols = _columns(self.cells)
+        self.n_own_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+        self.rel_floor, self.min_quality = rel_floor, min_quality
+        # cells whose nodes may differ from x_ref: those touching a moved target,
+        # plus every band / neighbourhood a stage worked on (see check)
+        self.pool = _touching(np.any(self.x_tgt != self.x_ref, axis=1), self.cols)
+        n = self.cells.shape[0]
+        self._v_ref, self._q_floor, self._q_ref = np.empty(n), np.empty(n), np.empty(n)
+        self._have_ref = np.zeros(n, dtype=bool)
+        self._pool_key = None
+        self.timings: dict[str, float] = {}
+        self.attempts: list[dict] = []
+        self.slid = 0
+
+    @property
+    def disp(self) -> np.ndarray:
+        return np.where(self.moved_mask[:, None], self.x_tgt - self.x_ref, 0.0)
+
+    def _ref_data(self, cand: np.ndarray) -> None:
+        need = cand[~self._have_ref[cand]]
+        if need.size:
+            sub = self.cells[need]
+            self._v_ref[need] = signed_volumes(self.x_ref, sub, self.gdim)
+            self._q_ref[need] = mean_ratio(self.x_ref, sub, self.gdim)
+            self._q_floor[need] = np.minimum(self.min_quality, 0.5 * self._q_ref[need])
+            self._have_ref[need] = True
+
+    def check(self, x: np.ndarray) -> tuple[np.ndarray, int]:
+        """Bad local cells ``(nc,)`` (owned and ghost) and their global count (collective).
+
+        A cell is bad if inverted or collapsed w.r.t. ``x_ref`` (relative
+        volume floor ``rel_floor``) or below the mean-ratio floor
+        ``min(min_quality, 0.5 q_ref)``.  Only pool cells with a node that
+        differs from ``x_ref`` are examined: no other cell can have changed.
+        Also sets ``poor`` (valid cells below ``POOR_RATIO q_ref``), ``n_poor``
+        and ``worst`` (the smallest ``q / q_ref`` over the examined cells,
+        global).
+        """
+        t0 = time.perf_counter()
+        if self._pool_key is None or np.any(self._pool_key != self.pool):
+            self._pool_key = self.pool.copy()
+            pool = np.flatnonzero(self.pool)
+            pc = self.cells[pool]
+            self._pool = (pool, _columns(pc), np.unique(pc))
+        pool, pcols, nodes = self._pool
+        changed = np.zeros(x.shape[0], dtype=bool)
+        changed[nodes] = np.any(x[nodes] != self.x_ref[nodes], axis=1)
+        cand = pool[_touching(changed, pcols)]
+        self._ref_data(cand)
+        sub = self.cells[cand]
+        badc = _inverted_mask(signed_volumes(x, sub, self.gdim), self._v_ref[cand], self.rel_floor)
+        q = mean_ratio(x, sub, self.gdim)
+        if self.min_quality > 0:
+            badc |= q < self._q_floor[cand]
+        ratio = q / np.maximum(self._q_ref[cand], 1e-300)
+        bad = np.zeros(self.cells.shape[0], dtype=bool)
+        bad[cand[badc]] = True
+        self.poor = np.zeros_like(bad)
+        self.poor[cand[~badc & (ratio < POOR_RATIO)]] = True
+        own = slice(0, self.n_own_cells)
+        nbad, self.n_poor = self.comm.allreduce(
+            np.array([np.count_nonzero(bad[own]), np.count_nonzero(self.poor[own])]))
+        own_c = cand < self.n_own_cells
+        self.worst = self.comm.allreduce(float(ratio[own_c].min(initial=1.0)), op=mpi4py.MPI.MIN)
+        _acc(self.timings, "check", time.perf_counter() - t0)
+        return bad, int(nbad)
+
+    def log(self, stage: str, t0: float, n_bad: int, **info: Any) -> None:
+        """Record one attempt (``seconds``: wall time since ``t0``, max over processes)."""
+        dt = self.comm.allreduce(time.perf_counter() - t0, op=mpi4py.MPI.MAX)
+        self.attempts.append({"stage": stage, **info, "seconds": dt, "n_bad": n_bad})
+
+    def positions(self, alpha: np.ndarray) -> np.ndarray:
+        """Targets with the moved nodes at fractions ``alpha (n,)`` of their displacement."""
+        x = self.x_tgt.copy()
+        part = self.moved_mask & (alpha < 1.0)
+        x[part] = self.x_ref[part] + alpha[part, None] * (self.x_tgt[part] - self.x_ref[part])
+        return x
+
+
+# ---------------------------------------------------------------------------
+# Stages
+# ---------------------------------------------------------------------------
+
+
+def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.ndarray, int,
+                                                                 _Smoother]:
+    """Stage ``smooth``: the band smoother (then the optional ``stiffen`` schedule)."""
+    schedule = [(method, o)] + [("elastic", dict(o, exponent=o["exponent"] + dp,
+                                                 layers=np.asarray(o["layers"]) * int(mult)))
+                                for dp, mult in stiffen]
+    sm = None
+    for k, (meth, oo) in enumerate(schedule):
+        t0 = time.perf_counter()
+        if sm is not None:
+            sm.destroy()
+        sm = _Smoother(g.mesh, g.x_ref, g.moved_mask, g.fixed_mask, g.sync, meth, oo, g.timings,
+                       g.cols)
+        x = sm.run(g.x_tgt)
+        g.pool[sm.cells] = True
+        bad, nbad = g.check(x)
+        band = sm.band
+        g.log("smooth" if k == 0 else "stiffen", t0, nbad, method=meth, exponent=oo["exponent"],
+              layers=_max_layers(oo["layers"], g.comm), cells=band.n_cells_global if band else 0,
+              nodes=band.n_free_global if band else 0)
+        if nbad == 0:
+            break
+    return x, bad, nbad, sm
+
+
+class _Local:
+    """A gathered neighbourhood with what the optimiser needs (set up once, reused)."""
+
+    def __init__(self, g: _Guard, bad: np.ndarray, layers: int):
+        self.nbh = Neighbourhood(g.mesh, g.sync, g.cols, bad, layers, g.x_ref)
+        self.layers = layers
+        self.winv = targets(self.nbh.x_ref, self.nbh.cells)
+        flags = self.nbh.gather(np.column_stack([g.moved_mask, g.fixed_mask]).astype(np.int8))
+        self.constrained = (flags.any(axis=1)) | ~self.nbh.complete
+        g.pool[self.nbh.local_cells] = True
+
+    def distance(self, g: _Guard, bad: np.ndarray) -> np.ndarray:
+        """Vertex-layer distance of the canonical nodes from the bad cells (collective)."""
+        mark = np.zeros(g.sync.n, dtype=bool)
+        mark[g.cells[bad].reshape(-1)] = True
+        seed = self.nbh.gather(g.sync.any(mark).astype(np.int8)) > 0
+        return layer_distance(self.nbh.cells, seed, self.layers)
+
+    def run(self, g: _Guard, x: np.ndarray, free: np.ndarray, **kw) -> tuple[np.ndarray, Any]:
+        """Optimise the canonical nodes ``free`` from ``x (n, 3)``; new local coordinates."""
+        d = g.gdim
+        res = optimise(self.nbh.gather(x[:, :d]), self.nbh.cells, self.winv, free,
+                       self.nbh.scale, **kw)
+        xn = x.copy()
+        self.nbh.scatter(xn, res.x)
+        return xn, res
+
+    def reach(self, g: _Guard, bad: np.ndarray, dist: np.ndarray) -> int:
+        """Largest ``dist`` (canonical, e.g. from the seeds) on the nodes of the bad cells (collective)."""
+        mark = np.zeros(g.sync.n, dtype=bool)
+        mark[g.cells[bad].reshape(-1)] = True
+        on = self.nbh.gather(g.sync.any(mark).astype(np.int8)) > 0
+        far = g.comm.allreduce(bool(np.any(mark & ~self._in_region(g))), op=mpi4py.MPI.LOR)
+        return self.layers + 1 if far else int(dist[on].max(initial=0))
+
+    def _in_region(self, g: _Guard) -> np.ndarray:
+        inside = np.zeros(g.sync.n, dtype=bool)
+        inside[self.nbh.local_nodes] = True
+        return inside
+
+    def cells_moving(self, moving: np.ndarray) -> int:
+        return int(np.count_nonzero(moving[self.nbh.cells].any(axis=1)))
+
+
+def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Stage ``optimise``: the mesh is valid but some changed cells are poor; improve them.
+
+    One attempt on the neighbourhood of the poor cells; kept if it leaves no
+    bad cell and raises the worst quality ratio ``q / q_ref``.
+    """
+    t0 = time.perf_counter()
+    worst = g.worst
+    loc = _Local(g, g.poor, UNTANGLE_LAYERS[0] + 1)
+    free = (loc.distance(g, g.poor) < UNTANGLE_LAYERS[0]) & ~loc.constrained
+    xn, _ = loc.run(g, x, free)
+    _, nb = g.check(xn)
+    keep = nb == 0 and g.worst > worst
+    g.log("optimise", t0, nb, layers=UNTANGLE_LAYERS[0], cells=loc.cells_moving(free),
+          nodes=int(free.sum()), worst=g.worst, kept=keep)
+    _acc(g.timings, "optimise", g.attempts[-1]["seconds"])
+    return (xn, True) if keep else (x, False)
+
+
+def _pinned(g: _Guard, x: np.ndarray, bad: np.ndarray) -> int:
+    """Global number of bad cells that no interior motion can repair (collective).
+
+    Such a cell has only constrained vertices, or a facet of constrained
+    vertices that turned over (its normal reversed against the straight
+    mesh): the snapped boundary itself folded there.
+    """
+    cells = g.cells[np.flatnonzero(bad[: g.n_own_cells])]
+    con = g.moved_mask | g.fixed_mask
+    pinned = con[cells].all(axis=1)
+    lf = local_facet_vertices(g.mesh.topology.dim)
+    for f in lf:  # the d + 1 facets of each cell
+        fn = cells[:, f]
+        turned = np.einsum("ij,ij->i", facet_normal_vectors(x[fn]),
+                           facet_normal_vectors(g.x_ref[fn])) < 0
+        pinned |= con[fn].all(axis=1) & turned
+    return g.comm.allreduce(int(np.count_nonzero(pinned)))
+
+
+def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: bool
+              ) -> tuple[np.ndarray, np.ndarray, int, _Local]:
+    """Stage ``untangle``: optimise the interior nodes near the bad cells, wider and wider.
+
+    Each attempt keeps its result if it leaves no more bad cells than before;
+    the gathered neighbourhood is reused while it is wide enough.  A wider
+    attempt follows if the last one lowered the count of bad cells or if the
+    cells still bad reach the edge of its moving region (the trouble needs
+    room); otherwise, with ``can_slide``, more interior nodes will not help
+    and the slide stage is next.  No wider attempt takes more than
+    :data:`MAX_REGION_FRACTION` of the mesh (or :data:`MAX_REGION_CELLS`).
+    """
+    t_stage = time.perf_counter()
+    loc = None
+    n_mesh = g.mesh.topology.index_map(g.mesh.topology.dim).size_global
+    for k, layers in enumerate(UNTANGLE_LAYERS):
+        t0 = time.perf_counter()
+        seeds = bad | g.poor  # poor cells nearby are improved as well
+        if loc is None or loc.layers <= layers:
+            wider = _Local(g, seeds, layers + 1)
+            if k and wider.nbh.n_cells > max(MAX_REGION_FRACTION * n_mesh, MAX_REGION_CELLS):
+                break
+            loc = wider
+        dist = loc.distance(g, seeds)
+        free = (dist < layers) & ~loc.constrained
+        xn, _ = loc.run(g, x, free)
+        bn, nb = g.check(xn)
+        g.log("untangle", t0, nb, layers=layers, cells=loc.cells_moving(free),
+              nodes=int(free.sum()))
+        progress = nb < nbad
+        if nb <= nbad:  # keep an improvement (or an equal count: better shapes)
+            x, bad, nbad = xn, bn, nb
+        if nbad == 0:
+            break
+        if can_slide and not progress and loc.reach(g, bn, dist) < layers - 1:
+            break  # pinned by the boundary: sliding is the next step
+    _acc(g.timings, "untangle", time.perf_counter() - t_stage)
+    return x, bad, nbad, loc
+
+
+def _slide(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, loc: _Local,
+           boundary: SlidingBoundary) -> tuple[np.ndarray, np.ndarray, int]:
+    """Stage ``slide``: snapped boundary vertices near the bad cells move on the geometry too."""
+    t0 = time.perf_counter()
+    d = g.gdim
+    nbh = loc.nbh
+    dist = loc.distance(g, bad)
+    eligible = nbh.gather(boundary.eligible(g.sync).astype(np.int8)) > 0
+    sl = np.flatnonzero(eligible & nbh.complete & (dist <= SLIDE_LAYERS))
+    free = (dist < UNTANGLE_LAYERS[0]) & ~loc.constrained
+    free[sl] = False
+    facets = SlideFacets(boundary, nbh, sl) if sl.size else None
+    if facets is not None and facets.corner.any():  # corners stay (the same on every process)
+        sl = sl[~facets.corner]
+        facets = SlideFacets(boundary, nbh, sl) if sl.size else None
+    if facets is None:  # (the neighbourhood is the same on every process)
+        g.log("slide", t0, nbad, layers=loc.layers - 1, cells=0, nodes=0, slid=0)
+        return x, bad, nbad
+    xc = nbh.gather(x[:, :d])
+    x0 = xc[sl].copy()
+    best = -np.inf
+    for _ in range(SLIDE_ROUNDS):
+        p, basis = facets.tangents(xc, nbh.scale)
+        xc[sl] = p
+        res = optimise(xc, nbh.cells, loc.winv, free, nbh.scale, slide=sl, basis=basis)
+        xc = res.x
+        xc[sl] = facets.project(xc, xc[sl])
+        smin = volume_ratio_min(xc, nbh.cells, loc.winv)
+        if smin <= best:
+            break  # sliding no longer helps
+        best = smin
+        if smin > 0:
+            break
+    slid = np.any(xc[sl] != x0, axis=1)
+    xn = x.copy()
+    nbh.scatter(xn, xc)
+    bn, nb = g.check(xn)
+    moving = free.copy()
+    moving[sl] = True
+    n_slid = int(np.count_nonzero(slid))
+    g.log("slide", t0, nb, layers=loc.layers - 1, cells=loc.cells_moving(moving),
+          nodes=int(moving.sum()), slid=n_slid)
+    _acc(g.timings, "slide", g.attempts[-1]["seconds"])
+    if nb > nbad:
+        return x, bad, nbad
+    facets.commit(slid)
+    g.slid += n_slid
+    # slid vertices: at their new target (on the geometry), now "moved"
+    mark = np.zeros(nbh.n_nodes, dtype=bool)
+    mark[sl[slid]] = True
+    loc_slid = nbh.local_nodes[mark[nbh.local_pos]]
+    g.x_tgt[loc_slid] = xn[loc_slid]
+    g.moved_mask[loc_slid] = True
+    return xn, bn, nb
+
+
+def _blame(dist: np.ndarray, moved: np.ndarray, radius: int, taper: int) -> np.ndarray:
+    """Blame weights ``(N,)``: 1 within ``radius`` layers, linear to 0 over ``taper`` more."""
+    w = np.clip(1.0 - (dist - radius) / (taper + 1.0), 0.0, 1.0)
+    return np.where(moved, w, 0.0)
+
+
+def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother,
+             min_fraction: float, bisection_steps: int, implicate_layers: int,
+             max_rounds: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Stage ``partial``: the blamed moved vertices only part of the way (see module docstring).
+
+    Returns ``(x, alpha (n,), bad, nbad)``.
+    """
+    fmin = float(min_fraction)
+    alpha = np.ones(g.sync.n)
+    base_x = x
+    for rnd in range(int(max_rounds)):
+        radius = max(1, int(implicate_layers)) * 2**rnd
+        loc = _Local(g, bad, radius + TAPER_LAYERS + 3)
+        nbh = loc.nbh
+        dist = loc.distance(g, bad)
+        moved_c = nbh.gather(g.moved_mask.astype(np.int8)) > 0
+        a_c = nbh.gather(alpha)
+        w = _blame(dist, moved_c, radius, TAPER_LAYERS) * (a_c > fmin)
+        free = ~loc.constrained & (dist <= radius + TAPER_LAYERS + 2)
+        w_loc = np.zeros(g.sync.n)
+        w_loc[nbh.local_nodes] = w[nbh.local_pos]
+
+        def trial(t):
+            t0 = time.perf_counter()
+            a_t = alpha - (1.0 - t) * w_loc * (alpha - fmin)
+            xt = np.where(g.moved_mask[:, None], g.positions(a_t), base_x)
+            xn, _ = loc.run(g, xt, free)
+            bn, nb = g.check(xn)
+            g.log("partial", t0, nb, round=rnd, t=t, layers=loc.layers,
+                  cells=loc.cells_moving(free), nodes=int(free.sum()))
+            return xn, a_t, bn, nb
+
+        good, t_lo, t_hi = None, 0.0, 1.0  # good: (x, alpha, bad, nbad) of the best valid trial
+        for _ in range(int(bisection_steps)):
+            t = 0.5 * (t_lo + t_hi)
+            out = trial(t)
+            if out[3] == 0:
+                t_lo, good = t, out
+            else:
+                t_hi = t
+        if good is None:
+            good = trial(0.0)
+        if good[3] == 0:
+            return good[0], good[1], good[2], 0
+        if good[3] >= nbad:
+            break  # even the blamed vertices at min_fraction do not help: no wider round will
+        base_x, alpha, bad, nbad = good
+    # final round: every moved vertex blamed, the band smoother re-solved
+    t0 = time.perf_counter()
+    alpha = np.where(g.moved_mask, np.minimum(alpha, fmin), 1.0)
+    xn = sm.run(g.positions(alpha))
+    bad, nbad = g.check(xn)
+    band = sm.band
+    g.log("partial", t0, nbad, round=int(max_rounds), t=0.0, layers=0,
+          cells=band.n_cells_global if band else 0, nodes=band.n_free_global if band else 0)
+    return xn, alpha, bad, nbad
+
+
+def _fail(g: _Guard, bad: np.ndarray, why: str) -> None:
+    """Raise :class:`InvertedCellsError` naming the bad cells (global indices, all processes)."""
+    cim = g.mesh.topology.index_map(g.mesh.topology.dim)
+    own_bad = np.flatnonzero(bad[: g.n_own_cells]).astype(np.int32)
+    gbad = cim.local_to_global(own_bad) if own_bad.size else np.zeros(0, dtype=np.int64)
+    allbad = np.sort(np.concatenate(g.comm.allgather(np.asarray(gbad, dtype=np.int64))))
+    first = ", ".join(str(c) for c in allbad[:10])
+    more = " ..." if allbad.size > 10 else ""
+    raise InvertedCellsError(
+        f"{allbad.size} cell(s) inverted or below the quality floor after smoothing "
+        f"and repair ({why}); global cell indices: [{first}{more}]",
+        cells=allbad[:100], count=allbad.size)
+
+
+def _result(g: _Guard, x: np.ndarray, alpha: np.ndarray, stage: str, n_unsmoothed: int,
+            report, t_start: float) -> RepairResult:
+    """The :class:`RepairResult` (and its quality report) of a valid ``x``."""
+    disp = np.linalg.norm(g.disp, axis=1)
+    short_all = np.where(g.moved_mask, (1.0 - alpha) * disp, 0.0)
+    idx = g.moved_idx
+    g.timings["total"] = time.perf_counter() - t_start
+    rep = None
+    if report:
+        t0 = time.perf_counter()
+        scope = "changed" if report is True else str(report)
+        own_moved = np.flatnonzero(g.moved_mask[: g.sync.n_owned])
+        rep = QualityReport.from_mesh(g.mesh, x, x_ref=g.x_ref, x_before=g.x_before,
+                                      rel_floor=g.rel_floor, timings=dict(g.timings),
+                                      shortfall=short_all[own_moved], scope=scope)
+        g.timings["report"] = time.perf_counter() - t0
+        rep.timings["report"] = g.comm.allreduce(g.timings["report"], op=mpi4py.MPI.MAX)
+    n_smoothed = g.attempts[0]["n_bad"] if g.attempts else 0
+    return RepairResult(x=x, fraction=np.asarray(alpha[idx] if idx.size else np.zeros(0)),
+                        shortfall=np.asarray(short_all[idx] if idx.size else np.zeros(0)),
+                        stage=stage, n_inverted_unsmoothed=n_unsmoothed,
+                        n_inverted_smoothed=n_smoothed, attempts=g.attempts,
+                        timings=g.timings, slid=g.slid, report=rep)
+
+
+# ---------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------
+
+
+def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
+           fixed: np.ndarray, method: str = "elastic", *,
+           rel_floor: float = 1e-12, min_quality: float = 0.01,
+           untangle: bool = True, slide: SlidingBoundary | None = None,
+           stiffen: tuple[tuple[float, int], ...] = (),
+           allow_partial: bool = True, min_fraction: float = 0.0,
+           bisection_steps: int = 6, implicate_layers: int = 1, max_rounds: int = 5,
+           report: bool | str = True, **opts) -> RepairResult:
+    """Smooth, guard against inverted / degenerate cells, repair or fail.
+
+    Collective on ``mesh.comm``. Neither ``mesh`` nor any input array is
+    modified (``slide.records`` is updated when vertices slid); the caller
+    writes ``result.x`` into its mesh on success.  The stages are described
+    in the module docstring.
+
+    Args:
+        mesh: P1 simplex ``dolfinx.mesh.Mesh`` (topology / parallel layout;
+            its coordinates are not read).
+        x_ref: (n, 3) straight reference coordinates (all local nodes).
+        x_target: (n, 3) coordinates with the moved nodes at their targets;
+            its other rows (fixed nodes, nodes outside the band) are kept.
+        moved, fixed: (k,), (m,) int32 local geometry-node indices, as in
+            :func:`~nagata_snap.smoothing.smooth`.
+        method: first smoother, ``'elastic'``, ``'laplace'`` or ``'none'``.
+        rel_floor: relative volume floor for inversion.
+        min_quality: mean-ratio floor in [0, 1] (0 disables the quality
+            guard; 1 = equilateral); a cell is bad below
+            ``min(min_quality, 0.5 q_ref)``.
+        untangle: run the untangle (and slide) stages.
+        slide: the snapped facets whose vertices may slide
+            (:class:`~nagata_snap.slide.SlidingBoundary`); None: no sliding.
+        stiffen: optional band-wide re-solves after the first smoother, each
+            ``(exponent increment, band multiplier)`` (the repair before the
+            untangler; kept for comparisons, default none).
+        allow_partial: allow partial moves; if False, that stage is skipped.
+        min_fraction: smallest acceptable displacement fraction per node.
+        bisection_steps: bisection steps on ``t`` per partial round.
+        implicate_layers: moved nodes within this many layers of a bad cell
+            get the full blame in the first partial round (twice as many each round).
+        max_rounds: partial rounds before the final, global one.
+        report: build a :class:`QualityReport`: ``True`` or ``"changed"``
+            (metrics over the cells snapping / smoothing changed, O(band)),
+            ``"all"`` (every cell, O(mesh)) or ``False`` (none).
+        **opts: smoothing options of :func:`~nagata_snap.smoothing.smooth`
+            (``layers``, ``exponent``, ...).
+
+    Returns:
+        :class:`RepairResult`.
+
+    Raises:
+        InvertedCellsError: no valid mesh within the constraints.
+    """
+    t_start = time.perf_counter()
+    o = _options(opts)
+    g = _Guard(mesh, x_ref, x_target, moved, fixed, rel_floor, min_quality, o)
+    if o["layers"] == "auto":
+        o["layers"] = _auto_layers(g.comm, g.x_ref, g.disp, g.cells, g.pool, g.sync)
+    _, n_unsmoothed = g.check(g.x_tgt)
+    x, bad, nbad, sm = _linear(g, method, o, stiffen)
+    stage = "smooth" if len(g.attempts) == 1 else "stiffen"
+    alpha = np.ones(g.sync.n)
+    try:
+        if nbad == 0 and untangle and g.n_poor and method != "none":
+            x, kept = _optimise(g, x)
+            stage = "optimise" if kept else stage
+        if nbad and untangle:
+            # interior motion first, unless some bad cells need the boundary to move
+            if slide is None or _pinned(g, x, bad) == 0:
+                x, bad, nbad, loc = _untangle(g, x, bad, nbad, slide is not None)
+                stage = "untangle"
+            else:
+                loc = _Local(g, bad, UNTANGLE_LAYERS[1] + 1)
+            if nbad and slide is not None:
+                x, bad, nbad = _slide(g, x, bad, nbad, loc, slide)
+                stage = "slide"
+        if nbad and allow_partial:
+            x, alpha, bad, nbad = _partial(g, x, bad, nbad, sm, min_fraction, bisection_steps,
+                                           implicate_layers, max_rounds)
+            stage = "partial"
+    finally:
+        sm.destroy()
+    if nbad:
+        _fail(g, bad, "partial moves disabled" if not allow_partial else
+              f"even with every implicated node moved only {min_fraction:g} of the way")
+    return _result(g, x, alpha, stage, n_unsmoothed, report, t_start)

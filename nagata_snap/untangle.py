@@ -1,0 +1,472 @@
+"""Simultaneous untangling and shape optimisation of a small simplex mesh.
+
+The repair (:mod:`nagata_snap.repair`) hands this module the neighbourhood
+of the cells that a linear smoother left inverted or degenerate, as plain
+arrays (coordinates, cells, which nodes may move); it returns new
+coordinates.  There is no MPI in here: the neighbourhood is gathered on
+every process and solved identically there.
+
+Objective (Escobar, Rodriguez, Montenegro, Montero, Gonzalez-Yuste,
+"Simultaneous untangling and smoothing of tetrahedral meshes", CMAME 192
+(2003) 2775-2787).  For a cell with edge matrix ``A`` (columns
+``x_j - x_0``, ``d x d``) and target edge matrix ``W``, ``S = A W^-1`` is the
+affine map from the target cell to the cell, ``sigma = det S`` its volume
+ratio.  Knupp's algebraic shape measure, the inverse mean ratio
+``eta(S) = |S|_F^2 / (d sigma^(2/d))`` (1 when ``S`` is a similarity, infinite
+when the cell is flat), is made finite for inverted cells by replacing
+``sigma`` with Escobar's regularised determinant::
+
+    h(sigma) = (sigma + sqrt(sigma^2 + 4 delta^2)) / 2,      eta_delta = |S|^2 / (d h^(2/d))
+
+``h`` is positive, increasing and ``h -> sigma`` for ``sigma >> delta``, so
+minimising ``F(x) = sum_K eta_delta(S_K)`` over the free nodes pushes inverted
+cells (``h ~ delta^2 / |sigma|``, huge ``eta``) through to positive volume and
+then improves the worst shapes; with a small ``delta`` a valid mesh is a
+barrier-protected minimum.  ``delta`` follows the smallest volume ratio of the
+current mesh, ``delta^2 = eps (eps - sigma_min)`` while
+``sigma_min < eps`` (Escobar et al.), and ``delta = DELTA_MIN`` once the cells are
+valid.  The target ``W`` is the cell's straight refined shape (not the
+equilateral one, Knupp's target-matrix idea): an anisotropic boundary layer
+keeps its aspect ratio, and the straight mesh is the optimum where nothing
+moved.
+
+Gradient (exact): with ``r = sqrt(sigma^2 + 4 delta^2)`` and
+``cof(S) = d sigma / d S`` (the cofactor matrix),
+``d eta / d S = 2 S / (d h^(2/d)) - 2 eta cof(S) / (d r)`` and
+``d eta / d A = (d eta / d S) W^-T``; vertex ``j >= 1`` of the cell gets column
+``j - 1`` of it, vertex 0 minus their sum.
+
+Hessian (exact, for Newton's method): with ``a = 2 h^(-2/d) / d`` and
+``b = 2 eta / (d r)``, so that ``d eta / d S = a S - b cof(S)``,
+``d^2 eta / d S^2 = a I - (2 a / (d r)) (S (x) C + C (x) S)
++ (2 b / (d r) + b sigma / r^2) C (x) C - b d cof / d S`` (``C = cof S``;
+``d cof_cj / d S_kl = e_ckm e_jln S_mn`` in 3D, ``e_ck e_jl`` in 2D, ``e`` the
+permutation symbol), and ``d S_cj / d x_vc = B_vj`` (``B_vj = W^-1_(v-1)j``,
+``B_0j = -sum_k W^-1_kj``), so the cell's Hessian in its vertex coordinates
+is ``B H_S B^T`` per pair of components.
+
+Minimiser: Newton's method over all moving nodes at once (the sparse
+Hessian assembled from the cells into a sequential PETSc matrix and
+factorised by MUMPS, LDL^T), with Levenberg
+damping where the Hessian is not positive definite and an Armijo line
+search; near the minimum it converges quadratically, so the result is the
+minimum to round-off (and a parallel run, whose input differs from the
+serial one by the round-off of the band solve, gets the same result to
+about that size).  Variables are scaled by each node's shortest reference
+edge (cells of very different sizes, e.g. boundary layers, then weigh
+alike).  Nodes that slide on the geometry enter through a tangent basis
+``T`` (``x = p + s T t``, ``|t| <=`` :data:`SLIDE_STEP` edge lengths); the
+caller projects them back onto the geometry and calls again
+(:func:`optimise` with ``slide``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mpi4py.MPI  # noqa: F401  (must precede petsc4py)
+import numpy as np
+from petsc4py import PETSc
+
+from ._batched import inverse_small
+
+__all__ = ["targets", "energy", "optimise", "OptimiseResult", "volume_ratio_min", "EPS",
+           "DELTA_MIN", "SLIDE_STEP"]
+
+#: ``eps`` of the regularisation schedule ``delta^2 = eps (eps - sigma_min)``
+#: (volume ratios are relative to the target cell, so ``eps`` is dimensionless).
+EPS = 1e-2
+#: ``delta`` once every cell is valid: ``h(sigma)`` differs from ``sigma`` by
+#: less than ``DELTA_MIN^2 / sigma``, and a flat cell costs ``|S|^2 / DELTA_MIN^(2/d)``.
+DELTA_MIN = 1e-4
+#: Newton: gradient tolerance (scaled variables) and largest step per node
+#: and iteration (edge lengths).
+GTOL = 1e-10
+MAX_STEP = 4.0
+#: Largest tangential move of a sliding node per call, in units of its
+#: shortest edge (the tangent plane is a good model of the surface there).
+SLIDE_STEP = 0.3
+
+
+def targets(x_ref: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Inverse target matrices ``W^-1`` ``(m, d, d)`` of the reference cells.
+
+    Args:
+        x_ref: ``(n, d)`` reference coordinates; cells: ``(m, d + 1)``.
+
+    Raises:
+        ValueError: a reference cell is degenerate (no target shape).
+    """
+    winv, det = inverse_small(_edges(x_ref, cells))
+    if not np.all(np.isfinite(winv)) or np.any(det == 0):
+        raise ValueError("degenerate reference cells in the untangling neighbourhood")
+    return winv
+
+
+def _edges(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Edge matrices ``A`` ``(m, d, d)``, column ``j`` = ``x_{j+1} - x_0``."""
+    X = x[cells]
+    return np.swapaxes(X[:, 1:] - X[:, :1], 1, 2)
+
+
+class _Cells:
+    """Cells with their inverse targets as flat ``(m,)`` entries (set up once per problem).
+
+    The kernels work on flat arrays, one per matrix entry (``S[c][j]``:
+    component ``c``, target edge ``j``): several times faster than batched
+    ``(m, 3, 3)`` products for these tiny matrices.
+    """
+
+    def __init__(self, cells: np.ndarray, winv: np.ndarray, n: int):
+        self.n, self.d = n, winv.shape[1]
+        self.cols = [np.ascontiguousarray(cells[:, k]) for k in range(cells.shape[1])]
+        self.w = [[np.ascontiguousarray(winv[:, i, j]) for j in range(self.d)]
+                  for i in range(self.d)]
+        self.B = np.concatenate([-winv.sum(axis=1, keepdims=True), winv], axis=1)  # (m, d+1, d)
+        self.cells = cells
+
+    def shape(self, x: np.ndarray) -> list[list[np.ndarray]]:
+        """Entries of ``S = A W^-1``."""
+        d, w = self.d, self.w
+        S = []
+        for c in range(d):
+            xc = np.ascontiguousarray(x[:, c])
+            p0 = xc.take(self.cols[0])
+            a = [xc.take(self.cols[k + 1]) - p0 for k in range(d)]
+            S.append([sum(a[k] * w[k][j] for k in range(d)) for j in range(d)])
+        return S
+
+
+def _det_cof(S: list[list[np.ndarray]]) -> tuple[np.ndarray, list[list[np.ndarray]]]:
+    """``det S`` and the cofactor matrix ``d det / d S``, from entries."""
+    if len(S) == 2:
+        cof = [[S[1][1], -S[1][0]], [-S[0][1], S[0][0]]]
+    else:
+        cof = [[S[(c + 1) % 3][(j + 1) % 3] * S[(c + 2) % 3][(j + 2) % 3]
+                - S[(c + 1) % 3][(j + 2) % 3] * S[(c + 2) % 3][(j + 1) % 3] for j in range(3)]
+               for c in range(3)]
+    return sum(S[c][0] * cof[c][0] for c in range(len(S))), cof
+
+
+def energy(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, delta: float,
+           grad: bool = True, prepared: _Cells | None = None, hessian: bool = False):
+    """``F = sum eta_delta(S_K)``, its gradient, the volume ratios, and the cell Hessians.
+
+    Args:
+        x: ``(n, d)`` coordinates; cells: ``(m, d + 1)``; winv: ``(m, d, d)``
+            from :func:`targets`; delta: regularisation (dimensionless, > 0).
+        prepared: the same cells and targets as a ``_Cells`` (then ``cells``
+            and ``winv`` are not read).
+        hessian: also return the cell Hessians (module docstring).
+
+    Returns:
+        ``(F, dF/dx (n, d) or None, sigma (m,))``, and with ``hessian`` a
+        fourth item ``(m, d + 1, d, d + 1, d)``: second derivatives of each
+        cell's ``eta`` with respect to its vertex coordinates.
+    """
+    cc = prepared if prepared is not None else _Cells(cells, winv, x.shape[0])
+    d = cc.d
+    S = cc.shape(x)
+    sigma, cof = _det_cof(S)
+    r = np.sqrt(sigma * sigma + 4.0 * delta * delta)
+    # h = (sigma + r) / 2 = 2 delta^2 / (r - sigma): the second form has no cancellation
+    h = 0.5 * (sigma + r)
+    neg = sigma < 0
+    h[neg] = 2.0 * delta * delta / (r[neg] - sigma[neg])
+    hp = h ** (-2.0 / d)
+    eta = sum(S[c][j] * S[c][j] for c in range(d) for j in range(d)) * hp / d
+    F = float(eta.sum())
+    if not grad:
+        return F, None, sigma
+    a, b = (2.0 / d) * hp, (2.0 / d) * eta / r
+    g = np.empty((cc.n, d))
+    for c in range(d):
+        dS = [a * S[c][j] - b * cof[c][j] for j in range(d)]
+        dA = [sum(dS[j] * cc.w[k][j] for j in range(d)) for k in range(d)]  # vertex k + 1
+        gc = np.bincount(cc.cols[0], weights=-sum(dA), minlength=cc.n)
+        for k in range(d):
+            gc += np.bincount(cc.cols[k + 1], weights=dA[k], minlength=cc.n)
+        g[:, c] = gc
+    if not hessian:
+        return F, g, sigma
+    Sm = np.stack([np.stack(row, axis=1) for row in S], axis=1)  # (m, d, d)
+    Cm = np.stack([np.stack(row, axis=1) for row in cof], axis=1)
+    HS = _hessian_S(Sm, Cm, sigma, r, a, b).transpose(0, 1, 3, 2, 4)  # (m, c, e, j, l)
+    B = cc.B[:, None, None]  # (m, 1, 1, d + 1, d)
+    Hx = (B @ HS @ np.swapaxes(B, 3, 4)).transpose(0, 3, 1, 4, 2)  # (m, v, c, w, e)
+    return F, g, sigma, Hx
+
+
+def _cofactor_derivative(d: int) -> np.ndarray:
+    """Constant ``K (d^4, d^2)`` with ``d cof / d S = K S`` in 3D (``e_ckp e_jlq``), ``(d^4,)`` in 2D."""
+    if d == 2:
+        e = np.array([[0.0, 1.0], [-1.0, 0.0]])
+        return np.einsum("ck,jl->cjkl", e, e).reshape(-1)
+    e = np.zeros((3, 3, 3))
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        e[i, j, k], e[i, k, j] = 1.0, -1.0
+    return np.einsum("ckp,jlq->cjklpq", e, e).reshape(81, 9)
+
+
+_DCOF = {2: _cofactor_derivative(2), 3: _cofactor_derivative(3)}
+
+
+def _hessian_S(S, C, sigma, r, a, b) -> np.ndarray:
+    """``d^2 eta / dS^2`` ``(m, d, d, d, d)`` (module docstring)."""
+    m, d, _ = S.shape
+    if d == 2:
+        dC = np.broadcast_to(_DCOF[2], (m, 16))
+    else:
+        dC = S.reshape(m, 9) @ _DCOF[3].T
+    Sf, Cf = S.reshape(m, d * d), C.reshape(m, d * d)
+    SC = Sf[:, :, None] * Cf[:, None, :]
+    H = ((2.0 * b / (d * r) + b * sigma / r**2)[:, None, None] * Cf[:, :, None] * Cf[:, None, :]
+         - (2.0 * a / (d * r))[:, None, None] * (SC + SC.transpose(0, 2, 1))
+         - b[:, None, None] * dC.reshape(m, d * d, d * d))
+    H[:, np.arange(d * d), np.arange(d * d)] += a[:, None]
+    return H.reshape(m, d, d, d, d)
+
+
+@dataclasses.dataclass
+class OptimiseResult:
+    """What :func:`optimise` did.
+
+    Attributes:
+        x: ``(n, d)`` new coordinates (fixed nodes bit-for-bit unchanged).
+        sigma_min: smallest volume ratio of the active cells at ``x``.
+        evaluations: objective evaluations; rounds: regularisation rounds.
+    """
+
+    x: np.ndarray
+    sigma_min: float
+    evaluations: int
+    rounds: int
+
+
+def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarray,
+             scale: np.ndarray, *, slide: np.ndarray | None = None,
+             basis: np.ndarray | None = None, max_rounds: int = 6,
+             max_iterations: int = 40) -> OptimiseResult:
+    """Minimise ``F`` over the free (and sliding) nodes, from an invalid start if need be.
+
+    Args:
+        x: ``(n, d)`` start coordinates.
+        cells: ``(m, d + 1)`` cells; winv: ``(m, d, d)`` (:func:`targets`).
+        free: ``(n,)`` bool, nodes that move freely.
+        scale: ``(n,)`` length of each node's variables (its shortest edge).
+        slide: ``(k,)`` indices of nodes moving in their tangent space only
+            (not in ``free``); basis: ``(k, d, d - 1)`` orthonormal tangent
+            vectors (zero columns where the space has fewer dimensions).
+        max_rounds: regularisation rounds (``delta`` updated from the
+            smallest volume ratio between rounds; they stop early when a
+            round no longer raises it: the cells cannot be untangled here).
+        max_iterations: Newton iterations of the final (valid, ``delta =
+            DELTA_MIN``) round; the untangling rounds get half as many.
+
+    Returns:
+        :class:`OptimiseResult`; the result is a deterministic function of
+        the inputs (same arrays, same result on every process).
+    """
+    x = np.array(x, dtype=float)
+    pb = _Problem(x, cells, winv, free, scale, slide, basis)
+    if pb.size == 0:
+        return OptimiseResult(x, pb.sigma_min(pb.z0), 0, 0)
+    z, rounds, smin = pb.z0, 0, pb.sigma_min(pb.z0)
+    for rounds in range(1, max_rounds + 1):
+        delta = max(np.sqrt(EPS * (EPS - smin)) if smin < EPS else 0.0, DELTA_MIN)
+        z = _newton(pb, z, delta, max_iterations if delta == DELTA_MIN else max_iterations // 2)
+        prev, smin = smin, pb.sigma_min(z)
+        if smin > 0 and delta == DELTA_MIN:
+            break  # valid and converged
+        if smin < 0 and smin <= prev + 0.05 * abs(prev):
+            break  # no progress on the worst cell
+    pb.destroy()
+    x[pb.nodes] = pb.coords(z)
+    return OptimiseResult(x, smin, pb.count, rounds)
+
+
+def _newton(pb: "_Problem", z: np.ndarray, delta: float, max_iterations: int) -> np.ndarray:
+    """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps).
+
+    Stops at a gradient below ``GTOL`` (scaled variables), or when an
+    iteration lowers ``F`` by less than ``ftol`` relative: not at all in the
+    final round (``delta = DELTA_MIN``), 1e-10 in an untangling round,
+    whose minimum is only a step towards the next ``delta``.
+    """
+    ftol = 0.0 if delta == DELTA_MIN else 1e-10
+    F, g, hv = pb.evaluate(z, delta)
+    mu = 0.0
+    for _ in range(max_iterations):
+        # projected Newton: variables at a bound that the gradient pushes out stay there
+        held = ((z <= pb.lo) & (g > 0)) | ((z >= pb.hi) & (g < 0))
+        g = np.where(held, 0.0, g)
+        if np.abs(g).max() <= GTOL:
+            break
+        step = None
+        for _ in range(12):  # damping until a descent direction with an Armijo step
+            p = pb.solve(hv, mu, -g, held)
+            big = np.abs(p).max() if p.size else 0.0
+            if big > MAX_STEP:  # at most MAX_STEP edge lengths per node and iteration
+                p *= MAX_STEP / big
+            slope = float(g @ p)
+            if np.all(np.isfinite(p)) and slope < 0:
+                step = _armijo(pb, z, p, F, slope, delta)
+                if step is not None:
+                    break
+            mu = max(10.0 * mu, 1e-6)
+        if step is None:
+            break
+        z, F_new = step
+        done = F - F_new <= ftol * abs(F)
+        mu = mu / 10.0 if mu > 1e-6 else 0.0
+        F, g, hv = pb.evaluate(z, delta)
+        if done:
+            break
+    return z
+
+
+def _armijo(pb: "_Problem", z, p, F, slope, delta):
+    """``(z_new, F_new)`` of the first halving of the step that decreases ``F`` enough, or None."""
+    t = 1.0
+    for _ in range(20):
+        zn = pb.clip(z + t * p)
+        Fn = pb.value(zn, delta)
+        if np.isfinite(Fn) and Fn <= F + 1e-4 * t * slope:
+            return zn, Fn
+        t *= 0.5
+    return None
+
+
+class _Problem:
+    """The cells with a moving node, renumbered compactly, and the scaled variables ``z``.
+
+    Every moving node has ``d`` variables: ``x = x0 + E z_node`` with ``E = s I``
+    (free nodes, ``s`` their scale) or ``s T`` (sliding nodes; unused
+    columns are zero, their variables stay 0).
+    """
+
+    def __init__(self, x, cells, winv, free, scale, slide, basis):
+        n, d = x.shape
+        si = np.zeros(0, np.int64) if slide is None else np.asarray(slide, dtype=np.int64)
+        moving = np.asarray(free, dtype=bool).copy()
+        moving[si] = True
+        act = moving[cells].any(axis=1)
+        self.nodes, local = np.unique(cells[act], return_inverse=True)
+        self.cells = _Cells(local.reshape(-1, cells.shape[1]), winv[act], self.nodes.size)
+        self.d = d
+        self.x0 = x[self.nodes]
+        mv = moving[self.nodes]
+        self.var = np.where(mv, np.cumsum(mv) - 1, -1)  # variable block of each node
+        self.moving = np.flatnonzero(mv)
+        E = np.zeros((self.nodes.size, d, d))
+        E[self.moving] = np.eye(d)
+        self.lim = np.full((self.nodes.size, d), np.inf)
+        if si.size:
+            pos = np.searchsorted(self.nodes, si)
+            T = np.zeros((si.size, d, d))
+            T[:, :, : basis.shape[2]] = basis
+            E[pos] = T
+            live = np.linalg.norm(T, axis=1) > 0.5
+            self.lim[pos] = np.where(live, SLIDE_STEP, 0.0)
+        self.R, self.s = E, scale[self.nodes]  # x = x0 + s R z
+        self.E = E * self.s[:, None, None]
+        self.Em = self.E[self.moving]
+        is_slide = np.zeros(self.nodes.size, dtype=bool)
+        if si.size:
+            is_slide[np.searchsorted(self.nodes, si)] = True
+        self.rot = np.flatnonzero(is_slide[self.cells.cells].any(axis=1))
+        self.lo, self.hi = -self.lim[self.moving].ravel(), self.lim[self.moving].ravel()
+        self.size = self.moving.size * d if act.any() else 0
+        self.dead = (self.hi == 0.0)  # variables that never move (slide dims without tangent)
+        self.z0 = np.zeros(self.size)
+        self.count = 0
+        # sparsity of the Hessian: (cell vertex, cell vertex) pairs of moving nodes
+        cv = self.var[self.cells.cells]  # (m, d + 1)
+        ii = (cv[:, :, None, None, None] * d + np.arange(d)[None, None, :, None, None])
+        jj = (cv[:, None, None, :, None] * d + np.arange(d)[None, None, None, None, :])
+        ok = (cv[:, :, None, None, None] >= 0) & (cv[:, None, None, :, None] >= 0)
+        ii, jj = np.broadcast_arrays(ii, jj)
+        ok = np.broadcast_to(ok, ii.shape)
+        self._hmask = ok
+        self._r, self._c = ii[ok], jj[ok]
+        on_diag = ii[ok] == jj[ok]
+        self._diag_src, self._diag_pos = np.flatnonzero(on_diag), ii[ok][on_diag]
+        diag = np.arange(self.size)
+        self._ksp = None
+        if self.size:  # COO pattern: cell blocks, then the diagonal (damping, dead variables)
+            A = PETSc.Mat().create(PETSc.COMM_SELF)
+            A.setSizes([self.size, self.size])
+            A.setType(PETSc.Mat.Type.AIJ)
+            A.setPreallocationCOO(np.r_[ii[ok], diag].astype(PETSc.IntType),
+                                  np.r_[jj[ok], diag].astype(PETSc.IntType))
+            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+            ksp.setOperators(A)
+            ksp.setType("preonly")
+            pc = ksp.getPC()
+            pc.setType("cholesky")
+            pc.setFactorSolverType("mumps")
+            self._A, self._ksp = A, ksp
+            self._b, self._x = A.createVecs()
+
+    def coords(self, z: np.ndarray) -> np.ndarray:
+        xx = self.x0.copy()
+        xx[self.moving] += np.einsum("kcd,kd->kc", self.Em, z.reshape(-1, self.d))
+        return xx
+
+    def clip(self, z: np.ndarray) -> np.ndarray:
+        return np.clip(z, self.lo, self.hi)
+
+    def value(self, z: np.ndarray, delta: float) -> float:
+        self.count += 1
+        return energy(self.coords(z), None, None, delta, grad=False, prepared=self.cells)[0]
+
+    def evaluate(self, z: np.ndarray, delta: float):
+        """``(F, gradient (size,), Hessian values)`` in the variables ``z`` (values for :meth:`solve`)."""
+        self.count += 1
+        F, g, _, Hx = energy(self.coords(z), None, None, delta, prepared=self.cells,
+                             hessian=True)
+        gz = np.einsum("kcd,kc->kd", self.Em, g[self.moving]).ravel()
+        sv = self.s[self.cells.cells]  # (m, d + 1)
+        Hz = Hx * (sv[:, :, None, None, None] * sv[:, None, None, :, None])
+        if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
+            R = self.R[self.cells.cells[self.rot]]  # (k, d + 1, d, d)
+            Hz[self.rot] = np.einsum("mvca,mvcwe,mweb->mvawb", R, Hz[self.rot], R)
+        hv = Hz[self._hmask]
+        gz[self.dead] = 0.0
+        return F, gz, hv
+
+    def solve(self, hv: np.ndarray, mu: float, rhs: np.ndarray, held: np.ndarray) -> np.ndarray:
+        """Solve ``(H + mu diag(H)) p = rhs`` (dead and ``held`` variables: identity rows)."""
+        diag = np.bincount(self._diag_pos, weights=hv[self._diag_src], minlength=self.size)
+        fixed = self.dead | held
+        if held.any():
+            hv = np.where(fixed[self._r] | fixed[self._c], 0.0, hv)
+        extra = mu * np.maximum(diag, 1e-12) * ~fixed + fixed
+        self._A.setValuesCOO(np.r_[hv, extra], addv=PETSc.InsertMode.INSERT_VALUES)
+        self._A.assemble()
+        self._b.setArray(rhs)
+        try:
+            self._ksp.setOperators(self._A)
+            self._ksp.solve(self._b, self._x)
+        except PETSc.Error:
+            return np.full(self.size, np.nan)
+        return self._x.getArray().copy()
+
+    def destroy(self) -> None:
+        if self._ksp is not None:
+            for obj in (self._ksp, self._A, self._b, self._x):
+                obj.destroy()
+            self._ksp = None
+
+    def sigma_min(self, z: np.ndarray) -> float:
+        if self.cells.cols[0].size == 0:
+            return np.inf
+        return float(_det_cof(self.cells.shape(self.coords(z)))[0].min())
+
+
+def volume_ratio_min(x: np.ndarray, cells: np.ndarray, winv: np.ndarray) -> float:
+    """Smallest volume ratio ``det(A W^-1)`` of the cells (inf without cells)."""
+    if cells.shape[0] == 0:
+        return np.inf
+    return float(_det_cof(_Cells(cells, winv, x.shape[0]).shape(x))[0].min())
