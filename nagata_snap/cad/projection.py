@@ -838,6 +838,8 @@ MAX_COORD = 1e100
 
 def _check_finite(a: np.ndarray, what: str) -> None:
     """``ValueError`` for NaN/infinite entries, or coordinates beyond :data:`MAX_COORD`."""
+    if a.size == 0 or np.abs(a).max() <= MAX_COORD:  # one pass; False for NaN and inf too
+        return
     ok = np.isfinite(a) & (np.abs(a) <= MAX_COORD)
     if not ok.all():
         row = int(np.flatnonzero(~ok.reshape(len(a), -1).all(axis=1))[0])
