@@ -284,6 +284,19 @@ class _Topology:
             self.hi = np.array([c.bbox[1] for c in self.curves])
 
 
+class _PerEntity:
+    """``f(i)`` for ``i < n`` as a read-only sequence, evaluated when indexed (lazy per-entity data)."""
+
+    def __init__(self, n: int, f):
+        self._n, self._f = n, f
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: int):
+        return self._f(i)
+
+
 class CadGeometry:
     """Snapping geometry from a CAD model or from NURBS curves (2D) / surfaces (3D).
 
@@ -347,7 +360,7 @@ class CadGeometry:
         self.max_iter = int(max_iter)
         self.model = model
         self.trims = self._trims(trim_loops, trim_holes, trim_rtol)
-        extra = None if self.trims is None else [self.trims.loop_points(e) for e in range(len(entities))]
+        extra = None if self.trims is None else _PerEntity(len(entities), self.trims.loop_points)
         filt = None if self.trims is None else (  # search samples inside the loops only
             lambda e, P: self.trims.inside(np.full(len(P), e), P, band=False))
         self.searcher = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds,
@@ -552,8 +565,10 @@ class CadGeometry:
         n, d = params.shape
         out = np.zeros((n, d), dtype=bool)
         for e in np.unique(root):  # loop over entities
-            sel = np.flatnonzero(root == e)
             ent = self.entities[e]
+            if not getattr(ent, "can_degenerate", True):  # no pole, apex or collapsed edge
+                continue
+            sel = np.flatnonzero(root == e)
             p = normalize_params(ent, params[sel])
             _, T = evaluate_params(ent, p, 1)
             lengths = np.diff(ent.bounds, axis=1)[:, 0]  # (d,)

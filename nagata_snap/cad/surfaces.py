@@ -86,6 +86,8 @@ class AnalyticSurface:
 
     param_dim = 2
     kind = "analytic"
+    #: a tangent ``S_u`` or ``S_v`` can vanish (sphere poles, cone apex)
+    can_degenerate = True
     #: hard parameter limits (``normalize_params`` clamps there), ``(2, 2)``
     limits = np.array([[-np.inf, np.inf], [-np.inf, np.inf]])
 
@@ -266,6 +268,7 @@ class Plane(AnalyticSurface):
     """``S = O + u X + v Y``."""
 
     kind = "plane"
+    can_degenerate = False
 
     def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
         u, v = params[0], params[1]
@@ -292,6 +295,7 @@ class Cylinder(AnalyticSurface):
     """``S = O + R e(u) + v Z``."""
 
     kind = "cylinder"
+    can_degenerate = False
     closed = (True, False)
     _curved = (True, False)
 
@@ -456,6 +460,8 @@ class Torus(AnalyticSurface):
     def __init__(self, origin, x, y, z, major, minor, bounds):
         self.major = _positive(major, "torus major radius")
         self.minor = _positive(minor, "torus minor radius")
+        #: S_u = (R + r cos v) e'(u) vanishes only on a horn or spindle torus (r >= R)
+        self.can_degenerate = self.minor >= self.major
         super().__init__(origin, x, y, z, bounds)
 
     def _sagitta(self, du, dv):

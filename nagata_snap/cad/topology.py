@@ -172,6 +172,9 @@ def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_
         def f(t):
             return np.c_[f0(t), np.ones(len(t))] @ uv_map
     P = f(t)
+    if desc["type"] == "line":  # linear in t: the chord is the curve (deviation 0)
+        dev = np.zeros(len(P) - 1)
+        return (P[::-1], dev) if reverse else (P, dev)
     for _ in range(MAX_REFINE + 1):
         tm = 0.5 * (t[1:] + t[:-1])
         off = f(tm) - 0.5 * (P[1:] + P[:-1])  # (m - 1, 2)
@@ -181,7 +184,7 @@ def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_
             T = _tangents(surface, 0.5 * (P[1:] + P[:-1]))
             dev = np.linalg.norm(off[:, 0, None] * T[:, 0] + off[:, 1, None] * T[:, 1], axis=1)
         split = dev > tol
-        if desc["type"] == "line" or not split.any() or _ == MAX_REFINE:
+        if not split.any() or _ == MAX_REFINE:
             break
         t = np.sort(np.concatenate([t, tm[split]]))
         P = f(t)
