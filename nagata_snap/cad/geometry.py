@@ -141,7 +141,7 @@ def _edge_length(x: np.ndarray) -> np.ndarray:
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distinct rows of ``a (n, k)`` (float): ``(first (m,), inverse (n,), rows (m, k))``.
+    """Distinct rows of ``a (n, k)`` (float or int): ``(first (m,), inverse (n,), rows (m, k))``.
 
     As ``np.unique(a, axis=0, return_index=True, return_inverse=True)`` (rows
     compared by value: ``-0.0 == 0.0``; a row with NaN is its own group), but
@@ -219,7 +219,7 @@ def _row_index(rows: np.ndarray) -> np.ndarray:
     """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1``)."""
     if len(rows) == 0:
         return np.zeros(0, dtype=np.int64)
-    return np.unique(np.ascontiguousarray(rows), axis=0, return_inverse=True)[1].reshape(-1)
+    return _unique_rows(rows)[1].astype(np.int64, copy=False)
 
 
 def _box_pairs(points: np.ndarray, tol: np.ndarray, lo: np.ndarray, hi: np.ndarray
@@ -367,6 +367,8 @@ class CadGeometry:
                                        sample_filter=filt, extra_samples=extra)
         self.size = self.searcher.size
         self._period = np.array([entity_periods(e) for e in entities])
+        #: ``(n_entities,)`` bool: closed-form projection (no seeds needed)
+        self._analytic = np.array([is_analytic(e) for e in entities], dtype=bool)
         self.topology = _Topology(model) if model is not None and self.param_dim == 2 else None
         #: channels per facet vertex in the records: the parameters, plus in 3D with
         #: topology the three CAD-edge channels
@@ -855,8 +857,7 @@ class CadGeometry:
         np.maximum.at(t, inv, tol)
         par = np.zeros((len(first), d))
         dist = np.full(len(first), np.inf)
-        seeded = np.all(np.isfinite(sd[first]), axis=1) | np.array(
-            [is_analytic(self.entities[e]) for e in ent[first]], dtype=bool)
+        seeded = np.all(np.isfinite(sd[first]), axis=1) | self._analytic[ent[first]]
         if seeded.any():  # Newton from the given seeds (closed form on analytic faces)
             s = first[seeded]
             p, _, dd, _, conv = self.searcher.refine(s, ent[s], np.nan_to_num(sd[s]), X, self.max_iter)
