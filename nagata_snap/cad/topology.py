@@ -257,12 +257,22 @@ def _loop(face_surface, wire: dict, tolerances: np.ndarray, uv_map=None) -> Loop
         sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
     E = np.concatenate(edge)
     P = np.concatenate(pts)
-    if len(np.unique(np.round(P / max(np.ptp(P), 1e-300), 12), axis=0)) < 3 or \
-            not np.all(np.isfinite(P)):
+    if not np.all(np.isfinite(P)) or not _three_distinct(np.round(P / max(np.ptp(P), 1e-300), 12)):
         raise ValueError("a trimming wire has fewer than 3 distinct (finite) points in the "
                          "parameter plane")
     band = 2.0 * np.concatenate(dev) + tolerances[E]
     return Loop(P, E, band, np.concatenate(sense), bool(wire["outer"]))
+
+
+def _three_distinct(R: np.ndarray) -> bool:
+    """Rows of ``R (m, 2)`` take at least three distinct values (no sort: two passes)."""
+    if len(R) < 3:
+        return False
+    off_a = np.any(R != R[0], axis=1)
+    if not off_a.any():
+        return False
+    b = R[np.argmax(off_a)]
+    return bool(np.any(off_a & np.any(R != b, axis=1)))
 
 
 def _tangents(surface, params: np.ndarray) -> np.ndarray:
