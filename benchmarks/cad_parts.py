@@ -159,13 +159,13 @@ def large_cases(tmp: str) -> list[tuple]:
     """Read ratio and attach per vertex where fixed costs do not dominate.
 
     A file with many faces (a plate with 10 x 10 holes, 106 faces) meshed
-    coarsely, and a fine mesh (about 2e4 boundary vertices) of ``plate``.
+    coarsely, and a fine mesh (about 1.7e4 boundary vertices) of ``plate``.
     """
     rows = []
     holes = os.path.join(tmp, "plate_100_holes.step")
     holes_plate(holes)
     plate = str(parts.write_part("plate", tmp, ("step",))["step"])
-    for name, path, sf, cu in (("plate_100_holes", holes, 0.05, 8), ("plate (fine)", plate, 0.015, 16)):
+    for name, path, sf, cu in (("plate_100_holes", holes, 0.05, 8), ("plate (fine)", plate, 0.01, 16)):
         occ_t, our_t = occ_import_seconds(path), ours_read_seconds(path)
         t0 = time.perf_counter()
         cm, geo = mesh_cad(path, MPI.COMM_SELF, size_factor=sf, curvature=cu)
