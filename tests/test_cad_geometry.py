@@ -463,3 +463,25 @@ def test_edge_vertices_of_plate_and_hole_land_on_the_trimming_curve():
             np.testing.assert_allclose(geo.evaluate(rec.root, rec.params), pts, rtol=0, atol=1e-14)
             assert geo.inside(np.repeat(rec.root, 3), rec.params.reshape(-1, 2)).all()
             x = pts
+
+
+def test_row_ids_by_lexsort_match_numpy_unique():
+    """``_row_index`` (facet-edge and hint keys) numbers rows as ``np.unique(axis=0)`` does."""
+    from nagata_snap.cad.geometry import _row_index
+
+    rng = np.random.default_rng(3)
+    for shape in ((0, 2), (1, 3), (500, 2), (2000, 3)):
+        rows = rng.integers(0, 40, size=shape) * 10**9  # large global ids too
+        np.testing.assert_array_equal(
+            _row_index(rows), np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1))
+
+
+def test_three_distinct_points_check_of_trimming_wires():
+    from nagata_snap.cad.topology import _three_distinct
+
+    a, b, c = [0.0, 0.0], [1.0, 0.0], [0.0, 1.0]
+    assert _three_distinct(np.array([a, b, c]))
+    assert _three_distinct(np.array([a, a, b, b, a, c]))
+    assert not _three_distinct(np.array([a, b, a, b, b]))
+    assert not _three_distinct(np.array([a, a, a]))
+    assert not _three_distinct(np.array([a, b]))

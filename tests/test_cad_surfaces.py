@@ -207,3 +207,21 @@ def test_line_segment_closest_point_matches_occ():
     T, C, d = ln.closest(Xq)
     np.testing.assert_allclose(d, occ_curve_project(occ, -0.5, 1.5, Xq), rtol=0, atol=1e-14)
     assert np.all((T >= -0.5) & (T <= 1.5))
+
+
+def test_closest_wraps_angles_into_the_face_box_and_matches_evaluation():
+    """Closed-form parameters lie in ``[u0, u0 + 2 pi)`` for any ``u0`` (also next to
+    multiples of 2 pi, where the floor-based wrap rounds), and the foot points computed
+    without trigonometry are the surface's points at those parameters."""
+    for u0 in (-7.0, -np.pi, 0.0, 2 * np.pi, 11.0):
+        box = [[u0, u0 + 2 * np.pi], [0.0, 2 * np.pi]]
+        for s in (Cylinder(O, X, Y, Z, 0.7, box), Torus(O, X, Y, Z, 1.0, 0.3, box),
+                  Cone(O, X, Y, Z, 0.5, 0.4, [box[0], [-0.5, 1.0]])):
+            ang = np.concatenate([RNG.uniform(-20, 20, 300), 2 * np.pi * np.arange(-3, 4) + 1e-17,
+                                  2 * np.pi * np.arange(-3, 4) - 1e-17])
+            q = np.c_[np.cos(ang), np.sin(ang), RNG.uniform(-0.2, 0.2, len(ang))] * [1.2, 1.2, 1.0]
+            Xq = O + q @ np.stack([X, Y, Z])
+            P, S, d = s.closest(Xq)
+            assert np.all((P[:, 0] >= u0) & (P[:, 0] < u0 + 2 * np.pi + 1e-15))
+            np.testing.assert_allclose(s._points(P[:, 0], P[:, 1]), S, rtol=0, atol=1e-14)
+            np.testing.assert_allclose(np.linalg.norm(S - Xq, axis=1), d, rtol=0, atol=1e-14)

@@ -335,3 +335,24 @@ def test_maximum_is_not_reported_converged():
     res = project_newton(cur, P, far + 1e-3)
     assert res.converged.all()
     np.testing.assert_allclose(res.points, P / np.linalg.norm(P, axis=1)[:, None], rtol=0, atol=1e-14)
+
+
+def test_search_grids_are_built_on_first_use_and_agree_with_the_eager_ones():
+    """A searcher samples an entity only when a search needs seeds on it (a search on
+    given entities: those; a global search: all), with the same samples and results."""
+    c = np.zeros(3)
+    ents = [sphere(c, 1.0), torus(c, 3.0, 0.5)]
+    gs = GlobalSearcher(ents)
+    assert gs._samples == {} and gs._all is None  # construction samples nothing
+    X = closest_on_torus(np.array([[3.4, 0.2, 0.1], [-2.9, 0.3, 0.2]]), c, 3.0, 0.5) * 1.01
+    params, proj, dist = gs.search_on(X, [1, 1])
+    assert set(gs._samples) == {1} and gs._all is None
+    np.testing.assert_allclose(dist, np.linalg.norm(closest_on_torus(X, c, 3.0, 0.5) - X, axis=1), atol=1e-12)
+    e, p, d = gs.search(X)
+    assert set(gs._samples) == {0, 1} and np.all(e == 1)
+    np.testing.assert_allclose(d, dist, atol=1e-12)
+    P1, X1 = gs.entity_samples(1)
+    n0 = len(gs.entity_samples(0)[0])
+    np.testing.assert_array_equal(gs.sample_params[n0:], P1)
+    np.testing.assert_array_equal(gs.sample_points[n0:], X1)
+    np.testing.assert_array_equal(gs.sample_entity, np.repeat([0, 1], [n0, len(P1)]))

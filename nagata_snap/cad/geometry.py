@@ -141,7 +141,7 @@ def _edge_length(x: np.ndarray) -> np.ndarray:
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distinct rows of ``a (n, k)`` (float): ``(first (m,), inverse (n,), rows (m, k))``.
+    """Distinct rows of ``a (n, k)`` (float or int): ``(first (m,), inverse (n,), rows (m, k))``.
 
     As ``np.unique(a, axis=0, return_index=True, return_inverse=True)`` (rows
     compared by value: ``-0.0 == 0.0``; a row with NaN is its own group), but
@@ -219,7 +219,7 @@ def _row_index(rows: np.ndarray) -> np.ndarray:
     """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1``)."""
     if len(rows) == 0:
         return np.zeros(0, dtype=np.int64)
-    return np.unique(np.ascontiguousarray(rows), axis=0, return_inverse=True)[1].reshape(-1)
+    return _unique_rows(rows)[1].astype(np.int64, copy=False)
 
 
 def _box_pairs(points: np.ndarray, tol: np.ndarray, lo: np.ndarray, hi: np.ndarray
@@ -282,6 +282,19 @@ class _Topology:
         if self.curves:
             self.lo = np.array([c.bbox[0] for c in self.curves])
             self.hi = np.array([c.bbox[1] for c in self.curves])
+
+
+class _PerEntity:
+    """``f(i)`` for ``i < n`` as a read-only sequence, evaluated when indexed (lazy per-entity data)."""
+
+    def __init__(self, n: int, f):
+        self._n, self._f = n, f
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: int):
+        return self._f(i)
 
 
 class CadGeometry:
@@ -347,13 +360,15 @@ class CadGeometry:
         self.max_iter = int(max_iter)
         self.model = model
         self.trims = self._trims(trim_loops, trim_holes, trim_rtol)
-        extra = None if self.trims is None else [self.trims.loop_points(e) for e in range(len(entities))]
+        extra = None if self.trims is None else _PerEntity(len(entities), self.trims.loop_points)
         filt = None if self.trims is None else (  # search samples inside the loops only
             lambda e, P: self.trims.inside(np.full(len(P), e), P, band=False))
         self.searcher = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds,
                                        sample_filter=filt, extra_samples=extra)
         self.size = self.searcher.size
         self._period = np.array([entity_periods(e) for e in entities])
+        #: ``(n_entities,)`` bool: closed-form projection (no seeds needed)
+        self._analytic = np.array([is_analytic(e) for e in entities], dtype=bool)
         self.topology = _Topology(model) if model is not None and self.param_dim == 2 else None
         #: channels per facet vertex in the records: the parameters, plus in 3D with
         #: topology the three CAD-edge channels
@@ -552,8 +567,10 @@ class CadGeometry:
         n, d = params.shape
         out = np.zeros((n, d), dtype=bool)
         for e in np.unique(root):  # loop over entities
-            sel = np.flatnonzero(root == e)
             ent = self.entities[e]
+            if not getattr(ent, "can_degenerate", True):  # no pole, apex or collapsed edge
+                continue
+            sel = np.flatnonzero(root == e)
             p = normalize_params(ent, params[sel])
             _, T = evaluate_params(ent, p, 1)
             lengths = np.diff(ent.bounds, axis=1)[:, 0]  # (d,)
@@ -840,8 +857,7 @@ class CadGeometry:
         np.maximum.at(t, inv, tol)
         par = np.zeros((len(first), d))
         dist = np.full(len(first), np.inf)
-        seeded = np.all(np.isfinite(sd[first]), axis=1) | np.array(
-            [is_analytic(self.entities[e]) for e in ent[first]], dtype=bool)
+        seeded = np.all(np.isfinite(sd[first]), axis=1) | self._analytic[ent[first]]
         if seeded.any():  # Newton from the given seeds (closed form on analytic faces)
             s = first[seeded]
             p, _, dd, _, conv = self.searcher.refine(s, ent[s], np.nan_to_num(sd[s]), X, self.max_iter)

@@ -611,7 +611,10 @@ def _best_per_point(n: int, pt: np.ndarray, dist: np.ndarray, rank: np.ndarray |
 class GlobalSearcher:
     """KD-tree of parameter-grid samples of several entities, for seeding Newton.
 
-    Built once per geometry and reused for every search.
+    Built once per geometry and reused for every search; the grids are built
+    on first use (an entity's when a search on it needs seeds, all of them at
+    the first global search), so that a geometry whose points come with
+    their faces and seeds (a mesh made from the CAD) never pays for them.
 
     Args:
         entities: curves or surfaces (all of the same kind).
@@ -623,7 +626,8 @@ class GlobalSearcher:
             (e.g. those inside a trimmed face); an entity with no sample kept
             keeps them all.
         extra_samples: optional per-entity ``(s_e, d)`` parameters added to the
-            grid (before filtering), e.g. the vertices of trimming loops.
+            grid (before filtering), e.g. the vertices of trimming loops (any
+            sequence indexed by entity: it is read when that entity's grid is built).
     """
 
     def __init__(
@@ -648,36 +652,68 @@ class GlobalSearcher:
         self.param_dim = dims.pop()
         self.k_seeds = int(k_seeds)
         self.max_iter = int(max_iter)
-        params, pts, ent = [], [], []
-        for i, e in enumerate(entities):  # loop over entities (patch count)
-            P, X = sample_entity(e, per_span)
-            extra = None if extra_samples is None else extra_samples[i]
-            if extra is not None and len(extra):
-                Pe = normalize_params(e, np.asarray(extra, dtype=float).reshape(-1, self.param_dim))
-                P = np.concatenate([P, Pe])
-                X = np.concatenate([X, evaluate_params(e, Pe, 0)])
-            if sample_filter is not None:
-                keep = np.asarray(sample_filter(i, P), dtype=bool)
-                if keep.any():  # an entity keeps at least its unfiltered grid
-                    P, X = P[keep], X[keep]
-            params.append(P)
-            pts.append(X)
-            ent.append(np.full(len(P), i, dtype=np.int64))
-        self._offsets = np.cumsum([0] + [len(P) for P in params])
-        self.sample_params = np.concatenate(params)
-        self.sample_points = np.concatenate(pts)
-        self.sample_entity = np.concatenate(ent)
-        self.tree = cKDTree(self.sample_points)
+        self._per_span = per_span
+        self._filter = sample_filter
+        self._extra = extra_samples
+        #: per entity ``(params (s, d), points (s, 3))``, built on first use
+        self._samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._trees: dict[int, cKDTree] = {}
+        self._all = None
         lo = np.array([e.bbox[0] for e in entities])
         hi = np.array([e.bbox[1] for e in entities])
         self.bbox_lo, self.bbox_hi = lo, hi
         self.size = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
 
+    def entity_samples(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(params (s, d), points (s, 3))``: the search grid of entity ``i`` (built once)."""
+        if i not in self._samples:
+            e = self.entities[i]
+            P, X = sample_entity(e, self._per_span)
+            extra = None if self._extra is None else self._extra[i]
+            if extra is not None and len(extra):
+                Pe = normalize_params(e, np.asarray(extra, dtype=float).reshape(-1, self.param_dim))
+                P = np.concatenate([P, Pe])
+                X = np.concatenate([X, evaluate_params(e, Pe, 0)])
+            if self._filter is not None:
+                keep = np.asarray(self._filter(i, P), dtype=bool)
+                if keep.any():  # an entity keeps at least its unfiltered grid
+                    P, X = P[keep], X[keep]
+            self._samples[i] = (P, X)
+        return self._samples[i]
+
+    def _all_samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree]:
+        """Samples of every entity, concatenated, and their KD-tree (built on the first global search)."""
+        if self._all is None:
+            grids = [self.entity_samples(i) for i in range(len(self.entities))]
+            params = np.concatenate([P for P, _ in grids])
+            pts = np.concatenate([X for _, X in grids])
+            ent = np.repeat(np.arange(len(grids)), [len(P) for P, _ in grids])
+            self._all = (params, pts, ent, cKDTree(pts))
+        return self._all
+
+    @property
+    def sample_params(self) -> np.ndarray:
+        """``(s, d)`` parameters of all grid samples."""
+        return self._all_samples()[0]
+
+    @property
+    def sample_points(self) -> np.ndarray:
+        """``(s, 3)`` points of all grid samples."""
+        return self._all_samples()[1]
+
+    @property
+    def sample_entity(self) -> np.ndarray:
+        """``(s,)`` entity of each grid sample."""
+        return self._all_samples()[2]
+
+    @property
+    def tree(self) -> cKDTree:
+        """KD-tree of :attr:`sample_points`."""
+        return self._all_samples()[3]
+
     def _entity_tree(self, e: int) -> cKDTree:
         if e not in self._trees:
-            a, b = self._offsets[e], self._offsets[e + 1]
-            self._trees[e] = cKDTree(self.sample_points[a:b])
+            self._trees[e] = cKDTree(self.entity_samples(e)[1])
         return self._trees[e]
 
     def refine(
@@ -747,13 +783,14 @@ class GlobalSearcher:
         repeat.
         """
         X = _points3(points)
-        k = min(self.k_seeds if k_seeds is None else int(k_seeds), len(self.sample_points))
-        _, idx = self.tree.query(X, k=k)
+        sample_params, sample_points, sample_entity, tree = self._all_samples()
+        k = min(self.k_seeds if k_seeds is None else int(k_seeds), len(sample_points))
+        _, idx = tree.query(X, k=k)
         idx = idx.reshape(len(X), k)
         pt = np.repeat(np.arange(len(X)), k)
         s = idx.ravel()
-        ent = self.sample_entity[s]
-        params, proj, dist, _, conv = self.refine(pt, ent, self.sample_params[s], X)
+        ent = sample_entity[s]
+        params, proj, dist, _, conv = self.refine(pt, ent, sample_params[s], X)
         return pt, ent, params, proj, dist, conv
 
     def search_on(
@@ -793,13 +830,12 @@ class GlobalSearcher:
                 ents.append(np.full(len(sel), e))
                 seeds.append(np.full((len(sel), self.param_dim), np.nan))
                 continue
-            a = self._offsets[e]
-            ke = min(kk, self._offsets[e + 1] - a)
+            Pe = self.entity_samples(e)[0]
+            ke = min(kk, len(Pe))
             _, idx = self._entity_tree(e).query(X[sel], k=ke)
-            idx = idx.reshape(len(sel), ke) + a
             pts.append(np.repeat(sel, ke))
             ents.append(np.full(len(sel) * ke, e))
-            seeds.append(self.sample_params[idx.ravel()])
+            seeds.append(Pe[idx.reshape(len(sel), ke).ravel()])
         pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
         params, proj, dist, _, _ = self.refine(pt, en, sd, X)
         return _pick(n, pt, en, params, dist, (params, proj), accept)
@@ -838,6 +874,8 @@ MAX_COORD = 1e100
 
 def _check_finite(a: np.ndarray, what: str) -> None:
     """``ValueError`` for NaN/infinite entries, or coordinates beyond :data:`MAX_COORD`."""
+    if a.size == 0 or np.abs(a).max() <= MAX_COORD:  # one pass; False for NaN and inf too
+        return
     ok = np.isfinite(a) & (np.abs(a) <= MAX_COORD)
     if not ok.all():
         row = int(np.flatnonzero(~ok.reshape(len(a), -1).all(axis=1))[0])

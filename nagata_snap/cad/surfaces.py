@@ -59,6 +59,22 @@ def _unit(v: npt.ArrayLike, what: str) -> np.ndarray:
     return a / n
 
 
+def _norm2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``sqrt(a^2 + b^2)`` (coordinates are at most 1e100: no overflow; faster than ``hypot``)."""
+    out = a * a
+    out += b * b
+    return np.sqrt(out, out=out)
+
+
+def _wrap(t: np.ndarray, lo: float) -> np.ndarray:
+    """Angles ``t`` wrapped into ``[lo, lo + 2 pi)``, in place (``t`` returned)."""
+    t -= lo
+    t -= TWO_PI * np.floor(t * (1.0 / TWO_PI))
+    np.maximum(t, 0.0, out=t)  # t/2pi rounded up to an integer: -1 ulp, not below lo
+    t += lo
+    return t
+
+
 class AnalyticSurface:
     """Common part of the analytic surfaces: frame, bounds, periods, evaluation.
 
@@ -70,6 +86,8 @@ class AnalyticSurface:
 
     param_dim = 2
     kind = "analytic"
+    #: a tangent ``S_u`` or ``S_v`` can vanish (sphere poles, cone apex)
+    can_degenerate = True
     #: hard parameter limits (``normalize_params`` clamps there), ``(2, 2)``
     limits = np.array([[-np.inf, np.inf], [-np.inf, np.inf]])
 
@@ -85,6 +103,8 @@ class AnalyticSurface:
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
         self.bounds = b
         self._frame = np.stack([self.X, self.Y, self.Z])  # (3, 3) rows X, Y, Z
+        self._o_local = self._frame @ self.origin
+        self._frame4 = np.vstack([self._frame, self.origin])  # [x y z 1] @ _frame4 = O + xX + yY + zZ
         self._box = None
 
     @property
@@ -166,16 +186,40 @@ class AnalyticSurface:
         raise NotImplementedError
 
     def _coords(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        q = np.asarray(points, dtype=float) - self.origin
-        loc = q @ self._frame.T
-        return loc[:, 0], loc[:, 1], loc[:, 2]
+        """Local coordinates ``x, y, z`` (contiguous ``(k,)`` each) of ``points (k, 3)``."""
+        L = np.asarray(points, dtype=float) @ self._frame.T  # one BLAS pass; the origin per column
+        return L[:, 0] - self._o_local[0], L[:, 1] - self._o_local[1], L[:, 2] - self._o_local[2]
 
-    def _angle(self, x: np.ndarray, y: np.ndarray, rho: np.ndarray, seed: np.ndarray,
-               tiny: float) -> np.ndarray:
-        """``atan2(y, x)`` wrapped into ``[u0, u0 + 2 pi)``; the seed where ``rho <= tiny``."""
-        u = np.arctan2(y, x)
-        u = self.bounds[0, 0] + np.mod(u - self.bounds[0, 0], TWO_PI)
-        return np.where(rho <= tiny, seed, u)
+    def _wrap_u(self, u: np.ndarray) -> np.ndarray:
+        """``u`` wrapped into ``[u0, u0 + 2 pi)`` (``u0`` the lower bound), in place."""
+        return _wrap(u, self.bounds[0, 0])
+
+    def _angle(self, x: np.ndarray, y: np.ndarray, rho: np.ndarray, seed) -> np.ndarray:
+        """``atan2(y, x)`` wrapped into ``[u0, u0 + 2 pi)``; the seed where ``rho`` is 0."""
+        u = self._wrap_u(np.arctan2(y, x))
+        axis = np.flatnonzero(rho <= 1e-300)
+        if axis.size:
+            u[axis] = seed(axis, 0)
+        return u
+
+    def _foot(self, x, y, rho, u, a, b) -> np.ndarray:
+        """``(k, 3)`` foot points ``O + a e(u) + b Z`` of a surface of revolution.
+
+        ``e(u) = (x X + y Y) / rho`` (the meridian direction of the point, no
+        trigonometry) where ``rho > 0``, ``cos u X + sin u Y`` on the axis;
+        ``a`` is the signed radial coordinate of the foot along it.
+        """
+        loc = np.empty((len(x), 4))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = a / rho
+            np.multiply(f, x, out=loc[:, 0])
+            np.multiply(f, y, out=loc[:, 1])
+        loc[:, 2], loc[:, 3] = b, 1.0
+        axis = np.flatnonzero(rho <= 1e-300)
+        if axis.size:
+            loc[axis, 0] = a[axis] * np.cos(u[axis])
+            loc[axis, 1] = a[axis] * np.sin(u[axis])
+        return loc @ self._frame4
 
     def closest(self, points: npt.ArrayLike, seeds: npt.ArrayLike | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -190,14 +234,19 @@ class AnalyticSurface:
             ``(params (k, 2), foot points (k, 3), distances (k,))``.
         """
         X = np.asarray(points, dtype=float).reshape(-1, 3)
-        if seeds is None:
-            seed = np.broadcast_to(self.bounds[:, 0], (len(X), 2))
-        else:
-            seed = np.asarray(seeds, dtype=float).reshape(len(X), 2)
-            seed = np.where(np.isfinite(seed), seed, self.bounds[:, 0])
-        P = self._closest_params(X, seed)
-        S = self._points(P[:, 0], P[:, 1])
-        return P, S, np.linalg.norm(S - X, axis=1)
+        if seeds is not None:
+            seeds = np.asarray(seeds, dtype=float).reshape(len(X), 2)
+
+        def seed(rows: np.ndarray, a: int) -> np.ndarray:  # read only where needed
+            if seeds is None:
+                return np.full(len(rows), self.bounds[a, 0])
+            s = seeds[rows, a]
+            return np.where(np.isfinite(s), s, self.bounds[a, 0])
+
+        u, v, S, dist = self._closest(*self._coords(X), seed)
+        P = np.empty((len(X), 2))
+        P[:, 0], P[:, 1] = u, v
+        return P, S, dist
 
     def normals(self, params: npt.ArrayLike) -> np.ndarray:
         """``(k, 3)`` unit normals along ``S_u x S_v``, exact also where that vanishes."""
@@ -219,6 +268,7 @@ class Plane(AnalyticSurface):
     """``S = O + u X + v Y``."""
 
     kind = "plane"
+    can_degenerate = False
 
     def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
         u, v = params[0], params[1]
@@ -230,9 +280,10 @@ class Plane(AnalyticSurface):
             out[2] = self.Y[:, None]
         return out
 
-    def _closest_params(self, X, seed):
-        x, y, _ = self._coords(X)
-        return np.stack([x, y], axis=1)
+    def _closest(self, x, y, z, seed):
+        loc = np.empty((len(x), 4))
+        loc[:, 0], loc[:, 1], loc[:, 2], loc[:, 3] = x, y, 0.0, 1.0
+        return x, y, loc @ self._frame4, np.abs(z)
 
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)
@@ -244,6 +295,7 @@ class Cylinder(AnalyticSurface):
     """``S = O + R e(u) + v Z``."""
 
     kind = "cylinder"
+    can_degenerate = False
     closed = (True, False)
     _curved = (True, False)
 
@@ -266,10 +318,11 @@ class Cylinder(AnalyticSurface):
             out[3, 0] = -R
         return out
 
-    def _closest_params(self, X, seed):
-        x, y, z = self._coords(X)
-        rho = np.hypot(x, y)
-        return np.stack([self._angle(x, y, rho, seed[:, 0], 1e-300), z], axis=1)
+    def _closest(self, x, y, z, seed):
+        rho = _norm2(x, y)
+        u = self._angle(x, y, rho, seed)
+        S = self._foot(x, y, rho, u, np.full_like(rho, self.radius), z)
+        return u, z, S, np.abs(rho - self.radius)
 
     def _normal_local(self, u, v):
         return np.ones_like(u), np.zeros_like(u)
@@ -316,26 +369,32 @@ class Cone(AnalyticSurface):
             out[4, 1] = self.sin
         return out
 
-    def _closest_params(self, X, seed):
-        x, y, z = self._coords(X)
-        rho = np.hypot(x, y)
-        u = self._angle(x, y, rho, seed[:, 0], 1e-300)
+    def _closest(self, x, y, z, seed):
+        rho = _norm2(x, y)
         lo, hi = self.limits[1]
-        best_u, best_v, best_d = None, None, None
-        for sign, shift in ((1.0, 0.0), (-1.0, np.pi)):  # half-planes u and u + pi
+        best = None
+        for sign in (1.0, -1.0):  # the point's half-plane u, and the opposite one u + pi
             v = np.clip((sign * rho - self.radius) * self.sin + z * self.cos, lo, hi)
             r = self.radius + v * self.sin
-            d = np.hypot(sign * rho - r, z - v * self.cos)
-            uu = u + shift
-            if best_d is None:
-                best_u, best_v, best_d = uu, v, d
+            d = _norm2(sign * rho - r, z - v * self.cos)
+            if best is None:
+                best = [v, sign * r, d, np.zeros(len(v), dtype=bool)]
             else:
-                take = d < best_d
-                best_u, best_v = np.where(take, uu, best_u), np.where(take, v, best_v)
-        best_u = self.bounds[0, 0] + np.mod(best_u - self.bounds[0, 0], TWO_PI)
-        apex = np.abs(best_v - self.v_apex) * abs(self.sin) <= 1e-15 * max(self.bbox_size, 1e-300)
-        best_u = np.where(apex | (rho <= 1e-300), seed[:, 0], best_u)
-        return np.stack([best_u, best_v], axis=1)
+                take = d < best[2]
+                best = [np.where(take, v, best[0]), np.where(take, -r, best[1]), np.where(take, d, best[2]), take]
+        v, a, dist, opposite = best
+        u = np.arctan2(y, x)
+        u[opposite] += np.pi
+        u = self._wrap_u(u)
+        free = np.flatnonzero((np.abs(v - self.v_apex) * abs(self.sin) <= 1e-15 * max(self.bbox_size, 1e-300))
+                              | (rho <= 1e-300))
+        if free.size:  # u is free at the apex and on the axis: the seed's
+            u[free] = seed(free, 0)
+            a[free] = np.abs(a[free])
+            rho = rho.copy()
+            rho[free] = 0.0  # the foot's direction is then e(u)
+        S = self._foot(x, y, rho, u, a, v * self.cos)
+        return u, v, S, dist
 
     def _normal_local(self, u, v):
         # S_u x S_v = r (cos a e - sin a Z) in a right-handed frame; sign(r) = nappe
@@ -372,13 +431,20 @@ class Sphere(AnalyticSurface):
             out[5, 0], out[5, 2] = -R * cv, -R * sv
         return out
 
-    def _closest_params(self, X, seed):
-        x, y, z = self._coords(X)
-        rho = np.hypot(x, y)
-        u = self._angle(x, y, rho, seed[:, 0], 1e-300)
-        centre = np.hypot(rho, z) <= 1e-300
-        v = np.where(centre, seed[:, 1], np.arctan2(z, rho))
-        return np.stack([u, v], axis=1)
+    def _closest(self, x, y, z, seed):
+        rho = _norm2(x, y)
+        u = self._angle(x, y, rho, seed)
+        t = _norm2(rho, z)
+        v = np.arctan2(z, rho)
+        R = self.radius
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = R / t
+            a, b = f * rho, f * z
+        centre = np.flatnonzero(t <= 1e-300)
+        if centre.size:
+            v[centre] = seed(centre, 1)
+            a[centre], b[centre] = R * np.cos(v[centre]), R * np.sin(v[centre])
+        return u, v, self._foot(x, y, rho, u, a, b), np.abs(t - R)
 
     def _normal_local(self, u, v):
         return np.cos(v), np.sin(v)
@@ -394,6 +460,8 @@ class Torus(AnalyticSurface):
     def __init__(self, origin, x, y, z, major, minor, bounds):
         self.major = _positive(major, "torus major radius")
         self.minor = _positive(minor, "torus minor radius")
+        #: S_u = (R + r cos v) e'(u) vanishes only on a horn or spindle torus (r >= R)
+        self.can_degenerate = self.minor >= self.major
         super().__init__(origin, x, y, z, bounds)
 
     def _sagitta(self, du, dv):
@@ -415,15 +483,23 @@ class Torus(AnalyticSurface):
             out[5, 0], out[5, 2] = -r * cv, -r * sv
         return out
 
-    def _closest_params(self, X, seed):
-        x, y, z = self._coords(X)
-        rho = np.hypot(x, y)
-        u = self._angle(x, y, rho, seed[:, 0], 1e-300)
+    def _closest(self, x, y, z, seed):
+        rho = _norm2(x, y)
+        u = self._angle(x, y, rho, seed)
         w = rho - self.major
-        tube = np.hypot(w, z) <= 1e-300
-        v = np.arctan2(z, w)
-        v = self.bounds[1, 0] + np.mod(v - self.bounds[1, 0], TWO_PI)
-        return np.stack([u, np.where(tube, seed[:, 1], v)], axis=1)
+        t = _norm2(w, z)
+        v0 = self.bounds[1, 0]
+        v = _wrap(np.arctan2(z, w), v0)
+        r = self.minor
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = r / t
+            a, b = f * w, f * z
+        a += self.major
+        tube = np.flatnonzero(t <= 1e-300)
+        if tube.size:  # v is free on the tube's centre circle: the seed's
+            v[tube] = seed(tube, 1)
+            a[tube], b[tube] = self.major + r * np.cos(v[tube]), r * np.sin(v[tube])
+        return u, v, self._foot(x, y, rho, u, a, b), np.abs(t - r)
 
     def _normal_local(self, u, v):
         sign = np.sign(self.major + self.minor * np.cos(v))

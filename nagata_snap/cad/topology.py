@@ -172,6 +172,9 @@ def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_
         def f(t):
             return np.c_[f0(t), np.ones(len(t))] @ uv_map
     P = f(t)
+    if desc["type"] == "line":  # linear in t: the chord is the curve (deviation 0)
+        dev = np.zeros(len(P) - 1)
+        return (P[::-1], dev) if reverse else (P, dev)
     for _ in range(MAX_REFINE + 1):
         tm = 0.5 * (t[1:] + t[:-1])
         off = f(tm) - 0.5 * (P[1:] + P[:-1])  # (m - 1, 2)
@@ -181,7 +184,7 @@ def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_
             T = _tangents(surface, 0.5 * (P[1:] + P[:-1]))
             dev = np.linalg.norm(off[:, 0, None] * T[:, 0] + off[:, 1, None] * T[:, 1], axis=1)
         split = dev > tol
-        if desc["type"] == "line" or not split.any() or _ == MAX_REFINE:
+        if not split.any() or _ == MAX_REFINE:
             break
         t = np.sort(np.concatenate([t, tm[split]]))
         P = f(t)
@@ -254,12 +257,22 @@ def _loop(face_surface, wire: dict, tolerances: np.ndarray, uv_map=None) -> Loop
         sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
     E = np.concatenate(edge)
     P = np.concatenate(pts)
-    if len(np.unique(np.round(P / max(np.ptp(P), 1e-300), 12), axis=0)) < 3 or \
-            not np.all(np.isfinite(P)):
+    if not np.all(np.isfinite(P)) or not _three_distinct(np.round(P / max(np.ptp(P), 1e-300), 12)):
         raise ValueError("a trimming wire has fewer than 3 distinct (finite) points in the "
                          "parameter plane")
     band = 2.0 * np.concatenate(dev) + tolerances[E]
     return Loop(P, E, band, np.concatenate(sense), bool(wire["outer"]))
+
+
+def _three_distinct(R: np.ndarray) -> bool:
+    """Rows of ``R (m, 2)`` take at least three distinct values (no sort: two passes)."""
+    if len(R) < 3:
+        return False
+    off_a = np.any(R != R[0], axis=1)
+    if not off_a.any():
+        return False
+    b = R[np.argmax(off_a)]
+    return bool(np.any(off_a & np.any(R != b, axis=1)))
 
 
 def _tangents(surface, params: np.ndarray) -> np.ndarray:
