@@ -56,6 +56,19 @@ def sphere_octahedron(level: int = 1, radius: float = 1.0):
     return p, t, exact
 
 
+def _cylinder_distance(radius: float, height: float):
+    """Unsigned distance from the closed cylinder (axis z, centred at the origin)."""
+
+    def distance(x):
+        r = np.hypot(x[..., 0], x[..., 1])
+        q0, q1 = r - radius, np.abs(x[..., 2]) - height / 2
+        outside = np.hypot(np.maximum(q0, 0), np.maximum(q1, 0))
+        inside = np.minimum(np.maximum(q0, q1), 0)
+        return np.abs(outside + inside)
+
+    return distance
+
+
 def closed_cylinder(n_around: int, radius: float = 1.0, height: float = 1.0):
     """Closed right cylinder (side and both discs), axis z, centred at the origin.
 
@@ -86,12 +99,7 @@ def closed_cylinder(n_around: int, radius: float = 1.0, height: float = 1.0):
     tris = np.concatenate(tris + [bottom, top])
     tags = np.r_[np.ones(2 * rows * n, int), np.full(2 * n, 2)]
 
-    def distance(x):
-        r = np.hypot(x[..., 0], x[..., 1])
-        q0, q1 = r - radius, np.abs(x[..., 2]) - height / 2
-        outside = np.hypot(np.maximum(q0, 0), np.maximum(q1, 0))
-        inside = np.minimum(np.maximum(q0, q1), 0)
-        return np.abs(outside + inside)
+    distance = _cylinder_distance(radius, height)
 
     def normal(x):
         r = np.hypot(x[..., 0], x[..., 1])
@@ -139,3 +147,115 @@ def nagata_surface_error(geo, dist, tag: int | None = None) -> float:
     sel = np.flatnonzero(geo.snap if tag is None else geo.tag == tag)
     g = barycentric_grid(geo.ids.shape[1], 200 if geo.ids.shape[1] == 2 else 30)
     return float(dist(geo.evaluate(sel, np.broadcast_to(g, (len(sel), *g.shape)))).max())
+
+
+# --------------------------------------------------------------------------
+# gmsh (OpenCASCADE) surface meshes of smooth and creased solids, exact geometry
+# --------------------------------------------------------------------------
+def torus_exact(R: float = 1.0, r: float = 0.4) -> SimpleNamespace:
+    """Normal and distance of the torus with axis z, major radius ``R``, minor ``r``."""
+
+    def normal(x):
+        rho = np.hypot(x[..., 0], x[..., 1])
+        d = x - np.stack([R * x[..., 0] / rho, R * x[..., 1] / rho, 0 * rho], axis=-1)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def distance(x):
+        return np.abs(np.hypot(np.hypot(x[..., 0], x[..., 1]) - R, x[..., 2]) - r)
+
+    return SimpleNamespace(normal=normal, distance=distance)
+
+
+def ellipsoid_exact(axes=(1.0, 0.7, 0.5)) -> SimpleNamespace:
+    """Normal and distance of the ellipsoid with semi-axes ``axes`` along x, y, z.
+
+    The closest point is ``a_i^2 x_i / (a_i^2 + t)`` with ``t`` the root of
+    ``sum (a_i x_i / (a_i^2 + t))^2 = 1`` nearest 0 (Newton from 0; valid for
+    points within a fraction of the smallest radius of curvature).
+    """
+    a2 = np.asarray(axes, dtype=float) ** 2
+
+    def normal(x):
+        g = x / a2
+        return g / np.linalg.norm(g, axis=-1, keepdims=True)
+
+    def distance(x):
+        t = np.zeros(x.shape[:-1])
+        for _ in range(30):
+            q = x / (a2 + t[..., None])
+            t = t + (np.sum(a2 * q**2, axis=-1) - 1) / (2 * np.sum(a2 * q**2 / (a2 + t[..., None]), axis=-1))
+        return np.linalg.norm(x - a2 * x / (a2 + t[..., None]), axis=-1)
+
+    return SimpleNamespace(normal=normal, distance=distance)
+
+
+def _orient_entities(points: np.ndarray, tris: np.ndarray, entity: np.ndarray) -> np.ndarray:
+    """Flip whole gmsh surfaces so the closed surface is consistently wound and outward.
+
+    gmsh winds each surface's triangles by that surface's parametrisation;
+    the combination of per-surface flips that traverses every edge once in
+    each direction and encloses a positive volume is returned.
+    """
+    ents = np.unique(entity)
+    for signs in range(2 ** len(ents)):
+        flip = np.isin(entity, ents[[(signs >> k) & 1 == 1 for k in range(len(ents))]])
+        t = np.where(flip[:, None], tris[:, [0, 2, 1]], tris)
+        directed = t[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        if len(np.unique(directed, axis=0)) != len(directed):
+            continue
+        x = points[t]
+        if np.einsum("fi,fi->f", x[:, 0], np.cross(x[:, 1], x[:, 2])).sum() > 0:
+            return t
+    raise ValueError("the gmsh surfaces do not close into a consistently orientable surface")
+
+
+def gmsh_surface(kind: str, h: float):
+    """Surface mesh of a solid meshed by gmsh with ``MeshSizeMin = MeshSizeMax = h``.
+
+    ``kind``: ``"torus"`` (R = 1, r = 0.4, axis z), ``"ellipsoid"``
+    (semi-axes 1, 0.7, 0.5) or ``"cylinder"`` (closed, R = 1, height 1,
+    axis z, centred at the origin: sharp rims).  These are the boundary
+    triangles gmsh's volume mesh of the solid would have (gmsh meshes the
+    surfaces first and keeps them).
+
+    Returns:
+        ``(points (nv, 3), triangles (F, 3) outward, exact, tags (F,))`` with
+        ``tags`` the gmsh surface of each triangle (cylinder: 1 side, 2 and 3
+        the discs) and ``exact`` as for the analytic surfaces here (cylinder:
+        its side's normal).
+    """
+    import gmsh
+
+    import generate
+
+    with generate._gmsh_session(kind, False):
+        occ = gmsh.model.occ
+        if kind == "torus":
+            occ.addTorus(0, 0, 0, 1.0, 0.4)
+        elif kind == "ellipsoid":
+            occ.dilate([(3, occ.addSphere(0, 0, 0, 1.0))], 0, 0, 0, 1.0, 0.7, 0.5)
+        elif kind == "cylinder":
+            occ.addCylinder(0, 0, -0.5, 0, 0, 1.0, 1.0)
+        else:
+            raise ValueError(f"unknown surface {kind!r}")
+        occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+        gmsh.model.mesh.generate(2)
+        node_tags, xyz, _ = gmsh.model.mesh.getNodes()
+        tris, ent = [], []
+        for _, s in gmsh.model.getEntities(2):
+            t = gmsh.model.mesh.getElements(2, s)[2][0].reshape(-1, 3)
+            tris.append(t)
+            ent.append(np.full(len(t), s))
+    order = np.argsort(node_tags)
+    tris = order[np.searchsorted(node_tags[order], np.concatenate(tris))]
+    used, inv = np.unique(tris, return_inverse=True)
+    points, tris, ent = xyz.reshape(-1, 3)[used], inv.reshape(-1, 3), np.concatenate(ent)
+    exact = {"torus": torus_exact, "ellipsoid": ellipsoid_exact}.get(kind)
+    if exact is None:
+        exact = closed_cylinder(4)[2]
+        exact.distance = _cylinder_distance(1.0, 1.0)
+    else:
+        exact = exact()
+    return points, _orient_entities(points, tris, ent), exact, ent
