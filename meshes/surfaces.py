@@ -56,6 +56,12 @@ def sphere_octahedron(level: int = 1, radius: float = 1.0):
     return p, t, exact
 
 
+def _radial_normal(x):
+    """Unit normal of a cylinder of axis z: the radial direction."""
+    r = np.hypot(x[..., 0], x[..., 1])
+    return np.stack([x[..., 0] / r, x[..., 1] / r, 0 * r], axis=-1)
+
+
 def _cylinder_distance(radius: float, height: float):
     """Unsigned distance from the closed cylinder (axis z, centred at the origin)."""
 
@@ -101,11 +107,7 @@ def closed_cylinder(n_around: int, radius: float = 1.0, height: float = 1.0):
 
     distance = _cylinder_distance(radius, height)
 
-    def normal(x):
-        r = np.hypot(x[..., 0], x[..., 1])
-        return np.stack([x[..., 0] / r, x[..., 1] / r, 0 * r], axis=-1)
-
-    return pts, tris, SimpleNamespace(normal=normal, distance=distance), tags
+    return pts, tris, SimpleNamespace(normal=_radial_normal, distance=distance), tags
 
 
 def circle_polygon(n: int, radius: float = 1.0, centre=(0.0, 0.0), jitter: float = 0.0, seed: int = 0):
@@ -134,19 +136,24 @@ def barycentric_grid(nfv: int, m: int) -> np.ndarray:
     return np.c_[1 - l2 - l3, l2, l3]
 
 
-def nagata_surface_error(geo, dist, tag: int | None = None) -> float:
+def nagata_surface_error(geo, dist, tag: int | None = None, per_edge: int | None = None) -> float:
     """Max ``dist`` of densely sampled Nagata patches of ``geo`` from an exact surface.
 
     Args:
         geo: a ``nagata_snap.NagataGeometry``.
         dist: ``f(x (..., 3)) -> (...)`` distance from the exact curve / surface.
         tag: only the patches of this facet tag (default: every snapped patch).
-
-    201 samples per edge (2D) or 496 per triangle (3D, 31 per edge).
+        per_edge: sample intervals per edge (default 200 in 2D, 30 in 3D: 496
+            samples per triangle).
     """
     sel = np.flatnonzero(geo.snap if tag is None else geo.tag == tag)
-    g = barycentric_grid(geo.ids.shape[1], 200 if geo.ids.shape[1] == 2 else 30)
-    return float(dist(geo.evaluate(sel, np.broadcast_to(g, (len(sel), *g.shape)))).max())
+    nfv = geo.ids.shape[1]
+    g = barycentric_grid(nfv, per_edge or (200 if nfv == 2 else 30))
+    err = 0.0
+    for lo in range(0, len(sel), 2000):  # bounded memory on fine meshes
+        s = sel[lo:lo + 2000]
+        err = max(err, float(dist(geo.evaluate(s, np.broadcast_to(g, (len(s), *g.shape)))).max()))
+    return err
 
 
 # --------------------------------------------------------------------------
@@ -183,7 +190,10 @@ def ellipsoid_exact(axes=(1.0, 0.7, 0.5)) -> SimpleNamespace:
         t = np.zeros(x.shape[:-1])
         for _ in range(30):
             q = x / (a2 + t[..., None])
-            t = t + (np.sum(a2 * q**2, axis=-1) - 1) / (2 * np.sum(a2 * q**2 / (a2 + t[..., None]), axis=-1))
+            step = (np.sum(a2 * q**2, axis=-1) - 1) / (2 * np.sum(a2 * q**2 / (a2 + t[..., None]), axis=-1))
+            t = t + step
+            if np.abs(step).max() < 1e-15:
+                break
         return np.linalg.norm(x - a2 * x / (a2 + t[..., None]), axis=-1)
 
     return SimpleNamespace(normal=normal, distance=distance)
@@ -209,36 +219,24 @@ def _orient_entities(points: np.ndarray, tris: np.ndarray, entity: np.ndarray) -
     raise ValueError("the gmsh surfaces do not close into a consistently orientable surface")
 
 
-def gmsh_surface(kind: str, h: float):
-    """Surface mesh of a solid meshed by gmsh with ``MeshSizeMin = MeshSizeMax = h``.
+def gmsh_occ_surface(build, h: float):
+    """Surface triangles of the OpenCASCADE solid ``build()`` makes, gmsh sizes ``MeshSizeMin = MeshSizeMax = h``.
 
-    ``kind``: ``"torus"`` (R = 1, r = 0.4, axis z), ``"ellipsoid"``
-    (semi-axes 1, 0.7, 0.5) or ``"cylinder"`` (closed, R = 1, height 1,
-    axis z, centred at the origin: sharp rims).  These are the boundary
-    triangles gmsh's volume mesh of the solid would have (gmsh meshes the
-    surfaces first and keeps them).
+    ``build`` runs in a fresh gmsh model and creates one solid with
+    ``gmsh.model.occ``.  These are the boundary triangles gmsh's volume mesh
+    of the solid would have (gmsh meshes the surfaces first and keeps them).
 
     Returns:
-        ``(points (nv, 3), triangles (F, 3) outward, exact, tags (F,))`` with
-        ``tags`` the gmsh surface of each triangle (cylinder: 1 side, 2 and 3
-        the discs) and ``exact`` as for the analytic surfaces here (cylinder:
-        its side's normal).
+        ``(points (nv, 3), triangles (F, 3) outward, tags (F,))``, ``tags``
+        the gmsh surface (CAD face) of each triangle.
     """
     import gmsh
 
     import generate
 
-    with generate._gmsh_session(kind, False):
-        occ = gmsh.model.occ
-        if kind == "torus":
-            occ.addTorus(0, 0, 0, 1.0, 0.4)
-        elif kind == "ellipsoid":
-            occ.dilate([(3, occ.addSphere(0, 0, 0, 1.0))], 0, 0, 0, 1.0, 0.7, 0.5)
-        elif kind == "cylinder":
-            occ.addCylinder(0, 0, -0.5, 0, 0, 1.0, 1.0)
-        else:
-            raise ValueError(f"unknown surface {kind!r}")
-        occ.synchronize()
+    with generate._gmsh_session("surface", False):
+        build()
+        gmsh.model.occ.synchronize()
         gmsh.option.setNumber("Mesh.MeshSizeMax", h)
         gmsh.option.setNumber("Mesh.MeshSizeMin", h)
         gmsh.model.mesh.generate(2)
@@ -252,10 +250,110 @@ def gmsh_surface(kind: str, h: float):
     tris = order[np.searchsorted(node_tags[order], np.concatenate(tris))]
     used, inv = np.unique(tris, return_inverse=True)
     points, tris, ent = xyz.reshape(-1, 3)[used], inv.reshape(-1, 3), np.concatenate(ent)
-    exact = {"torus": torus_exact, "ellipsoid": ellipsoid_exact}.get(kind)
-    if exact is None:
-        exact = closed_cylinder(4)[2]
-        exact.distance = _cylinder_distance(1.0, 1.0)
+    return points, _orient_entities(points, tris, ent), ent
+
+
+def gmsh_surface(kind: str, h: float):
+    """Surface mesh of a solid meshed by gmsh with ``MeshSizeMin = MeshSizeMax = h``.
+
+    ``kind``: ``"torus"`` (R = 1, r = 0.4, axis z), ``"ellipsoid"``
+    (semi-axes 1, 0.7, 0.5) or ``"cylinder"`` (closed, R = 1, height 1,
+    axis z, centred at the origin: sharp rims).
+
+    Returns:
+        ``(points (nv, 3), triangles (F, 3) outward, exact, tags (F,))`` with
+        ``tags`` the gmsh surface of each triangle (cylinder: 1 side, 2 and 3
+        the discs) and ``exact`` as for the analytic surfaces here (cylinder:
+        the side's normal).
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        if kind == "torus":
+            occ.addTorus(0, 0, 0, 1.0, 0.4)
+        elif kind == "ellipsoid":
+            occ.dilate([(3, occ.addSphere(0, 0, 0, 1.0))], 0, 0, 0, 1.0, 0.7, 0.5)
+        else:
+            occ.addCylinder(0, 0, -0.5, 0, 0, 1.0, 1.0)
+
+    if kind not in ("torus", "ellipsoid", "cylinder"):
+        raise ValueError(f"unknown surface {kind!r}")
+    points, tris, ent = gmsh_occ_surface(build, h)
+    if kind == "torus":
+        exact = torus_exact()
+    elif kind == "ellipsoid":
+        exact = ellipsoid_exact()
     else:
-        exact = exact()
-    return points, _orient_entities(points, tris, ent), exact, ent
+        exact = SimpleNamespace(normal=_radial_normal, distance=_cylinder_distance(1.0, 1.0))
+    return points, tris, exact, ent
+
+
+def roof_prism(ridge_deg: float = 30.0):
+    """Builder (for :func:`gmsh_occ_surface`) of a prism whose roof ridge turns by ``ridge_deg``.
+
+    Cross-section in the xz plane: the rectangle [-1, 1] x [0, 1] with a gable
+    roof of slopes ``ridge_deg / 2`` up to the ridge line x = 0; extruded 1.5
+    along y.  The ridge is the line x = 0, z = 1 + tan(ridge_deg / 2).
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        top = 1.0 + np.tan(np.radians(ridge_deg / 2))
+        pts = [occ.addPoint(*q) for q in [(-1, 0, 0), (1, 0, 0), (1, 0, 1), (0, 0, top), (-1, 0, 1)]]
+        loop = occ.addCurveLoop([occ.addLine(pts[i], pts[(i + 1) % 5]) for i in range(5)])
+        occ.extrude([(2, occ.addPlaneSurface([loop]))], 0, 1.5, 0)
+
+    return build
+
+
+def filleted_box(radius: float = 0.3):
+    """Builder of the box [0, 1]^3 with its edge x = y = 1 rounded by a fillet of ``radius``.
+
+    The fillet is a quarter cylinder of axis ``(1 - radius, 1 - radius, z)``
+    meeting the faces x = 1 and y = 1 tangentially along the lines
+    ``(1, 1 - radius, z)`` and ``(1 - radius, 1, z)``.
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        box = occ.addBox(0, 0, 0, 1, 1, 1)
+        occ.synchronize()
+        edge = [e for _, e in gmsh.model.getBoundary([(3, box)], combined=False, oriented=False,
+                                                     recursive=True)
+                if np.allclose(gmsh.model.occ.getCenterOfMass(1, e), (1, 1, 0.5))]
+        occ.fillet([box], edge, [radius])
+
+    return build
+
+
+def ellipse_polygon(n: int, a: float = 1.0, b: float = 0.5, jitter: float = 0.3, seed: int = 0):
+    """Counter-clockwise ``n``-gon inscribed in the ellipse ``(x/a)^2 + (y/b)^2 = 1``.
+
+    Vertices at nearly equal arc length (perturbed by ``jitter`` of a segment).
+
+    Returns:
+        ``(points (n, 2), segments (n, 2), exact)`` with exact normal and distance.
+    """
+    t = np.linspace(0, 2 * np.pi, 20001)
+    arc = np.r_[0, np.cumsum(np.hypot(np.diff(a * np.cos(t)), np.diff(b * np.sin(t))))]
+    target = (np.arange(n) + jitter * np.random.default_rng(seed).uniform(-0.5, 0.5, n)) * arc[-1] / n
+    th = np.interp(target % arc[-1], arc, t)
+    a2 = np.array([a * a, b * b])
+
+    def normal(x):
+        g = x[..., :2] / a2
+        return g / np.linalg.norm(g, axis=-1, keepdims=True)
+
+    def distance(x):
+        x = x[..., :2]
+        s = np.zeros(x.shape[:-1])
+        for _ in range(40):
+            q = x / (a2 + s[..., None])
+            s = s + (np.sum(a2 * q**2, axis=-1) - 1) / (2 * np.sum(a2 * q**2 / (a2 + s[..., None]), axis=-1))
+        return np.linalg.norm(x - a2 * x / (a2 + s[..., None]), axis=-1)
+
+    segs = np.c_[np.arange(n), (np.arange(n) + 1) % n]
+    return np.c_[a * np.cos(th), b * np.sin(th)], segs, SimpleNamespace(normal=normal, distance=distance)

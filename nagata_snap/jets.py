@@ -64,8 +64,8 @@ JET_LEVELS = {
     2: ((4, 2, 4, None, False), (4, 4, 4, None, False), (3, 2, 3, None, False), (2, 2, 2, None, False)),
 }
 
-#: Sectors whose facets' normals spread by at least this many degrees from the
-#: initial normal are coarse: the surface turns so much over three rings that
+#: Sectors whose own facets' normals spread by at least this many degrees from
+#: the initial normal are coarse: the surface turns so much over three rings that
 #: the quartic's stencil is mostly weighted away, and the cubic on two rings
 #: is more accurate (measured on the torus and ellipsoid meshes).
 COARSE_DEG = 15.0
@@ -74,7 +74,7 @@ COARSE_DEG = 15.0
 PENALTY = 1.0e-5
 
 #: A fit is accepted when its normal is within ``ACCEPT * spread + ACCEPT_DEG``
-#: degrees of the initial normal (``spread``: see :func:`fit_sector_normals`).
+#: (degrees) of the initial normal (``spread``: see :func:`fit_sector_normals`).
 ACCEPT = 1.0
 ACCEPT_DEG = 0.05
 
@@ -102,23 +102,8 @@ def padded_rows(csr: scipy.sparse.csr_matrix, rows: np.ndarray | None = None) ->
     return idx, mask
 
 
-def sector_stencils(
-    vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices within ``rings`` facet rings of each sector, inside its smooth region.
-
-    Args:
-        vid: ``(F, nfv)`` vertex index of each facet corner.
-        label: ``(F, nfv)`` sector label of each corner (``0 .. S-1``).
-        region: ``(F,)`` smooth-region label of each facet; every sector's
-            facets lie in one region.
-        rings: 1 = the vertices of the sector's own facets; each further ring
-            adds the facets sharing a vertex with the previous ones (same region).
-
-    Returns:
-        ``(idx (S, m), mask (S, m))`` vertex indices per sector, padded
-        (the sector's own vertex included).
-    """
+def _sector_rings(vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings: int):
+    """Sparse ``(S, F)`` facets within ``rings`` rings of each sector and ``(V, F)`` vertex-facet incidence."""
     F, nfv = vid.shape
     nv = int(vid.max()) + 1
     ns = int(label.max()) + 1
@@ -135,9 +120,40 @@ def sector_stencils(
         for _ in range(rings - 1):
             ring = ring @ ff
             ring.data[:] = 1
+    ring.sort_indices()
+    return ring, vf
+
+
+def sector_stencils(
+    vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings: int, facets: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (or facets) within ``rings`` facet rings of each sector, inside its smooth region.
+
+    Args:
+        vid: ``(F, nfv)`` vertex index of each facet corner.
+        label: ``(F, nfv)`` sector label of each corner (``0 .. S-1``).
+        region: ``(F,)`` smooth-region label of each facet; every sector's
+            facets lie in one region.
+        rings: 1 = the sector's own facets; each further ring adds the facets
+            sharing a vertex with the previous ones (same region).
+        facets: return the facets instead of their vertices.
+
+    Returns:
+        ``(idx (S, m), mask (S, m))`` vertex (facet) indices per sector,
+        padded (the sector's own vertex included), sorted: identical on
+        every process.
+    """
+    ring, vf = _sector_rings(vid, label, region, rings)
+    if facets:
+        return padded_rows(ring)
     verts = ring @ vf.T
-    verts.sort_indices()  # deterministic order (identical on every process)
+    verts.sort_indices()
     return padded_rows(verts)
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles (radians) between unit vectors ``a, b (..., 3)``, accurate for small angles."""
+    return 2.0 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))
 
 
 def _frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,7 +284,7 @@ def fit_sector_normals(
     label: np.ndarray,
     region: np.ndarray,
     n0: np.ndarray,
-    spread: np.ndarray,
+    facet_normal: np.ndarray,
     interior: np.ndarray,
 ) -> np.ndarray:
     """Fitted normal of every sector, with fallbacks; vectorised over sectors.
@@ -276,21 +292,19 @@ def fit_sector_normals(
     Each level of :data:`JET_LEVELS` is tried on the sectors no earlier level
     accepted.  A fit is accepted when its stencil has enough points and its
     normal lies within ``ACCEPT * spread + ACCEPT_DEG`` of the initial
-    normal, where ``spread`` is the largest angle between the initial normal
-    and the normals of the sector's own facets.  The initial normal's own
-    error is a small part of that cone (a tenth or less on the test meshes;
-    accepted fits differ from it by under 0.2 spread at the 99th percentile),
-    while a fit on a stencil too coarse for it (the surface turning by 40
-    degrees or more per facet, where the weights leave too few points for
-    the degree) lands at 0.6 spread and beyond.  Sectors no level accepts,
-    and planar ones (``spread == 0``: the facet normals agree to rounding),
-    keep ``n0``.
+    normal, ``spread`` being the largest angle between the initial normal
+    and the normals of the facets within two rings of the sector: a safety
+    net against fits that leave the cone of the surrounding facets (on the
+    test meshes no accepted fit comes near it; the ridge penalty of
+    :func:`_weighted_lstsq` keeps degenerate stencils in check).  Sectors
+    no level accepts, and planar ones (``spread == 0``: all those facet
+    normals agree to rounding), keep ``n0``, so flat faces stay exactly flat.
 
     Args:
         vid: ``(F, nfv)`` vertex indices; x: ``(F, nfv, 3)`` corner coordinates.
         label: ``(F, nfv)`` sector label per corner; region: ``(F,)`` smooth region per facet.
         n0: ``(S, 3)`` initial unit normal per sector (weighted facet-normal mean).
-        spread: ``(S,)`` radians, see above.
+        facet_normal: ``(F, 3)`` unit facet normals.
         interior: ``(S,)`` bool, the sector is the only one at its vertex and
             not on an open boundary (sphere-exact model allowed).
 
@@ -304,9 +318,14 @@ def fit_sector_normals(
     coords[vid.ravel()] = x.reshape(-1, 3)
     centre = np.zeros(S, dtype=np.int64)
     centre[label.ravel()] = vid.ravel()
+    spread, own = [], []  # over the facets within two rings, and of the sector itself
+    for rings in (2, 1):
+        ring, ring_mask = sector_stencils(vid, label, region, rings, facets=True)
+        spread.append(np.where(ring_mask, _angle(facet_normal[ring], n0[:, None, :]), 0.0).max(axis=1))
+    spread, own = spread
     out = n0.copy()
     todo = spread > 1e-12
-    coarse = interior & (spread >= np.radians(COARSE_DEG))
+    coarse = interior & (own >= np.radians(COARSE_DEG))
     for degree, rings, min_points, sigma, coarse_only in JET_LEVELS[nfv]:
         use = todo & coarse if coarse_only else todo
         if not use.any():

@@ -162,7 +162,8 @@ def curve_coefficient_multi(
     lam, vec = np.linalg.eigh(s)
     mu = np.clip(lam / m, 0.0, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        lim = B_MAX * np.linalg.norm(d, axis=1)[:, None] * np.sqrt(mu) / (1.0 - mu)
+        lim = np.where(mu < 1.0, B_MAX * np.linalg.norm(d, axis=1)[:, None] * np.sqrt(mu) / (1.0 - mu),
+                       np.inf)
         comp = np.where(lam < m * eps, 0.0,
                         np.clip(np.einsum("eij,ei->ej", vec, rhs) / lam, -lim, lim))
     return np.einsum("eij,ej->ei", vec, comp)

@@ -10,17 +10,20 @@ Creases (:func:`crease_ridges`).  A ridge (3D edge, 2D vertex) turns by the
 angle ``theta`` between its two facets' normals.  It is a crease when
 
 * ``theta >= crease_angle`` (default 60 deg), or
-* ``theta >= crease_angle / 3`` and ``theta`` exceeds twice the turn the
-  curvature on either side predicts: the largest turn rate (angle over
-  centroid distance) from the facet to the facets around its vertex
-  opposite the ridge, times the distance to the other facet, or
+* ``theta >= crease_angle / 3`` and ``theta`` exceeds three times the
+  turn the surface makes on either side: the largest turn from the facet
+  to the facets around its vertex opposite the ridge (ridges turning by
+  ``crease_angle`` or more left out), or
 * the two facets carry different tags (``split_tags``).
 
 So a 30-degree ridge between two flat faces is a crease however fine the
 mesh (nothing on either side turns), a fillet meeting a plane tangentially is
-smooth (the fillet side turns at least as much), and a coarse mesh of a
-smooth surface, whose neighbouring facets all turn by 40-50 degrees, is not
-cut into creases.
+smooth (the fillet side turns more than the tangent ridge), and a coarse
+mesh of a smooth surface, whose neighbouring facets all turn by 40-50
+degrees, is not cut into creases (its facets turn alike on both sides).  A
+ridge between two curved faces that turns by less than three times their
+own facet-to-facet turn (and less than ``crease_angle``) counts as smooth:
+lower ``crease_angle`` or use tags (``split_tags``) to keep it sharp.
 
 Normals (``scheme``).  The default ``"jet"`` fits a local surface per sector
 (:mod:`nagata_snap.jets`: fourth order in 3D, exact on spheres and, in 2D,
@@ -49,7 +52,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from .jets import fit_sector_normals, padded_rows
+from .jets import _angle, fit_sector_normals, padded_rows
 
 __all__ = [
     "NormalsError",
@@ -68,7 +71,8 @@ SCHEMES = ("jet", "mwe", "mwa", "mwselr", "mwaat", "mwelr", "mwrelr")
 CREASE_FLOOR = 1.0 / 3.0
 
 #: A ridge between the floor and ``crease_angle`` is a crease when it turns
-#: more than ``CREASE_RATIO`` times what the curvature on either side predicts.
+#: more than ``CREASE_RATIO`` times the largest turn next to it on either side
+#: (2 cuts coarse torus meshes, whose facets turn unevenly with direction).
 CREASE_RATIO = 3.0
 
 
@@ -188,14 +192,8 @@ def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return scipy.sparse.csgraph.connected_components(graph, directed=False)[1]
 
 
-def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angles (radians) between unit vectors ``a, b (..., 3)``, accurate for small angles."""
-    return 2.0 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))
-
-
 def crease_ridges(
     vid: np.ndarray,
-    x: np.ndarray,
     facet_normal: np.ndarray,
     ridge_facets: np.ndarray,
     ridge_vertices: np.ndarray,
@@ -204,7 +202,7 @@ def crease_ridges(
     """Which ridges are geometric creases (the rule in the module docstring).
 
     Args:
-        vid: ``(F, nfv)`` vertex indices; x: ``(F, nfv, 3)`` coordinates.
+        vid: ``(F, nfv)`` vertex indices.
         facet_normal: ``(F, 3)`` unit outward facet normals.
         ridge_facets: ``(R, 2)``; ridge_vertices: ``(R, nfv - 1)`` (from ``_ridges``).
         crease_angle: degrees.
@@ -219,21 +217,18 @@ def crease_ridges(
     if len(cand) == 0:
         return crease
     F, nfv = vid.shape
-    centroid = x.mean(axis=1)
     vf = scipy.sparse.csr_matrix(
         (np.ones(F * nfv), (vid.ravel(), np.repeat(np.arange(F), nfv))), shape=(int(vid.max()) + 1, F)
     )
     pred = np.zeros((len(cand), 2))
     for s in (0, 1):  # the two sides of each ridge
-        A, B = ridge_facets[cand, s], ridge_facets[cand, 1 - s]
+        A = ridge_facets[cand, s]
         off = (vid[A][:, :, None] != ridge_vertices[cand][:, None, :]).all(axis=2)
         opposite = vid[A][np.arange(len(A)), np.argmax(off, axis=1)]
         fan, mask = padded_rows(vf, opposite)  # facets around the vertex opposite the ridge
         turn = _angle(facet_normal[fan], facet_normal[A][:, None, :])
-        dist = np.linalg.norm(centroid[fan] - centroid[A][:, None, :], axis=2)
-        ok = mask & (fan != A[:, None]) & (turn < big) & (dist > 0)
-        rate = np.where(ok, turn / np.where(ok, dist, 1.0), 0.0).max(axis=1, initial=0.0)
-        pred[:, s] = rate * np.linalg.norm(centroid[B] - centroid[A], axis=1)
+        ok = mask & (fan != A[:, None]) & (turn < big)
+        pred[:, s] = np.where(ok, turn, 0.0).max(axis=1, initial=0.0)
     crease[cand] = theta[cand] > CREASE_RATIO * pred.max(axis=1)
     return crease
 
@@ -268,7 +263,7 @@ def corner_normals(
         raise ValueError(f"unknown normal estimate {scheme!r}; choose one of {list(SCHEMES)}")
     F, nfv = vid.shape
     rv, rf, rl, open_vertices = _ridges(vid, x, allow_open)
-    crease = crease_ridges(vid, x, facet_normal, rf, rv, crease_angle)
+    crease = crease_ridges(vid, facet_normal, rf, rv, crease_angle)
     if split_tags:
         crease |= tag[rf[:, 0]] != tag[rf[:, 1]]
     smooth = np.flatnonzero(~crease)
@@ -289,13 +284,10 @@ def corner_normals(
     mean = sums / norm[:, None]
     label = label.reshape(F, nfv)
     if scheme == "jet":
-        spread = np.zeros(len(mean))
-        np.maximum.at(spread, label.ravel(), _angle(np.repeat(facet_normal, nfv, axis=0),
-                                                    mean[label.ravel()]))
         per_vertex = np.bincount(np.unique(np.c_[vid.ravel(), label.ravel()], axis=0)[:, 0],
                                  minlength=int(vid.max()) + 1)
         sector_vertex = np.zeros(len(mean), dtype=np.int64)
         sector_vertex[label.ravel()] = vid.ravel()
         interior = (per_vertex[sector_vertex] == 1) & ~np.isin(sector_vertex, open_vertices)
-        mean = fit_sector_normals(vid, x, label, region, mean, spread, interior)
+        mean = fit_sector_normals(vid, x, label, region, mean, facet_normal, interior)
     return CornerNormals(mean[label], label, vid, rf, rv, crease, region)
