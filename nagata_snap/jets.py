@@ -326,12 +326,15 @@ def fit_sector_normals(
     out = n0.copy()
     todo = spread > 1e-12
     coarse = interior & (own >= np.radians(COARSE_DEG))
+    stencils = {}
     for degree, rings, min_points, sigma, coarse_only in JET_LEVELS[nfv]:
         use = todo & coarse if coarse_only else todo
         if not use.any():
             continue
-        idx, mask = sector_stencils(vid, label, region, rings)
-        mask &= idx != centre[:, None]
+        if rings not in stencils:
+            idx, mask = sector_stencils(vid, label, region, rings)
+            stencils[rings] = idx, mask & (idx != centre[:, None])
+        idx, mask = stencils[rings]
         for lo in range(0, S, BATCH):
             sel = lo + np.flatnonzero(use[lo:lo + BATCH] & (mask[lo:lo + BATCH].sum(axis=1) >= min_points))
             if len(sel) == 0:
