@@ -17,14 +17,24 @@ smoothing and checks.  Printed per level: cells, wall time of each tool's
 refinement step (ngsPETSc: ``refineMarkedElements``; nagata_snap:
 ``Snapper.refine``; for scale, plain ``dolfinx.mesh.refine``), their ratio,
 and the largest distance of the circle's boundary vertices from the exact
-circle.  Last line: ``speedup_vs_ngspetsc <time ratio on the finest level>``.
+circle.
+
+Curved part (``--degrees``, default 2 3 4): on every level, ngsPETSc's
+``GeometricModel.curveField(k)`` (Netgen curves its elements on the
+OpenCASCADE geometry and DOLFINx nodes are sampled from them) against
+``Snapper.curved_mesh(degree=k)``: wall time, the largest distance of all
+boundary nodes (vertices, edge and face nodes) from the exact circle /
+sphere, and the area / volume error of the domain.
+
+Last line: ``speedup_vs_ngspetsc <time ratio of the refinement on the finest level>``.
 
 Needs ngsPETSc, which is not a dependency of nagata_snap (its petsc4py
 requirement would build PETSc from source; the DOLFINx wheel brings its own)::
 
-    pip install netgen-mesher packaging
-    pip install --no-deps ngsPETSc
-    python benchmarks/vs_ngspetsc.py
+    python3.12 -m venv /work/venvs/ngs     # a venv of its own: netgen brings its own OpenCASCADE
+    /work/venvs/ngs/bin/pip install dolfinx-solver-real scipy netgen-mesher packaging
+    /work/venvs/ngs/bin/pip install --no-deps ngsPETSc
+    PYTHONPATH=$PWD /work/venvs/ngs/bin/python benchmarks/vs_ngspetsc.py [--dim 3]
 
 Serial only (the comparison is of the refinement step itself).
 """
@@ -32,6 +42,7 @@ Serial only (the comparison is of the refinement step itself).
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import time
 
@@ -50,7 +61,8 @@ CASES = {2: (np.array([0.2, 0.2]), 0.05), 3: (np.zeros(3), 0.5)}
 
 
 def curved_distance(mesh) -> float:
-    """Max | |x - c| - R | over exterior vertices within 0.2 R of the circle / sphere."""
+    """Max | |x - c| - R | over the exterior facets' nodes within 0.2 R of the circle / sphere
+    (all geometry nodes of the facets: vertices, and edge / face nodes of curved meshes)."""
     tdim = mesh.topology.dim
     c, r = CASES[tdim]
     mesh.topology.create_connectivity(tdim - 1, tdim)
@@ -58,6 +70,20 @@ def curved_distance(mesh) -> float:
     x = mesh.geometry.x[np.unique(dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, ext))]
     d = np.abs(np.linalg.norm(x[:, :tdim] - c, axis=1) - r)
     return float(d[d < 0.2 * r].max())
+
+
+def domain_error(mesh) -> float:
+    """|area / volume - exact| of the channel minus the disk / box minus the ball."""
+    import ufl
+
+    import dolfinx.fem as fem
+
+    tdim = mesh.topology.dim
+    c, r = CASES[tdim]
+    exact = 2.2 * 0.41 - np.pi * r**2 if tdim == 2 else 8.0 - 4.0 / 3.0 * np.pi * r**3
+    k = mesh.geometry.cmaps[0].degree
+    dx = ufl.dx(domain=mesh, metadata={"quadrature_degree": 2 * k})
+    return abs(fem.assemble_scalar(fem.form(fem.Constant(mesh, 1.0) * dx)) - exact)
 
 
 def curved_tags(mesh) -> dolfinx.mesh.MeshTags:
@@ -71,12 +97,31 @@ def curved_tags(mesh) -> dolfinx.mesh.MeshTags:
     return dolfinx.mesh.meshtags(mesh, tdim - 1, ext, np.where(near, CURVED, FLAT).astype(np.int32))
 
 
+def curve_both(model, snapper, degrees, level: int) -> list[str]:
+    """Table lines: ngsPETSc ``curveField(k)`` and ``Snapper.curved_mesh(degree=k)`` side by side."""
+    lines = []
+    for deg in degrees:
+        t0 = time.perf_counter()
+        c_ng = model.curveField(deg)
+        t_ng = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        c_ours, info = snapper.curved_mesh(degree=deg)
+        t_ours = time.perf_counter() - t0
+        lines.append(f"{level:>5} {deg:>2} {t_ng:>13.3f} {t_ours:>9.3f} {t_ng / t_ours:>8.1f} "
+                     f"{curved_distance(c_ng):>9.1e} {curved_distance(c_ours):>9.1e} "
+                     f"{domain_error(c_ng):>9.1e} {domain_error(c_ours):>9.1e}"
+                     + (f"  ({info.reduced_nodes} nodes pulled back)" if info.reduced_nodes else ""))
+    return lines
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dim", type=int, choices=(2, 3), default=2)
     p.add_argument("--hmax", type=float, help="Netgen mesh size of the coarse mesh "
                    "(default 0.02 in 2D, 0.15 in 3D)")
     p.add_argument("--levels", type=int, help="uniform refinements (default 4 in 2D, 2 in 3D)")
+    p.add_argument("--degrees", type=int, nargs="*", default=[2, 3, 4],
+                   help="geometry degrees of the curved comparison (none: skip it)")
     args = p.parse_args(argv)
     comm = MPI.COMM_WORLD
     if comm.size > 1:
@@ -112,6 +157,7 @@ def main(argv=None) -> None:
     print(f"{'level':>5} {'cells ng':>9} {'cells ours':>10} {'ngsPETSc [s]':>13} {'ours [s]':>9} "
           f"{'plain [s]':>9} {'ng/ours':>8} {'dist ng':>9} {'dist ours':>9}")
     ratio = float("nan")
+    curved_rows = [curve_both(model, snapper, args.degrees, 0)]
     for k in range(1, levels + 1):
         cells = np.arange(ng_mesh.topology.index_map(d).size_local, dtype=np.int32)
         t0 = time.perf_counter()
@@ -132,8 +178,17 @@ def main(argv=None) -> None:
               f"{ours.topology.index_map(d).size_global:>10} {t_ng:>13.3f} {t_ours:>9.3f} "
               f"{t_plain:>9.3f} {ratio:>8.1f} {curved_distance(ng_mesh):>9.1e} "
               f"{curved_distance(ours):>9.1e}", flush=True)
+        curved_rows.append(curve_both(model, snapper, args.degrees, k))
     print("(ngsPETSc rebuilds the mesh: no parent_cell / parent_facet; nagata_snap returns "
           "DOLFINx's own)")
+    if args.degrees:
+        print("\ncurved geometry: ngsPETSc curveField(k) vs Snapper.curved_mesh(degree=k) on "
+              "the same meshes; dist = max distance of the boundary nodes from the exact "
+              f"{'circle' if d == 2 else 'sphere'}, err = {'area' if d == 2 else 'volume'} error")
+        print(f"{'level':>5} {'k':>2} {'ngsPETSc [s]':>13} {'ours [s]':>9} {'ng/ours':>8} "
+              f"{'dist ng':>9} {'dist ours':>9} {'err ng':>9} {'err ours':>9}")
+        for line in itertools.chain(*curved_rows):
+            print(line)
     print(f"speedup_vs_ngspetsc {ratio:.1f}")
 
 

@@ -23,10 +23,17 @@ polygon of ``--n-circle`` segments):
               with the cylinder's edge mid-nodes on the NURBS circle.
 
 Solver, indicator and marking are those of ``demos/dfg.py``: Taylor-Hood
-P2/P1, Newton with MUMPS (warm-started from the previous level's velocity),
+P2/P1, Newton with MUMPS, started from the previous level's velocity (carried
+to the refined mesh by ``Snapper.transfer``: through the parent cells, no
+point search, no zero-filled dofs where the snapped boundary left the old
+mesh; the plain run interpolates non-matching, its levels are nested),
 drag/lift from the volume (residual) form, the residual error indicator, and
 Doerfler marking of the cells carrying the fraction ``--theta`` of
 sum eta_K^2.  Reference values: John & Matthies (2001).
+
+For the modes in ``--zero-start`` (default ``iges iges-p2``: straight and
+curved meshes) every level is solved a second time from zero, only to count
+Newton iterations: the table prints them as ``transferred/zero``.
 
 Examples::
 
@@ -123,6 +130,20 @@ def plain_refine(mesh, facet_tags, edges):
     return mesh1, tags1
 
 
+def initial_guess(snapper, u_prev, mesh):
+    """The previous level's velocity for the Newton start on ``mesh`` (None at level 0).
+
+    With snapping: ``Snapper.transfer`` onto ``mesh`` (straight, or the curved
+    mesh of the refined level when ``u_prev`` lives on the previous curved
+    mesh).  Without: ``u_prev`` itself (``solve_dfg`` interpolates it
+    non-matching; plain refinement is nested, so no point falls outside).
+    """
+    if u_prev is None or snapper is None:
+        return u_prev
+    V = dolfinx.fem.functionspace(mesh, u_prev.function_space.ufl_element())
+    return snapper.transfer(u_prev, V)
+
+
 def make_geometry(mode, mesh, facet_tags, iges_path):
     """The snapping geometry of ``mode`` (None for plain refinement)."""
     if mode == "none":
@@ -194,9 +215,11 @@ def run(mode: str, args, comm, iges_path: str | None, replay: list | None = None
             cmesh, _ = snapper.curved_mesh()
             times["curve"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            # Newton from zero (Stokes first step): a straight-mesh velocity interpolated
-            # onto the curved mesh is not always a good enough start
-            res = solve_dfg(cmesh, ft)
+            u0 = initial_guess(snapper, u_prev, cmesh)  # previous curved level -> this one
+            times["transfer"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            res = solve_dfg(cmesh, ft, initial_guess=u0)
+            u_next = res.u
             # the indicator works on straight cells: same dofs on the straight mesh
             u_s = dolfinx.fem.Function(dolfinx.fem.functionspace(mesh, res.u.function_space.ufl_element()))
             p_s = dolfinx.fem.Function(dolfinx.fem.functionspace(mesh, res.p.function_space.ufl_element()))
@@ -208,9 +231,19 @@ def run(mode: str, args, comm, iges_path: str | None, replay: list | None = None
             dp = float(pv[0] - pv[1])
             res = dataclasses.replace(res, dp=dp, err_dp=abs(dp - DP_REF) / abs(DP_REF))
         else:
-            res = solve_dfg(mesh, ft, initial_guess=u_prev)
+            u0 = initial_guess(snapper, u_prev, mesh)
+            times["transfer"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            res = solve_dfg(mesh, ft, initial_guess=u0)
             u_s, p_s = res.u, res.p
+            u_next = u_s
         times["solve"] = time.perf_counter() - t0
+        newton_zero = c_D_zero = None
+        if level > 0 and mode in args.zero_start:  # the same level from zero, for comparison
+            t0 = time.perf_counter()
+            res0 = solve_dfg(cmesh if mode.endswith("-p2") else mesh, ft)
+            newton_zero, c_D_zero = res0.newton_iterations, res0.c_D
+            times["zero_start"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         eta = ns_residual_indicator(u_s, p_s, ft)
         n_owned = mesh.topology.index_map(mesh.topology.dim).size_local
@@ -220,7 +253,8 @@ def run(mode: str, args, comm, iges_path: str | None, replay: list | None = None
             dofs=res.dofs, cells=res.num_cells, c_D=res.c_D, c_L=res.c_L, dp=res.dp,
             err_c_D=res.err_c_D, err_c_L=res.err_c_L, err_dp=res.err_dp,
             c_D_surface=res.c_D_surface, err_c_D_surface=res.err_c_D_surface,
-            newton_iterations=res.newton_iterations, eta=eta_total,
+            newton_iterations=res.newton_iterations, newton_iterations_zero=newton_zero,
+            c_D_zero=c_D_zero, eta=eta_total,
             cylinder_distance=cylinder_distance(mesh, ft),
         )
         last = level == args.levels
@@ -267,13 +301,14 @@ def run(mode: str, args, comm, iges_path: str | None, replay: list | None = None
             f"[{mode}] level {level}: {res.dofs:7d} dofs  c_D {res.c_D:.6f}  c_L {res.c_L:.6f}  "
             f"dp {res.dp:.6f} | rel. err c_D {res.err_c_D:.2e}  c_L {res.err_c_L:.2e}  "
             f"dp {res.err_dp:.2e} | cyl. dist {row['cylinder_distance']:.1e} | "
-            f"Newton {res.newton_iterations} | {tline}",
+            f"Newton {res.newton_iterations}"
+            + (f" (from zero {newton_zero})" if newton_zero is not None else "") + f" | {tline}",
             quiet=quiet,
         )
         if last:
             out["final"] = (mesh, ft, u_s, p_s, eta)
         else:
-            u_prev = u_s
+            u_prev = u_next
             mesh, ft = mesh1, ft1
     return out
 
@@ -282,15 +317,17 @@ def run(mode: str, args, comm, iges_path: str | None, replay: list | None = None
 # output
 # --------------------------------------------------------------------------
 def comparison_table(runs: dict, modes: list[str]) -> str:
-    """Rows = levels; per mode: dofs and relative errors of c_D, c_L, dp."""
+    """Rows = levels; per mode: dofs, relative errors of c_D, c_L, dp, and Newton iterations
+    (``transferred/zero`` where the zero start was counted too)."""
     nlev = max((len(runs[m]["levels"]) for m in modes), default=0)
     head1 = f"{'':>5}"
     head2 = f"{'level':>5}"
     for m in modes:
-        head1 += f" | {m:^37}"
-        head2 += f" | {'dofs':>7} {'err c_D':>9} {'err c_L':>9} {'err dp':>9}"
+        head1 += f" | {m:^44}"
+        head2 += f" | {'dofs':>7} {'err c_D':>9} {'err c_L':>9} {'err dp':>9} {'Newton':>6}"
     lines = [
-        f"relative errors vs. reference c_D = {C_D_REF}, c_L = {C_L_REF}, dp = {DP_REF}",
+        f"relative errors vs. reference c_D = {C_D_REF}, c_L = {C_L_REF}, dp = {DP_REF}; "
+        "Newton iterations from the transferred previous level / from zero",
         head1, head2, "-" * len(head2),
     ]
     for k in range(nlev):
@@ -299,9 +336,13 @@ def comparison_table(runs: dict, modes: list[str]) -> str:
             lv = runs[m]["levels"]
             if k < len(lv):
                 r = lv[k]
-                s += f" | {r['dofs']:7d} {r['err_c_D']:9.2e} {r['err_c_L']:9.2e} {r['err_dp']:9.2e}"
+                its = str(r["newton_iterations"])
+                if r.get("newton_iterations_zero") is not None:
+                    its += f"/{r['newton_iterations_zero']}"
+                s += (f" | {r['dofs']:7d} {r['err_c_D']:9.2e} {r['err_c_L']:9.2e} "
+                      f"{r['err_dp']:9.2e} {its:>6}")
             else:
-                s += f" | {'-':>7} {'-':>9} {'-':>9} {'-':>9}"
+                s += f" | {'-':>7} {'-':>9} {'-':>9} {'-':>9} {'-':>6}"
         lines.append(s)
     for m in modes:
         if runs[m]["status"] != "ok":
@@ -310,15 +351,18 @@ def comparison_table(runs: dict, modes: list[str]) -> str:
 
 
 def timing_table(runs: dict, modes: list[str]) -> str:
-    """Total wall time per stage and mode (summed over levels)."""
-    stages = ("solve", "estimate", "mark", "refine", "snap")
+    """Total wall time per stage and mode (summed over levels; the zero-start solves that
+    only count Newton iterations are listed apart)."""
+    stages = ("solve", "estimate", "mark", "refine", "snap", "transfer")
     lines = [f"{'time [s]':>9}" + "".join(f" {s:>9}" for s in stages) + f" {'total':>9}"]
     for m in modes:
         lv = runs[m]["levels"]
         if not lv:
             continue
         tot = [sum(r["times"].get(s, 0.0) for r in lv) for s in stages]
-        lines.append(f"{m:>9}" + "".join(f" {t:9.2f}" for t in tot) + f" {sum(tot):9.2f}")
+        zero = sum(r["times"].get("zero_start", 0.0) for r in lv)
+        lines.append(f"{m:>9}" + "".join(f" {t:9.2f}" for t in tot) + f" {sum(tot):9.2f}"
+                     + (f"   (+ {zero:.2f} s zero-start solves)" if zero else ""))
     return "\n".join(lines)
 
 
@@ -412,6 +456,10 @@ def parse_args(argv=None):
                         help="runs to do, any of: none (plain refine), nagata (Nagata patches "
                              "from the coarse mesh), iges (NURBS circle from dfg_circle.igs), "
                              "iges-p2 (the iges meshes, solved on their degree-2 curved version)")
+    parser.add_argument("--zero-start", nargs="*", choices=MODES, default=["iges", "iges-p2"],
+                        metavar="MODE",
+                        help="modes whose levels are also solved from zero, to count Newton "
+                             "iterations against the transferred start (none: no extra solves)")
     parser.add_argument("--json", metavar="FILE",
                         help="write every level of every run (dofs, c_D, c_L, dp, relative "
                              "errors, seconds per stage solve/estimate/mark/refine/snap) as JSON")

@@ -22,6 +22,7 @@ DFG channel (:func:`dfg_channel`): ``INLET=1, OUTLET=2, WALLS=3, CYLINDER=4``,
 cells ``FLUID=1``.
 :func:`sphere_in_box`: ``BOX=1, SPHERE=2`` (cells ``VOLUME=1``).
 :func:`ball`: ``BALL_SPHERE=1`` (cells ``VOLUME=1``).
+:func:`solid_torus`: ``TORUS_SURFACE=1`` (cells ``VOLUME=1``).
 :func:`cylinder_in_box`: ``CIB_WALLS=1`` (all box faces, including the two
 faces the hole passes through), ``CIB_CYLINDER=2`` (lateral surface of the
 hole) (cells ``VOLUME=1``).
@@ -37,6 +38,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import sys
 import typing
 
 import mpi4py.MPI  # noqa: F401  (must precede dolfinx with the PyPI wheel)
@@ -45,6 +47,10 @@ import gmsh
 import numpy as np
 
 from dolfinx.io import gmsh as _dxgmsh
+
+if os.path.dirname(os.path.dirname(os.path.abspath(__file__))) not in sys.path:  # run as a script
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from nagata_snap.meshing import DETERMINISTIC_OPTIONS, gmsh_session  # noqa: E402
 
 # --------------------------------------------------------------------------
 # Tags
@@ -62,6 +68,8 @@ BOX = 1
 SPHERE = 2
 #: ball facet tag
 BALL_SPHERE = 1
+#: solid_torus facet tag
+TORUS_SURFACE = 1
 #: cylinder_in_box facet tags
 CIB_WALLS = 1
 CIB_CYLINDER = 2
@@ -90,14 +98,9 @@ _MESHES_DIR = os.path.dirname(os.path.abspath(__file__))
 # --------------------------------------------------------------------------
 def _fixed_options(verbose: bool) -> dict[str, float]:
     return {
+        **DETERMINISTIC_OPTIONS,
         "General.Terminal": 1 if verbose else 0,
         "General.Verbosity": 5 if verbose else 0,
-        "General.NumThreads": 1,
-        "Mesh.MaxNumThreads1D": 1,
-        "Mesh.MaxNumThreads2D": 1,
-        "Mesh.MaxNumThreads3D": 1,
-        "Mesh.Algorithm": 6,
-        "Mesh.Algorithm3D": 1,
         "Mesh.MeshSizeFromPoints": 0,
         "Mesh.MeshSizeFromCurvature": 0,
         "Mesh.MeshSizeExtendFromBoundary": 0,
@@ -109,38 +112,14 @@ def _fixed_options(verbose: bool) -> dict[str, float]:
         "Mesh.RandomFactor": 1e-9,
         "Mesh.MshFileVersion": 4.1,
         "Mesh.Binary": 0,
-        "Geometry.OCCParallel": 0,
     }
 
 
 @contextlib.contextmanager
 def _gmsh_session(name: str, verbose: bool):
     """Open a fresh gmsh model with the fixed options; clean up afterwards."""
-    was_init = gmsh.isInitialized()
-    if not was_init:
-        gmsh.initialize(argv=[], readConfigFiles=False, interruptible=False)
-    previous_model = gmsh.model.getCurrent() if was_init else None
-    options = _fixed_options(verbose)
-    saved = {}
-    for key, value in options.items():
-        try:
-            saved[key] = gmsh.option.getNumber(key)
-            gmsh.option.setNumber(key, value)
-        except Exception:  # option unknown in this gmsh version
-            pass
-    gmsh.model.add(name)
-    try:
+    with gmsh_session(name, _fixed_options(verbose)):
         yield gmsh.model
-    finally:
-        gmsh.model.remove()
-        if was_init:
-            for key, value in saved.items():
-                gmsh.option.setNumber(key, value)
-            if previous_model:
-                with contextlib.suppress(Exception):
-                    gmsh.model.setCurrent(previous_model)
-        else:
-            gmsh.finalize()
 
 
 def _build_and_convert(
@@ -563,6 +542,14 @@ def squeeze_wall_layer(mesh, radius: float = 0.5, reach: float = 0.3, factor: fl
     x[sel] *= ((radius + factor * (r[sel] - radius)) / r[sel])[:, None]
 
 
+def _constant_size(h: float) -> None:
+    """Uniform mesh size ``h``: a constant background field."""
+    fld = gmsh.model.mesh.field
+    f = fld.add("MathEval")
+    fld.setString(f, "F", repr(float(h)))
+    fld.setAsBackgroundMesh(f)
+
+
 def ball(
     comm,
     radius: float = 1.0,
@@ -585,17 +572,48 @@ def ball(
         s = occ.addSphere(*center, radius)
         occ.synchronize()
         surfs = _boundary_surfaces([(3, s)])
-        # uniform size: a constant field
-        fld = gmsh.model.mesh.field
-        f = fld.add("MathEval")
-        fld.setString(f, "F", repr(float(h)))
-        fld.setAsBackgroundMesh(f)
+        _constant_size(h)
         gmsh.model.addPhysicalGroup(3, [s], VOLUME, name="volume")
         gmsh.model.addPhysicalGroup(2, surfs, BALL_SPHERE, name="sphere")
         gmsh.model.mesh.generate(3)
 
     return _build_and_convert(
         comm, "ball", build, 3, msh_file=msh_file, verbose=verbose, root=root,
+        partitioner=partitioner,
+    )
+
+
+def solid_torus(
+    comm,
+    major_radius: float = 1.0,
+    minor_radius: float = 0.5,
+    h: float = 0.3,
+    *,
+    msh_file: str | None = None,
+    verbose: bool = False,
+    root: int = 0,
+    partitioner=None,
+) -> MeshData:
+    """Tetrahedral mesh of the solid torus about the z axis, centre at the origin, size ``h``.
+
+    Volume ``2 pi^2 major_radius minor_radius^2``; its surface has two
+    different principal curvatures (unlike the ball's sphere).
+
+    Returns:
+        MeshData with facet tag TORUS_SURFACE=1 and cell tag VOLUME=1.
+    """
+
+    def build():
+        occ = gmsh.model.occ
+        t = occ.addTorus(0.0, 0.0, 0.0, major_radius, minor_radius)
+        occ.synchronize()
+        _constant_size(h)
+        gmsh.model.addPhysicalGroup(3, [t], VOLUME, name="volume")
+        gmsh.model.addPhysicalGroup(2, _boundary_surfaces([(3, t)]), TORUS_SURFACE, name="torus")
+        gmsh.model.mesh.generate(3)
+
+    return _build_and_convert(
+        comm, "solid_torus", build, 3, msh_file=msh_file, verbose=verbose, root=root,
         partitioner=partitioner,
     )
 

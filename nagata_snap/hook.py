@@ -13,6 +13,9 @@ new vertices of the snapped facets on the geometry from their lineage records
 (no search), smooths the interior in a band around them, checks (and if
 needed repairs) inverted or degenerate cells, and transfers the facet tags.  The
 mesh passed in is never modified; a failure raises before anything is returned.
+The snapper keeps the last refinement's parent-cell map (in the refined
+mesh's final cell order), so :meth:`Snapper.transfer` carries a solution from
+the mesh given to ``refine`` to the one it returned without a point search.
 """
 
 from __future__ import annotations
@@ -28,13 +31,13 @@ import dolfinx.mesh
 
 from .boundary import (BoundaryFacets, boundary_facets, cell_facets_of, check_p1_simplex,
                        facets_of_cells, tag_values, update_nodes)
-from .cad import CadError
 from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, child_facets, child_interior_facets
-from .parallel import collective
+from .parallel import collective, collective_place
 from .quality import QualityReport, degenerate_cells
 from .records import Records, refine_records
 from .smoothing import InvertedCellsError, repair
+from .transfer import TransferInfo, transfer
 
 __all__ = ["Snapper", "Refined", "SnapReport", "InvertedCellsError", "LineageError"]
 
@@ -114,6 +117,12 @@ class _Level:
     interior_cells: np.ndarray  # (ni,) tagged facets that are not exterior (interfaces),
     interior_local: np.ndarray  # (ni,)  as owned cell / local facet pairs (once per side)
     interior_tag: np.ndarray  # (ni,) their tags
+
+
+class _LastRefine(NamedTuple):
+    parent: dolfinx.mesh.Mesh  # the mesh given to refine
+    parent_cells: np.ndarray  # (owned cells of child,) its cell of each child, final order
+    child: dolfinx.mesh.Mesh  # the mesh refine returned
 
 
 class Snapper:
@@ -219,6 +228,7 @@ class Snapper:
         records = collective(self.comm, geometry.attach, x[bf.nodes[sel]], nodes=gids[bf.nodes[sel]])
         self._level = _Level(mesh, bf, tag, snapped, records, int_cells, int_local,
                              interior_tag[which])
+        self._last: _LastRefine | None = None
         self.level = 0
 
     @property
@@ -226,19 +236,23 @@ class Snapper:
         """The mesh of the current level (the one :meth:`refine` expects)."""
         return self._level.mesh
 
-    def curved_mesh(self, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
-        """Degree-2 version of the current level's mesh, boundary mid-nodes on the geometry.
+    def curved_mesh(self, degree: int = 2, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
+        """Degree-``degree`` version of the current level's mesh, boundary nodes on the geometry.
 
         The result shares the straight mesh's topology, so its facet tags and
         ``parent_cell`` maps apply unchanged; keep refining the straight mesh.
-        See :func:`nagata_snap.curved.curved_mesh` (``kwargs``: ``min_ratio``,
-        ``max_bisections``).
+        See :func:`nagata_snap.curved.curved_mesh` (``kwargs``: ``variant``,
+        ``min_ratio``, ``max_bisections``).
+
+        Args:
+            degree: degree of the coordinate element, 2 (default), 3 or 4.
 
         Returns:
             ``(mesh, info)``.
         """
         lv = self._level
-        return curved_mesh(lv.mesh, lv.boundary, lv.snapped, lv.records, self.geometry, **kwargs)
+        return curved_mesh(lv.mesh, lv.boundary, lv.snapped, lv.records, self.geometry,
+                           degree=degree, **kwargs)
 
     def refine(
         self, mesh: dolfinx.mesh.Mesh, edges: npt.NDArray[np.int32] | None = None
@@ -298,14 +312,9 @@ class Snapper:
         x = mesh1.geometry.x
         x_ref = x.copy()
         nodes = ch.boundary.nodes[sel]
-        pts, records, geo_report = collective(self.comm, self.geometry.place, records, x[nodes])
-        unresolved = self.comm.allreduce(int(geo_report.get("n_unresolved", 0)))
-        if unresolved:
-            raise CadError(
-                f"{unresolved} new boundary vertices at level {self.level + 1} have no acceptable "
-                "projection onto the CAD geometry (Newton and every fallback failed or landed "
-                "farther than the local edge length); nothing was returned"
-            )
+        pts, records, geo_report = collective_place(
+            self.comm, self.geometry, records, x[nodes],
+            f"new boundary vertices at level {self.level + 1}")
         moved = update_nodes(mesh1, x, nodes.ravel(), pts.reshape(-1, 3))
         times["place"] = time.perf_counter() - t0
 
@@ -360,10 +369,58 @@ class Snapper:
             smoothing_attempts=list(res.attempts),
         )
         self._level = _Level(mesh1, ch.boundary, tag, snapped, records, c_int, l_int, tag_int)
+        self._last = _LastRefine(mesh, ch.parent_cells, mesh1)
         self.level += 1
         if self.verbose and self.comm.rank == 0:
             print(report, flush=True)
         return Refined(mesh1, ft1, parent_cell, parent_facet, report)
+
+    @property
+    def parent_cells(self) -> npt.NDArray[np.int32]:
+        """Parent cell (local, in the mesh given to the last :meth:`refine`) of every owned
+        cell of the mesh it returned, in that mesh's final cell order.
+
+        Unlike DOLFINx 0.11's ``parent_cell``, it is indexed by the refined
+        mesh's cells as numbered (see :func:`nagata_snap.lineage.parent_cells`).
+        Maps of successive levels compose (``P1[P2]`` maps level-2 cells to
+        level 0), for :func:`nagata_snap.transfer.transfer` across levels.
+        """
+        if self._last is None:
+            raise ValueError("no refinement yet: call Snapper.refine first")
+        return self._last.parent_cells
+
+    def transfer(self, u: dolfinx.fem.Function, V: dolfinx.fem.FunctionSpace, **kwargs
+                 ) -> dolfinx.fem.Function | tuple[dolfinx.fem.Function, TransferInfo]:
+        """Carry ``u`` from the mesh given to the last :meth:`refine` onto ``V`` on the mesh
+        it returned, through the parent cells (no point search, no zero-filled dofs).
+
+        Args:
+            u: function on the mesh given to the last ``refine`` call, or on
+                a curved mesh of it (:meth:`curved_mesh` before that call).
+            V: Lagrange space on the mesh that call returned, or on its curved
+                mesh (:meth:`curved_mesh`).
+            kwargs: of :func:`nagata_snap.transfer.transfer` (``return_info``).
+
+        For ``u`` from an earlier level, transfer level by level after each
+        refine, or compose :attr:`parent_cells` of the levels and call
+        :func:`nagata_snap.transfer.transfer` directly.
+
+        Returns:
+            The transferred function (see :func:`nagata_snap.transfer.transfer`).
+        """
+        last = self._last
+        if last is None:
+            raise ValueError("Snapper.transfer maps the mesh given to the last refine onto the "
+                             "mesh it returned: call Snapper.refine first")
+        for what, m, want, name in (("u", u.function_space.mesh, last.parent, "given to"),
+                                    ("V", V.mesh, last.child, "returned by")):
+            if m.topology._cpp_object is not want.topology._cpp_object:
+                raise ValueError(
+                    f"{what} must live on the mesh {name} the last Snapper.refine call (or on "
+                    "its curved_mesh()); for older levels transfer level by level, or compose "
+                    "Snapper.parent_cells and call nagata_snap.transfer.transfer"
+                )
+        return transfer(u, V, last.parent_cells, **kwargs)
 
     @staticmethod
     def _facet_tags(mesh1, boundary: BoundaryFacets, c_int: np.ndarray, l_int: np.ndarray,

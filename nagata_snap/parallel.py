@@ -35,3 +35,26 @@ def collective(comm: MPI.Comm, fn: Callable[..., Any], *args: Any, **kwargs: Any
             except TypeError:
                 raise RuntimeError(f"{cls.__name__}: {msg} (raised on another process)") from None
     return out
+
+
+def collective_place(comm: MPI.Comm, geometry, records, straight, what: str):
+    """``geometry.place(records, straight)`` on every process (see :func:`collective`).
+
+    Raises:
+        CadError: on every process, if any point found no acceptable CAD
+            projection (``report["n_unresolved"]``); ``what`` names the points.
+
+    Returns:
+        What ``place`` returned: ``(points, records, report)``.
+    """
+    pts, recs, report = collective(comm, geometry.place, records, straight)
+    unresolved = comm.allreduce(int(report.get("n_unresolved", 0)))
+    if unresolved:
+        from .cad import CadError
+
+        raise CadError(
+            f"{unresolved} {what} have no acceptable projection onto the CAD geometry (Newton "
+            "and every fallback failed or landed farther than the local edge length); nothing "
+            "was returned"
+        )
+    return pts, recs, report

@@ -45,7 +45,7 @@ def test_flow_snapping_beats_plain_refinement(flow):
                 pytest.approx(lv["err_c_D"])
             assert set(lv["times"]) >= {"solve", "estimate"}
         for lv in levels[:-1]:
-            assert set(lv["times"]) == {"solve", "estimate", "mark", "refine", "snap"}
+            assert set(lv["times"]) == {"solve", "estimate", "mark", "refine", "snap", "transfer"}
         assert levels[-1]["dofs"] > levels[0]["dofs"]
     plain = runs["none"]["levels"][-1]
     snapped = runs["nagata"]["levels"][-1]
@@ -78,6 +78,20 @@ def test_flow_curved_run_same_meshes_smaller_error(flow):
     assert [r["dofs"] for r in p2["levels"]] == [r["dofs"] for r in iges["levels"]]
     for a, b in zip(p2["levels"], iges["levels"]):
         assert a["err_c_D"] < b["err_c_D"]
+
+
+def test_flow_transferred_start_saves_newton_iterations(flow):
+    """Snapper.transfer of the previous level's velocity (straight and curved meshes) as the
+    Newton start: fewer iterations than from zero at every level, the same drag."""
+    r, data, _ = flow
+    for mode in ("iges", "iges-p2"):  # the default --zero-start modes
+        levels = data["runs"][mode]["levels"]
+        assert levels[0]["newton_iterations_zero"] is None  # level 0 starts from zero anyway
+        for lv in levels[1:]:
+            assert lv["newton_iterations"] < lv["newton_iterations_zero"], (mode, lv["level"])
+            assert lv["c_D"] == pytest.approx(lv["c_D_zero"], rel=1e-9)  # Newton tolerance
+    assert all(lv["newton_iterations_zero"] is None for lv in data["runs"]["nagata"]["levels"])
+    assert "Newton iterations from the transferred previous level / from zero" in r.stdout
 
 
 def test_flow_outputs(flow):
@@ -130,6 +144,20 @@ def test_sphere_p2_curved_beats_straight_snapped(tmp_path):
     assert 1.7 < snapped[-1]["order_L2"] < 2.3
     assert curved[-1]["order_L2"] > 2.3
     assert curved[-1]["sphere_distance"] < 1e-12  # vertices and mid-nodes on the sphere
+
+
+def test_sphere_p3_runs_on_cubic_geometry(tmp_path):
+    """P3 in the ball solves on the degree-3 curved mesh and prints its order last (the
+    orders themselves are asserted on the disk in tests/test_curved.py: this mesh is coarse)."""
+    out = tmp_path / "sphere3.json"
+    r = run([SPHERE, "--degree", "3", "--geometry", "cad", "--levels", "1", "--h", "0.6",
+             "--quiet", "--json", out])
+    data = json.loads(out.read_text())
+    snapped, curved = data["runs"]["snapped"], data["runs"]["curved"]
+    assert curved[-1]["L2"] < snapped[-1]["L2"] / 10
+    assert curved[-1]["sphere_distance"] < 1e-12  # every boundary node on the sphere
+    last = r.stdout.strip().splitlines()[-1].split()
+    assert last[0] == "curved_p3_l2_order" and float(last[1]) == pytest.approx(curved[-1]["order_L2"], abs=1e-3)
 
 
 @pytest.mark.parametrize("script", [FLOW, SPHERE])

@@ -1,0 +1,261 @@
+"""nagata_snap.meshing.mesh_cad_file: gmsh meshes of CAD files with each boundary facet's CAD entity.
+
+Truth is OpenCASCADE's geometry through gmsh, in a model re-imported from the
+same file (the same entity tags): every facet vertex must lie on its facet's
+entity (``gmsh.model.getClosestPoint``), the (u, v) / t handed back must map
+to the vertex (``gmsh.model.getValue``), a vertex classified on a CAD corner
+must be that corner and one on a CAD edge must lie on it, and the facet
+tags must equal the facet entities.  The parts are meshes/parts.py's, meshed
+coarsely (default size: 0.1 of the diagonal, 12 elements per 2 pi).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+
+import gmsh
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import parts  # meshes/ is on sys.path (conftest.py)
+from nagata_snap.meshing import CadMesh, gmsh_session, import_cad, mesh_cad_file
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+TOL = 1e-9  # relative to the model size
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cad")
+    return {name: parts.write_part(name, out, ("step", "iges", "brep", "iges_brep")) for name in parts.PARTS}
+
+
+def _facet_tag_values(cm: CadMesh) -> np.ndarray:
+    facets = cm.facets.facet_indices(cm.mesh)
+    pos = np.searchsorted(cm.facet_tags.indices, facets)
+    assert np.array_equal(cm.facet_tags.indices[pos], facets)  # every boundary facet is tagged
+    return cm.facet_tags.values[pos]
+
+
+def check_on_cad(cm: CadMesh, path, tol: float = TOL, per_face_tags: bool = True) -> dict:
+    """Assert the facet/vertex data against OCC (gmsh model of the same file); return the worst figures."""
+    tdim = cm.mesh.topology.dim
+    fdim = tdim - 1
+    x = cm.mesh.geometry.x
+    X = x[cm.facets.nodes]  # (nf, nfv, 3)
+    nf = len(cm.facet_entity)
+    assert cm.node_params.shape == (nf, tdim, fdim)
+    assert cm.node_entity_dim.shape == cm.node_entity_tag.shape == (nf, tdim)
+    size = cm.model_size
+    worst = {"closest": 0.0, "value": 0.0, "edge": 0.0, "corner": 0.0}
+    with gmsh_session("truth"):
+        import_cad(path, cm.unit or "MM")
+        faces = {t for _, t in gmsh.model.getEntities(fdim)}
+        assert set(np.unique(cm.facet_entity)) <= faces
+        for e in np.unique(cm.facet_entity):  # one batched OCC call per CAD face
+            sel = cm.facet_entity == e
+            P = X[sel].reshape(-1, 3)
+            cp, _ = gmsh.model.getClosestPoint(fdim, int(e), P.ravel())
+            worst["closest"] = max(worst["closest"], np.abs(np.reshape(cp, (-1, 3)) - P).max() / size)
+            uv = cm.node_params[sel].reshape(-1, fdim)
+            S = np.reshape(gmsh.model.getValue(fdim, int(e), uv.ravel()), (-1, 3))
+            worst["value"] = max(worst["value"], np.abs(S - P).max() / size)
+            # the facet's own (u, v) triangle is the one gmsh meshed: no jump across a seam
+            c = np.reshape(gmsh.model.getValue(fdim, int(e), cm.node_params[sel].mean(axis=1).ravel()), (-1, 3))
+            diam = np.linalg.norm(X[sel] - X[sel][:, :1], axis=2).max(axis=1)
+            assert np.all(np.linalg.norm(c - X[sel].mean(axis=1), axis=1) <= diam + tol * size)
+            # every vertex is classified on the face or on its closure
+            closure = {(fdim, int(e))} | set(gmsh.model.getBoundary([(fdim, int(e))], combined=False,
+                                                                    oriented=False))
+            closure |= set(gmsh.model.getBoundary([d for d in closure if d[0] == 1], combined=False,
+                                                  oriented=False)) if tdim == 3 else set()
+            got = set(zip(cm.node_entity_dim[sel].ravel().tolist(), cm.node_entity_tag[sel].ravel().tolist()))
+            assert got <= closure
+        for (d, t) in set(zip(cm.node_entity_dim.ravel().tolist(), cm.node_entity_tag.ravel().tolist())):
+            P = X[(cm.node_entity_dim == d) & (cm.node_entity_tag == t)]
+            if d == 0:
+                corner = np.asarray(gmsh.model.getValue(0, t, []))
+                worst["corner"] = max(worst["corner"], np.abs(P - corner).max() / size)
+            elif d < fdim:
+                cp, _ = gmsh.model.getClosestPoint(1, t, P.ravel())
+                worst["edge"] = max(worst["edge"], np.abs(np.reshape(cp, (-1, 3)) - P).max() / size)
+        for (d, t), info in cm.entities.items():  # samples on their entities, inside the bounding box
+            assert info.kind == gmsh.model.getType(d, t)
+            assert np.all(info.points >= info.bbox[0] - tol * size) and np.all(info.points <= info.bbox[1] + tol * size)
+            if d > 0:
+                S = np.reshape(gmsh.model.getValue(d, t, info.params.ravel()), (-1, 3))
+                assert np.abs(S - info.points).max() <= tol * size
+    for key, value in worst.items():
+        assert value <= tol, (key, value)
+    if per_face_tags:
+        assert np.array_equal(_facet_tag_values(cm), cm.facet_entity)
+    return worst
+
+
+def _mesh_measure(cm: CadMesh) -> float:
+    """Total volume (area) of the cells, on every process."""
+    tdim = cm.mesh.topology.dim
+    nc = cm.mesh.topology.index_map(tdim).size_local
+    p = cm.mesh.geometry.x[cm.mesh.geometry.dofmaps[0][:nc, : tdim + 1]][:, :, :tdim]
+    m = np.abs(np.linalg.det(p[:, 1:] - p[:, :1])).sum() / math.factorial(tdim)
+    return cm.mesh.comm.allreduce(m)
+
+
+@pytest.mark.parametrize("name", list(parts.PARTS))
+def test_mesh_step_part(files, name):
+    part = parts.PARTS[name]
+    cm = mesh_cad_file(files[name]["step"], MPI.COMM_WORLD)
+    tdim = cm.mesh.topology.dim
+    assert tdim == part.dim and cm.mesh.geometry.dim == part.dim
+    assert cm.unit == "MM"
+    assert cm.model_size == pytest.approx(parts.model_size(name), rel=1e-6)
+    assert cm.size == pytest.approx(0.1 * cm.model_size)
+    # every exterior facet of the DOLFINx mesh is in cm.facets (and has an entity)
+    cm.mesh.topology.create_connectivity(tdim - 1, tdim)
+    from dolfinx.mesh import exterior_facet_indices
+    assert len(cm.facet_entity) == len(exterior_facet_indices(cm.mesh.topology)) > 0
+    check_on_cad(cm, files[name]["step"])
+    # every CAD face of the part carries facets; cells tagged by their volume
+    with parts.part_model(name):
+        n_faces, _ = parts.measure(part.dim)
+        volumes = [t for _, t in gmsh.model.getEntities(part.dim)]
+    mass = parts.occ_mass(files[name]["brep"], part.dim)
+    exterior = n_faces - (1 if name == "assembly" else 0)  # the shared disk is interior
+    assert len(np.unique(cm.facet_entity)) == exterior
+    assert set(np.unique(cm.cell_tags.values)) == set(volumes)
+    assert _mesh_measure(cm) == pytest.approx(mass, rel=0.05)  # coarse straight cells
+
+
+@pytest.mark.parametrize("name,fmt", [("plate_filleted", "brep"), ("revolved", "brep"),
+                                      ("profile_2d", "brep"), ("assembly", "iges_brep"),
+                                      ("lofted_blade", "iges_brep"), ("plate_holes_2d", "iges")])
+def test_mesh_other_formats(files, name, fmt):
+    cm = mesh_cad_file(files[name][fmt], MPI.COMM_WORLD)
+    assert cm.unit == (None if fmt == "brep" else "MM")
+    check_on_cad(cm, files[name][fmt])
+
+
+def test_mesh_faces_only_iges(files):
+    """Faces-only IGES is sewn: edge nodes sit in the sewing gaps (~1e-8 of the model size)."""
+    path = files["plate"]["iges"]
+    cm = mesh_cad_file(path, MPI.COMM_WORLD)
+    worst = check_on_cad(cm, path, tol=1e-6)
+    assert worst["closest"] > 1e-12  # the gaps are real (if this fails, tighten the tolerance)
+
+
+def test_unit_and_size(files):
+    """unit="M" scales STEP coordinates by 1e-3; an explicit size is used as given."""
+    mm = mesh_cad_file(files["thin_wall"]["step"], MPI.COMM_WORLD, size=8.0)
+    m = mesh_cad_file(files["thin_wall"]["step"], MPI.COMM_WORLD, size=8.0e-3, unit="M")
+    assert m.unit == "M" and m.size == 8.0e-3 and mm.size == 8.0
+    # (gmsh's bounding boxes are enlarged by OCC's tolerance, 1e-7 in either unit)
+    assert m.model_size == pytest.approx(1e-3 * mm.model_size, rel=1e-5)
+    assert np.abs(m.mesh.geometry.x.min(axis=0)).max() <= 1e-12  # the wall starts at 0 (x, y, z)
+    assert m.mesh.geometry.x.max(axis=0) == pytest.approx([50e-3, 50e-3, 40e-3], rel=1e-9)
+    check_on_cad(m, files["thin_wall"]["step"])
+
+
+def test_whole_boundary_tag_and_order2(files):
+    path = files["concave_cylinder"]["step"]
+    cm = mesh_cad_file(path, MPI.COMM_WORLD, per_face_tags=False, order=2)
+    assert cm.mesh.geometry.cmaps[0].degree == 2
+    assert set(np.unique(_facet_tag_values(cm))) == {1}
+    assert len(np.unique(cm.facet_entity)) == 8
+    check_on_cad(cm, path, per_face_tags=False)
+    # the mid-nodes are gmsh's, on the CAD: the curved boundary's nodes lie on the groove
+    from dolfinx.mesh import entities_to_geometry
+    groove = cm.facets.facet_indices(cm.mesh)[cm.facet_entity == _groove_tag(path)]
+    nodes = np.unique(entities_to_geometry(cm.mesh, 2, groove))
+    x = cm.mesh.geometry.x[nodes]
+    assert np.abs(np.hypot(x[:, 1] - 20, x[:, 2] - 30) - 10).max() <= 1e-9 * cm.model_size
+
+
+def _groove_tag(path) -> int:
+    with gmsh_session("groove"):
+        import_cad(path)
+        return [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) == "Cylinder"][0]
+
+
+def test_gmsh_session_left_as_found(files):
+    path = files["thin_wall"]["step"]
+    assert not gmsh.isInitialized()
+    mesh_cad_file(path, MPI.COMM_SELF)
+    assert not gmsh.isInitialized()
+    gmsh.initialize(interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 123.0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 3)
+        gmsh.model.add("mine")
+        gmsh.model.occ.addSphere(0, 0, 0, 1)
+        gmsh.model.occ.synchronize()
+        mesh_cad_file(path, MPI.COMM_SELF, curvature=10)
+        assert gmsh.isInitialized() and gmsh.model.getCurrent() == "mine"
+        assert len(gmsh.model.getEntities(3)) == 1
+        assert gmsh.option.getNumber("Mesh.MeshSizeMax") == 123.0
+        assert gmsh.option.getNumber("Mesh.MeshSizeFromCurvature") == 3
+        assert gmsh.option.getString("Geometry.OCCTargetUnit") == ""
+        with pytest.raises(ValueError):
+            mesh_cad_file(path.with_suffix(".txt"), MPI.COMM_SELF)
+        assert gmsh.model.getCurrent() == "mine"
+    finally:
+        gmsh.finalize()
+
+
+def test_bad_input(tmp_path, files):
+    with pytest.raises(FileNotFoundError, match="missing.step: no such CAD file"):
+        mesh_cad_file(tmp_path / "missing.step", MPI.COMM_WORLD)
+    garbage = tmp_path / "garbage.step"
+    garbage.write_bytes(b"\x00\x01 this is not STEP at all \xff" * 50)
+    with pytest.raises(ValueError, match="garbage.step: gmsh/OpenCASCADE cannot read this file"):
+        mesh_cad_file(garbage, MPI.COMM_WORLD)
+    empty = tmp_path / "empty.step"
+    empty.write_text("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION((''),'2;1');\nFILE_NAME('empty','',(''),(''),'','','');\n"
+                     "FILE_SCHEMA(('AUTOMOTIVE_DESIGN'));\nENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n")
+    with pytest.raises(ValueError, match="empty.step: .*(no shapes|cannot read)"):
+        mesh_cad_file(empty, MPI.COMM_WORLD)
+    with pytest.raises(ValueError, match="unknown CAD file suffix '.stl'"):
+        mesh_cad_file(tmp_path / "part.stl", MPI.COMM_WORLD)
+    with pytest.raises(ValueError, match="unknown length unit 'parsec'"):
+        mesh_cad_file(files["plate"]["step"], MPI.COMM_WORLD, unit="parsec")
+    with pytest.raises(ValueError, match="size must be a positive length"):
+        mesh_cad_file(files["plate"]["step"], MPI.COMM_WORLD, size=-1.0)
+    with pytest.raises(ValueError, match="order must be 1 or 2"):
+        mesh_cad_file(files["plate"]["step"], MPI.COMM_WORLD, order=3)
+    # an open surface (one cylindrical face, no solid, not planar)
+    shell = tmp_path / "shell.step"
+    with gmsh_session("shell"):
+        gmsh.model.occ.addCylinder(0, 0, 0, 0, 0, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.model.occ.remove([(3, 1)])
+        gmsh.model.occ.remove([(2, 2), (2, 3)], recursive=True)
+        gmsh.model.occ.synchronize()
+        gmsh.write(str(shell))
+    with pytest.raises(ValueError, match="shell.step: no solid in the file and its 1 faces do not close"):
+        mesh_cad_file(shell, MPI.COMM_WORLD)
+
+
+@pytest.mark.mpi
+def test_mesh_mpi_matches_serial(tmp_path):
+    """mpiexec -n 2: every facet's entity and every vertex's (u, v) and classification equal
+    the serial run's (compared by the vertices' input global indices)."""
+    mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
+    cmd = [mpiexec, "-n", "2", sys.executable, os.path.join(HERE, "mpi", "meshing_mpi.py"), str(tmp_path)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    lines = [ln for ln in r.stdout.splitlines() if ln.startswith("meshing_mpi")]
+    assert lines == [f"meshing_mpi {name} ok" for name in ("plate_holes_2d", "plate_filleted", "seamed",
+                                                          "assembly", "missing")], r.stdout[-3000:]
+
+
+def test_verbose_progress(files, capfd):
+    mesh_cad_file(files["thin_wall"]["step"], MPI.COMM_SELF, verbose=True)
+    out = capfd.readouterr().out
+    for d in (1, 2, 3):
+        assert f"nagata_snap.meshing: thin_wall.step: {d}D mesh," in out
+    mesh_cad_file(files["thin_wall"]["step"], MPI.COMM_SELF)
+    assert "nagata_snap.meshing" not in capfd.readouterr().out
