@@ -308,6 +308,21 @@ def roof_prism(ridge_deg: float = 30.0):
     return build
 
 
+def half_torus():
+    """Builder of the torus R = 1, r = 0.4 (axis z) cut by the plane z = 0: sharp 90-degree rims.
+
+    The flat face is the annulus 0.6 <= rho <= 1.4 in z = 0; the curved face
+    is the lower half of the torus (:func:`torus_exact`).
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        occ.intersect([(3, occ.addTorus(0, 0, 0, 1.0, 0.4))], [(3, occ.addBox(-2, -2, -1, 4, 4, 1))])
+
+    return build
+
+
 def filleted_box(radius: float = 0.3):
     """Builder of the box [0, 1]^3 with its edge x = y = 1 rounded by a fillet of ``radius``.
 

@@ -14,7 +14,11 @@ angle ``theta`` between its two facets' normals.  It is a crease when
   turn the surface makes on either side: the largest turn from the facet
   to the facets around its vertex opposite the ridge (ridges turning by
   ``crease_angle`` or more left out), or
-* the two facets carry different tags (``split_tags``).
+* the two facets carry different tags (``split_tags``).  Such a ridge that
+  is smooth by the rules above (a tangent CAD edge) gets the multi-normal
+  coefficient, each face is fitted on its own, and the vertices on it keep
+  one normal: a planar side's (exact; the blend is tangent to it), else the
+  mean of the two sides'.
 
 So a 30-degree ridge between two flat faces is a crease however fine the
 mesh (nothing on either side turns), a fillet meeting a plane tangentially is
@@ -263,18 +267,13 @@ def corner_normals(
         raise ValueError(f"unknown normal estimate {scheme!r}; choose one of {list(SCHEMES)}")
     F, nfv = vid.shape
     rv, rf, rl, open_vertices = _ridges(vid, x, allow_open)
-    crease = crease_ridges(vid, facet_normal, rf, rv, crease_angle)
-    if split_tags:
-        crease |= tag[rf[:, 0]] != tag[rf[:, 1]]
-    smooth = np.flatnonzero(~crease)
-    # sectors: the corners of each ridge vertex joined across smooth ridges
-    a = (rf[smooth, 0, None] * nfv + rl[smooth, 0, :]).ravel()
-    b = (rf[smooth, 1, None] * nfv + rl[smooth, 1, :]).ravel()
-    label = _components(F * nfv, a, b)
-    region = _components(F, rf[smooth, 0], rf[smooth, 1])
+    geometric = crease_ridges(vid, facet_normal, rf, rv, crease_angle)
+    crease = geometric | (tag[rf[:, 0]] != tag[rf[:, 1]]) if split_tags else geometric
+    label = _sectors(rf, rl, ~crease, F, nfv)
+    region = _components(F, rf[~crease, 0], rf[~crease, 1])
     w = corner_weights(x, "mwselr" if scheme == "jet" else scheme).ravel()
     sums = np.zeros((label.max() + 1, 3))
-    np.add.at(sums, label, w[:, None] * np.repeat(facet_normal, nfv, axis=0))
+    np.add.at(sums, label.ravel(), w[:, None] * np.repeat(facet_normal, nfv, axis=0))
     norm = np.linalg.norm(sums, axis=1)
     if np.any(~(norm > 1e-300)):
         raise NormalsError(
@@ -282,7 +281,6 @@ def corner_normals(
             "estimated normal (facets around them cancel out or are degenerate)"
         )
     mean = sums / norm[:, None]
-    label = label.reshape(F, nfv)
     if scheme == "jet":
         per_vertex = np.bincount(np.unique(np.c_[vid.ravel(), label.ravel()], axis=0)[:, 0],
                                  minlength=int(vid.max()) + 1)
@@ -290,4 +288,47 @@ def corner_normals(
         sector_vertex[label.ravel()] = vid.ravel()
         interior = (per_vertex[sector_vertex] == 1) & ~np.isin(sector_vertex, open_vertices)
         mean = fit_sector_normals(vid, x, label, region, mean, facet_normal, interior)
+    if split_tags and np.any(crease & ~geometric):
+        mean = _tangent_tag_normals(mean, label, _sectors(rf, rl, ~geometric, F, nfv), region, facet_normal)
     return CornerNormals(mean[label], label, vid, rf, rv, crease, region)
+
+
+def _tangent_tag_normals(n: np.ndarray, label: np.ndarray, shared: np.ndarray, region: np.ndarray,
+                         facet_normal: np.ndarray) -> np.ndarray:
+    """One normal for the sectors of a vertex that only tags separate (a tangent CAD edge).
+
+    ``n (S, 3)`` per sector of ``label (F, nfv)``; ``shared (F, nfv)`` joins
+    the sectors across geometrically smooth ridges; ``region (F,)`` the
+    smooth region (face) of each facet.  The sectors of a shared group get
+    the normal of a member on a planar region (exact, and the blend is
+    tangent to that plane there), else the mean of the members' normals,
+    each estimated from its own face.
+    """
+    nfv = label.shape[1]
+    lab, grp = label.ravel(), shared.ravel()
+    S = len(n)
+    ref = np.zeros((region.max() + 1, 3))
+    ref[region] = facet_normal  # one facet normal per region
+    flat = np.ones(len(ref), dtype=bool)
+    np.logical_and.at(flat, region, np.einsum("fi,fi->f", facet_normal, ref[region]) >= 1.0 - 1e-14)
+    planar = np.zeros(S, dtype=bool)
+    planar[lab] = flat[np.repeat(region, nfv)]
+    group = np.zeros(S, dtype=np.int64)
+    group[lab] = grp
+    total = np.zeros((grp.max() + 1, 3))
+    np.add.at(total, group, n)
+    plane = np.zeros_like(total)
+    plane[group[planar]] = n[planar]  # any planar member (they lie in one plane)
+    has_plane = np.zeros(len(total), dtype=bool)
+    has_plane[group[planar]] = True
+    out = np.where(has_plane[:, None], plane, total / np.linalg.norm(total, axis=1, keepdims=True))
+    members = np.bincount(group, minlength=len(total))
+    return np.where((members[group] > 1)[:, None], out[group], n)
+
+
+def _sectors(rf: np.ndarray, rl: np.ndarray, smooth: np.ndarray, F: int, nfv: int) -> np.ndarray:
+    """``(F, nfv)`` sector label of each corner: the corners of a vertex joined across ``smooth`` ridges."""
+    sel = np.flatnonzero(smooth)
+    a = (rf[sel, 0, None] * nfv + rl[sel, 0, :]).ravel()
+    b = (rf[sel, 1, None] * nfv + rl[sel, 1, :]).ravel()
+    return _components(F * nfv, a, b).reshape(F, nfv)
