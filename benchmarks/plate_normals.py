@@ -85,7 +85,7 @@ def curved_faces() -> list[int]:
 def face_distances(mesh, ft, faces) -> np.ndarray:
     """Distance from its CAD face (gmsh closest point) of every vertex of the facets tagged with ``faces``."""
     x = mesh.geometry.x
-    mesh.topology.create_connectivity(mesh.topology.dim - 1, 0)
+    mesh.topology.create_connectivity(mesh.topology.dim - 1, mesh.topology.dim)
     out = []
     for f in faces:
         nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ft.find(f)))
@@ -114,6 +114,7 @@ def run(label, cm, normals, levels, faces, size):
 def plain(cm, levels, faces, size):
     mesh, ft = cm.mesh, cm.facet_tags
     for _ in range(levels):
+        mesh.topology.create_entities(1)
         mesh.topology.create_entities(mesh.topology.dim - 1)
         new, pc, pf = dolfinx.mesh.refine(mesh, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
         new.topology.create_entities(new.topology.dim - 1)
