@@ -37,49 +37,13 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 
 import gmsh  # noqa: E402
 import parts  # noqa: E402
+from surfaces import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance  # noqa: E402
 
 import dolfinx.mesh  # noqa: E402
 
-from nagata_snap import NagataGeometry, Records, Snapper  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.boundary import boundary_facets  # noqa: E402
 from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file  # noqa: E402
-
-
-class GmshFaceNormals:
-    """The CAD's normals through gmsh, with the ``attach``/``vertex_normals`` of ``CadGeometry``.
-
-    Built from a :class:`nagata_snap.meshing.CadMesh`: every boundary facet's
-    gmsh face and its vertices' (u, v) on it; ``vertex_normals`` evaluates
-    ``gmsh.model.getNormal`` on the model imported from the same file
-    (current while it is used).
-    """
-
-    def __init__(self, cm):
-        gid = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
-        order = np.argsort(gid, axis=1)
-        self.keys = np.take_along_axis(gid, order, axis=1)
-        self.params = np.take_along_axis(cm.node_params, order[:, :, None], axis=1)
-        self.entity = np.asarray(cm.facet_entity)
-        self.lookup = {tuple(k): i for i, k in enumerate(self.keys)}  # coarse facets, built once
-
-    def attach(self, facet_points, nodes=None):
-        nodes = np.asarray(nodes, dtype=np.int64)
-        order = np.argsort(nodes, axis=1)
-        row = np.array([self.lookup[tuple(k)] for k in np.take_along_axis(nodes, order, axis=1)])
-        inv = np.argsort(order, axis=1)
-        return Records(self.entity[row].astype(np.int64), np.take_along_axis(self.params[row], inv[:, :, None], axis=1))
-
-    def vertex_normals(self, records):
-        out = np.zeros(records.params.shape[:2] + (3,))
-        for face in np.unique(records.root):  # loop over CAD faces (a few dozen)
-            sel = records.root == face
-            n = gmsh.model.getNormal(int(face), records.params[sel].ravel())
-            out[sel] = np.reshape(n, (-1, records.params.shape[1], 3))
-        return out
-
-
-def curved_faces() -> list[int]:
-    return [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) != "Plane"]
 
 
 def face_distances(mesh, ft, faces) -> np.ndarray:
@@ -90,8 +54,7 @@ def face_distances(mesh, ft, faces) -> np.ndarray:
     for f in faces:
         nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ft.find(f)))
         if len(nodes):
-            p = np.asarray(gmsh.model.getClosestPoint(2, f, x[nodes].ravel())[0]).reshape(-1, 3)
-            out.append(np.linalg.norm(p - x[nodes], axis=1))
+            out.append(gmsh_face_distance(f, x[nodes]))
     return np.concatenate(out)
 
 
@@ -140,7 +103,7 @@ def main() -> None:
         with gmsh_session("plate"):
             import_cad(path)
             cm = mesh_cad_file(path, comm, curvature=args.curvature)
-            faces = curved_faces()
+            faces = gmsh_curved_faces()
             size = cm.model_size
             if args.cad == "occ":
                 from nagata_snap.cad import CadGeometry
