@@ -155,8 +155,8 @@ class NagataGeometry:
             crease) keep the estimated normal.
         crease_angle: degrees; a boundary ridge turning by more than this is
             sharp, and one turning by more than a third of it is sharp when it
-            turns more than twice what the curvature on either side predicts
-            (:mod:`nagata_snap.normals`).  A vertex on a sharp ridge keeps one
+            turns more than three times the largest facet-to-facet turn next to
+            it on either side (:mod:`nagata_snap.normals`).  A vertex on a sharp ridge keeps one
             normal per smooth side and the ridge uses the multi-normal
             coefficient (eqs. 20-32 of Nagata 2005).
         split_tags: also treat ridges between facets of different tags as sharp.
