@@ -241,6 +241,8 @@ class NagataGeometry:
                 f"{n_int} facets with snapped tags {tags} are interior facets; "
                 "only exterior boundary facets can be snapped"
             )
+        if _is_cad(normals):  # each process attaches its own facets to their CAD faces
+            user = collective(comm, _cad_vertex_normals, normals, coords, gids, np.isin(tag, tags))
         gids, coords, tag, fnorm, user = _gather(comm, gids, coords, tag, fnorm, user)
         # every process builds the same patches from the gathered data (no MPI
         # inside); a callable of normals may still fail on some processes only
@@ -324,6 +326,8 @@ class NagataGeometry:
                     f"normals array must have shape (num_points={len(pts)}, 2 or 3), got {arr.shape}"
                 )
             user[..., : arr.shape[1]] = arr[fac]
+        elif _is_cad(normals):
+            user = _cad_vertex_normals(normals, x, fac, np.isin(tag, self.tags))
         self._build(fac, x, tag, fn, user, normals, crease_angle, split_tags, eps)
         return self
 
@@ -355,29 +359,14 @@ class NagataGeometry:
         cn = corner_normals(vid, coords, fnorm, tag, crease_angle, split_tags, scheme)
         n = cn.normals.copy()
         self.snap = snap
-        if _is_cad(normals):
-            n[snap] = self._cad_normals(normals, coords[snap], gids[snap], n[snap])
+        if _is_cad(normals):  # orientation is free: aligned with the estimate
+            dot = np.einsum("fvi,fvi->fv", user[snap], n[snap])
+            n[snap] = np.where(dot[..., None] < 0, -user[snap], user[snap])
         elif normals is not None and not isinstance(normals, str):
             n[snap] = self._supplied_normals(normals, coords[snap], user[snap], n[snap], crease_angle)
         n, crease = _sector_consistent(cn, n)
         self.corner_normal = n
         self.coef = self._edge_coefficients(cn, n, crease, eps)
-
-    @staticmethod
-    def _cad_normals(cad, coords: np.ndarray, gids: np.ndarray, est: np.ndarray) -> np.ndarray:
-        """Normals ``(ns, nfv, 3)`` of a CAD geometry at the corners of the snapped facets.
-
-        Each facet is attached to its CAD face and gets that face's normals at
-        its vertices; orientation is aligned with the estimate ``est``.
-        """
-        val = np.asarray(cad.vertex_normals(cad.attach(coords, gids)), dtype=float)
-        if val.shape != coords.shape:
-            raise ValueError(
-                f"the CAD geometry's vertex_normals returned shape {val.shape}, expected {coords.shape}"
-            )
-        un = _unit(val, "CAD", coords)
-        dot = np.einsum("fvi,fvi->fv", un, est)
-        return np.where(dot[..., None] < 0, -un, un)
 
     @staticmethod
     def _supplied_normals(normals, coords: np.ndarray, user: np.ndarray, est: np.ndarray,
@@ -542,6 +531,26 @@ class NagataGeometry:
         """Points on patches ``patch (P,)`` at barycentric ``lam (P, k, nfv)``: ``(P, k, 3)``."""
         patch = np.asarray(patch)
         return nagata.evaluate(self.x[patch], self.coef[patch], lam)
+
+
+def _cad_vertex_normals(cad, coords: np.ndarray, gids: np.ndarray, snap: np.ndarray) -> np.ndarray:
+    """Unit CAD normals ``(nf, nfv, 3)`` at the corners of the ``snap`` facets, zero elsewhere.
+
+    Each snapped facet ``coords (nf, nfv, 3)`` (vertex ids ``gids (nf, nfv)``)
+    is attached to its own CAD face (``cad.attach``) and gets that face's
+    normals at its vertices (``cad.vertex_normals``), whatever the normals of
+    the neighbouring faces at the same vertex.
+    """
+    out = np.zeros_like(coords)
+    if not snap.any():
+        return out
+    val = np.asarray(cad.vertex_normals(cad.attach(coords[snap], gids[snap])), dtype=float)
+    if val.shape != coords[snap].shape:
+        raise ValueError(
+            f"the CAD geometry's vertex_normals returned shape {val.shape}, expected {coords[snap].shape}"
+        )
+    out[snap] = _unit(val, "CAD", coords[snap])
+    return out
 
 
 def _sector_consistent(cn, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
