@@ -144,6 +144,9 @@ def test_dfg_cylinder_patches_unchanged():
     np.testing.assert_allclose(n, radial(geo.x[cyl].reshape(-1, 3)), atol=1e-13)
     exact = NagataGeometry(md.mesh, md.facet_tags, tags=[generate.CYLINDER], normals=radial)
     np.testing.assert_allclose(geo.coef[cyl], exact.coef[cyl], atol=1e-15)
+    # ... and those of the previous default (MWSELR), with which the demo's drag was measured
+    prev = NagataGeometry(md.mesh, md.facet_tags, tags=[generate.CYLINDER], normals="mwselr")
+    np.testing.assert_allclose(geo.coef[cyl], prev.coef[cyl], atol=1e-15)
 
 
 # ---------------------------------------------------------------------------
