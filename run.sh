@@ -25,7 +25,7 @@ find_python() {
   exit 1
 }
 
-if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import nagata_snap, dolfinx, gmsh, pytest, hypothesis, matplotlib' 2>/dev/null; then
+if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import nagata_snap, dolfinx, gmsh, OCP, pytest, hypothesis, matplotlib' 2>/dev/null; then
   PY=$(find_python)
   echo "setting up $VENV with $($PY --version)" >&2
   $PY -m venv "$VENV"

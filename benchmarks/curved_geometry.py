@@ -40,8 +40,8 @@ import make_iges  # noqa: E402
 
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.iges import write_iges  # noqa: E402
-from nagata_snap.nurbs import sphere, torus  # noqa: E402
+from nagata_snap.cad.iges import write_iges  # noqa: E402
+from nagata_snap.cad.nurbs import sphere, torus  # noqa: E402
 
 #: (label, degree, variant) of the curved columns
 RUNS = [("k=2", 2, None), ("k=3 equisp.", 3, "equispaced"), ("k=3", 3, None), ("k=4", 4, None)]

@@ -4,7 +4,7 @@ Kadir (2010), Table 4.1, needed about 7 ms per boundary point (101 Newton
 starts each) and Table 4.2 reports at most 7, mostly 2 Newton iterations with
 neighbour seeds.  This script measures, on the same refinement-like points:
 
-* ours: :func:`nagata_snap.projection.project_newton` on an exact NURBS torus
+* ours: :func:`nagata_snap.cad.projection.project_newton` on an exact NURBS torus
   (R = 2, r = 1, 9 x 9 rational quadratic net), all points at once, seeded
   with the parametric midpoints of the parent edges (Kadir 2.3.3);
 * OCC: ``gmsh.model.getClosestPoint`` on the SAME rational B-spline surface
@@ -34,8 +34,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "meshes"))
 
-from nagata_snap.nurbs import torus  # noqa: E402
-from nagata_snap.projection import project_newton  # noqa: E402
+from nagata_snap.cad.nurbs import torus  # noqa: E402
+from nagata_snap.cad.projection import project_newton  # noqa: E402
 from nurbs_reference import occ_bspline  # noqa: E402
 
 R_MAJOR, R_MINOR = 2.0, 1.0

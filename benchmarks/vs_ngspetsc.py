@@ -12,7 +12,7 @@ radius 0.05 at (0.2, 0.2); (``--dim 3``): the box [-1, 1]^3 minus the ball of
 radius 0.5; built with ``netgen.occ`` and meshed by ngsPETSc (``model_to_mesh``,
 ``--hmax``).  Both tools start from that DOLFINx mesh and refine every cell
 ``--levels`` times.  nagata_snap snaps the circle / sphere to an exact NURBS
-(CAD mode, ``nagata_snap.nurbs.circle`` / ``sphere``) with its default
+(CAD mode, ``nagata_snap.cad.nurbs.circle`` / ``sphere``) with its default
 smoothing and checks.  Printed per level: cells, wall time of each tool's
 refinement step (ngsPETSc: ``refineMarkedElements``; nagata_snap:
 ``Snapper.refine``; for scale, plain ``dolfinx.mesh.refine``), their ratio,
@@ -53,7 +53,7 @@ import dolfinx.mesh
 
 from nagata_snap import Snapper
 from nagata_snap.cad import CadGeometry
-from nagata_snap.nurbs import circle, sphere
+from nagata_snap.cad.nurbs import circle, sphere
 
 CURVED, FLAT = 4, 3
 #: dim -> (centre, radius) of the curved boundary

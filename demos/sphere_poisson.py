@@ -29,7 +29,7 @@ Three runs from the same coarse gmsh ball (``meshes/generate.py``):
   the L2 error to order 2 (the domain error); the curved cells give order
   P + 1.  The Nagata patches are fixed by the coarse
   mesh, so their own (small) distance from the sphere is an error floor; with
-  ``--geometry cad`` the sphere is an exact NURBS (``nagata_snap.nurbs.sphere``)
+  ``--geometry cad`` the sphere is an exact NURBS (``nagata_snap.cad.nurbs.sphere``)
   and there is no floor.
 
 Examples::
@@ -157,7 +157,7 @@ def run(kind: str, args, comm) -> dict[str, list[dict]]:
     if kind == "snapped":
         if args.geometry == "cad":
             from nagata_snap.cad import CadGeometry
-            from nagata_snap.nurbs import sphere
+            from nagata_snap.cad.nurbs import sphere
 
             geometry = CadGeometry([sphere((0.0, 0.0, 0.0), 1.0)])
             snapper = nagata_snap.Snapper(mesh, ft, geometry, tags=[generate.BALL_SPHERE])

@@ -20,7 +20,7 @@ Files:
   do not depend on when or by whom they were made.
 * ``dfg_circle.igs``: the DFG benchmark cylinder, circle of radius 0.05 at
   (0.2, 0.2, 0), as an exact rational quadratic NURBS (entity 126, weights
-  ``sqrt(2)/2``) written by :func:`nagata_snap.iges.write_iges`.
+  ``sqrt(2)/2``) written by :func:`nagata_snap.cad.iges.write_iges`.
 
 Run ``python meshes/make_iges.py [outdir]``.
 """
@@ -38,8 +38,8 @@ HERE = Path(__file__).resolve().parent
 if str(HERE.parent) not in sys.path:
     sys.path.insert(0, str(HERE.parent))
 
-from nagata_snap.iges import _pack, _tokenize, write_iges  # noqa: E402
-from nagata_snap.nurbs import NurbsCurve  # noqa: E402
+from nagata_snap.cad.iges import _pack, write_iges  # noqa: E402
+from nagata_snap.cad.nurbs import NurbsCurve  # noqa: E402
 
 FIXED_DATE = "20000101.000000"
 
@@ -175,22 +175,39 @@ def circle_curve(center=(0.2, 0.2, 0.0), radius: float = 0.05) -> NurbsCurve:
 # ----------------------------------------------------------------------
 # files written by OpenCASCADE through gmsh
 # ----------------------------------------------------------------------
+def _global_tokens(data: str, pd: str, rd: str) -> list:
+    """Tokens of an IGES Global section: Hollerith strings as ``(str,)``, others as ``str``."""
+    toks, i = [], 0
+    while i < len(data):
+        m = re.match(r"\s*(\d+)H", data[i:])
+        if m:  # Hollerith nHxxx: n characters, then a delimiter
+            n = int(m.group(1))
+            j = i + m.end()
+            toks.append((data[j:j + n],))
+            i = j + n
+            i = data.index(pd, i) + 1 if data.find(rd, i) > data.find(pd, i) >= 0 else len(data)
+            continue
+        k = min([x for x in (data.find(pd, i), data.find(rd, i)) if x >= 0] or [len(data)])
+        toks.append(data[i:k].strip())
+        if k < len(data) and data[k] == rd:
+            break
+        i = k + 1
+    return toks
+
+
 def _fix_global(text: str) -> str:
     """Replace the date (Global 18, 25) and author (21) of an IGES text by fixed values."""
     lines = text.splitlines()
     g_idx = [i for i, s in enumerate(lines) if len(s) >= 73 and s[72] == "G"]
     data = "".join(lines[i][:72].ljust(72) for i in g_idx)
-    pos = [0] * len(data)
-    pd = rd = None
     m = re.match(r"\s*1H(.),", data)
     pd = m.group(1) if m else ","
     m2 = re.match(r"\s*(?:1H.)?" + re.escape(pd) + r"\s*1H(.)", data)
     rd = m2.group(1) if m2 else ";"
-    toks, _, _ = _tokenize(data, pos, pd, rd, "Global section")
     out = []
-    for k, t in enumerate(toks, start=1):
-        if type(t) is not str:  # Hollerith
-            s = str(t)
+    for k, t in enumerate(_global_tokens(data, pd, rd), start=1):
+        if isinstance(t, tuple):  # Hollerith
+            s = t[0]
             if k in (18, 25):
                 s = FIXED_DATE
             elif k == 21:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nagata_snap.nurbs import NurbsSurface
+from nagata_snap.cad.nurbs import NurbsSurface
 
 
 def herrero_71() -> NurbsSurface:

@@ -9,6 +9,7 @@ NURBS of an IGES file.  See :class:`Snapper`.
 # libmpi is not found.
 import mpi4py.MPI  # noqa: F401
 
+from .cad import CadError, CadGeometry
 from .geometry import NagataGeometry
 from .hook import InvertedCellsError, Refined, Snapper, SnapReport
 from .lineage import LineageError
@@ -17,6 +18,8 @@ from .records import Records
 
 __all__ = [
     "NagataGeometry",
+    "CadGeometry",
+    "CadError",
     "Snapper",
     "Refined",
     "SnapReport",

@@ -1,18 +1,30 @@
-"""``nagata-snap``: refine a mesh file uniformly and snap its curved boundary.
+"""``nagata-snap``: refine a mesh (or a CAD part) and snap its curved boundary.
 
 A thin command line around :class:`~nagata_snap.NagataGeometry`,
 :class:`~nagata_snap.cad.CadGeometry` and :class:`~nagata_snap.Snapper`::
 
+    nagata-snap part.step --size 5 --levels 2 --output fine.xdmf --plot levels.png
     nagata-snap mesh.msh --tags 4 --levels 2 --output fine.xdmf
-    nagata-snap mesh.xdmf --tags 2 --iges part.igs --output fine.bp --report
+    nagata-snap mesh.xdmf --tags 2 --cad part.igs --output fine.bp --report
     mpiexec -n 4 nagata-snap mesh.vtu --tag-key medit:ref --tags 3 --output fine.xdmf
 
-(also ``python -m nagata_snap.cli``).  Input formats: gmsh ``.msh`` (read as
-``dolfinx.io.gmsh.read_from_msh`` does; facet tags from the physical groups of
-dimension d-1), ``.xdmf`` (``dolfinx.io.XDMFFile``: a mesh and a facet
-MeshTags grid, e.g. as written by this command) and anything meshio reads
-(linear triangles or tetrahedra; facet tags from the cell data
-``gmsh:physical`` or the key given by ``--tag-key``).
+(also ``python -m nagata_snap.cli``).  A CAD file (``.step/.stp``,
+``.igs/.iges``, ``.brep``) is meshed by gmsh (``--size``, curvature sizing)
+and every exterior face is snapped onto it (:func:`nagata_snap.cad.mesh_cad`:
+the facets' faces come from gmsh, no search).  Mesh inputs: gmsh ``.msh``
+(read as ``dolfinx.io.gmsh.read_from_msh`` does; facet tags from the
+physical groups of dimension d-1), ``.xdmf`` (``dolfinx.io.XDMFFile``: a mesh
+and a facet MeshTags grid, e.g. as written by this command) and anything
+meshio reads (linear triangles or tetrahedra; facet tags from the cell data
+``gmsh:physical`` or the key given by ``--tag-key``), snapped onto Nagata
+patches or onto a CAD file given with ``--cad``.
+
+Each level prints a line (cells, vertices, snapped vertices, time), and a
+long level a heartbeat every 10 s; the summary gives the vertices left short
+of the geometry and (CAD) the largest distance of a boundary vertex from its
+face.  ``--plot FILE.png`` draws per level the histograms of the changed
+cells' quality (minimum angle, mean ratio) and of the boundary vertices'
+distance from the CAD.
 
 Exit status: 0 on success, 2 for unusable input (missing or unreadable
 files, unknown tags, bad options), 1 if snapping itself fails (e.g. cells
@@ -303,29 +315,44 @@ def write_mesh(path: str, mesh, facet_tags, comm) -> str:
 # --------------------------------------------------------------------------
 # main
 # --------------------------------------------------------------------------
+#: CAD file suffixes: such an input is meshed by gmsh
+CAD_SUFFIXES = (".step", ".stp", ".igs", ".iges", ".brep", ".brp")
+#: seconds between the heartbeat lines of a long level
+HEARTBEAT = 10.0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog=PROG,
         description=(
-            "Refine a mesh uniformly with dolfinx.mesh.refine and snap the new vertices of the "
-            "facets with the given tags onto the curved geometry: Nagata patches built from "
-            "the input mesh itself (default) or the NURBS of an IGES file (--iges)."
+            "Refine a mesh uniformly with dolfinx.mesh.refine and snap the new boundary vertices "
+            "onto the curved geometry.  A CAD file (STEP, IGES, BREP) is meshed by gmsh first and "
+            "snapped onto its own faces; a mesh is snapped onto Nagata patches built from itself "
+            "(default) or onto a CAD file (--cad)."
         ),
         epilog=(
-            "Input: gmsh .msh (facet tags = physical groups of dimension d-1), .xdmf "
-            "(a mesh grid and a facet MeshTags grid), or any format meshio reads (linear "
-            "triangles/tetrahedra; facet tags from cell data 'gmsh:physical' or --tag-key).  "
-            "Exit status 0: done; 2: unusable input (file, format, tags, options); 1: snapping "
-            "failed (e.g. cells would invert)."
+            "Input: a CAD file (.step/.stp, .igs/.iges, .brep), gmsh .msh (facet tags = physical "
+            "groups of dimension d-1), .xdmf (a mesh grid and a facet MeshTags grid), or any format "
+            "meshio reads (linear triangles/tetrahedra; facet tags from cell data 'gmsh:physical' "
+            "or --tag-key).  Exit status 0: done; 2: unusable input (file, format, tags, options); "
+            "1: snapping failed (e.g. cells would invert)."
         ),
     )
-    p.add_argument("input", help="mesh file: .msh, .xdmf or a meshio-readable format")
-    p.add_argument("--tags", type=int, nargs="+", required=True, metavar="TAG",
-                   help="facet tag values whose facets are snapped (required); other boundary "
-                        "facets are refined with straight midpoints")
-    p.add_argument("--iges", metavar="FILE",
-                   help="CAD mode: snap onto the NURBS curves (2D) or surfaces (3D) of this IGES "
-                        "file instead of Nagata patches")
+    p.add_argument("input", help="CAD file (.step, .igs, .brep) or mesh file (.msh, .xdmf, meshio)")
+    p.add_argument("--tags", type=int, nargs="+", metavar="TAG",
+                   help="facet tag values whose facets are snapped (required for a mesh input; a CAD "
+                        "input snaps every exterior face, tagged by its gmsh surface tag)")
+    p.add_argument("--cad", "--iges", dest="cad", metavar="FILE",
+                   help="mesh input, CAD mode: snap onto the faces (2D: edges) of this STEP, IGES or "
+                        "BREP file instead of Nagata patches")
+    p.add_argument("--size", type=float, metavar="H",
+                   help="CAD input: largest element size of the coarse gmsh mesh (default: 0.1 of the "
+                        "model's bounding-box diagonal)")
+    p.add_argument("--curvature", type=float, default=12, metavar="N",
+                   help="CAD input: gmsh elements per 2 pi of curvature (0: off; default 12)")
+    p.add_argument("--unit", metavar="UNIT",
+                   help="length unit of the CAD geometry: MM (CAD input default, as gmsh), M, INCH, ..., "
+                        "or FILE (the file's own; --cad default)")
     p.add_argument("--levels", type=int, default=1, metavar="N",
                    help="number of uniform refinements (default: 1)")
     p.add_argument("--crease-angle", type=float, default=60.0, metavar="DEG",
@@ -334,6 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--output", "-o", metavar="OUT",
                    help="write the refined mesh: OUT.xdmf (mesh + facet tags, XDMF/HDF5) or "
                         "OUT.bp (mesh, VTX/ADIOS2); without it nothing is written")
+    p.add_argument("--plot", metavar="FILE.png",
+                   help="draw per level the histograms of the changed cells' minimum angle and mean "
+                        "ratio and of the boundary vertices' distance from the CAD (matplotlib)")
     p.add_argument("--report", action="store_true",
                    help="print the snapper's full report of every level (timings, geometry "
                         "statistics)")
@@ -349,8 +379,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _run(args, comm) -> None:
-    say = (lambda *a: None) if args.quiet or comm.rank != 0 else (lambda *a: print(*a, flush=True))
+def _check_options(args) -> bool:
+    """Validate options; returns whether the input is a CAD file."""
     if args.levels < 0:
         raise UserError("--levels must be >= 0")
     if args.output is not None:
@@ -360,9 +390,47 @@ def _run(args, comm) -> None:
         parent = os.path.dirname(os.path.abspath(args.output))
         if not os.path.isdir(parent):
             raise UserError(f"output directory {parent} does not exist")
-    if args.iges is not None and not os.path.isfile(args.iges):
-        raise UserError(f"IGES file {args.iges} does not exist")
+    if args.plot is not None and not args.plot.lower().endswith(".png"):
+        raise UserError(f"--plot must end in .png, got {args.plot}")
+    cad_input = os.path.splitext(args.input)[1].lower() in CAD_SUFFIXES
+    if cad_input:
+        if args.cad is not None:
+            raise UserError("--cad applies to a mesh input; a CAD input is snapped onto itself")
+        if args.size is not None and not args.size > 0:
+            raise UserError("--size must be positive")
+        if not os.path.isfile(args.input):
+            raise UserError(f"input file {args.input} does not exist")
+    else:
+        if args.tags is None:
+            raise UserError("--tags is required for a mesh input (the facet tags to snap)")
+        if args.size is not None:
+            raise UserError("--size applies to a CAD input (the mesh is given)")
+        if args.cad is not None and not os.path.isfile(args.cad):
+            raise UserError(f"CAD file {args.cad} does not exist")
+    return cad_input
 
+
+def _cad_input(args, comm, say):
+    """Mesh the CAD input with gmsh; its geometry, facets matched to the faces."""
+    from .cad import CadError, mesh_cad
+
+    t0 = time.perf_counter()
+    try:
+        cm, geometry = mesh_cad(args.input, comm, unit=(args.unit or "MM").upper(), size=args.size,
+                                curvature=args.curvature)
+    except (CadError, ValueError, OSError) as e:
+        raise UserError(f"{args.input}: {e}") from None
+    except RuntimeError as e:
+        raise SnapFailure(f"meshing {args.input}: {e}") from None
+    tdim = cm.mesh.topology.dim
+    say(f"{PROG}: meshed {args.input} with gmsh (size {cm.size:.4g} {cm.unit or ''}): "
+        f"{cm.mesh.topology.index_map(tdim).size_global} cells ({tdim}D); CAD "
+        f"{geometry.model.summary()} ({time.perf_counter() - t0:.2f} s)")
+    return cm.mesh, cm.facet_tags, geometry, geometry.tags
+
+
+def _mesh_input(args, comm, say):
+    """Read the mesh input; the geometry (CAD file or None for Nagata patches)."""
     t0 = time.perf_counter()
     mesh, ft = read_mesh(args.input, comm, args)
     tdim = mesh.topology.dim
@@ -375,40 +443,87 @@ def _run(args, comm) -> None:
             f"facet tag{'s' if len(missing) > 1 else ''} {', '.join(map(str, missing))} not found in "
             f"{args.input}; available facet tags: {', '.join(map(str, present)) or 'none'}"
         )
-    ncells = mesh.topology.index_map(tdim).size_global
-    say(f"{PROG}: read {args.input}: {ncells} cells ({tdim}D), facet tags {present} "
-        f"({time.perf_counter() - t0:.2f} s)")
+    say(f"{PROG}: read {args.input}: {mesh.topology.index_map(tdim).size_global} cells ({tdim}D), "
+        f"facet tags {present} ({time.perf_counter() - t0:.2f} s)")
+    if args.cad is None:
+        return mesh, ft, None, args.tags
+    from .cad import CadError, CadGeometry
 
+    try:
+        geometry = CadGeometry.from_file(args.cad, dim=tdim, unit=(args.unit or "FILE").upper(),
+                                         comm=comm)
+    except CadError as e:
+        raise UserError(f"cannot use the CAD file {args.cad}: {e}") from None
+    return mesh, ft, geometry, args.tags
+
+
+class _Heartbeat:
+    """Prints ``... level k: still running (t s)`` every :data:`HEARTBEAT` seconds on rank 0."""
+
+    def __init__(self, say, level: int):
+        import threading
+
+        self.say, self.level, self.t0 = say, level, time.perf_counter()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        while not self.stop.wait(HEARTBEAT):
+            self.say(f"{PROG}:   ... level {self.level}: still running "
+                     f"({time.perf_counter() - self.t0:.0f} s)")
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop.set()
+        self.thread.join()
+
+
+def boundary_distance(snapper) -> np.ndarray:
+    """Distance of each snapped boundary facet vertex from its CAD face (this process's facets).
+
+    The vertex is projected onto its own face (:meth:`CadGeometry.project`,
+    seeded by its record); a vertex moved only part of the way is that far off.
+    """
+    lv = snapper._level
+    sel = np.flatnonzero(lv.snapped)
+    x = lv.mesh.geometry.x[lv.boundary.nodes[sel]]
+    if len(x) == 0:
+        return np.zeros(0)
+    on, _ = snapper.geometry.project(lv.records, x)
+    return np.linalg.norm(on - x, axis=2).ravel()
+
+
+def _run(args, comm) -> None:
+    say = (lambda *a: None) if args.quiet or comm.rank != 0 else (lambda *a: print(*a, flush=True))
+    cad_input = _check_options(args)
     import nagata_snap
 
+    mesh, ft, geometry, tags = (_cad_input if cad_input else _mesh_input)(args, comm, say)
     t0 = time.perf_counter()
-    if args.iges is not None:
-        from .cad import CadGeometry
-
-        try:
-            geometry = CadGeometry.from_iges(args.iges, dim=tdim)
-        except (OSError, ValueError) as e:
-            raise UserError(f"cannot read IGES file {args.iges}: {e}") from None
-        except Exception as e:  # CadError: no entities of the needed kind
-            raise UserError(f"{args.iges}: {e}") from None
-        n = geometry.num_entities
-        what = f"IGES {args.iges} ({n} NURBS {'entity' if n == 1 else 'entities'})"
-    else:
-        geometry = None
+    if geometry is None:
         what = f"Nagata patches (crease angle {args.crease_angle} deg)"
+    else:
+        n = geometry.num_entities
+        what = (f"{'faces' if geometry.param_dim == 2 else 'edge curves'} of "
+                f"{args.input if cad_input else args.cad} ({n} {'entity' if n == 1 else 'entities'})")
     try:
         if geometry is None:
-            geometry = nagata_snap.NagataGeometry(mesh, ft, tags=args.tags,
-                                                  crease_angle=args.crease_angle)
-        snapper = nagata_snap.Snapper(mesh, ft, geometry, tags=args.tags)
+            geometry = nagata_snap.NagataGeometry(mesh, ft, tags=tags, crease_angle=args.crease_angle)
+        snapper = nagata_snap.Snapper(mesh, ft, geometry, tags=tags)
     except Exception as e:
-        raise SnapFailure(f"cannot set up snapping of tags {args.tags}: {type(e).__name__}: {e}") from None
-    say(f"{PROG}: snapping tags {args.tags} onto {what} ({time.perf_counter() - t0:.2f} s)")
+        raise SnapFailure(f"cannot set up snapping of tags {tags}: {type(e).__name__}: {e}") from None
+    say(f"{PROG}: snapping tags {snapper.tags} onto {what} ({time.perf_counter() - t0:.2f} s)")
 
+    cad = isinstance(geometry, nagata_snap.CadGeometry)
+    history = []
     for level in range(1, args.levels + 1):
         t0 = time.perf_counter()
         try:
-            mesh, ft, _, _, report = snapper.refine(mesh)
+            with _Heartbeat(say, level):
+                mesh, ft, _, _, report = snapper.refine(mesh)
         except Exception as e:
             raise SnapFailure(f"level {level}: {type(e).__name__}: {e}") from None
         say(f"{PROG}: level {level}/{args.levels}: {report.num_cells} cells, "
@@ -418,6 +533,19 @@ def _run(args, comm) -> None:
             say(f"  {report}")
             if report.geometry:
                 say("  geometry: " + ", ".join(f"{k} {v}" for k, v in report.geometry.items()))
+        dist = boundary_distance(snapper) if cad and (args.plot or level == args.levels) else None
+        history.append((level, report, dist))
+    _summary(say, comm, snapper, history, cad)
+    if args.plot is not None and history:
+        t0 = time.perf_counter()
+        everything = [(lv, rep, None if d is None else np.concatenate(comm.allgather(d)))
+                      for lv, rep, d in history]
+        if comm.rank == 0:
+            try:
+                plot_levels(args.plot, everything, snapper.geometry)
+            except Exception as e:
+                raise UserError(f"cannot write the plot {args.plot}: {type(e).__name__}: {e}") from None
+        say(f"{PROG}: wrote {args.plot} ({time.perf_counter() - t0:.2f} s)")
 
     if args.output is not None:
         t0 = time.perf_counter()
@@ -426,6 +554,52 @@ def _run(args, comm) -> None:
         except Exception as e:
             raise UserError(f"cannot write {args.output}: {e}") from None
         say(f"{PROG}: wrote {args.output}: {what} ({time.perf_counter() - t0:.2f} s)")
+
+
+def _summary(say, comm, snapper, history, cad: bool) -> None:
+    """Last line(s): vertices left short of the geometry, largest distance from the CAD."""
+    if not history:
+        return
+    level, report, dist = history[-1]
+    short = sum(int(getattr(r, "partially_moved", 0) or 0) for _, r, _ in history)
+    line = (f"{PROG}: summary: {level} level{'s' if level > 1 else ''}, {report.num_cells} cells; "
+            f"{report.partially_moved} boundary vertices left short of the geometry in the last "
+            f"level ({short} over all levels, max shortfall {report.max_shortfall:.3e})")
+    if cad and dist is not None:
+        dmax = comm.allreduce(float(dist.max(initial=0.0)), op=MPI.MAX)
+        size = snapper.geometry.size
+        off = comm.allreduce(int(np.count_nonzero(dist > 1e-9 * size)))
+        line += (f"; max distance of a boundary vertex from its CAD face {dmax:.3e} "
+                 f"({dmax / size:.1e} of the model size; {off} farther than 1e-9 of it)")
+    say(line)
+
+
+def plot_levels(path: str, history, geometry) -> None:
+    """Histograms per level: changed cells' min angle and mean ratio, boundary distance from the CAD."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = 3 if any(d is not None for _, _, d in history) else 2
+    fig, axes = plt.subplots(len(history), cols, figsize=(4 * cols, 2.6 * len(history)), squeeze=False)
+    for row, (level, rep, dist) in zip(axes, history):
+        q = rep.quality
+        for ax, name, title in ((row[0], "min_angle", "min angle (deg)"), (row[1], "mean_ratio", "mean ratio")):
+            m = None if q is None else getattr(q, name)
+            if m is not None:
+                ax.stairs(m.hist, m.bins, fill=True)
+                ax.set_yscale("log" if m.hist.max(initial=0) > 0 else "linear")
+            ax.set_title(f"level {level}: {title}" + (f" ({q.scope} cells)" if q is not None else ""))
+        if cols == 3:
+            ax = row[2]
+            if dist is not None and dist.size:
+                rel = np.maximum(dist / geometry.size, 1e-18)
+                ax.hist(np.log10(rel), bins=40)
+            ax.set_title(f"level {level}: log10 distance from CAD / size")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def main(argv=None) -> int:

@@ -31,6 +31,7 @@ import dolfinx.mesh
 
 from .boundary import (BoundaryFacets, boundary_facets, cell_facets_of, check_p1_simplex,
                        facets_of_cells, tag_values, update_nodes)
+from .cad import CadGeometry
 from .curved import CurvedInfo, curved_mesh
 from .lineage import LineageError, child_facets, child_interior_facets
 from .parallel import collective, collective_place
@@ -225,7 +226,10 @@ class Snapper:
         x = mesh.geometry.x
         gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)
         sel = np.flatnonzero(snapped)
-        records = collective(self.comm, geometry.attach, x[bf.nodes[sel]], nodes=gids[bf.nodes[sel]])
+        # CAD: facet edges on CAD edges are found over all processes (collective)
+        extra = {"comm": self.comm} if isinstance(geometry, CadGeometry) else {}
+        records = collective(self.comm, lambda: geometry.attach(x[bf.nodes[sel]],
+                                                                nodes=gids[bf.nodes[sel]], **extra))
         self._level = _Level(mesh, bf, tag, snapped, records, int_cells, int_local,
                              interior_tag[which])
         self._last: _LastRefine | None = None

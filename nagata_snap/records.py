@@ -7,9 +7,11 @@ each of its vertices on that entity (``params``).
 * Nagata mode: ``root`` is the coarse boundary facet (an index into the
   patches of :class:`nagata_snap.geometry.NagataGeometry`) and ``params``
   are barycentric coordinates in that coarse facet, shape ``(nf, nfv, nfv)``.
-* CAD mode: ``root`` is the NURBS curve/surface and ``params`` are its
-  ``(u,)`` or ``(u, v)`` parameters, shape ``(nf, nfv, 1|2)``, unwrapped per
-  facet across periodic seams.
+* CAD mode: ``root`` is the CAD face (2D: edge curve) and ``params`` are
+  its ``(u, v)`` (``(u,)``) parameters, unwrapped per facet across periodic
+  seams; with a CAD model's topology (3D) three more channels per vertex
+  mark the facet's coarse edges that lie on CAD edges (see
+  :mod:`nagata_snap.cad.geometry`): shape ``(nf, nfv, 1 | 2 | 5)``.
 
 Refinement never needs to know which mode is in use: a child facet's record
 is the parent's ``root`` and the barycentric combination of the parent's

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nagata_snap.cad import CadError, CadGeometry
-from nagata_snap.nurbs import NurbsCurve, circle, cylinder, sphere
+from nagata_snap.cad.nurbs import NurbsCurve, circle, cylinder, sphere
 from nagata_snap.records import Records
 
 S2 = np.sqrt(0.5)
@@ -180,7 +180,7 @@ def test_place_input_checks():
         geo.place(Records(rec.root[:-1], rec.params[:-1]), facets)
     with pytest.raises(ValueError, match="entities"):
         geo.place(Records(rec.root + 3, rec.params), facets)
-    with pytest.raises(ValueError, match="all NurbsCurve or all NurbsSurface"):
+    with pytest.raises(ValueError, match="all curves or all surfaces"):
         CadGeometry([circle(), sphere()])
     empty = geo.attach(np.zeros((0, 2, 3)))
     assert empty.root.shape == (0,) and empty.params.shape == (0, 2, 1)
@@ -266,10 +266,10 @@ def test_attach_with_node_ids_and_2d_input():
 
 
 # ----------------------------------------------------------------------
-# IGES input (nagata_snap.iges, written by another engineer)
+# IGES input (written by nagata_snap.cad.iges, read by OpenCASCADE)
 # ----------------------------------------------------------------------
 def test_from_iges_round_trip(tmp_path):
-    from nagata_snap import iges
+    from nagata_snap.cad import iges
     c, R = np.array([0.2, 0.2, 0.0]), 0.05
     path = tmp_path / "model.igs"
     iges.write_iges(path, curves=[circle(c, R)], surfaces=[cylinder(np.array([0.55, 0.5, 0.0]), R, 0.4)])
@@ -282,7 +282,7 @@ def test_from_iges_round_trip(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(pts - c, axis=2), R, rtol=1e-12, atol=0)
     only_curves = tmp_path / "c.igs"
     iges.write_iges(only_curves, curves=[circle(c, R)])
-    with pytest.raises(CadError, match="no NURBS surfaces"):
+    with pytest.raises(CadError, match="no faces to snap a 3D mesh onto"):
         CadGeometry.from_iges(only_curves, dim=3)
 
 
@@ -311,7 +311,7 @@ def half_cylinder(c, R, H, start):
     ring = np.c_[rad * np.cos(ang), rad * np.sin(ang), np.zeros(5)]
     P = np.stack([c + ring, c + ring + [0, 0, H]], axis=1)
     w = np.array([1, S2, 1, S2, 1])
-    from nagata_snap.nurbs import NurbsSurface
+    from nagata_snap.cad.nurbs import NurbsSurface
 
     return NurbsSurface(2, 1, [0, 0, 0, 0.5, 0.5, 1, 1, 1], [0, 0, 1, 1], P, np.stack([w, w], 1))
 
@@ -341,7 +341,7 @@ def test_two_surface_patches():
 # ----------------------------------------------------------------------
 def plane_patch(origin, e1, e2, u, v):
     """Bilinear NURBS plane ``origin + u e1 + v e2`` over ``u, v`` ranges (parameters = lengths)."""
-    from nagata_snap.nurbs import NurbsSurface
+    from nagata_snap.cad.nurbs import NurbsSurface
 
     o, e1, e2 = (np.asarray(a, dtype=float) for a in (origin, e1, e2))
     P = np.array([[o + a * e1 + b * e2 for b in v] for a in u])

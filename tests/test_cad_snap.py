@@ -75,8 +75,7 @@ def test_kadir_cylinder_file_snapping_matches_occ(tmp_path):
     path = os.path.join(generate._MESHES_DIR, "kadir_cylinder.igs")
     md = generate.cylinder_in_box(MPI.COMM_WORLD, h_cylinder=0.03, h_box=0.15)
     mesh, ft = md.mesh, md.facet_tags
-    with pytest.warns(UserWarning):  # the file's parameter range quirk
-        geo = CadGeometry.from_iges(path)
+    geo = CadGeometry.from_iges(path)  # in the file's own unit (inches), as the mesh
     snapper = Snapper(mesh, ft, geo, tags=[generate.CIB_CYLINDER])
     mesh, ft, *_ , report = snapper.refine(mesh)
     import dolfinx.mesh

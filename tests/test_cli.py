@@ -50,7 +50,8 @@ def circle_dist(x):
 def test_help():
     r = cli("--help")
     assert r.returncode == 0
-    for opt in ("--tags", "--iges", "--levels", "--crease-angle", "--output", "--report", "--tag-key"):
+    for opt in ("--tags", "--cad", "--iges", "--size", "--levels", "--crease-angle", "--output",
+                "--plot", "--report", "--tag-key"):
         assert opt in r.stdout
 
 
@@ -134,7 +135,49 @@ def test_bad_options(msh, tmp_path):
     assert r.returncode == 2 and ".xdmf or .bp" in r.stderr
     r = cli(msh, "--tags", 4, "--iges", tmp_path / "missing.igs")
     assert r.returncode == 2 and "does not exist" in r.stderr
-    r = cli(msh, "--tags", 4, "--iges", msh)  # not an IGES file
-    assert r.returncode == 2 and "IGES" in r.stderr and "Traceback" not in r.stderr
-    r = cli(msh)  # --tags is required
+    r = cli(msh, "--tags", 4, "--iges", msh)  # not a CAD file
+    assert r.returncode == 2 and "cannot use the CAD file" in r.stderr and "Traceback" not in r.stderr
+    r = cli(msh)  # --tags is required for a mesh
     assert r.returncode == 2 and "--tags" in r.stderr
+    r = cli(msh, "--tags", 4, "--size", 0.1)  # --size is for CAD inputs
+    assert r.returncode == 2 and "--size applies to a CAD input" in r.stderr
+    r = cli(msh, "--tags", 4, "--plot", tmp_path / "x.pdf")
+    assert r.returncode == 2 and "--plot must end in .png" in r.stderr
+
+
+# ----------------------------------------------------------------------
+# CAD input: meshed by gmsh, snapped onto its own faces
+# ----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def step(tmp_path_factory):
+    import parts
+
+    return parts.write_part("box_fillet_chamfer", tmp_path_factory.mktemp("part"), ("step",))["step"]
+
+
+def test_cad_input_to_xdmf_with_plot(step, tmp_path):
+    out, png = tmp_path / "box.xdmf", tmp_path / "levels.png"
+    r = cli(step, "--size", 20, "--curvature", 4, "--levels", 2, "-o", out, "--plot", png)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "meshed" in r.stdout and "18 faces" in r.stdout
+    assert "nagata-snap: level 2/2" in r.stdout
+    summary = [line for line in r.stdout.splitlines() if "summary" in line]
+    assert len(summary) == 1 and "0 boundary vertices left short" in summary[0]
+    d = float(summary[0].split("from its CAD face ")[1].split()[0])
+    assert d <= 1e-9 * 75  # model size ~75 mm
+    assert out.exists() and png.exists() and png.stat().st_size > 10_000
+    mesh, ft = read_xdmf(out)
+    assert mesh.topology.index_map(3).size_global > 64 * 300 and len(np.unique(ft.values)) == 18
+
+
+def test_cad_input_errors(step, tmp_path):
+    r = cli(tmp_path / "missing.step", "--levels", 1)
+    assert r.returncode == 2 and "does not exist" in r.stderr
+    bad = tmp_path / "bad.step"
+    bad.write_text("not a step file\n")
+    r = cli(bad, "--levels", 1)
+    assert r.returncode == 2 and "nagata-snap: error:" in r.stderr and "Traceback" not in r.stderr
+    r = cli(step, "--cad", step)
+    assert r.returncode == 2 and "--cad applies to a mesh input" in r.stderr
+    r = cli(step, "--size", -1)
+    assert r.returncode == 2 and "--size must be positive" in r.stderr

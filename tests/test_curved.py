@@ -20,7 +20,7 @@ import make_iges
 from nagata_snap import NagataGeometry, Snapper
 from nagata_snap.cad import CadGeometry
 from nagata_snap.curved import jacobian_determinants
-from nagata_snap.nurbs import circle, sphere
+from nagata_snap.cad.nurbs import circle, sphere
 
 HERE = os.path.dirname(__file__)
 

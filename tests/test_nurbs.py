@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from nurbs_reference import herrero_71, occ_bspline
 
-from nagata_snap.nurbs import (
+from nagata_snap.cad.nurbs import (
     NurbsCurve,
     NurbsError,
     NurbsSurface,

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from nurbs_reference import herrero_71, occ_bspline
 
-from nagata_snap.nurbs import NurbsCurve, NurbsSurface, circle, cylinder, sphere, torus
-from nagata_snap.projection import (
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface, circle, cylinder, sphere, torus
+from nagata_snap.cad.projection import (
     GlobalSearcher,
     ProjectionResult,
     closest_point,

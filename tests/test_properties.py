@@ -14,7 +14,7 @@ normals within 80 degrees of each other, finite points:
 * ``NagataGeometry.from_surface`` on random star-shaped polygons: finite
   coefficients, vertices reproduced exactly.
 
-NURBS projection (:mod:`nagata_snap.projection`), for random valid curves
+NURBS projection (:mod:`nagata_snap.cad.projection`), for random valid curves
 and surfaces (clamped knot vectors with distinct interior knots, positive
 weights; graph-like control polygons/nets, i.e. monotone in x (and y), so
 that the entity does not fold back onto itself closer than its sampling):
@@ -35,8 +35,8 @@ from hypothesis import strategies as st
 
 from nagata_snap import NagataGeometry
 from nagata_snap import nagata as N
-from nagata_snap.nurbs import NurbsCurve, NurbsSurface
-from nagata_snap.projection import GlobalSearcher, global_search, project_newton
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
+from nagata_snap.cad.projection import GlobalSearcher, global_search, project_newton
 
 SETTINGS = dict(derandomize=True, database=None, deadline=2000,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -343,7 +343,7 @@ def test_projection_finite_and_consistent(eps):
 
 def test_projection_of_extreme_but_accepted_points_is_finite():
     """Coordinates up to projection.MAX_COORD (1e100) still give finite results."""
-    from nagata_snap.nurbs import circle, sphere
+    from nagata_snap.cad.nurbs import circle, sphere
 
     X = np.array([[1e100, 0.0, 0.0], [-3e99, 2e99, 1e99], [0.0, 0.0, 1e-300]])
     for ent, seeds in ((circle((0, 0, 0), 1.0), np.full(3, 0.3)), (sphere((0, 0, 0), 1.0), np.full((3, 2), 0.3))):

@@ -92,8 +92,8 @@ from nagata_snap import (
     Snapper,
 )
 from nagata_snap.cad import CadError, CadGeometry
-from nagata_snap.iges import write_iges
-from nagata_snap.nurbs import circle
+from nagata_snap.cad.iges import write_iges
+from nagata_snap.cad.nurbs import circle
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 COMM = MPI.COMM_WORLD
@@ -392,7 +392,7 @@ def test_cad_curves_for_a_3d_mesh():
     mesh = dolfinx.mesh.create_unit_cube(COMM, 2, 2, 2)
     ft = exterior_tags(mesh)
     cad = CadGeometry([circle((0.5, 0.5, 0.0), 0.5)])
-    raises(CadError, "need NURBS surfaces", Snapper, mesh, ft, cad)
+    raises(CadError, "need surfaces", Snapper, mesh, ft, cad)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, 1e300], ids=["nan", "inf", "1e300"])
@@ -400,7 +400,7 @@ def test_cad_curves_for_a_3d_mesh():
 def test_projection_of_non_finite_points(bad, how):
     # 1e300 used to crash global_search with an IndexError deep inside (the KD-tree
     # query overflows and returns "no neighbour")
-    from nagata_snap.projection import global_search, project_newton
+    from nagata_snap.cad.projection import global_search, project_newton
 
     ent = circle((0.0, 0.0, 0.0), 1.0)
     X = np.array([[1.0, 0.0, 0.0], [bad, 0.0, 0.0]])

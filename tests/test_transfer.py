@@ -24,9 +24,9 @@ import generate
 
 from nagata_snap import NagataGeometry, Snapper
 from nagata_snap.cad import CadGeometry
-from nagata_snap.iges import write_iges
+from nagata_snap.cad.iges import write_iges
 from nagata_snap.lineage import parent_cells
-from nagata_snap.nurbs import sphere as nurbs_sphere
+from nagata_snap.cad.nurbs import sphere as nurbs_sphere
 from nagata_snap.transfer import pull_back, transfer
 
 HERE = os.path.dirname(__file__)

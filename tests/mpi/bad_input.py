@@ -48,8 +48,8 @@ import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.iges import write_iges  # noqa: E402
-from nagata_snap.nurbs import circle  # noqa: E402
+from nagata_snap.cad.iges import write_iges  # noqa: E402
+from nagata_snap.cad.nurbs import circle  # noqa: E402
 
 comm = MPI.COMM_WORLD
 

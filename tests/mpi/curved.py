@@ -23,7 +23,7 @@ import dolfinx.fem as fem  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.nurbs import sphere  # noqa: E402
+from nagata_snap.cad.nurbs import sphere  # noqa: E402
 
 comm = MPI.COMM_WORLD
 case, levels, degree, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]

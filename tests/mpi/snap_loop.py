@@ -19,8 +19,8 @@ import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.iges import write_iges  # noqa: E402
-from nagata_snap.nurbs import cylinder  # noqa: E402
+from nagata_snap.cad.iges import write_iges  # noqa: E402
+from nagata_snap.cad.nurbs import cylinder  # noqa: E402
 
 comm = MPI.COMM_WORLD
 case, levels, mode, out = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]

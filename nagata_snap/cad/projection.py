@@ -76,6 +76,9 @@ __all__ = [
     "sample_entity",
     "normalize_params",
     "evaluate_params",
+    "entity_periods",
+    "project_points",
+    "is_analytic",
 ]
 
 Entity = NurbsCurve | NurbsSurface
@@ -128,18 +131,45 @@ def _params_2d(entity: Entity, params: npt.ArrayLike, k: int | None = None) -> n
     return p
 
 
+def entity_periods(entity) -> np.ndarray:
+    """``(d,)`` period of each parameter direction (NaN where open).
+
+    Analytic entities give theirs (``periods``: ``2 pi`` even for a face
+    spanning part of a revolution); a closed NURBS direction is periodic over
+    its knot domain.
+    """
+    per = getattr(entity, "periods", None)
+    if per is not None:
+        return np.asarray(per, dtype=float).reshape(entity.param_dim)
+    b = entity.bounds
+    return np.array([b[a, 1] - b[a, 0] if c else np.nan for a, c in enumerate(entity.closed)])
+
+
+def entity_limits(entity) -> np.ndarray:
+    """``(d, 2)`` hard parameter limits (evaluation clamps there): the knot domain of a
+    NURBS, infinite for analytic surfaces (which extend beyond their face)."""
+    lim = getattr(entity, "limits", None)
+    return entity.bounds if lim is None else lim
+
+
 def normalize_params(entity: Entity, params: npt.ArrayLike) -> np.ndarray:
-    """``(k, d)`` parameters wrapped (closed directions) or clamped (open), as a new array."""
+    """``(k, d)`` parameters wrapped (closed directions) or clamped (open), as a new array.
+
+    Closed directions are wrapped into ``[lo, lo + period)`` (``lo`` the lower
+    bound), open ones clamped to :func:`entity_limits`.
+    """
     p = np.array(_params_2d(entity, params), dtype=float)
     b = entity.bounds
-    for a, closed in enumerate(entity.closed):
-        lo, hi = b[a]
+    per = entity_periods(entity)
+    lim = entity_limits(entity)
+    for a in range(entity.param_dim):
         col = p[:, a]
-        if closed:
-            out = (col < lo) | (col > hi)
-            col[out] = lo + np.mod(col[out] - lo, hi - lo)
+        if np.isfinite(per[a]):
+            lo = b[a, 0]
+            out = (col < lo) | (col > lo + per[a])
+            col[out] = lo + np.mod(col[out] - lo, per[a])
         else:
-            np.clip(col, lo, hi, out=col)
+            np.clip(col, lim[a, 0], lim[a, 1], out=col)
     return p
 
 
@@ -242,17 +272,19 @@ def _cosine(E: np.ndarray, g: np.ndarray, dist: np.ndarray, d: int) -> np.ndarra
 def _apply_step(entity: Entity, P: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(new params, actual step)`` for ``(d, k)`` arrays: clamped in open, wrapped in closed directions."""
     bnd = entity.bounds
+    per = entity_periods(entity)
+    lim = entity_limits(entity)
     new = P + step
     actual = step
-    for a, closed in enumerate(entity.closed):
-        lo, hi = bnd[a]
+    for a in range(entity.param_dim):
         row = new[a]
-        if closed:
-            out = (row < lo) | (row > hi)
+        if np.isfinite(per[a]):
+            lo = bnd[a, 0]
+            out = (row < lo) | (row > lo + per[a])
             if out.any():
-                row[out] = lo + np.mod(row[out] - lo, hi - lo)
+                row[out] = lo + np.mod(row[out] - lo, per[a])
         else:
-            np.clip(row, lo, hi, out=row)
+            np.clip(row, lim[a, 0], lim[a, 1], out=row)
             if actual is step:
                 actual = step.copy()
             actual[a] = row - P[a]
@@ -507,6 +539,28 @@ def project_newton(
     return ProjectionResult(params, np.ascontiguousarray(out_S.T), out_dist, iters, conv)
 
 
+def is_analytic(entity) -> bool:
+    """The entity projects in closed form (:mod:`~nagata_snap.cad.surfaces`, :mod:`~nagata_snap.cad.curves`)."""
+    return hasattr(entity, "closest")
+
+
+def project_points(
+    entity: Entity, points: npt.ArrayLike, seeds: npt.ArrayLike, max_iter: int = 20
+) -> ProjectionResult:
+    """Closest points on one entity: closed form for analytic entities, else seeded Newton.
+
+    Analytic results count as converged with 0 iterations; their seeds only
+    fill parameters the point leaves free (axis, poles, apex).
+    """
+    if is_analytic(entity):
+        X = _points3(points)
+        P, S, dist = entity.closest(X, np.asarray(seeds, dtype=float).reshape(len(X), -1))
+        k = len(X)
+        params = P[:, 0] if entity.param_dim == 1 else P
+        return ProjectionResult(params, S, dist, np.zeros(k, dtype=np.int64), np.ones(k, dtype=bool))
+    return project_newton(entity, points, seeds, max_iter)
+
+
 # ----------------------------------------------------------------------
 # sampling and global search
 # ----------------------------------------------------------------------
@@ -657,7 +711,7 @@ class GlobalSearcher:
         conv = np.zeros(n, dtype=bool)
         for e in np.unique(ent):  # loop over entities, vectorised inside
             sel = np.flatnonzero(ent == e)
-            res = project_newton(self.entities[e], points[pt[sel]], seeds[sel], max_iter)
+            res = project_points(self.entities[e], points[pt[sel]], seeds[sel], max_iter)
             params[sel] = res.params.reshape(len(sel), d)
             proj[sel], dist[sel], its[sel], conv[sel] = res.points, res.distance, res.iterations, res.converged
         return params, proj, dist, its, conv
@@ -681,12 +735,7 @@ class GlobalSearcher:
             empty = (np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0))
             return empty if accept is None else empty + (np.zeros(0, dtype=bool),)
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
-        if accept is None:
-            best = _best_per_point(n, pt, dist)
-            return ent[best], params[best], dist[best]
-        ok = np.asarray(accept(ent, params), dtype=bool)
-        best = _best_per_point(n, pt, dist, ~ok)
-        return ent[best], params[best], dist[best], ok[best]
+        return _pick(n, pt, ent, params, dist, (ent, params), accept)
 
     def search_all(
         self, points: npt.ArrayLike, k_seeds: int | None = None
@@ -739,6 +788,11 @@ class GlobalSearcher:
         pts, ents, seeds = [], [], []
         for e in np.unique(ent):  # loop over entities
             sel = np.flatnonzero(ent == e)
+            if is_analytic(self.entities[e]):  # closed form: one projection, no seeds
+                pts.append(sel)
+                ents.append(np.full(len(sel), e))
+                seeds.append(np.full((len(sel), self.param_dim), np.nan))
+                continue
             a = self._offsets[e]
             ke = min(kk, self._offsets[e + 1] - a)
             _, idx = self._entity_tree(e).query(X[sel], k=ke)
@@ -748,12 +802,21 @@ class GlobalSearcher:
             seeds.append(self.sample_params[idx.ravel()])
         pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
         params, proj, dist, _, _ = self.refine(pt, en, sd, X)
-        if accept is None:
-            best = _best_per_point(n, pt, dist)
-            return params[best], proj[best], dist[best]
-        ok = np.asarray(accept(en, params), dtype=bool)
-        best = _best_per_point(n, pt, dist, ~ok)
-        return params[best], proj[best], dist[best], ok[best]
+        return _pick(n, pt, en, params, dist, (params, proj), accept)
+
+
+def _pick(n: int, pt, ent, params, dist, columns: tuple, accept) -> tuple:
+    """Per point ``0..n-1`` the rows of ``columns`` and ``dist`` of its nearest result.
+
+    With ``accept(ent, params) -> bool`` accepted results come first and the
+    flag is appended (see :meth:`GlobalSearcher.search`).
+    """
+    if accept is None:
+        best = _best_per_point(n, pt, dist)
+        return tuple(c[best] for c in columns) + (dist[best],)
+    ok = np.asarray(accept(ent, params), dtype=bool)
+    best = _best_per_point(n, pt, dist, ~ok)
+    return tuple(c[best] for c in columns) + (dist[best], ok[best])
 
 
 def _points3(points: npt.ArrayLike) -> np.ndarray:

@@ -1,0 +1,224 @@
+"""CAD mode on the machined parts of meshes/parts.py: reading, attach, place, projection, snapping.
+
+For every part (STEP, and IGES: faces-only where gmsh re-solidifies it, else
+B-rep IGES) the script measures, side by side in one process:
+
+* read: ``CadGeometry.from_file`` in this process (OpenCASCADE read, B-rep
+  conversion, trimming loops, search grid) against OpenCASCADE's own import
+  of the same file (``STEPControl_Reader`` / ``IGESControl_Reader``:
+  ``ReadFile`` + ``TransferRoots``); the ratio (target <= 2);
+* attach: ``CadGeometry.attach`` of the coarse gmsh mesh's boundary facets, per
+  distinct boundary vertex, with gmsh's classification (``mesh_cad``: known
+  faces and (u, v) seeds; target < 20 us) and without (global search);
+* place: the ``place`` stage of ``Snapper.refine`` per snapped point, two
+  uniform levels;
+* snapping: after the two levels, every snapped vertex's distance from OCC's
+  closest point on its own face (relative to the model size; must be
+  <= 1e-9) and the inverted cells (must be 0).
+
+Then projection against OpenCASCADE (gmsh's ``getClosestPoint``, batched, on
+the same surface of the same file): 1e5 points near each analytic face type
+(plane, cylinder, cone, sphere, torus; target >= 10x faster) and near a
+B-spline face (the lofted blade; seeded Newton as in a refinement; target
+>= 100x).
+
+Last line: ``cad_parts_ok <passed>/<total>``: one check per part and format
+(snapped vertices on their faces, none left short, 0 inverted cells) and one per target above.
+
+    python benchmarks/cad_parts.py [--parts a,b] [--points 100000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+import mpi4py.MPI as MPI
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:0] = [os.path.join(HERE, "..", "meshes"), os.path.join(HERE, "..")]
+import gmsh  # noqa: E402
+import parts  # noqa: E402
+from occ_reference import OccShape  # noqa: E402
+
+from nagata_snap import Snapper  # noqa: E402
+from nagata_snap.cad import CadGeometry, mesh_cad  # noqa: E402
+from nagata_snap.cad.projection import project_points  # noqa: E402
+from nagata_snap.meshing import gmsh_session, import_cad  # noqa: E402
+from nagata_snap.quality import inverted_cells  # noqa: E402
+from nagata_snap.records import Records  # noqa: E402
+
+import dolfinx.mesh  # noqa: E402
+
+#: part -> (gmsh size factor, curvature): the sizes of tests/test_cad_parts.py (coarse, but fine
+#: enough that the current smoother needs no partial moves: coarser, the thin blade and the torus
+#: groove leave vertices short of the CAD, issue 12)
+MESH = {"box_fillet_chamfer": (0.4, 4), "plate": (0.3, 8), "revolved": (0.6, 10),
+        "extruded_bspline": (0.4, 4), "lofted_blade": (0.5, 4), "crossing_cylinders": (0.4, 4),
+        "seamed": (0.4, 4), "assembly": (0.3, 6), "profile_2d": (0.1, 12), "plate_holes_2d": (0.1, 12)}
+
+
+def occ_import_seconds(path: str) -> float:
+    """OpenCASCADE's own import: ReadFile + TransferRoots (best of 3)."""
+    from OCP.IGESControl import IGESControl_Reader
+    from OCP.STEPControl import STEPControl_Reader
+
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        r = STEPControl_Reader() if path.endswith((".step", ".stp")) else IGESControl_Reader()
+        r.ReadFile(path)
+        r.TransferRoots()
+        r.OneShape()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def ours_read_seconds(path: str) -> float:
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        CadGeometry.from_file(path, isolate=False)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def attach_timing(cm, geo) -> tuple[float, float, int]:
+    """us per distinct boundary vertex: attach with the mesh hints, and by global search."""
+    gids = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
+    x = cm.mesh.geometry.x[cm.facets.nodes]
+    nv = len(np.unique(gids))
+    t0 = time.perf_counter()
+    geo.attach(x, nodes=gids)
+    hinted = time.perf_counter() - t0
+    hints, geo._hints = geo._hints, None
+    t0 = time.perf_counter()
+    geo.attach(x, nodes=gids)
+    search = time.perf_counter() - t0
+    geo._hints = hints
+    return 1e6 * hinted / nv, 1e6 * search / nv, nv
+
+
+def snap_part(name: str, fmt: str, path: str) -> dict:
+    sf, cu = MESH[name]
+    cm, geo = mesh_cad(path, MPI.COMM_SELF, size_factor=sf, curvature=cu)
+    t_hint, t_search, nv = attach_timing(cm, geo)
+    snapper = Snapper(cm.mesh, cm.facet_tags, geo)
+    mesh, occ = cm.mesh, OccShape(path, cm.unit or "MM")
+    tdim = mesh.topology.dim
+    place_us, worst, inverted = [], 0.0, 0
+    for _ in range(2):
+        prev = mesh
+        mesh, ft, _, _, rep = snapper.refine(mesh)
+        place_us.append(1e6 * rep.times["place"] / max(rep.geometry["n_points"], 1))
+        prev.topology.create_entities(1)
+        straight, *_ = dolfinx.mesh.refine(prev, None, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
+        inverted += inverted_cells(mesh.geometry.x, straight.geometry.x, mesh.geometry.dofmaps[0], tdim).size
+    lv = snapper._level
+    sel = np.flatnonzero(lv.snapped)
+    nodes, root = lv.boundary.nodes[sel], lv.records.root
+    _, first = np.unique(np.c_[nodes.ravel(), np.repeat(root, nodes.shape[1])], axis=0, return_index=True)
+    P = mesh.geometry.x[nodes].reshape(-1, 3)[first]
+    F = np.repeat(root, nodes.shape[1])[first]
+    d = occ.face_distance(F, P) if tdim == 3 else occ.edge_distance(geo._curve_edges[F], P)
+    worst = float(d.max()) / occ.size
+    return {"faces": geo.num_entities, "vertices": nv, "attach_hint": t_hint, "attach_search": t_search,
+            "place": place_us[-1], "points": rep.geometry["n_points"], "worst": worst,
+            "inverted": inverted, "short": rep.partially_moved}
+
+
+def projection_speed(path: str, kinds: set[str], n: int, rng) -> list[tuple]:
+    """Our projection vs gmsh/OCC getClosestPoint on faces of the given kinds (same surfaces)."""
+    geo = CadGeometry.from_file(path, isolate=False)
+    rows = []
+    with gmsh_session("projection"):
+        import_cad(path)
+        tags = [t for _, t in gmsh.model.getEntities(2)]
+        for e, face in enumerate(geo.model.faces):
+            s = face.surface
+            kind = getattr(s, "kind", "nurbs")
+            if kind not in kinds:
+                continue
+            kinds.discard(kind)
+            # points near the face: on it, moved off along the normal
+            lo, hi = s.bounds[:, 0], s.bounds[:, 1]
+            uv = lo + (hi - lo) * rng.random((n, 2))
+            S = geo.evaluate(np.zeros(n, dtype=np.int64) + e, uv[:, None, :])[:, 0]
+            N = geo.vertex_normals(Records(np.full(n, e), uv[:, None, :]))[:, 0]
+            X = S + 1e-3 * geo.size * rng.normal(size=(n, 1)) * N
+            # the gmsh face on which these points lie
+            tag = min(tags, key=lambda t: np.abs(np.reshape(gmsh.model.getClosestPoint(2, t, S[:20].ravel())[0], (-1, 3)) - S[:20]).max())
+            seeds = uv + 1e-3 * (hi - lo) * rng.normal(size=uv.shape)  # refinement-like seeds
+            t0 = time.perf_counter()
+            res = project_points(s, X, seeds)
+            ours = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            cp, _ = gmsh.model.getClosestPoint(2, tag, X.ravel())
+            theirs = time.perf_counter() - t0
+            cp = np.reshape(cp, (-1, 3))
+            agree = np.abs(np.linalg.norm(cp - X, axis=1) - res.distance).max() / geo.size
+            rows.append((kind, 1e6 * ours / n, 1e6 * theirs / n, theirs / ours, agree))
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--parts", default=",".join(MESH))
+    ap.add_argument("--points", type=int, default=100_000)
+    args = ap.parse_args()
+    names = args.parts.split(",")
+    tmp = tempfile.mkdtemp(prefix="cad_parts_")
+    rng = np.random.default_rng(0)
+    passed = total = 0
+    read_ratios, attach_hint = [], []
+    print(f"{'part':20s} {'format':9s} {'faces':>5s} {'read':>7s} {'OCC':>7s} {'ratio':>6s} "
+          f"{'verts':>6s} {'att.gmsh':>9s} {'att.search':>10s} {'place':>7s} {'dist/size':>9s} {'inv':>4s} {'short':>5s}")
+    print(f"{'':20s} {'':9s} {'':5s} {'[s]':>7s} {'[s]':>7s} {'':6s} {'':6s} {'[us/v]':>9s} "
+          f"{'[us/v]':>10s} {'[us/pt]':>7s} {'':9s} {'':4s} {'':5s}")
+    for name in names:
+        part = parts.PARTS[name]
+        fmts = ["step", "iges" if part.iges_faces_solid else "iges_brep"]
+        files = parts.write_part(name, tmp, tuple(fmts))
+        for fmt in fmts:
+            path = str(files[fmt])
+            occ_t = occ_import_seconds(path)
+            our_t = ours_read_seconds(path)
+            r = snap_part(name, fmt, path)
+            ok = r["worst"] <= 1e-9 and r["inverted"] == 0 and r["short"] == 0
+            passed += ok
+            total += 1
+            read_ratios.append(our_t / occ_t)
+            attach_hint.append(r["attach_hint"])
+            print(f"{name:20s} {fmt:9s} {r['faces']:5d} {our_t:7.3f} {occ_t:7.3f} {our_t / occ_t:6.2f} "
+                  f"{r['vertices']:6d} {r['attach_hint']:9.1f} {r['attach_search']:10.1f} "
+                  f"{r['place']:7.2f} {r['worst']:9.1e} {r['inverted']:4d} {r['short']:5d}{'' if ok else '  FAIL'}",
+                  flush=True)
+    med = float(np.median(read_ratios))
+    print(f"read + convert / OCC import: median {med:.2f}, max {max(read_ratios):.2f} (target <= 2: "
+          f"{'met' if max(read_ratios) <= 2 else 'not met'} for the max)")
+    total += 2
+    passed += max(read_ratios) <= 2
+    passed += max(attach_hint) < 20
+    print(f"attach with gmsh's classification: max {max(attach_hint):.1f} us/vertex (target < 20)")
+
+    print(f"\n{'surface':10s} {'ours':>9s} {'OCC':>9s} {'speedup':>8s} {'agree/size':>10s}")
+    print(f"{'':10s} {'[us/pt]':>9s} {'[us/pt]':>9s}")
+    rows = []
+    for name, kinds in (("plate", {"plane"}), ("revolved", {"cylinder", "cone", "sphere", "torus"}),
+                        ("lofted_blade", {"nurbs"})):
+        path = str(parts.write_part(name, tmp, ("step",))["step"])
+        rows += projection_speed(path, set(kinds), args.points, rng)
+    for kind, ours, theirs, speed, agree in rows:
+        target = 100 if kind == "nurbs" else 10
+        total += 1
+        passed += speed >= target
+        print(f"{kind:10s} {ours:9.3f} {theirs:9.3f} {speed:8.1f} {agree:10.1e}   (target >= {target}x)")
+    print(f"cad_parts_ok {passed}/{total}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""OpenCASCADE's own answers for the CAD tests and benchmarks: distances to faces and edges.
+
+The shape is read and healed as :func:`nagata_snap.cad.read.load_shape` does,
+so its faces and edges are numbered as in the :class:`~nagata_snap.cad.CadGeometry`
+of the same file; the distances come from OpenCASCADE alone, independent of
+the package's surfaces, loops and projections: ``BRepExtrema_DistShapeShape``
+between a vertex and the trimmed face (or edge), and, because that Extrema is
+off by up to ~1e-6 within ~1e-8 of a periodic surface's seam in its parameter,
+the surface's own projection ``GeomAPI_ProjectPointOnSurf`` when its foot point
+is on the face (``BRepClass_FaceClassifier``: in or on); the nearer of the
+two (both are points of the face).  For edges: ``GeomAPI_ProjectPointOnCurve``
+within the edge's range likewise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nagata_snap.cad.read import load_shape, shape_maps
+
+
+class OccShape:
+    """Faces and edges of a CAD file as OpenCASCADE shapes."""
+
+    def __init__(self, path: str, unit: str = "MM"):
+        from OCP.TopoDS import TopoDS
+
+        self.shape, info = load_shape(path, unit)
+        self.size = info["size"]
+        fm, em, vm, _ = shape_maps(self.shape)
+        self.faces = [TopoDS.Face(fm.FindKey(i)) for i in range(1, fm.Extent() + 1)]
+        self.edges = [TopoDS.Edge(em.FindKey(i)) for i in range(1, em.Extent() + 1)]
+
+    @staticmethod
+    def _extrema(shape, p) -> float:
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.gp import gp_Pnt
+
+        d = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex(), shape)
+        return d.Value() if d.IsDone() else np.inf
+
+    def face_distance(self, faces, points, accept: float = 0.0, params=None) -> np.ndarray:
+        """``(n,)`` distance of each point to OCC's closest point on face ``faces[i]``.
+
+        Cheap upper bounds come first and answer where they are within
+        ``accept``: with ``params`` ``(n, 2)`` (the file's parameters of the
+        points, e.g. a snapper's), OCC's own surface point there if it is on
+        the face (``Value`` and the face classifier); then the surface
+        projection (``GeomAPI_ProjectPointOnSurf``) if its foot is on the face;
+        else ``BRepExtrema``.
+        """
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepAdaptor import BRepAdaptor_Surface
+        from OCP.BRepClass import BRepClass_FaceClassifier
+        from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+        from OCP.TopAbs import TopAbs_State
+        from OCP.gp import gp_Pnt, gp_Pnt2d
+
+        faces, points = np.asarray(faces), np.asarray(points, dtype=float)
+        d = np.full(len(points), np.inf)
+        on = (TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_ON)
+        if params is not None:
+            adaptors = {}
+            for k, (i, p, uv) in enumerate(zip(faces, points, np.asarray(params, dtype=float))):
+                f = self.faces[int(i)]
+                a = adaptors.setdefault(int(i), BRepAdaptor_Surface(f))
+                uv = uv.copy()
+                for j, (periodic, period, lo) in enumerate(
+                        ((a.IsUPeriodic(), a.UPeriod, a.FirstUParameter()),
+                         (a.IsVPeriodic(), a.VPeriod, a.FirstVParameter()))):
+                    if periodic:  # into the face's own period
+                        uv[j] = lo + np.mod(uv[j] - lo, period())
+                if np.all(np.isfinite(uv)) and \
+                        BRepClass_FaceClassifier(f, gp_Pnt2d(*uv), 1e-9).State() in on:
+                    q = a.Value(*uv)
+                    d[k] = np.linalg.norm(np.array([q.X(), q.Y(), q.Z()]) - p)
+        for k, (i, p) in enumerate(zip(faces, points)):
+            if d[k] <= accept:
+                continue
+            f = self.faces[int(i)]
+            pr = GeomAPI_ProjectPointOnSurf(gp_Pnt(*p), BRep_Tool.Surface_s(f))
+            if pr.NbPoints():
+                u, v = pr.LowerDistanceParameters()
+                if BRepClass_FaceClassifier(f, gp_Pnt2d(u, v), 1e-9).State() in on:
+                    d[k] = min(d[k], pr.LowerDistance())
+            if not d[k] <= accept:
+                d[k] = min(d[k], self._extrema(f, p))
+        return d
+
+    def edge_distance(self, edges, points, accept: float = 0.0) -> np.ndarray:
+        """``(n,)`` distance of each point to OCC's closest point on edge ``edges[i]``
+        (the curve's projection within the edge's range first, as for faces)."""
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepAdaptor import BRepAdaptor_Curve
+        from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve
+        from OCP.gp import gp_Pnt
+
+        edges, points = np.asarray(edges), np.asarray(points, dtype=float)
+        d = np.full(len(points), np.inf)
+        for k, (i, p) in enumerate(zip(edges, points)):
+            e = self.edges[int(i)]
+            if not BRep_Tool.Degenerated_s(e):
+                a = BRepAdaptor_Curve(e)
+                t0, t1 = a.FirstParameter(), a.LastParameter()
+                pr = GeomAPI_ProjectPointOnCurve(gp_Pnt(*p), BRep_Tool.Curve_s(e, t0, t1), t0, t1)
+                if pr.NbPoints():
+                    d[k] = pr.LowerDistance()
+            if not d[k] <= accept:
+                d[k] = min(d[k], self._extrema(e, p))
+        return d

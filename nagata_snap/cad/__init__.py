@@ -1,0 +1,25 @@
+"""CAD mode: snap boundary vertices onto the faces, edges and vertices of a CAD model.
+
+Modules:
+
+* :mod:`~nagata_snap.cad.read`: OpenCASCADE (OCP) reads STEP, IGES and BREP
+  files into plain data (the only module that calls OpenCASCADE);
+  :mod:`~nagata_snap.cad.worker` runs it in a child process;
+* :mod:`~nagata_snap.cad.topology`: the B-rep as faces, edges, vertices and
+  trimming loops (:class:`~nagata_snap.cad.topology.CadModel`);
+* :mod:`~nagata_snap.cad.surfaces`, :mod:`~nagata_snap.cad.curves`: analytic
+  faces and edges with closed-form projection; :mod:`~nagata_snap.cad.nurbs`
+  the rest;
+* :mod:`~nagata_snap.cad.projection`: Newton projection, search grids;
+* :mod:`~nagata_snap.cad.trimming`: point-in-face;
+* :mod:`~nagata_snap.cad.geometry`: :class:`CadGeometry`, the snapping geometry;
+* :mod:`~nagata_snap.cad.meshed`: a gmsh mesh of the file and its geometry,
+  matched (:func:`mesh_cad`);
+* :mod:`~nagata_snap.cad.iges`: an IGES writer (tests).
+"""
+
+from .geometry import CadError, CadGeometry
+from .meshed import mesh_cad
+from .trimming import TrimLoops
+
+__all__ = ["CadError", "CadGeometry", "TrimLoops", "mesh_cad"]

@@ -1,0 +1,619 @@
+"""Read STEP, IGES and BREP files with OpenCASCADE (OCP) into plain numpy data.
+
+This is the only module that calls OpenCASCADE.  It imports nothing from
+the package (only numpy and OCP), so that :mod:`nagata_snap.cad.worker` can
+run it in a child process that never initialises MPI: OpenCASCADE can crash
+or hang on malformed files, and a crash there must not take the user's
+process down.
+
+:func:`read_shape` returns a dict of plain Python/numpy data describing the
+B-rep (every face, edge and vertex of the shape, numbered as in
+``TopExp::MapShapes``), which :mod:`nagata_snap.cad.topology` turns into
+surfaces, curves and trimming loops:
+
+* ``faces``: per face its surface (``"plane"``, ``"cylinder"``, ``"cone"``,
+  ``"sphere"``, ``"torus"`` with the face's placement, else ``"bspline"``:
+  poles, weights and flat knot vectors of a non-periodic B-spline), the
+  face's ``(u, v)`` bounds, its orientation in the shape (``reversed``), and
+  its wires: for each edge use, in the order of ``BRepTools_WireExplorer``,
+  the edge index, the sense and the edge's p-curve in the face's parameter
+  plane (``"line"``, ``"circle"`` or ``"bspline"`` with its parameter range).
+  Seam edges appear twice in a wire, once per p-curve.  A face whose surface
+  is neither analytic nor a B-spline (surface of revolution or extrusion,
+  offset surface, ...) but is a plane, cylinder, cone, sphere or torus
+  (``GeomConvert_SurfToAnaSurf``, as IGES files write them) gets that
+  analytic surface and a grid of its own parameters and points, from which
+  the parameter map is fitted; a Bezier surface becomes a B-spline with the
+  same parameters; anything else is converted with
+  ``BRepBuilderAPI_NurbsConvert``, together with its p-curves, and marked
+  ``converted`` (its ``(u, v)`` then differ from the file's).
+* ``edges``: the 3D curve (``"line"``, ``"circle"``, else a B-spline from
+  ``GeomConvert``) and parameter range of every edge, its two vertices and
+  tolerance; degenerate edges (sphere poles, cone apexes) have no curve.
+* ``vertices``: ``(nv, 3)`` points.
+
+Lengths are in ``unit`` (OpenCASCADE's ``xstep.cascade.unit``: STEP and IGES
+coordinates are converted to it from the file's own unit, which is reported
+in ``file_units``; gmsh's OpenCASCADE import does the same with its option
+``Geometry.OCCTargetUnit``, whose default is also millimetres).  BREP files
+carry no unit: their coordinates are taken as they are.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+
+__all__ = ["ReadError", "read_shape", "load_shape", "shape_maps", "preload", "FORMATS", "UNITS"]
+
+#: file name extensions and their formats
+FORMATS = {".step": "step", ".stp": "step", ".igs": "iges", ".iges": "iges", ".brep": "brep",
+           ".brp": "brep"}
+#: length units understood by ``xstep.cascade.unit`` (millimetres per unit)
+UNITS = {"MM": 1.0, "CM": 10.0, "M": 1000.0, "KM": 1e6, "INCH": 25.4, "IN": 25.4, "FT": 304.8,
+         "MI": 1609344.0, "MIL": 0.0254, "UM": 1e-3, "NM": 1e-6}
+
+
+class ReadError(Exception):
+    """The file cannot be read or converted; the message names the file and the face."""
+
+
+def preload() -> None:
+    """Import the OpenCASCADE modules :func:`read_shape` uses (a forked reader starts warm)."""
+    import OCP.BRep, OCP.BRepAdaptor, OCP.BRepBndLib, OCP.BRepBuilderAPI, OCP.BRepTools  # noqa: F401,E401
+    import OCP.Geom, OCP.Geom2d, OCP.Geom2dConvert, OCP.GeomAbs, OCP.GeomConvert  # noqa: F401,E401
+    import OCP.IFSelect, OCP.IGESControl, OCP.Interface, OCP.ShapeFix, OCP.STEPControl  # noqa: F401,E401
+    import OCP.TopAbs, OCP.TopExp, OCP.TopoDS, OCP.Bnd  # noqa: F401,E401
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.IGESControl import IGESControl_Reader
+
+    STEPControl_Reader()  # registers the static parameters (xstep.cascade.unit, ...)
+    IGESControl_Reader()
+
+
+def _xyz(p) -> list[float]:
+    return [p.X(), p.Y(), p.Z()]
+
+
+def _xy(p) -> list[float]:
+    return [p.X(), p.Y()]
+
+
+def _check_finite(values, what: str) -> None:
+    if not np.all(np.isfinite(np.asarray(values, dtype=float))):
+        raise ReadError(f"{what} has NaN or infinite coordinates")
+
+
+# ----------------------------------------------------------------------
+# reading and healing
+# ----------------------------------------------------------------------
+def _read(path: str, fmt: str, unit: str):
+    """``(shape, the file's own length unit names, unit of the shape's coordinates)``."""
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepTools import BRepTools
+    from OCP.IFSelect import IFSelect_ReturnStatus
+    from OCP.Interface import Interface_Static
+    from OCP.TopoDS import TopoDS_Shape
+
+    if fmt == "brep":
+        shape = TopoDS_Shape()
+        if not BRepTools.Read_s(shape, path, BRep_Builder()):
+            raise ReadError(f"{path}: OpenCASCADE cannot read it as a BREP file")
+        return shape, [], unit
+    from OCP.IGESControl import IGESControl_Reader
+    from OCP.STEPControl import STEPControl_Reader
+
+    reader = STEPControl_Reader() if fmt == "step" else IGESControl_Reader()
+    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM" if unit == "FILE" else unit)
+    if fmt == "iges":  # keep B-splines whole (OpenCASCADE splits them at C0 knots by default)
+        Interface_Static.SetIVal_s("read.iges.bspline.continuity", 0)
+    status = reader.ReadFile(path)
+    if status != IFSelect_ReturnStatus.IFSelect_RetDone:
+        raise ReadError(f"{path}: OpenCASCADE cannot read it as a {fmt.upper()} file ({status.name})")
+    file_units = _file_units(reader, fmt)
+    if unit == "FILE":  # the file's own unit: set it (IGES applies it while reading: read again)
+        own = _unit_key(file_units[0]) if len(file_units) == 1 else None
+        if own is None:
+            raise ReadError(f"{path}: cannot keep the file's length unit {file_units} (give unit=)")
+        Interface_Static.SetCVal_s("xstep.cascade.unit", own)
+        if fmt == "iges":
+            reader = IGESControl_Reader()
+            reader.ReadFile(path)
+        unit = own
+    reader.TransferRoots()
+    if reader.NbShapes() == 0:
+        raise ReadError(f"{path}: the file holds no shape OpenCASCADE can transfer (empty shape)")
+    return reader.OneShape(), file_units, unit
+
+
+#: unit names of STEP (``FileUnits``) and IGES (global section) files -> :data:`UNITS` keys
+_UNIT_NAMES = {"millimetre": "MM", "millimeter": "MM", "metre": "M", "meter": "M",
+               "centimetre": "CM", "centimeter": "CM", "kilometre": "KM", "kilometer": "KM",
+               "inch": "INCH", "foot": "FT", "mile": "MI", "micrometre": "UM", "micrometer": "UM",
+               "nanometre": "NM", "nanometer": "NM", "mil": "MIL"}
+
+
+#: IGES unit flags (Global parameter 14)
+_IGES_FLAGS = {1: "INCH", 2: "MM", 4: "FT", 5: "MI", 6: "M", 7: "KM", 8: "MIL", 9: "UM", 10: "CM"}
+
+
+def _unit_key(name: str) -> str | None:
+    n = name.strip()
+    return _UNIT_NAMES.get(n.lower()) or (n.upper() if n.upper() in UNITS else None)
+
+
+def _file_units(reader, fmt: str) -> list[str]:
+    """The file's own length unit names (STEP: of every representation; IGES: global section)."""
+    if fmt == "step":
+        from OCP.OCP.collections import Sequence_TCollection_AsciiString as Names
+
+        names, angles, solid = Names(), Names(), Names()
+        reader.FileUnits(names, angles, solid)
+        return sorted({names.Value(i + 1).ToCString() for i in range(names.Length())})
+    g = reader.IGESModel().GlobalSection()
+    name = g.UnitName().ToCString() if g.UnitName() is not None else ""
+    if not _unit_key(name):  # the unit flag (IGES 5.3 Global parameter 14) names it
+        name = _IGES_FLAGS.get(g.UnitFlag(), name)
+    return [name] if name else []
+
+
+#: sewing tolerances tried, relative to the model size: the first that leaves no free
+#: edge is used (IGES edge curves of faces of revolution can be ~1e-5 off their
+#: neighbours'), else the last
+SEW_RTOL = (1e-5, 1e-4)
+
+
+def _heal(shape, size: float, sew: bool | None):
+    """Faces that share no edge (IGES files) are sewn, closed shells made solids, and the
+    result fixed with ``ShapeFix_Shape``.  STEP and IGES transfers already run
+    OpenCASCADE's shape processing (``FixShape``), so other shapes are kept."""
+    from OCP.BRep import BRep_Builder, BRep_Tool
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
+    from OCP.ShapeFix import ShapeFix_Shape, ShapeFix_Solid
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS, TopoDS_Compound
+
+    if sew is None:
+        sew = _count(shape, TopAbs_FACE) > 1 and _count(shape, TopAbs_SHELL) == 0
+    if not sew:
+        return shape, {"sewn": False}
+    for rtol in SEW_RTOL:
+        s = BRepBuilderAPI_Sewing(rtol * size)
+        s.Add(shape)
+        s.Perform()
+        if s.NbFreeEdges() == 0:
+            break
+    done = {"sewn": True, "tolerance": rtol * size, "free_edges": s.NbFreeEdges(), "solids": 0}
+    sewn = s.SewedShape()
+    # closed shells -> solids (oriented outward), the rest as it is
+    comp, b = TopoDS_Compound(), BRep_Builder()
+    b.MakeCompound(comp)
+    ex = TopExp_Explorer(sewn, TopAbs_SHELL)
+    shells = 0
+    while ex.More():
+        shell = TopoDS.Shell(ex.Current())
+        shells += 1
+        if BRep_Tool.IsClosed_s(shell):
+            b.Add(comp, ShapeFix_Solid().SolidFromShell(shell))
+            done["solids"] += 1
+        else:
+            b.Add(comp, shell)
+        ex.Next()
+    ex = TopExp_Explorer(sewn, TopAbs_FACE, TopAbs_SHELL)  # faces in no shell
+    while ex.More():
+        b.Add(comp, ex.Current())
+        ex.Next()
+    fix = ShapeFix_Shape(comp if shells else sewn)
+    fix.Perform()
+    return fix.Shape(), done
+
+
+def _count(shape, kind) -> int:
+    from OCP.OCP.collections import IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as IMap
+    from OCP.TopExp import TopExp
+
+    m = IMap()
+    TopExp.MapShapes_s(shape, kind, m)
+    return m.Extent()
+
+
+def _size(shape) -> float:
+    from OCP.Bnd import Bnd_Box
+    from OCP.BRepBndLib import BRepBndLib
+
+    box = Bnd_Box()
+    BRepBndLib.Add_s(shape, box)
+    if box.IsVoid():
+        return 0.0
+    lo, hi = box.CornerMin(), box.CornerMax()
+    return math.dist(_xyz(lo), _xyz(hi))
+
+
+# ----------------------------------------------------------------------
+# geometry descriptions
+# ----------------------------------------------------------------------
+def _ax3(ax) -> dict:
+    return {"origin": _xyz(ax.Location()), "x": _xyz(ax.XDirection()), "y": _xyz(ax.YDirection()),
+            "z": _xyz(ax.Direction())}
+
+
+def _bspline_surface(s) -> dict:
+    """Poles, weights and flat knots of a (non-periodic copy of a) Geom_BSplineSurface."""
+    if s.IsUPeriodic() or s.IsVPeriodic():
+        s = s.Copy()
+        if s.IsUPeriodic():
+            s.SetUNotPeriodic()
+        if s.IsVPeriodic():
+            s.SetVNotPeriodic()
+    nu, nv = s.NbUPoles(), s.NbVPoles()
+    poles = np.array([[_xyz(s.Pole(i, j)) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
+    weights = None
+    if s.IsURational() or s.IsVRational():
+        weights = np.array([[s.Weight(i, j) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
+    ku = [s.UKnot(i) for i in range(1, s.NbUKnots() + 1) for _ in range(s.UMultiplicity(i))]
+    kv = [s.VKnot(i) for i in range(1, s.NbVKnots() + 1) for _ in range(s.VMultiplicity(i))]
+    return {"type": "bspline", "degree": (s.UDegree(), s.VDegree()), "poles": poles,
+            "weights": weights, "knots_u": np.array(ku), "knots_v": np.array(kv)}
+
+
+def _bspline_curve(c, dim: int) -> dict:
+    """Poles, weights and flat knots of a (non-periodic copy of a) B-spline curve."""
+    if c.IsPeriodic():
+        c = c.Copy()
+        c.SetNotPeriodic()
+    pt = _xyz if dim == 3 else _xy
+    n = c.NbPoles()
+    poles = np.array([pt(c.Pole(i)) for i in range(1, n + 1)])
+    weights = np.array([c.Weight(i) for i in range(1, n + 1)]) if c.IsRational() else None
+    knots = [c.Knot(i) for i in range(1, c.NbKnots() + 1) for _ in range(c.Multiplicity(i))]
+    return {"type": "bspline", "degree": c.Degree(), "poles": poles, "weights": weights,
+            "knots": np.array(knots)}
+
+
+def _elementary(s) -> dict | None:
+    """Description of an OpenCASCADE elementary surface (``Geom_Plane``, ...), else None."""
+    from OCP.Geom import (Geom_ConicalSurface, Geom_CylindricalSurface, Geom_Plane,
+                          Geom_SphericalSurface, Geom_ToroidalSurface)
+
+    if isinstance(s, Geom_Plane):
+        return {"type": "plane", **_ax3(s.Position())}
+    if isinstance(s, Geom_CylindricalSurface):
+        return {"type": "cylinder", **_ax3(s.Position()), "radius": s.Radius()}
+    if isinstance(s, Geom_ConicalSurface):
+        return {"type": "cone", **_ax3(s.Position()), "radius": s.RefRadius(),
+                "semi_angle": s.SemiAngle()}
+    if isinstance(s, Geom_SphericalSurface):
+        return {"type": "sphere", **_ax3(s.Position()), "radius": s.Radius()}
+    if isinstance(s, Geom_ToroidalSurface):
+        return {"type": "torus", **_ax3(s.Position()), "major": s.MajorRadius(),
+                "minor": s.MinorRadius()}
+    return None
+
+
+#: samples per direction of a recognised surface (its parameter map is fitted to them)
+MAP_SAMPLES = 9
+
+
+def _recognised(face, size: float) -> dict | None:
+    """An analytic twin of a face's other surface (surface of revolution or extrusion, ...).
+
+    ``GeomConvert_SurfToAnaSurf`` finds the plane, cylinder, cone, sphere or
+    torus within 1e-9 of the model size; its parameters differ from the
+    face's, so the description carries a grid of the face's ``(u, v)`` and the
+    points there (``"samples"``), to which :mod:`nagata_snap.cad.topology`
+    fits the parameter map.
+    """
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepTools import BRepTools
+    from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
+
+    geo = BRep_Tool.Surface_s(face)  # with the face's location applied
+    try:
+        conv = GeomConvert_SurfToAnaSurf(geo)
+        ana = conv.ConvertToAnalytical(1e-9 * size)
+    except Exception:
+        return None
+    desc = None if ana is None else _elementary(ana)
+    if desc is None or not conv.Gap() <= 1e-9 * size:
+        return None
+    u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+    uu, vv = np.meshgrid(np.linspace(u0, u1, MAP_SAMPLES), np.linspace(v0, v1, MAP_SAMPLES),
+                         indexing="ij")
+    uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    desc["samples"] = (uv, np.array([_xyz(geo.Value(u, v)) for u, v in uv]))
+    return desc
+
+
+def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
+    """Description of a face's surface; ``(desc, needs NurbsConvert)``."""
+    from OCP.BRepAdaptor import BRepAdaptor_Surface
+    from OCP.GeomAbs import GeomAbs_SurfaceType as T
+    from OCP.GeomConvert import GeomConvert
+
+    a = BRepAdaptor_Surface(face, False)
+    t = a.GetType()
+    if t == T.GeomAbs_Plane:
+        return {"type": "plane", **_ax3(a.Plane().Position())}, False
+    if t == T.GeomAbs_Cylinder:
+        c = a.Cylinder()
+        return {"type": "cylinder", **_ax3(c.Position()), "radius": c.Radius()}, False
+    if t == T.GeomAbs_Cone:
+        c = a.Cone()
+        return {"type": "cone", **_ax3(c.Position()), "radius": c.RefRadius(),
+                "semi_angle": c.SemiAngle()}, False
+    if t == T.GeomAbs_Sphere:
+        c = a.Sphere()
+        return {"type": "sphere", **_ax3(c.Position()), "radius": c.Radius()}, False
+    if t == T.GeomAbs_Torus:
+        c = a.Torus()
+        return {"type": "torus", **_ax3(c.Position()), "major": c.MajorRadius(),
+                "minor": c.MinorRadius()}, False
+    if t == T.GeomAbs_BSplineSurface:
+        return _bspline_surface(a.BSpline()), False
+    if t == T.GeomAbs_BezierSurface:
+        return _bspline_surface(GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
+    desc = _recognised(face, size)
+    if desc is not None:
+        desc["source"] = t.name.replace("GeomAbs_", "")
+        return desc, False
+    return {"type": t.name.replace("GeomAbs_", "")}, True
+
+
+def _described(a, pt, dim: int, other) -> dict:
+    """Description of a curve adaptor (3D edge or 2D p-curve) with its range.
+
+    Lines and circles in closed form, B-splines as they are, anything else
+    as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).
+    """
+    from OCP.GeomAbs import GeomAbs_CurveType as T
+
+    t0, t1 = a.FirstParameter(), a.LastParameter()
+    t = a.GetType()
+    if t == T.GeomAbs_Line:
+        ln = a.Line()
+        return {"type": "line", "origin": pt(ln.Location()), "direction": pt(ln.Direction()),
+                "range": (t0, t1)}
+    if t == T.GeomAbs_Circle:
+        c = a.Circle()
+        ax = c.Position()
+        return {"type": "circle", "center": pt(ax.Location()), "x": pt(ax.XDirection()),
+                "y": pt(ax.YDirection()), "radius": c.Radius(), "range": (t0, t1)}
+    if t == T.GeomAbs_BSplineCurve:
+        d = _bspline_curve(a.BSpline(), dim)
+    else:
+        d = _bspline_curve(other(t0, t1), dim)
+        t0, t1 = float(d["knots"][d["degree"]]), float(d["knots"][-d["degree"] - 1])
+    d["range"] = (t0, t1)
+    return d
+
+
+def _curve3d(edge) -> dict | None:
+    """Description of an edge's 3D curve (None for degenerate edges)."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepAdaptor import BRepAdaptor_Curve
+    from OCP.Geom import Geom_TrimmedCurve
+    from OCP.GeomConvert import GeomConvert
+
+    if BRep_Tool.Degenerated_s(edge) or not BRep_Tool.IsGeometric_s(edge):
+        return None
+
+    def other(t0, t1):  # with the edge's location applied
+        geo = BRep_Tool.Curve_s(edge, t0, t1)
+        return GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geo, t0, t1))
+
+    return _described(BRepAdaptor_Curve(edge), _xyz, 3, other)
+
+
+def _curve2d(edge, face) -> dict:
+    """Description of the p-curve of an (oriented) edge on a face, with its range."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepAdaptor import BRepAdaptor_Curve2d
+    from OCP.Geom2d import Geom2d_TrimmedCurve
+    from OCP.Geom2dConvert import Geom2dConvert
+
+    def other(t0, t1):
+        geo = BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
+        return Geom2dConvert.CurveToBSplineCurve_s(Geom2d_TrimmedCurve(geo, t0, t1))
+
+    return _described(BRepAdaptor_Curve2d(edge, face), _xy, 2, other)
+
+
+# ----------------------------------------------------------------------
+# topology
+# ----------------------------------------------------------------------
+def _wires(face, pface, edge_map, edge_of) -> list[dict]:
+    """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin)."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
+    from OCP.TopAbs import TopAbs_Orientation, TopAbs_WIRE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    outer = BRepTools.OuterWire_s(face)
+    wires = []
+    ex = TopExp_Explorer(face, TopAbs_WIRE)
+    while ex.More():
+        w = TopoDS.Wire(ex.Current())
+        uses = []
+        we = BRepTools_WireExplorer(w, face)
+        while we.More():
+            e = we.Current()
+            pe = edge_of(e)
+            uses.append({
+                "edge": edge_map.FindIndex(e) - 1,
+                "reversed": e.Orientation() == TopAbs_Orientation.TopAbs_REVERSED,
+                "seam": BRep_Tool.IsClosed_s(e, face),
+                "degenerate": BRep_Tool.Degenerated_s(e),
+                "pcurve": _curve2d(pe, pface),
+            })
+            we.Next()
+        wires.append({"outer": w.IsSame(outer), "uses": uses})
+        ex.Next()
+    return wires
+
+
+def _face(face, index: int, edge_map, size: float) -> dict:
+    """Surface, bounds, orientation and wires of one face (converting it if needed)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+    from OCP.BRepTools import BRepTools
+    from OCP.TopAbs import TopAbs_Orientation
+    from OCP.TopoDS import TopoDS
+
+    surface, convert = _surface(face, size)
+    pface, edge_of = face, (lambda e: e)
+    if convert:
+        try:
+            conv = BRepBuilderAPI_NurbsConvert(face, True)
+            pface = TopoDS.Face(conv.Shape())
+            surface, convert_again = _surface(pface, size)
+            if convert_again:
+                raise ReadError(f"BRepBuilderAPI_NurbsConvert gave a {surface['type']} surface")
+        except ReadError as e:
+            raise ReadError(f"face {index} ({surface['type']} surface): cannot be converted to NURBS: {e}") from None
+        except Exception as e:
+            raise ReadError(
+                f"face {index} ({surface['type']} surface): OpenCASCADE cannot convert it to NURBS: "
+                f"{type(e).__name__}: {e}") from None
+
+        def edge_of(e, conv=conv):  # the converted edge, used as the original (seams!)
+            return TopoDS.Edge(conv.ModifiedShape(e).Oriented(e.Orientation()))
+    uv = BRepTools.UVBounds_s(pface)
+    return {
+        "surface": surface,
+        "uv": tuple(uv),
+        "reversed": face.Orientation() == TopAbs_Orientation.TopAbs_REVERSED,
+        "converted": convert,
+        "wires": _wires(face, pface, edge_map, edge_of),
+    }
+
+
+def _ancestors(shape, kind, parent, maps_child, maps_parent) -> list[list[int]]:
+    """Indices of the ``parent`` shapes of every ``kind`` sub-shape (e.g. solids of faces)."""
+    from OCP.OCP.collections import (
+        IndexedDataMap_TopoDS_Shape_List_TopoDS_Shape_TopTools_ShapeMapHasher as DMap,
+    )
+    from OCP.TopExp import TopExp
+
+    dm = DMap()
+    TopExp.MapShapesAndAncestors_s(shape, kind, parent, dm)
+    out = [[] for _ in range(maps_child.Extent())]
+    for i in range(1, dm.Extent() + 1):
+        c = maps_child.FindIndex(dm.FindKey(i)) - 1
+        if c < 0:
+            continue
+        out[c] = sorted({maps_parent.FindIndex(s) - 1 for s in dm.FindFromIndex(i)})
+    return out
+
+
+def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
+               sew: bool | None = None) -> tuple:
+    """Read and heal a file: ``(shape, info)`` (see :func:`read_shape`).
+
+    ``info``: ``file_units``, ``unit`` (of the coordinates), ``healed``,
+    ``times`` and ``size`` (bounding-box diagonal).
+    """
+    from OCP.TopAbs import TopAbs_VERTEX
+
+    path = os.fspath(path)
+    fmt = FORMATS.get(os.path.splitext(path)[1].lower())
+    if fmt is None:
+        raise ReadError(f"{path}: unknown CAD file extension (expected one of {', '.join(sorted(FORMATS))})")
+    unit = str(unit).upper()
+    if unit not in UNITS and unit != "FILE":
+        raise ReadError(f"unknown length unit {unit!r} (expected one of {', '.join(UNITS)} or FILE)")
+    if not os.path.isfile(path):
+        raise ReadError(f"{path}: no such file")
+    times = {}
+    t0 = time.perf_counter()
+    shape, file_units, unit = _read(path, fmt, unit)
+    times["read"] = time.perf_counter() - t0
+    if shape.IsNull() or _count(shape, TopAbs_VERTEX) == 0:
+        raise ReadError(f"{path}: the file holds an empty shape (no vertices, edges or faces)")
+    size = _size(shape)
+    if not (math.isfinite(size) and size > 0):
+        raise ReadError(f"{path}: the shape has no finite extent (bounding box diagonal {size})")
+    t0 = time.perf_counter()
+    healed = {"sewn": False}
+    if heal:
+        shape, healed = _heal(shape, size, sew)
+    times["heal"] = time.perf_counter() - t0
+    return shape, {"file_units": file_units, "unit": unit, "healed": healed, "times": times,
+                   "size": size, "format": fmt}
+
+
+def shape_maps(shape) -> tuple:
+    """``(faces, edges, vertices, solids)`` index maps of a shape (``TopExp::MapShapes``)."""
+    from OCP.OCP.collections import IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as IMap
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_SOLID, TopAbs_VERTEX
+    from OCP.TopExp import TopExp
+
+    maps = []
+    for kind in (TopAbs_FACE, TopAbs_EDGE, TopAbs_VERTEX, TopAbs_SOLID):
+        m = IMap()
+        TopExp.MapShapes_s(shape, kind, m)
+        maps.append(m)
+    return tuple(maps)
+
+
+def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
+               sew: bool | None = None) -> dict:
+    """Read a STEP, IGES or BREP file into plain data (see the module docstring).
+
+    Args:
+        path: the file; the format is taken from its extension.
+        unit: length unit of the coordinates returned (a key of :data:`UNITS`,
+            as OpenCASCADE's ``xstep.cascade.unit``), to which STEP and IGES
+            coordinates are converted; ``"FILE"`` keeps the file's own unit.
+            BREP coordinates are always kept.
+        heal: sew faces that share no edge (see ``sew``), make solids of the
+            closed shells and fix the result (``ShapeFix_Shape``).
+        sew: sew the faces into shells (``BRepBuilderAPI_Sewing``, at the
+            smallest tolerance of :data:`SEW_RTOL` that leaves no free edge);
+            default: when the shape has several faces and no shell (IGES files
+            usually).
+
+    Raises:
+        ReadError: unknown extension, unreadable file, empty shape, a face
+            that cannot be converted to NURBS, non-finite geometry.
+    """
+    from OCP.BRep import BRep_Tool
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopExp import TopExp
+    from OCP.TopoDS import TopoDS
+
+    path = os.fspath(path)
+    shape, info = load_shape(path, unit, heal, sew)
+    times = info["times"]
+    t0 = time.perf_counter()
+    fmap, emap, vmap, smap = shape_maps(shape)
+    vertices = np.array([_xyz(BRep_Tool.Pnt_s(TopoDS.Vertex(vmap.FindKey(i))))
+                         for i in range(1, vmap.Extent() + 1)]).reshape(-1, 3)
+    _check_finite(vertices, f"{path}: the vertices")
+    vtol = np.array([BRep_Tool.Tolerance_s(TopoDS.Vertex(vmap.FindKey(i)))
+                     for i in range(1, vmap.Extent() + 1)])
+    edges = []
+    for i in range(1, emap.Extent() + 1):
+        e = TopoDS.Edge(emap.FindKey(i))
+        v0, v1 = TopExp.FirstVertex_s(e), TopExp.LastVertex_s(e)
+        edges.append({
+            "curve": _curve3d(e),
+            "vertices": (vmap.FindIndex(v0) - 1 if not v0.IsNull() else -1,
+                         vmap.FindIndex(v1) - 1 if not v1.IsNull() else -1),
+            "tolerance": BRep_Tool.Tolerance_s(e),
+            "degenerate": BRep_Tool.Degenerated_s(e),
+        })
+    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, info["size"])
+             for i in range(1, fmap.Extent() + 1)]
+    solids = _ancestors(shape, TopAbs_FACE, TopAbs_SOLID, fmap, smap) if smap.Extent() else \
+        [[] for _ in faces]
+    for f, s in zip(faces, solids):
+        f["solids"] = s
+    times["convert"] = time.perf_counter() - t0
+    return {"path": path, "format": info["format"], "unit": info["unit"],
+            "file_units": info["file_units"], "size": info["size"], "healed": info["healed"],
+            "times": times, "num_solids": smap.Extent(), "vertices": vertices,
+            "vertex_tolerance": vtol, "edges": edges, "faces": faces}

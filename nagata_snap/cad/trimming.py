@@ -1,0 +1,292 @@
+"""Trimmed faces: is a surface point ``(u, v)`` on its face?
+
+A face is its surface restricted by trimming loops: closed polygons in the
+surface's parameter plane (:class:`nagata_snap.cad.topology.Loop`, from the
+p-curves of the face's wires; or user polygons for :class:`CadGeometry`
+built from NURBS entities).  A parameter point is on the face if it is
+inside an odd number of loops (the even-odd rule: inside the outer wire and
+outside every hole, whatever the loops' orientation) or within a band of a
+loop.
+
+The band covers the difference between the polygon and the true trimming
+curve (known per segment from the sampling, see :mod:`~nagata_snap.cad.topology`)
+plus an absolute tolerance; it is measured in length units, through the
+surface's first derivatives at the query point (``|S_u du + S_v dv|`` for
+the parametric offset ``(du, dv)`` to the nearest segment), so that it means
+the same on a cylinder's ``u`` (radians) as on its ``v`` (length) and
+vanishes in ``u`` at a sphere's pole.  Points on a face boundary shared by
+two faces are therefore on both.
+
+Closed (periodic) directions: a query is tested at its parameter and, where
+that is outside, one period either side, so loops may lie anywhere in the
+periodic plane (OpenCASCADE's p-curves of a full revolution span exactly one
+period, the seam edge being used twice).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["TrimLoops", "points_in_polygon"]
+
+#: default absolute trimming tolerance, relative to the size of the face's surface
+TRIM_RTOL = 1e-6
+#: turning angle (radians) above which a vertex of a user polygon is a corner of the
+#: loop, not a sample of a smooth trimming curve
+CORNER_ANGLE = 0.35
+#: work-array budget (entries) of the vectorised loop tests
+CHUNK = 400_000
+
+
+def points_in_polygon(polygon: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Even-odd point-in-polygon test, vectorised over points.
+
+    Args:
+        polygon: ``(k, 2)`` vertices (implicitly closed).
+        pts: ``(m, 2)`` query points.
+
+    Returns:
+        ``(m,)`` bool, True inside.
+    """
+    return _crossings(np.asarray(polygon, dtype=float), np.atleast_2d(np.asarray(pts, dtype=float))) % 2 == 1
+
+
+def _crossings(poly: np.ndarray, pts: np.ndarray, slabs: "_Slabs | None" = None) -> np.ndarray:
+    """Number of polygon edges crossed by the ray ``+x`` from each point, ``(m,)``.
+
+    With ``slabs`` (:class:`_Slabs` of the polygon) only the edges in the
+    point's horizontal slab are tested.
+    """
+    a, b = poly, np.roll(poly, -1, axis=0)
+    if slabs is not None:
+        pt, seg = slabs.candidates(pts[:, 1])
+        y, x = pts[pt, 1], pts[pt, 0]
+        ay, by = a[seg, 1], b[seg, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xint = a[seg, 0] + (y - ay) * (b[seg, 0] - a[seg, 0]) / (by - ay)
+        hit = ((ay > y) != (by > y)) & (x < xint)
+        return np.bincount(pt[hit], minlength=len(pts))
+    out = np.zeros(len(pts), dtype=np.int64)
+    step = max(1, CHUNK // max(len(poly), 1))
+    for i in range(0, len(pts), step):  # chunks bound the (c, k) work arrays
+        x, y = pts[i:i + step, 0:1], pts[i:i + step, 1:2]
+        ay, by = a[None, :, 1], b[None, :, 1]
+        crosses = (ay > y) != (by > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xint = a[None, :, 0] + (y - ay) * (b[None, :, 0] - a[None, :, 0]) / (by - ay)
+        out[i:i + step] = np.count_nonzero(crosses & (x < xint), axis=1)
+    return out
+
+
+class _Slabs:
+    """Horizontal slabs of a polygon: the edges spanning each slab (CSR), for crossing tests.
+
+    A query point's ray ``+x`` can only cross edges whose ``y`` range holds the
+    point's ``y``: those listed for its slab (``k / 2`` slabs for ``k`` edges).
+    """
+
+    def __init__(self, P: np.ndarray):
+        a, b = P, np.roll(P, -1, axis=0)
+        lo, hi = np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 1], b[:, 1])
+        self.y0, y1 = float(lo.min()), float(hi.max())
+        self.n = int(np.clip(len(P) // 2, 1, 4096))
+        self.dy = max((y1 - self.y0) / self.n, 1e-300)
+        s0 = np.clip(((lo - self.y0) / self.dy).astype(np.int64), 0, self.n - 1)
+        s1 = np.clip(((hi - self.y0) / self.dy).astype(np.int64), 0, self.n - 1)
+        cnt = s1 - s0 + 1
+        seg = np.repeat(np.arange(len(P)), cnt)
+        slab = np.repeat(s0, cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+        order = np.argsort(slab, kind="stable")
+        self.seg = seg[order]
+        self.ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=self.n))])
+
+    def candidates(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, edge)`` pairs to test for query ordinates ``y``."""
+        s = ((y - self.y0) / self.dy).astype(np.int64)
+        inside = (s >= 0) & (s < self.n)
+        s = np.where(inside, s, 0)
+        cnt = np.where(inside, self.ptr[s + 1] - self.ptr[s], 0)
+        pt = np.repeat(np.arange(len(y)), cnt)
+        off = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
+
+
+def _user_band(P: np.ndarray) -> np.ndarray:
+    """Parametric sagitta bound of a user polygon's segments (no true curve known).
+
+    Between two vertices the trimming curve deviates from the chord by about
+    ``L phi / 8`` (``L`` the chord, ``phi`` the larger turning angle at its
+    ends; vertices turning by more than :data:`CORNER_ANGLE` are corners,
+    which add nothing); twice that is the band.
+    """
+    seg = np.roll(P, -1, axis=0) - P
+    L = np.linalg.norm(seg, axis=1)
+    prev = np.roll(seg, 1, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.einsum("ij,ij->i", prev, seg) / (np.roll(L, 1) * L)
+    phi = np.arccos(np.clip(np.nan_to_num(c, nan=1.0), -1.0, 1.0))
+    phi[phi > CORNER_ANGLE] = 0.0
+    return 2.0 * L * np.maximum(phi, np.roll(phi, -1)) / 8.0
+
+
+class TrimLoops:
+    """Trimming loops of several entities and the on-face test.
+
+    Args:
+        entities: the surfaces (entity protocol of :mod:`nagata_snap.cad.nurbs`).
+        loops: per entity a list of closed polygons ``(k, 2)`` (an empty list:
+            the whole surface is the face).
+        bands: per entity, per loop, ``(k,)`` bound (length units) on the
+            distance between each segment and the true trimming curve; default
+            estimated from the polygon's turning angles (:func:`_user_band`).
+        rtol: absolute tolerance, relative to each surface's size.
+    """
+
+    def __init__(self, entities: Sequence, loops: Sequence[Sequence[np.ndarray]],
+                 bands: Sequence[Sequence[np.ndarray]] | None = None, rtol: float = TRIM_RTOL):
+        from .projection import entity_periods
+
+        n = len(entities)
+        if len(loops) != n:
+            raise ValueError(f"{len(loops)} loop lists for {n} entities")
+        self.entities = list(entities)
+        self.rtol = float(rtol)
+        self._loops: list[list[tuple]] = []
+        for e in range(n):  # loop over entities
+            prepared = []
+            for k, poly in enumerate(loops[e] or []):
+                P = np.asarray(poly, dtype=float)
+                if P.ndim != 2 or P.shape[1] != 2 or not np.all(np.isfinite(P)):
+                    raise ValueError(f"entity {e}: trimming loop {k} must be a finite (k, 2) polygon, got {P.shape}")
+                if len(P) > 1 and np.array_equal(P[0], P[-1]):
+                    P = P[:-1]
+                if len(P) < 2:
+                    raise ValueError(f"entity {e}: trimming loop {k} has fewer than 2 vertices")
+                if bands is None or bands[e] is None:
+                    band = self._param_band(e, P)
+                else:
+                    band = np.asarray(bands[e][k], dtype=float).reshape(len(P))
+                band = band + self.rtol * self.entities[e].bbox_size
+                prepared.append((P, np.roll(P, -1, axis=0) - P, band, _Slabs(P)))
+            self._loops.append(prepared)
+        self.trimmed = np.array([bool(lp) for lp in self._loops])
+        self._period = np.array([entity_periods(ent) for ent in self.entities])
+
+    @classmethod
+    def from_outer_holes(cls, entities, outer=None, holes=None, rtol: float = TRIM_RTOL) -> "TrimLoops":
+        """Loops from per-entity ``outer`` polygons (or ``None``) and lists of ``holes``."""
+        n = len(entities)
+        for name, arr in (("trim_loops", outer), ("trim_holes", holes)):
+            if arr is not None and len(arr) != n:
+                raise ValueError(f"{name} has {len(arr)} entries for {n} entities")
+        loops = []
+        for e in range(n):
+            lp = [] if outer is None or outer[e] is None else [outer[e]]
+            lp += [] if holes is None or holes[e] is None else list(holes[e])
+            loops.append(lp)
+        return cls(entities, loops, None, rtol)
+
+    def _param_band(self, e: int, P: np.ndarray) -> np.ndarray:
+        """:func:`_user_band` converted to length units at the segment midpoints."""
+        band = _user_band(P)
+        mid = 0.5 * (P + np.roll(P, -1, axis=0))
+        su, sv = self._scales(e, mid)
+        return band * np.maximum(su, sv)
+
+    def _scales(self, e: int, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``|S_u|, |S_v|`` at ``params (m, 2)`` of entity ``e``."""
+        from .projection import evaluate_params, normalize_params
+
+        ent = self.entities[e]
+        _, T = evaluate_params(ent, normalize_params(ent, params), 1)
+        return np.linalg.norm(T[:, 0], axis=1), np.linalg.norm(T[:, 1], axis=1)
+
+    def _excess(self, e: int, q: np.ndarray, su: np.ndarray, sv: np.ndarray) -> np.ndarray:
+        """Distance (length units) outside face ``e`` beyond the band, ``(m,)``.
+
+        ``<= 0`` on the face; ``-inf`` inside the loops (no distance computed).
+        """
+        loops = self._loops[e]
+        cross = np.zeros(len(q), dtype=np.int64)
+        for P, _, _, slabs in loops:
+            cross += _crossings(P, q, slabs)
+        ex = np.full(len(q), -np.inf)
+        out = np.flatnonzero(cross % 2 == 0)
+        if out.size == 0:
+            return ex
+        best = np.full(out.size, np.inf)
+        for P, seg, band, _ in loops:
+            step = max(1, CHUNK // len(P))
+            for i in range(0, out.size, step):  # chunks bound the (c, k, 2) work arrays
+                sel = out[i:i + step]
+                s = np.stack([su[sel], sv[sel]], axis=1)[:, None, :]  # (c, 1, 2) metric
+                qq = (q[sel, None, :] - P[None]) * s
+                ss = seg[None] * s
+                L2 = np.maximum(np.einsum("ckj,ckj->ck", ss, ss), 1e-300)
+                t = np.clip(np.einsum("ckj,ckj->ck", qq, ss) / L2, 0.0, 1.0)
+                r = qq - t[:, :, None] * ss
+                d = np.sqrt(np.einsum("ckj,ckj->ck", r, r)) - band[None]
+                best[i:i + step] = np.minimum(best[i:i + step], d.min(axis=1))
+        ex[out] = best
+        return ex
+
+    def excess(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:
+        """``(n,)`` distance (length units) of ``params (n, 2)`` outside face ``ent (n,)``.
+
+        ``<= 0`` means on the face (``-inf`` inside its loops or for untrimmed
+        surfaces); a positive value is the distance to the nearest loop
+        beyond its band.
+        """
+        from .projection import normalize_params
+
+        ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
+        out = np.full(len(ent), -np.inf)
+        if len(ent) == 0 or not self.trimmed.any():
+            return out
+        for e in np.unique(ent[self.trimmed[ent]]):  # loop over trimmed entities
+            sel = np.flatnonzero(ent == e)
+            q0 = normalize_params(self.entities[e], params[sel])
+            su, sv = self._scales(e, q0)
+            shifts = [np.zeros(2)]
+            for a in range(2):
+                if np.isfinite(self._period[e, a]):
+                    d = np.zeros(2)
+                    d[a] = self._period[e, a]
+                    shifts = [s + k * d for s in shifts for k in (0.0, -1.0, 1.0)]
+            best = np.full(len(sel), np.inf)
+            todo = np.arange(len(sel))
+            for sh in shifts:  # at most 9 (both directions closed); the first is 0
+                ex = self._excess(e, q0[todo] + sh, su[todo], sv[todo])
+                best[todo] = np.minimum(best[todo], ex)
+                todo = todo[ex > 0]
+                if todo.size == 0:
+                    break
+            out[sel] = best
+        return out
+
+    def inside(self, ent: npt.ArrayLike, params: npt.ArrayLike, band: bool = True) -> np.ndarray:
+        """``(n,)`` bool: ``params`` lies on face ``ent`` (within its band; without
+        ``band``: inside the polygons, even-odd, at the wrapped parameter only)."""
+        if band:
+            return self.excess(ent, params) <= 0.0
+        from .projection import normalize_params
+
+        ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
+        out = np.ones(len(ent), dtype=bool)
+        for e in np.unique(ent[self.trimmed[ent]]):  # loop over trimmed entities
+            sel = np.flatnonzero(ent == e)
+            q = normalize_params(self.entities[e], params[sel])
+            cross = sum(_crossings(P, q, slabs) for P, _, _, slabs in self._loops[e])
+            out[sel] = cross % 2 == 1
+        return out
+
+    def loop_points(self, e: int) -> np.ndarray | None:
+        """All loop vertices of surface ``e`` ``(k, 2)``, or ``None`` if untrimmed."""
+        if not self._loops[e]:
+            return None
+        return np.concatenate([lp[0] for lp in self._loops[e]])

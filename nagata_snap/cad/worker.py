@@ -1,0 +1,284 @@
+"""Read CAD files in a child process, so that OpenCASCADE cannot take this one down.
+
+OpenCASCADE crashes (segmentation faults) or loops on some malformed STEP
+and IGES files; inside the user's (possibly MPI) process that would be fatal.
+:func:`read_cad` therefore sends the request to a reader server: a plain
+Python process started once per session (``python worker.py``, without the
+package, so it never initialises MPI) that has imported OCP and forks a
+reader child.  The child runs :func:`nagata_snap.cad.read.read_shape` and
+sends back its plain-data result; if it crashes or does not answer within
+the time-out, the server kills it, reports :class:`~nagata_snap.cad.CadError`
+naming the file, and a spare child forked in advance takes over (a fork of
+the server, with OpenCASCADE loaded, costs tens of milliseconds; a reader
+serves requests until it fails).  ``isolate=False`` reads in this process.
+
+Protocol on the server's stdin/stdout: length-prefixed pickles, request
+``(path, kwargs, timeout)``, reply ``(status, payload)`` with status
+``"ok"``, ``"error"``, ``"crash"`` or ``"timeout"``.  OpenCASCADE's own
+printing goes to ``/dev/null``.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import pickle
+import select
+import signal
+import struct
+import subprocess
+import sys
+import time
+
+__all__ = ["read_cad", "shutdown"]
+
+#: environment variables of MPI process managers, not passed to the server
+_MPI_ENV = ("PMI_", "PMIX_", "MPI_", "HYDRA_", "OMPI_", "MPICH_", "I_MPI_", "SLURM_")
+
+
+def _frame(obj) -> bytes:
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    return struct.pack("<Q", len(data)) + data
+
+
+def _send(f, obj) -> None:
+    f.write(_frame(obj))
+    f.flush()
+
+
+def _read_exactly(fd: int, n: int, deadline: float | None) -> bytes | None:
+    buf = bytearray()
+    while len(buf) < n:
+        wait = None if deadline is None else max(0.0, deadline - time.monotonic())
+        ready, _, _ = select.select([fd], [], [], wait)
+        if not ready:
+            return None
+        chunk = os.read(fd, min(1 << 20, n - len(buf)))
+        if not chunk:  # the other side closed the pipe
+            return None
+        buf += chunk
+    return bytes(buf)
+
+
+def _recv(fd: int, deadline: float | None = None):
+    head = _read_exactly(fd, 8, deadline)
+    if head is None or len(head) < 8:
+        return None
+    (n,) = struct.unpack("<Q", head)
+    body = _read_exactly(fd, n, deadline)
+    return None if body is None else pickle.loads(body)
+
+
+# ----------------------------------------------------------------------
+# the server (runs as a script)
+# ----------------------------------------------------------------------
+def _load_reader():
+    import importlib.util
+
+    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "read.py")
+    spec = importlib.util.spec_from_file_location("_nagata_snap_cad_read", here)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _child(reader, r: int, w: int) -> None:
+    """A forked reader: serve requests on ``r``, replies on ``w``, until ``r`` closes."""
+    out = os.fdopen(w, "wb")
+    while True:
+        msg = _recv(r)
+        if msg is None:
+            return
+        path, kwargs, _ = msg
+        try:
+            res = ("ok", reader.read_shape(path, **kwargs))
+        except reader.ReadError as e:
+            res = ("error", str(e))
+        except BaseException as e:  # OpenCASCADE's exceptions arrive as Python exceptions
+            res = ("error", f"{path}: OpenCASCADE failed: {type(e).__name__}: {e}")
+        _send(out, res)
+
+
+def _spare(reader) -> tuple[int, int, int]:
+    """Fork a reader that waits for requests: ``(pid, request fd, reply fd)``.
+
+    Forking the server costs tens of milliseconds (its OpenCASCADE libraries
+    are large), so a reader serves requests until it crashes or times out,
+    and a spare one is forked in advance to take over at once.
+    """
+    req_r, req_w = os.pipe()
+    res_r, res_w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: serve, exit without cleanup
+        os.close(req_w)
+        os.close(res_r)
+        try:
+            _child(reader, req_r, res_w)
+        finally:
+            os._exit(0)
+    os.close(req_r)
+    os.close(res_w)
+    return pid, req_w, res_r
+
+
+def _kill(child) -> None:
+    pid, req_w, res_r = child
+    for fd in (req_w, res_r):
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    try:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+    except (ProcessLookupError, ChildProcessError):  # already reaped
+        pass
+
+
+def _ask(child, msg) -> tuple:
+    """A reader's reply to ``msg``; ``("crash" | "timeout", ...)`` if it died or hung."""
+    pid, req_w, res_r = child
+    try:
+        os.write(req_w, _frame(msg))
+    except OSError:
+        pass
+    deadline = time.monotonic() + msg[2]
+    reply = _recv(res_r, deadline)
+    if reply is not None:
+        return reply
+    if time.monotonic() >= deadline:  # still running: hung
+        return ("timeout", msg[2])
+    _, status = os.waitpid(pid, 0)  # it closed the pipe: it died
+    os.close(req_w)
+    os.close(res_r)
+    if os.WIFSIGNALED(status):
+        return ("crash", f"signal {os.WTERMSIG(status)} ({signal.Signals(os.WTERMSIG(status)).name})")
+    return ("crash", f"exit status {os.WEXITSTATUS(status)} without a result")
+
+
+def serve() -> None:
+    """Server main loop: requests on stdin, replies on (the original) stdout."""
+    out = os.fdopen(os.dup(1), "wb")
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.dup2(devnull, 2)
+    reader = _load_reader()
+    reader.preload()
+    child, spare = _spare(reader), _spare(reader)
+    _send(out, ("ready", None))
+    fd = sys.stdin.fileno()
+    try:
+        while True:
+            msg = _recv(fd)
+            if msg is None:
+                break
+            reply = _ask(child, msg)
+            if reply[0] in ("crash", "timeout"):  # the spare takes over; fork a new spare
+                _kill(child)
+                child, spare = spare, _spare(reader)
+            _send(out, reply)
+    finally:
+        _kill(child)
+        _kill(spare)
+
+
+# ----------------------------------------------------------------------
+# the client
+# ----------------------------------------------------------------------
+class _Client:
+    def __init__(self):
+        self.proc = None
+
+    def start(self) -> None:
+        env = {k: v for k, v in os.environ.items() if not k.startswith(_MPI_ENV)}
+        self.proc = subprocess.Popen([sys.executable, os.path.abspath(__file__)],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=subprocess.DEVNULL, env=env, close_fds=True)
+        msg = _recv(self.proc.stdout.fileno(), time.monotonic() + 300.0)
+        if msg is None or msg[0] != "ready":
+            self.stop()
+            raise RuntimeError("the CAD reader process did not start (is OCP, package "
+                               "cadquery-ocp, installed for this Python?)")
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            try:
+                self.proc.stdin.close()
+                self.proc.wait(timeout=5)
+            except Exception:
+                self.proc.kill()
+            self.proc = None
+
+    def request(self, path: str, kwargs: dict, timeout: float) -> tuple:
+        for attempt in range(2):  # a dead server is restarted once
+            if self.proc is None or self.proc.poll() is not None:
+                self.start()
+            try:
+                _send(self.proc.stdin, (path, kwargs, timeout))
+                reply = _recv(self.proc.stdout.fileno(), time.monotonic() + timeout + 60.0)
+            except (BrokenPipeError, OSError):
+                reply = None
+            if reply is not None:
+                return reply
+            self.stop()
+        return ("crash", "the reader process died")
+
+
+_CLIENT = _Client()
+atexit.register(lambda: _CLIENT.stop())
+
+
+def shutdown() -> None:
+    """Stop the reader server (it is restarted on the next isolated read)."""
+    _CLIENT.stop()
+
+
+def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
+             timeout: float | None = None) -> dict:
+    """Read a CAD file with OpenCASCADE: :func:`nagata_snap.cad.read.read_shape`'s data.
+
+    Args:
+        path: STEP, IGES or BREP file.
+        unit, heal: see :func:`~nagata_snap.cad.read.read_shape`.
+        isolate: read in a forked child of the reader server (see the module
+            docstring); ``False`` reads in this process.
+        timeout: seconds (isolated reads only); default 60 s plus 30 s per MB.
+
+    Raises:
+        CadError: the file is missing or not a CAD file, OpenCASCADE cannot
+            read or convert it, crashed or did not finish in time.
+    """
+    from .geometry import CadError
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise CadError(f"CAD file {path} does not exist")
+    kwargs = {"unit": unit, "heal": heal}
+    if not isolate:
+        from . import read
+
+        try:
+            return read.read_shape(path, **kwargs)
+        except read.ReadError as e:
+            raise CadError(str(e)) from None
+        except Exception as e:  # OpenCASCADE's exceptions arrive as Python exceptions
+            raise CadError(f"{path}: OpenCASCADE failed: {type(e).__name__}: {e}") from None
+    if timeout is None:
+        timeout = 60.0 + 30.0 * os.path.getsize(path) / 1e6
+    try:
+        status, payload = _CLIENT.request(os.path.abspath(path), kwargs, float(timeout))
+    except RuntimeError as e:
+        raise CadError(f"{path}: {e}") from None
+    if status == "ok":
+        return payload
+    if status == "error":
+        raise CadError(payload)
+    if status == "timeout":
+        raise CadError(f"{path}: OpenCASCADE did not finish reading it within {payload:g} s "
+                       "(malformed file?)")
+    raise CadError(f"{path}: OpenCASCADE crashed reading it ({payload}); the file is malformed "
+                   "or uses something OpenCASCADE cannot handle")
+
+
+if __name__ == "__main__":
+    serve()

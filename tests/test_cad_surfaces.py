@@ -1,0 +1,209 @@
+"""Analytic surfaces and curves (nagata_snap.cad.surfaces / .curves) against OpenCASCADE.
+
+The same placements are built as OCC ``Geom_*`` surfaces and curves; points
+(near and far, on the axis, at the poles, at the apex, across the seam) are
+projected by our closed form and by ``GeomAPI_ProjectPointOnSurf`` /
+``GeomAPI_ProjectPointOnCurve``; evaluation and normals are compared with
+``Geom_Surface.D1`` / ``GeomLProp_SLProps``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nagata_snap.cad.curves import Circle, Line
+from nagata_snap.cad.projection import project_newton
+from nagata_snap.cad.surfaces import Cone, Cylinder, Plane, Sphere, Torus
+
+OCP = pytest.importorskip("OCP")
+from OCP.Geom import (  # noqa: E402
+    Geom_Circle,
+    Geom_ConicalSurface,
+    Geom_CylindricalSurface,
+    Geom_Line,
+    Geom_Plane,
+    Geom_SphericalSurface,
+    Geom_ToroidalSurface,
+    Geom_TrimmedCurve,
+)
+from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf  # noqa: E402
+from OCP.GeomLProp import GeomLProp_SLProps  # noqa: E402
+from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Lin, gp_Pnt  # noqa: E402
+
+RNG = np.random.default_rng(7)
+O = np.array([0.3, -0.2, 0.5])
+Z = np.array([1.0, 2.0, 2.0]) / 3.0
+X = np.cross(Z, [0.0, 0.0, 1.0])
+X /= np.linalg.norm(X)
+Y = np.cross(Z, X)
+BOX = [[0.0, 2 * np.pi], [-1.0, 1.0]]
+
+
+def ax3(left: bool = False) -> gp_Ax3:
+    a = gp_Ax3(gp_Pnt(*O), gp_Dir(*Z), gp_Dir(*X))
+    if left:
+        a.YReverse()
+    return a
+
+
+def frame(left: bool = False):
+    return (O, X, -Y if left else Y, Z)
+
+
+CASES = {
+    "plane": (lambda lf: Plane(*frame(lf), [[-1, 1], [-1, 1]]), lambda lf: Geom_Plane(ax3(lf))),
+    "cylinder": (lambda lf: Cylinder(*frame(lf), 0.7, BOX), lambda lf: Geom_CylindricalSurface(ax3(lf), 0.7)),
+    "cone": (lambda lf: Cone(*frame(lf), 0.4, 0.5, [[0, 2 * np.pi], [-0.5, 1.0]]),
+             lambda lf: Geom_ConicalSurface(ax3(lf), 0.5, 0.4)),
+    "sphere": (lambda lf: Sphere(*frame(lf), 0.9, [[0, 2 * np.pi], [-np.pi / 2, np.pi / 2]]),
+               lambda lf: Geom_SphericalSurface(ax3(lf), 0.9)),
+    "torus": (lambda lf: Torus(*frame(lf), 1.0, 0.3, [[0, 2 * np.pi], [0, 2 * np.pi]]),
+              lambda lf: Geom_ToroidalSurface(ax3(lf), 1.0, 0.3)),
+}
+
+
+def occ_project(s, X):
+    out = np.empty((len(X), 2))
+    dist = np.empty(len(X))
+    for i, x in enumerate(X):
+        pr = GeomAPI_ProjectPointOnSurf(gp_Pnt(*x), s)
+        out[i] = pr.LowerDistanceParameters()
+        dist[i] = pr.LowerDistance()
+    return out, dist
+
+
+def near_points(surf, n, spread):
+    u = RNG.uniform(*surf.bounds[0], n)
+    v = RNG.uniform(*surf.bounds[1], n)
+    S = surf._points(u, v)
+    return S + RNG.normal(scale=spread, size=S.shape)
+
+
+@pytest.mark.parametrize("left", [False, True])
+@pytest.mark.parametrize("kind", sorted(CASES))
+def test_evaluation_and_normals_match_occ(kind, left):
+    ours, theirs = CASES[kind][0](left), CASES[kind][1](left)
+    u = RNG.uniform(*ours.bounds[0], 40)
+    v = RNG.uniform(*ours.bounds[1], 40)
+    S, Su, Sv = ours.evaluate(u, v, 1)
+    N = ours.normals(np.c_[u, v])
+    for i in range(40):
+        p = theirs.Value(u[i], v[i])
+        assert np.allclose(S[i], [p.X(), p.Y(), p.Z()], atol=1e-15, rtol=0)
+        props = GeomLProp_SLProps(theirs, u[i], v[i], 1, 1e-12)
+        d1u, d1v = props.D1U(), props.D1V()
+        assert np.allclose(Su[i], [d1u.X(), d1u.Y(), d1u.Z()], atol=1e-14)
+        assert np.allclose(Sv[i], [d1v.X(), d1v.Y(), d1v.Z()], atol=1e-14)
+        n = props.Normal()
+        assert np.allclose(N[i], [n.X(), n.Y(), n.Z()], atol=1e-13)
+
+
+@pytest.mark.parametrize("left", [False, True])
+@pytest.mark.parametrize("kind", sorted(CASES))
+def test_closest_point_matches_occ(kind, left):
+    ours, theirs = CASES[kind][0](left), CASES[kind][1](left)
+    X = np.concatenate([near_points(ours, 200, 0.05), near_points(ours, 50, 0.3)])
+    P, S, d = ours.closest(X)
+    uv, dref = occ_project(theirs, X)
+    if kind == "cone":  # OCC's cone has both nappes; ours the face's (v >= apex)
+        keep = uv[:, 1] >= ours.v_apex
+        X, P, S, d, uv, dref = X[keep], P[keep], S[keep], d[keep], uv[keep], dref[keep]
+        assert keep.sum() > 200
+    size = ours.bbox_size
+    np.testing.assert_allclose(d, dref, rtol=0, atol=1e-14 * size)
+    np.testing.assert_allclose(ours._points(P[:, 0], P[:, 1]), S, rtol=0, atol=1e-15 * size)
+    # the same parameters (u modulo the period)
+    for a, per in enumerate(ours.periods):
+        du = P[:, a] - uv[:, a]
+        if np.isfinite(per):
+            du = (du + per / 2) % per - per / 2
+        np.testing.assert_allclose(du, 0, atol=1e-9)
+
+
+def test_degenerate_points_take_the_seed():
+    """On the axis, at the poles, at the apex and on a torus' tube centre the free
+    parameter is the seed's; the foot point is still the exact one."""
+    O0, e = np.zeros(3), np.eye(3)
+    cyl = Cylinder(O0, e[0], e[1], e[2], 1.0, BOX)
+    P, S, d = cyl.closest([[0, 0, 0.3]], [[1.25, 0.0]])
+    assert P[0, 0] == 1.25 and P[0, 1] == 0.3 and abs(d[0] - 1.0) < 1e-15
+    sph = Sphere(O0, e[0], e[1], e[2], 2.0, [[0, 2 * np.pi], [-np.pi / 2, np.pi / 2]])
+    P, S, d = sph.closest([[0, 0, 3.0], [0, 0, -0.5]], [[0.7, 0.0], [2.0, 0.0]])
+    np.testing.assert_allclose(P, [[0.7, np.pi / 2], [2.0, -np.pi / 2]], atol=1e-15)
+    np.testing.assert_allclose(S, [[0, 0, 2.0], [0, 0, -2.0]], atol=1e-15)
+    np.testing.assert_allclose(sph.normals(P), [[0, 0, 1.0], [0, 0, -1.0]], atol=1e-15)
+    tor = Torus(O0, e[0], e[1], e[2], 1.0, 0.25, [[0, 2 * np.pi], [0, 2 * np.pi]])
+    P, S, d = tor.closest([[0.0, 1.0, 0.0]], [[0.0, 2.5]])
+    assert abs(P[0, 0] - np.pi / 2) < 1e-15 and P[0, 1] == 2.5 and abs(d[0] - 0.25) < 1e-15
+    # cone with its apex at z = -0.8: points beyond the apex go to the apex or to the
+    # opposite generator, whichever is nearer (checked by brute force on the nappe)
+    cone = Cone(O0, e[0], e[1], e[2], 0.4, 0.5, [[0, 2 * np.pi], [-0.8 / np.cos(0.5), 1.0]])
+    assert abs(cone.v_apex - (-0.4 / np.sin(0.5))) < 1e-15
+    Xq = np.array([[0, 0, -2.0], [0.05, 0, -1.5], [0.3, 0.1, -0.9], [0.0, 0.0, 0.2]])
+    P, S, d = cone.closest(Xq, np.full((4, 2), 0.3))
+    uu, vv = np.meshgrid(np.linspace(0, 2 * np.pi, 721), cone.v_apex + np.linspace(0, 3, 3001) ** 2 / 3)
+    grid = cone._points(uu.ravel(), vv.ravel())
+    brute = np.linalg.norm(grid[None] - Xq[:, None], axis=2).min(axis=1)
+    assert np.all(d <= brute + 1e-12) and np.all(d >= brute - 2e-3)
+    assert np.all(P[:, 1] >= cone.v_apex)
+    apex = cone._points(np.zeros(1), np.array([cone.v_apex]))[0]
+    np.testing.assert_allclose(S[0], apex, atol=1e-15)
+    assert P[0, 0] == 0.3  # u is free at the apex: the seed
+
+
+def test_seam_wrapping_follows_the_face_bounds():
+    e = np.eye(3)
+    cyl = Cylinder(np.zeros(3), e[0], e[1], e[2], 1.0, [[np.pi, 3 * np.pi], [0, 1]])
+    P, _, _ = cyl.closest([[1.0, -1e-9, 0.5], [1.0, 1e-9, 0.5], [-1.0, 0.0, 0.5]])
+    assert np.all((P[:, 0] >= np.pi) & (P[:, 0] < 3 * np.pi))
+    np.testing.assert_allclose(P[:, 0], [2 * np.pi - 1e-9, 2 * np.pi + 1e-9, np.pi], atol=1e-15)
+
+
+def test_newton_on_analytic_surfaces_agrees_with_the_closed_form():
+    """The generic Newton (used by nothing but this check) converges to the closed form."""
+    for kind in ("cylinder", "sphere", "torus"):
+        s = CASES[kind][0](False)
+        X = near_points(s, 100, 0.03)
+        P, S, d = s.closest(X)
+        res = project_newton(s, X, P + RNG.normal(scale=0.05, size=P.shape))
+        np.testing.assert_allclose(res.distance, d, rtol=0, atol=1e-13)
+
+
+# ----------------------------------------------------------------------
+# curves
+# ----------------------------------------------------------------------
+def occ_curve_project(c, t0, t1, X):
+    tc = Geom_TrimmedCurve(c, t0, t1)
+    out = np.empty(len(X))
+    for i, x in enumerate(X):
+        pr = GeomAPI_ProjectPointOnCurve(gp_Pnt(*x), tc)
+        if pr.NbPoints() == 0:  # no orthogonal foot on the trimmed curve: the nearer end
+            a, b = tc.Value(t0), tc.Value(t1)
+            out[i] = min(a.Distance(gp_Pnt(*x)), b.Distance(gp_Pnt(*x)))
+        else:
+            a, b = tc.Value(t0), tc.Value(t1)
+            out[i] = min(pr.LowerDistance(), a.Distance(gp_Pnt(*x)), b.Distance(gp_Pnt(*x)))
+    return out
+
+
+@pytest.mark.parametrize("t0, t1", [(0.0, 2 * np.pi), (0.3, 2.0), (-1.0, 4.5), (1.0, 7.0)])
+def test_circle_arc_closest_point_matches_occ(t0, t1):
+    c = Circle(O, X, Y, 0.6, t0, t1)
+    occ = Geom_Circle(gp_Circ(gp_Ax2(gp_Pnt(*O), gp_Dir(*Z), gp_Dir(*X)), 0.6))
+    t = RNG.uniform(-np.pi, 3 * np.pi, 300)
+    Xq = c._points(t) + RNG.normal(scale=0.2, size=(300, 3))
+    T, C, d = c.closest(Xq)
+    np.testing.assert_allclose(d, occ_curve_project(occ, t0, t1, Xq), rtol=0, atol=1e-14)
+    assert np.all((T[:, 0] >= t0) & (T[:, 0] <= t1))
+    p = occ.Value(1.1)
+    np.testing.assert_allclose(c._points(np.array([1.1]))[0], [p.X(), p.Y(), p.Z()], atol=1e-15)
+
+
+def test_line_segment_closest_point_matches_occ():
+    ln = Line(O, Z, -0.5, 1.5)
+    occ = Geom_Line(gp_Lin(gp_Pnt(*O), gp_Dir(*Z)))
+    Xq = O + RNG.normal(scale=1.5, size=(300, 3))
+    T, C, d = ln.closest(Xq)
+    np.testing.assert_allclose(d, occ_curve_project(occ, -0.5, 1.5, Xq), rtol=0, atol=1e-14)
+    assert np.all((T >= -0.5) & (T <= 1.5))

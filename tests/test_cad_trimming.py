@@ -1,0 +1,141 @@
+"""Point-in-face of nagata_snap.cad.trimming against OpenCASCADE's face classifier.
+
+Parts built with gmsh's OpenCASCADE and written as STEP (planes with round
+holes, filleted edges, cylinders, a sphere, a cone with its apex, a torus:
+seams, poles and an apex) are read by :meth:`CadGeometry.from_file`.  On every
+face, parameter points are classified by :class:`TrimLoops` and by
+``BRepClass_FaceClassifier`` on OCC's own face: random points of the face's
+``(u, v)`` box, and points a small distance inside and outside every loop
+segment (near seams, poles, holes and corners).  Away from the boundary band
+the answers must agree exactly; points shifted by a period in a closed
+direction must get the same answer as the point itself.
+"""
+
+from __future__ import annotations
+
+import gmsh
+import numpy as np
+import pytest
+
+from nagata_snap.cad import CadGeometry
+from nagata_snap.cad.projection import entity_limits, entity_periods, evaluate_params, normalize_params
+
+from occ_reference import OccShape
+
+pytest.importorskip("OCP")
+from OCP.BRepClass import BRepClass_FaceClassifier  # noqa: E402
+from OCP.TopAbs import TopAbs_State  # noqa: E402
+from OCP.gp import gp_Pnt2d  # noqa: E402
+
+RNG = np.random.default_rng(3)
+
+
+def build(kind: str, path: str) -> None:
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        occ = gmsh.model.occ
+        if kind == "plate":
+            b = occ.addBox(0, 0, 0, 2, 1, 0.4)
+            holes = [(3, occ.addCylinder(x, 0.5, -1, 0, 0, 3, r)) for x, r in ((0.5, 0.2), (1.4, 0.25))]
+            out, _ = occ.cut([(3, b)], holes)
+            occ.synchronize()
+            occ.fillet([out[0][1]], [1, 3, 5], [0.08])
+        else:
+            occ.addSphere(0, 0, 0, 0.5)
+            occ.addCone(2, 0, 0, 0, 0, 1, 0.5, 0)
+            occ.addTorus(4, 0, 0, 0.8, 0.25)
+            occ.addCylinder(6, 0, 0, 0, 0, 1, 0.4)
+        occ.synchronize()
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
+
+
+@pytest.fixture(scope="module", params=["plate", "revolved"])
+def part(request, tmp_path_factory):
+    path = str(tmp_path_factory.mktemp("trim") / f"{request.param}.step")
+    build(request.param, path)
+    return CadGeometry.from_file(path), OccShape(path)
+
+
+def occ_inside(face, uv: np.ndarray) -> np.ndarray:
+    out = np.empty(len(uv), dtype=bool)
+    for i, (u, v) in enumerate(uv):
+        st = BRepClass_FaceClassifier(face, gp_Pnt2d(float(u), float(v)), 1e-9).State()
+        out[i] = st == TopAbs_State.TopAbs_IN
+    return out
+
+
+def metric(surface, q):
+    """``(k, 2)``: ``|S_u|, |S_v|`` at parameters ``q`` (length per parameter unit)."""
+    _, T = evaluate_params(surface, normalize_params(surface, q), 1)
+    return np.linalg.norm(T, axis=2)
+
+
+def seg_distance(loops, q, scale):
+    """Distance (length units, through ``scale = (|S_u|, |S_v|)`` at ``q``) to the nearest segment."""
+    d = np.full(len(q), np.inf)
+    for P in loops:
+        a, b = P[None] * scale[:, None], np.roll(P, -1, axis=0)[None] * scale[:, None]
+        qq = q[:, None] * scale[:, None]
+        ab = b - a
+        t = np.clip(np.einsum("qkj,qkj->qk", qq - a, ab) / np.maximum((ab**2).sum(-1), 1e-300), 0, 1)
+        r = qq - a - t[..., None] * ab
+        d = np.minimum(d, np.sqrt((r**2).sum(-1)).min(axis=1))
+    return d
+
+
+def test_point_in_face_matches_occ_classifier(part):
+    geo, occ = part
+    assert geo.num_entities == len(occ.faces)
+    checked = n_in = 0
+    for e, face in enumerate(geo.model.faces):
+        surf = face.surface
+        loops = [lp.points for lp in face.loops]
+        band = max(lp.band.max() for lp in face.loops)
+        delta = 4 * band + 1e-4 * geo.size  # length units: well clear of the band
+        box = np.array([np.concatenate(loops).min(axis=0), np.concatenate(loops).max(axis=0)])
+        span = np.maximum(box[1] - box[0], 1e-9)
+        q = [box[0] - 0.05 * span + RNG.random((300, 2)) * 1.1 * span]
+        for P in loops:  # a little inside and outside every segment, at its middle and ends
+            a, b = P, np.roll(P, -1, axis=0)
+            nrm = np.stack([b[:, 1] - a[:, 1], a[:, 0] - b[:, 0]], axis=1)
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+            for t in (0.5, 0.1, 0.9):
+                m = a + t * (b - a)
+                step = delta / np.maximum(np.linalg.norm(nrm * metric(surf, m), axis=1), 1e-300)
+                q += [m + step[:, None] * nrm, m - step[:, None] * nrm]
+        q = np.concatenate(q)
+        lim = entity_limits(surf)
+        q = q[np.all((q >= lim[:, 0]) & (q <= lim[:, 1]), axis=1)]  # e.g. not beyond a pole
+        q = q[seg_distance(loops, q, metric(surf, q)) >= 0.5 * delta]  # clear of the band
+        # OCC's classifier does not wrap: ask it at the parameter inside the face's period
+        per = entity_periods(surf)
+        qw = q.copy()
+        for a in np.flatnonzero(np.isfinite(per)):
+            lo = surf.bounds[a, 0]
+            qw[:, a] = lo + np.mod(q[:, a] - lo, per[a])
+        ours = geo.inside(np.full(len(q), e), q)
+        ref = occ_inside(occ.faces[e], qw)
+        bad = np.flatnonzero(ours != ref)
+        assert bad.size == 0, f"face {e} ({type(surf).__name__}): {bad.size} of {len(q)} differ, e.g. {q[bad[:3]]}"
+        n_in += int(ref.sum())
+        # a period away in a closed direction: the same answer
+        for a in np.flatnonzero(np.isfinite(per)):
+            shift = np.zeros(2)
+            shift[a] = per[a] * RNG.choice([-1.0, 1.0])
+            np.testing.assert_array_equal(geo.inside(np.full(len(q), e), q + shift), ref)
+        checked += len(q)
+    assert checked > 3000 and 0.2 * checked < n_in < 0.8 * checked
+
+
+def test_points_on_the_boundary_are_on_both_faces(part):
+    """Points of every loop segment (on a shared edge) are on the face within its band."""
+    geo, _ = part
+    for e, face in enumerate(geo.model.faces):
+        for lp in face.loops:
+            P = lp.points
+            mids = 0.5 * (P + np.roll(P, -1, axis=0))
+            assert geo.inside(np.full(len(P), e), P).all()
+            assert geo.inside(np.full(len(P), e), mids).all()
