@@ -10,8 +10,10 @@ Nagata mode through ``levels`` uniform refinements, with
 * ``jet``: the default estimate (:mod:`nagata_snap.jets`),
 * ``mwselr``: Max's weighting (the previous default),
 * ``cad``: the CAD's exact normals, each facet's on its own face
-  (``--cad gmsh``: OpenCASCADE through gmsh, ``gmsh.model.getNormal`` at the
-  vertices' (u, v); ``--cad occ``: ``nagata_snap.cad.CadGeometry``),
+  (``--cad occ``, the default: the ``CadGeometry`` of
+  :func:`nagata_snap.cad.mesh_cad`, the file read by OCP, faces and (u, v)
+  from gmsh's mesh; ``--cad gmsh``: OpenCASCADE through gmsh,
+  ``gmsh.model.getNormal`` at the vertices' (u, v)),
 
 and plain ``dolfinx.mesh.refine``.  Every boundary vertex of the last level on
 a curved face (cylinders, tori, fillets) is measured against that face with
@@ -19,7 +21,7 @@ gmsh's ``getClosestPoint`` (OpenCASCADE), as a fraction of the model size.
 
 Last line: ``plate_jet_over_cad <max distance, jet / CAD normals>``.
 
-Usage: ``python benchmarks/plate_normals.py [--levels 2] [--cad gmsh|occ]``
+Usage: ``python benchmarks/plate_normals.py [--levels 2] [--cad occ|gmsh]``
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.boundary import boundary_facets  # noqa: E402
+from nagata_snap.cad import mesh_cad  # noqa: E402
 from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file  # noqa: E402
 
 
@@ -92,7 +95,7 @@ def plain(cm, levels, faces, size):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--levels", type=int, default=2)
-    ap.add_argument("--cad", choices=("gmsh", "occ"), default="gmsh")
+    ap.add_argument("--cad", choices=("occ", "gmsh"), default="occ")
     ap.add_argument("--curvature", type=float, default=12.0, help="elements per 2 pi of curvature")
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
@@ -102,14 +105,13 @@ def main() -> None:
         path = parts.write_part("plate_filleted", tmp, formats=("step",))["step"]
         with gmsh_session("plate"):
             import_cad(path)
-            cm = mesh_cad_file(path, comm, curvature=args.curvature)
+            if args.cad == "occ":  # the CAD read by OCP, each facet's face and (u, v) from gmsh's mesh
+                cm, cad = mesh_cad(path, comm, curvature=args.curvature)
+            else:
+                cm = mesh_cad_file(path, comm, curvature=args.curvature)
+                cad = GmshFaceNormals(cm)
             faces = gmsh_curved_faces()
             size = cm.model_size
-            if args.cad == "occ":
-                from nagata_snap.cad import CadGeometry
-                cad = CadGeometry.from_file(path)
-            else:
-                cad = GmshFaceNormals(cm)
             nb = len(boundary_facets(cm.mesh).facets)
             print(f"plate_filleted: {len(gmsh.model.getEntities(2))} faces ({len(faces)} curved), coarse mesh "
                   f"{cm.mesh.topology.index_map(3).size_global} tetrahedra, {nb} boundary facets, size "

@@ -527,25 +527,36 @@ def plate_level2_distances(cm, geo, faces):
 
 
 def test_plate_estimated_normals_as_close_as_cad_normals(tmp_path):
-    """plate_filleted (STEP, coarse curvature sizing): estimated normals within 2x of the CAD's.
+    """plate_filleted (STEP through ``mesh_cad``, coarse curvature sizing) in Nagata mode.
 
-    Measured (``benchmarks/plate_normals.py --levels 2``): jet / CAD 1.00,
-    MWSELR / CAD 4.8, plain refine / jet 56 on the curved faces.
+    ``CadGeometry``'s normals, each facet's on its own face, are
+    OpenCASCADE's (gmsh's ``getNormal`` at gmsh's (u, v)) and give the same
+    patches; the estimated normals put the vertices of two levels within 2x
+    of the CAD-normal distance and far closer than plain refine.  Measured
+    (``benchmarks/plate_normals.py --levels 2``): jet / CAD 1.00, MWSELR /
+    CAD 4.8, plain refine / jet 56 on the curved faces.
     """
     import parts
 
-    from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file
+    from nagata_snap.cad import mesh_cad
+    from nagata_snap.meshing import gmsh_session, import_cad
 
     path = parts.write_part("plate_filleted", str(tmp_path), formats=("step",))["step"]
     with gmsh_session("plate"):
         import_cad(path)
-        cm = mesh_cad_file(path, MPI.COMM_SELF, curvature=12)
+        cm, cad = mesh_cad(path, MPI.COMM_SELF, curvature=12)
         faces = gmsh_curved_faces()
         assert len(faces) >= 10
-        d = {}
-        for name, normals in (("jet", None), ("mwselr", "mwselr"), ("cad", GmshFaceNormals(cm))):
-            geo = NagataGeometry(cm.mesh, cm.facet_tags, normals=normals)
-            d[name], d["plain"] = plate_level2_distances(cm, geo, faces)
+        geo, d = {}, {}
+        sources = (("jet", None), ("mwselr", "mwselr"), ("occ", GmshFaceNormals(cm)), ("cad", cad))
+        for name, normals in sources:
+            geo[name] = NagataGeometry(cm.mesh, cm.facet_tags, normals=normals)
+            d[name], d["plain"] = plate_level2_distances(cm, geo[name], faces)
+    assert angle_deg(geo["cad"].corner_normal, geo["occ"].corner_normal).max() < 1e-8
+    assert angle_deg(geo["jet"].corner_normal, geo["occ"].corner_normal).max() > 0.1  # the estimate is not exact
+    np.testing.assert_allclose(geo["cad"].coef, geo["occ"].coef, rtol=0, atol=1e-9 * cm.model_size)
+    assert edge_gap(geo["cad"]) == 0.0
+    assert d["cad"] == pytest.approx(d["occ"], rel=1e-9), d
     assert d["jet"] <= 1.2 * d["cad"], d
     assert d["plain"] >= 20 * d["jet"], d
     assert d["mwselr"] >= 2 * d["cad"], d  # the test tells normal schemes apart
@@ -554,13 +565,16 @@ def test_plate_estimated_normals_as_close_as_cad_normals(tmp_path):
 # ---------------------------------------------------------------------------
 # MPI: the same normals on every process, whatever the partition
 # ---------------------------------------------------------------------------
-def test_normals_identical_under_mpi(tmp_path):
+@pytest.mark.parametrize("case", ["estimated", "cad"])
+def test_normals_identical_under_mpi(tmp_path, case):
+    """Estimated normals of a box with a hole; a STEP plate's CadGeometry normals (mesh_cad)."""
     script = os.path.join(HERE, "mpi", "nagata_normals.py")
     out = {}
     for n in (1, 2):
         exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
         f = tmp_path / f"n{n}.npz"
-        r = subprocess.run(exe + [sys.executable, script, str(f)], capture_output=True, text=True, timeout=300)
+        r = subprocess.run(exe + [sys.executable, script, str(f), case], capture_output=True, text=True,
+                           timeout=300)
         assert r.returncode == 0, r.stdout + r.stderr
         out[n] = np.load(f)
     for key in ("ids", "normals", "coef"):
