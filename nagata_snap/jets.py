@@ -301,10 +301,12 @@ def fit_sector_normals(
     accepted.  A fit is accepted when its stencil has enough points and its
     normal lies within ``ACCEPT * spread + ACCEPT_DEG`` of the initial
     normal, ``spread`` being the largest angle between the initial normal
-    and the normals of the facets within two rings of the sector: a safety
-    net against fits that leave the cone of the surrounding facets (on the
-    test meshes no accepted fit comes near it; the ridge penalty of
-    :func:`_weighted_lstsq` keeps degenerate stencils in check).  Sectors
+    and the normals of the facets within two rings of the sector (2D: of its
+    own two segments): a safety net against fits that leave the cone of the
+    surrounding facets (on the smooth test meshes no accepted fit comes near
+    it; the ridge penalty of :func:`_weighted_lstsq` keeps degenerate
+    stencils in check; a jagged polygon, neighbouring segments turning by
+    50 degrees, can send a fit out of the wider cone).  Sectors
     no level accepts, and planar ones (``spread == 0``: the facet normals
     within two rings agree to rounding), keep ``n0``, so flat faces stay
     exactly flat.
@@ -332,6 +334,9 @@ def fit_sector_normals(
         ring, ring_mask = sector_stencils(vid, label, region, rings, facets=True)
         spread.append(np.where(ring_mask, _angle(facet_normal[ring], n0[:, None, :]), 0.0).max(axis=1))
     spread, own = spread
+    # 2D: without an inflection the normal at a vertex lies between its two
+    # segments' normals (each is the curve's normal somewhere on its segment)
+    cone = spread if nfv == 3 else own
     out = n0.copy()
     todo = spread > 1e-12
     coarse = interior & (own >= np.radians(COARSE_DEG))
@@ -354,7 +359,7 @@ def fit_sector_normals(
             pm = np.take_along_axis(mask[sel], order, axis=1)
             n = fit_normals(coords[centre[sel]], coords[pid], pm, n0[sel], degree, sigma, planar=nfv == 2)
             cos = np.einsum("si,si->s", n, n0[sel])
-            ok = np.isfinite(cos) & (cos >= np.cos(np.minimum(ACCEPT * spread[sel] + np.radians(ACCEPT_DEG), np.pi)))
+            ok = np.isfinite(cos) & (cos >= np.cos(np.minimum(ACCEPT * cone[sel] + np.radians(ACCEPT_DEG), np.pi)))
             out[sel[ok]] = n[ok]
             todo[sel[ok]] = False
     return out

@@ -193,6 +193,23 @@ def test_normals_next_to_a_sharp_rim_converge():
     assert errs["mwselr"][1] > 5 * jet[1], errs
 
 
+def test_2d_fit_stays_between_its_segments_on_a_jagged_polygon():
+    """A star polygon whose neighbouring segments turn by 30-60 degrees (hypothesis found it:
+    a fit through two neighbours each side pointed 70 degrees outside its segments)."""
+    n = 21
+    radii = np.r_[np.ones(12), 1.25, 0.828125, 0.9453125, 1.14453125, 1.1015625, 0.828125, np.ones(3)]
+    th = 2 * np.pi * (np.arange(n) + 0.09375 * (np.random.default_rng(9159).random(n) - 0.5)) / n
+    p = np.c_[radii * np.cos(th), radii * np.sin(th)]
+    s = np.c_[np.arange(n), (np.arange(n) + 1) % n]
+    geo = NagataGeometry.from_surface(p, s)
+    corner = np.argsort(geo.ids.ravel(), kind="stable").reshape(-1, 2)  # both corners of each vertex
+    f = corner // 2
+    n = geo.corner_normal.reshape(-1, 3)[corner]
+    fn = geo.facet_normal[f]
+    between = angle_deg(n, fn[:, :1]) + angle_deg(n, fn[:, 1:]) - angle_deg(fn[:, :1], fn[:, 1:])
+    assert angle_deg(fn[:, 0], fn[:, 1]).max() > 50 and np.abs(between).max() < 1e-9
+
+
 def test_2d_normals_fourth_order_on_ellipse():
     """Ellipse polygons with unequal segments: normals of order 4, patches as good as exact normals."""
     err, nerr = {}, {}
