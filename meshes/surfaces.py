@@ -56,6 +56,25 @@ def sphere_octahedron(level: int = 1, radius: float = 1.0):
     return p, t, exact
 
 
+def _radial_normal(x):
+    """Unit normal of a cylinder of axis z: the radial direction."""
+    r = np.hypot(x[..., 0], x[..., 1])
+    return np.stack([x[..., 0] / r, x[..., 1] / r, 0 * r], axis=-1)
+
+
+def _cylinder_distance(radius: float, height: float):
+    """Unsigned distance from the closed cylinder (axis z, centred at the origin)."""
+
+    def distance(x):
+        r = np.hypot(x[..., 0], x[..., 1])
+        q0, q1 = r - radius, np.abs(x[..., 2]) - height / 2
+        outside = np.hypot(np.maximum(q0, 0), np.maximum(q1, 0))
+        inside = np.minimum(np.maximum(q0, q1), 0)
+        return np.abs(outside + inside)
+
+    return distance
+
+
 def closed_cylinder(n_around: int, radius: float = 1.0, height: float = 1.0):
     """Closed right cylinder (side and both discs), axis z, centred at the origin.
 
@@ -86,18 +105,9 @@ def closed_cylinder(n_around: int, radius: float = 1.0, height: float = 1.0):
     tris = np.concatenate(tris + [bottom, top])
     tags = np.r_[np.ones(2 * rows * n, int), np.full(2 * n, 2)]
 
-    def distance(x):
-        r = np.hypot(x[..., 0], x[..., 1])
-        q0, q1 = r - radius, np.abs(x[..., 2]) - height / 2
-        outside = np.hypot(np.maximum(q0, 0), np.maximum(q1, 0))
-        inside = np.minimum(np.maximum(q0, q1), 0)
-        return np.abs(outside + inside)
+    distance = _cylinder_distance(radius, height)
 
-    def normal(x):
-        r = np.hypot(x[..., 0], x[..., 1])
-        return np.stack([x[..., 0] / r, x[..., 1] / r, 0 * r], axis=-1)
-
-    return pts, tris, SimpleNamespace(normal=normal, distance=distance), tags
+    return pts, tris, SimpleNamespace(normal=_radial_normal, distance=distance), tags
 
 
 def circle_polygon(n: int, radius: float = 1.0, centre=(0.0, 0.0), jitter: float = 0.0, seed: int = 0):
@@ -126,16 +136,296 @@ def barycentric_grid(nfv: int, m: int) -> np.ndarray:
     return np.c_[1 - l2 - l3, l2, l3]
 
 
-def nagata_surface_error(geo, dist, tag: int | None = None) -> float:
+def nagata_surface_error(geo, dist, tag: int | None = None, per_edge: int | None = None) -> float:
     """Max ``dist`` of densely sampled Nagata patches of ``geo`` from an exact surface.
 
     Args:
         geo: a ``nagata_snap.NagataGeometry``.
         dist: ``f(x (..., 3)) -> (...)`` distance from the exact curve / surface.
         tag: only the patches of this facet tag (default: every snapped patch).
-
-    201 samples per edge (2D) or 496 per triangle (3D, 31 per edge).
+        per_edge: sample intervals per edge (default 200 in 2D, 30 in 3D: 496
+            samples per triangle).
     """
     sel = np.flatnonzero(geo.snap if tag is None else geo.tag == tag)
-    g = barycentric_grid(geo.ids.shape[1], 200 if geo.ids.shape[1] == 2 else 30)
-    return float(dist(geo.evaluate(sel, np.broadcast_to(g, (len(sel), *g.shape)))).max())
+    nfv = geo.ids.shape[1]
+    g = barycentric_grid(nfv, per_edge or (200 if nfv == 2 else 30))
+    err = 0.0
+    for lo in range(0, len(sel), 2000):  # bounded memory on fine meshes
+        s = sel[lo:lo + 2000]
+        err = max(err, float(dist(geo.evaluate(s, np.broadcast_to(g, (len(s), *g.shape)))).max()))
+    return err
+
+
+# --------------------------------------------------------------------------
+# gmsh (OpenCASCADE) surface meshes of smooth and creased solids, exact geometry
+# --------------------------------------------------------------------------
+def torus_exact(R: float = 1.0, r: float = 0.4) -> SimpleNamespace:
+    """Normal and distance of the torus with axis z, major radius ``R``, minor ``r``."""
+
+    def normal(x):
+        rho = np.hypot(x[..., 0], x[..., 1])
+        d = x - np.stack([R * x[..., 0] / rho, R * x[..., 1] / rho, 0 * rho], axis=-1)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def distance(x):
+        return np.abs(np.hypot(np.hypot(x[..., 0], x[..., 1]) - R, x[..., 2]) - r)
+
+    return SimpleNamespace(normal=normal, distance=distance)
+
+
+def ellipsoid_exact(axes=(1.0, 0.7, 0.5)) -> SimpleNamespace:
+    """Normal and distance of the ellipsoid with semi-axes ``axes`` along x, y, z.
+
+    The closest point is ``a_i^2 x_i / (a_i^2 + t)`` with ``t`` the root of
+    ``sum (a_i x_i / (a_i^2 + t))^2 = 1`` nearest 0 (Newton from 0; valid for
+    points within a fraction of the smallest radius of curvature).
+    """
+    a2 = np.asarray(axes, dtype=float) ** 2
+
+    def normal(x):
+        g = x / a2
+        return g / np.linalg.norm(g, axis=-1, keepdims=True)
+
+    def distance(x):
+        t = np.zeros(x.shape[:-1])
+        for _ in range(30):
+            q = x / (a2 + t[..., None])
+            step = (np.sum(a2 * q**2, axis=-1) - 1) / (2 * np.sum(a2 * q**2 / (a2 + t[..., None]), axis=-1))
+            t = t + step
+            if np.abs(step).max() < 1e-15:
+                break
+        return np.linalg.norm(x - a2 * x / (a2 + t[..., None]), axis=-1)
+
+    return SimpleNamespace(normal=normal, distance=distance)
+
+
+def _orient_entities(points: np.ndarray, tris: np.ndarray, entity: np.ndarray) -> np.ndarray:
+    """Flip whole gmsh surfaces so the closed surface is consistently wound and outward.
+
+    gmsh winds each surface's triangles by that surface's parametrisation;
+    the combination of per-surface flips that traverses every edge once in
+    each direction and encloses a positive volume is returned.
+    """
+    ents = np.unique(entity)
+    for signs in range(2 ** len(ents)):
+        flip = np.isin(entity, ents[[(signs >> k) & 1 == 1 for k in range(len(ents))]])
+        t = np.where(flip[:, None], tris[:, [0, 2, 1]], tris)
+        directed = t[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        if len(np.unique(directed, axis=0)) != len(directed):
+            continue
+        x = points[t]
+        if np.einsum("fi,fi->f", x[:, 0], np.cross(x[:, 1], x[:, 2])).sum() > 0:
+            return t
+    raise ValueError("the gmsh surfaces do not close into a consistently orientable surface")
+
+
+def gmsh_occ_surface(build, h: float):
+    """Surface triangles of the OpenCASCADE solid ``build()`` makes, gmsh sizes ``MeshSizeMin = MeshSizeMax = h``.
+
+    ``build`` runs in a fresh gmsh model and creates one solid with
+    ``gmsh.model.occ``.  These are the boundary triangles gmsh's volume mesh
+    of the solid would have (gmsh meshes the surfaces first and keeps them).
+
+    Returns:
+        ``(points (nv, 3), triangles (F, 3) outward, tags (F,))``, ``tags``
+        the gmsh surface (CAD face) of each triangle.
+    """
+    import gmsh
+
+    import generate
+
+    with generate._gmsh_session("surface", False):
+        build()
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+        gmsh.model.mesh.generate(2)
+        node_tags, xyz, _ = gmsh.model.mesh.getNodes()
+        tris, ent = [], []
+        for _, s in gmsh.model.getEntities(2):
+            t = gmsh.model.mesh.getElements(2, s)[2][0].reshape(-1, 3)
+            tris.append(t)
+            ent.append(np.full(len(t), s))
+    order = np.argsort(node_tags)
+    tris = order[np.searchsorted(node_tags[order], np.concatenate(tris))]
+    used, inv = np.unique(tris, return_inverse=True)
+    points, tris, ent = xyz.reshape(-1, 3)[used], inv.reshape(-1, 3), np.concatenate(ent)
+    return points, _orient_entities(points, tris, ent), ent
+
+
+def gmsh_surface(kind: str, h: float):
+    """Surface mesh of a solid meshed by gmsh with ``MeshSizeMin = MeshSizeMax = h``.
+
+    ``kind``: ``"torus"`` (R = 1, r = 0.4, axis z), ``"ellipsoid"``
+    (semi-axes 1, 0.7, 0.5) or ``"cylinder"`` (closed, R = 1, height 1,
+    axis z, centred at the origin: sharp rims).
+
+    Returns:
+        ``(points (nv, 3), triangles (F, 3) outward, exact, tags (F,))`` with
+        ``tags`` the gmsh surface of each triangle (cylinder: 1 side, 2 and 3
+        the discs) and ``exact`` as for the analytic surfaces here (cylinder:
+        the side's normal).
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        if kind == "torus":
+            occ.addTorus(0, 0, 0, 1.0, 0.4)
+        elif kind == "ellipsoid":
+            occ.dilate([(3, occ.addSphere(0, 0, 0, 1.0))], 0, 0, 0, 1.0, 0.7, 0.5)
+        else:
+            occ.addCylinder(0, 0, -0.5, 0, 0, 1.0, 1.0)
+
+    if kind not in ("torus", "ellipsoid", "cylinder"):
+        raise ValueError(f"unknown surface {kind!r}")
+    points, tris, ent = gmsh_occ_surface(build, h)
+    if kind == "torus":
+        exact = torus_exact()
+    elif kind == "ellipsoid":
+        exact = ellipsoid_exact()
+    else:
+        exact = SimpleNamespace(normal=_radial_normal, distance=_cylinder_distance(1.0, 1.0))
+    return points, tris, exact, ent
+
+
+def roof_prism(ridge_deg: float = 30.0):
+    """Builder (for :func:`gmsh_occ_surface`) of a prism whose roof ridge turns by ``ridge_deg``.
+
+    Cross-section in the xz plane: the rectangle [-1, 1] x [0, 1] with a gable
+    roof of slopes ``ridge_deg / 2`` up to the ridge line x = 0; extruded 1.5
+    along y.  The ridge is the line x = 0, z = 1 + tan(ridge_deg / 2).
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        top = 1.0 + np.tan(np.radians(ridge_deg / 2))
+        pts = [occ.addPoint(*q) for q in [(-1, 0, 0), (1, 0, 0), (1, 0, 1), (0, 0, top), (-1, 0, 1)]]
+        loop = occ.addCurveLoop([occ.addLine(pts[i], pts[(i + 1) % 5]) for i in range(5)])
+        occ.extrude([(2, occ.addPlaneSurface([loop]))], 0, 1.5, 0)
+
+    return build
+
+
+def half_torus():
+    """Builder of the torus R = 1, r = 0.4 (axis z) cut by the plane z = 0: sharp 90-degree rims.
+
+    The flat face is the annulus 0.6 <= rho <= 1.4 in z = 0; the curved face
+    is the lower half of the torus (:func:`torus_exact`).
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        occ.intersect([(3, occ.addTorus(0, 0, 0, 1.0, 0.4))], [(3, occ.addBox(-2, -2, -1, 4, 4, 1))])
+
+    return build
+
+
+def filleted_box(radius: float = 0.3):
+    """Builder of the box [0, 1]^3 with its edge x = y = 1 rounded by a fillet of ``radius``.
+
+    The fillet is a quarter cylinder of axis ``(1 - radius, 1 - radius, z)``
+    meeting the faces x = 1 and y = 1 tangentially along the lines
+    ``(1, 1 - radius, z)`` and ``(1 - radius, 1, z)``.
+    """
+    import gmsh
+
+    def build():
+        occ = gmsh.model.occ
+        box = occ.addBox(0, 0, 0, 1, 1, 1)
+        occ.synchronize()
+        edge = [e for _, e in gmsh.model.getBoundary([(3, box)], combined=False, oriented=False,
+                                                     recursive=True)
+                if np.allclose(gmsh.model.occ.getCenterOfMass(1, e), (1, 1, 0.5))]
+        occ.fillet([box], edge, [radius])
+
+    return build
+
+
+def ellipse_polygon(n: int, a: float = 1.0, b: float = 0.5, jitter: float = 0.3, seed: int = 0):
+    """Counter-clockwise ``n``-gon inscribed in the ellipse ``(x/a)^2 + (y/b)^2 = 1``.
+
+    Vertices at nearly equal arc length (perturbed by ``jitter`` of a segment).
+
+    Returns:
+        ``(points (n, 2), segments (n, 2), exact)`` with exact normal and distance.
+    """
+    t = np.linspace(0, 2 * np.pi, 20001)
+    arc = np.r_[0, np.cumsum(np.hypot(np.diff(a * np.cos(t)), np.diff(b * np.sin(t))))]
+    target = (np.arange(n) + jitter * np.random.default_rng(seed).uniform(-0.5, 0.5, n)) * arc[-1] / n
+    th = np.interp(target % arc[-1], arc, t)
+    a2 = np.array([a * a, b * b])
+
+    def normal(x):
+        g = x[..., :2] / a2
+        return g / np.linalg.norm(g, axis=-1, keepdims=True)
+
+    def distance(x):
+        x = x[..., :2]
+        s = np.zeros(x.shape[:-1])
+        for _ in range(40):
+            q = x / (a2 + s[..., None])
+            s = s + (np.sum(a2 * q**2, axis=-1) - 1) / (2 * np.sum(a2 * q**2 / (a2 + s[..., None]), axis=-1))
+        return np.linalg.norm(x - a2 * x / (a2 + s[..., None]), axis=-1)
+
+    segs = np.c_[np.arange(n), (np.arange(n) + 1) % n]
+    return np.c_[a * np.cos(th), b * np.sin(th)], segs, SimpleNamespace(normal=normal, distance=distance)
+
+
+# --------------------------------------------------------------------------
+# CAD normals and distances through gmsh (OpenCASCADE), for a model gmsh has loaded
+
+
+def gmsh_face_distance(face: int, points: np.ndarray) -> np.ndarray:
+    """``(k,)`` distance of ``points (k, 3)`` from gmsh face ``face`` (OpenCASCADE closest point)."""
+    import gmsh
+
+    p = np.asarray(gmsh.model.getClosestPoint(2, face, np.asarray(points, dtype=float).ravel())[0])
+    return np.linalg.norm(p.reshape(-1, 3) - points, axis=1)
+
+
+def gmsh_curved_faces() -> list[int]:
+    """Tags of the current gmsh model's faces that are not planes."""
+    import gmsh
+
+    return [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) != "Plane"]
+
+
+class GmshFaceNormals:
+    """The CAD's normals through gmsh, with the ``attach``/``vertex_normals`` of ``CadGeometry``.
+
+    Built from a :class:`nagata_snap.meshing.CadMesh`: every boundary facet's
+    gmsh face and its vertices' (u, v) on it; ``vertex_normals`` evaluates
+    ``gmsh.model.getNormal`` on the model imported from the same file
+    (current while it is used).
+    """
+
+    def __init__(self, cm):
+        gid = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
+        order = np.argsort(gid, axis=1)
+        self.keys = np.take_along_axis(gid, order, axis=1)
+        self.params = np.take_along_axis(cm.node_params, order[:, :, None], axis=1)
+        self.entity = np.asarray(cm.facet_entity)
+        self.lookup = {tuple(k): i for i, k in enumerate(self.keys)}  # coarse facets, built once
+
+    def attach(self, facet_points, nodes=None):
+        nodes = np.asarray(nodes, dtype=np.int64)
+        order = np.argsort(nodes, axis=1)
+        row = np.array([self.lookup[tuple(k)] for k in np.take_along_axis(nodes, order, axis=1)])
+        inv = np.argsort(order, axis=1)
+        from nagata_snap import Records
+
+        return Records(self.entity[row].astype(np.int64),
+                       np.take_along_axis(self.params[row], inv[:, :, None], axis=1))
+
+    def vertex_normals(self, records):
+        import gmsh
+
+        out = np.zeros(records.params.shape[:2] + (3,))
+        for face in np.unique(records.root):  # loop over CAD faces (a few dozen)
+            sel = records.root == face
+            n = gmsh.model.getNormal(int(face), records.params[sel].ravel())
+            out[sel] = np.reshape(n, (-1, records.params.shape[1], 3))
+        return out

@@ -35,10 +35,22 @@ from .records import Records
 
 __all__ = ["NagataGeometry", "NormalSource"]
 
-#: User normals: ``None`` (estimate), an array ``(num_nodes, gdim)`` over the
-#: coarse mesh's local geometry nodes, or a callable ``f(x) -> n`` mapping
-#: ``(k, 3)`` points to ``(k, 3)`` (or ``(k, gdim)``) normals.
-NormalSource = None | np.ndarray | Callable[[np.ndarray], np.ndarray]
+#: Vertex normals: ``None`` or a name from :data:`nagata_snap.normals.SCHEMES`
+#: (estimate; ``None`` is ``"jet"``), an array ``(num_nodes, gdim)`` over the
+#: coarse mesh's local geometry nodes, a callable ``f(x) -> n`` mapping
+#: ``(k, 3)`` points to ``(k, 3)`` (or ``(k, gdim)``) normals, or a CAD
+#: geometry: any object with ``attach(facet_points, nodes) -> records`` and
+#: ``vertex_normals(records) -> (nf, nfv, 3)`` (e.g. ``CadGeometry``), whose
+#: normals are taken per facet on the facet's own CAD face.
+NormalSource = None | str | np.ndarray | Callable[[np.ndarray], np.ndarray] | object
+
+#: Corners of one smooth sector whose supplied normals (CAD faces meeting
+#: tangentially) differ by at most this many degrees share their mean.
+SECTOR_MERGE_DEG = 1.0
+
+
+def _is_cad(normals) -> bool:
+    return hasattr(normals, "attach") and hasattr(normals, "vertex_normals")
 
 
 def _unit(n: np.ndarray, what: str, at: np.ndarray | None = None) -> np.ndarray:
@@ -132,15 +144,24 @@ class NagataGeometry:
         facet_tags: its facet tags.
         tags: tag values whose facets are snapped (default: all tags present).
         normals: vertex normals of the snapped surface: ``None`` to estimate
-            them (Max's MWSELR weighting, see :mod:`nagata_snap.normals`), an
-            array ``(num_geometry_nodes, gdim)`` on the coarse mesh's local
-            geometry nodes, or a callable of position ``f(x: (k, 3)) -> (k, 3)``
-            such as an analytic normal.  Corners where the supplied normal
-            differs from the estimated one by more than ``crease_angle`` (the
-            other side of a crease) keep the estimated normal.
-        crease_angle: dihedral angle (degrees) above which a boundary ridge is
-            sharp: a vertex there keeps one normal per smooth side and the
-            ridge uses the multi-normal coefficient (eqs. 20-32 of Nagata 2005).
+            them (a fourth-order fit of the surface around each vertex, see
+            :mod:`nagata_snap.jets`), the name of an estimate
+            (:data:`nagata_snap.normals.SCHEMES`: ``"jet"`` or one of Neto's
+            weighted means such as ``"mwselr"``), an array
+            ``(num_geometry_nodes, gdim)`` on the coarse mesh's local geometry
+            nodes, a callable of position ``f(x: (k, 3)) -> (k, 3)`` such as an
+            analytic normal, or a CAD geometry (an object with ``attach`` and
+            ``vertex_normals``, e.g. ``CadGeometry``): each snapped facet's
+            corners get the normal of the facet's own CAD face, one per sector.
+            Corners where an array's or callable's normal differs from the
+            estimated one by more than ``crease_angle`` (the other side of a
+            crease) keep the estimated normal.
+        crease_angle: degrees; a boundary ridge turning by more than this is
+            sharp, and one turning by more than a third of it is sharp when it
+            turns more than three times the largest facet-to-facet turn next to
+            it on either side (:mod:`nagata_snap.normals`).  A vertex on a sharp ridge keeps one
+            normal per smooth side and the ridge uses the multi-normal
+            coefficient (eqs. 20-32 of Nagata 2005).
         split_tags: also treat ridges between facets of different tags as sharp.
         eps: threshold of Nagata's singular-case rules.
 
@@ -194,7 +215,8 @@ class NagataGeometry:
         tag = tag_values(facet_tags, bf.facets)
         fnorm = bf.outward_normals(x)
         user = None
-        if normals is not None and not callable(normals):
+        if normals is not None and not callable(normals) and not isinstance(normals, str) \
+                and not _is_cad(normals):
             arr = np.asarray(normals, dtype=float)
             bad_shape = arr.ndim != 2 or arr.shape[0] < x.shape[0] or arr.shape[1] not in (2, 3)
             if comm.allreduce(bool(bad_shape), op=MPI.LOR):  # the same error on every process
@@ -222,6 +244,8 @@ class NagataGeometry:
                 f"{n_int} facets with snapped tags {tags} are interior facets; "
                 "only exterior boundary facets can be snapped"
             )
+        if _is_cad(normals):  # each process attaches its own facets to their CAD faces
+            user = collective(comm, _cad_vertex_normals, normals, coords, gids, np.isin(tag, tags))
         gids, coords, tag, fnorm, user = _gather(comm, gids, coords, tag, fnorm, user)
         # every process builds the same patches from the gathered data (no MPI
         # inside); a callable of normals may still fail on some processes only
@@ -297,13 +321,16 @@ class NagataGeometry:
         self.tags = sorted(set(tag.tolist())) if tags is None else [int(t) for t in tags]
         self.crease_angle = float(crease_angle)
         user = np.zeros_like(x)
-        if normals is not None and not callable(normals):
+        if normals is not None and not callable(normals) and not isinstance(normals, str) \
+                and not _is_cad(normals):
             arr = np.asarray(normals, dtype=float)
             if arr.ndim != 2 or arr.shape[0] != len(pts) or arr.shape[1] not in (2, 3):
                 raise ValueError(
                     f"normals array must have shape (num_points={len(pts)}, 2 or 3), got {arr.shape}"
                 )
             user[..., : arr.shape[1]] = arr[fac]
+        elif _is_cad(normals):
+            user = _cad_vertex_normals(normals, x, fac, np.isin(tag, self.tags))
         self._build(fac, x, tag, fn, user, normals, crease_angle, split_tags, eps)
         return self
 
@@ -331,57 +358,73 @@ class NagataGeometry:
         self.x = coords
         self.tag = tag
         self.facet_normal = fnorm
-        cn = corner_normals(vid, coords, fnorm, tag, crease_angle, split_tags)
+        scheme = normals if isinstance(normals, str) else "jet"
+        cn = corner_normals(vid, coords, fnorm, tag, crease_angle, split_tags, scheme)
         n = cn.normals.copy()
         self.snap = snap
-        if normals is not None:
-            if callable(normals):
-                pts = coords[snap].reshape(-1, 3)
-                val = np.asarray(normals(pts), dtype=float)
-                if val.shape == (len(pts), 2):
-                    val = np.c_[val, np.zeros(len(pts))]
-                if val.shape != (len(pts), 3):
-                    raise ValueError(
-                        f"normals callable returned shape {val.shape}, expected ({len(pts)}, 3)"
-                    )
-                un = val.reshape(-1, nfv, 3)
-            else:
-                un = user[snap]
-            un = _unit(un, "user-supplied", coords[snap])
-            # orientation is free (Nagata's c(d, n0, n1) is unchanged when both
-            # normals flip): align each with the outward estimate
-            dot = np.einsum("fvi,fvi->fv", un, n[snap])
-            un = np.where(dot[..., None] < 0, -un, un)
-            far = np.abs(dot) < np.cos(np.radians(crease_angle))
-            if far.any():
-                warnings.warn(
-                    f"{int(far.sum())} supplied normals differ from the estimated normal of "
-                    f"their facet side by more than {crease_angle} deg (other side of a "
-                    "crease?); the estimated normal is kept there",
-                    stacklevel=3,
-                )
-            n[snap] = np.where(far[..., None], n[snap], un)
+        if _is_cad(normals):  # orientation is free: aligned with the estimate
+            dot = np.einsum("fvi,fvi->fv", user[snap], n[snap])
+            n[snap] = np.where(dot[..., None] < 0, -user[snap], user[snap])
+        elif normals is not None and not isinstance(normals, str):
+            n[snap] = self._supplied_normals(normals, coords[snap], user[snap], n[snap], crease_angle)
+        n, crease = _sector_consistent(cn, n)
         self.corner_normal = n
-        self.coef = self._edge_coefficients(cn, n, eps)
+        self.coef = self._edge_coefficients(cn, n, crease, eps)
+
+    @staticmethod
+    def _supplied_normals(normals, coords: np.ndarray, user: np.ndarray, est: np.ndarray,
+                          crease_angle: float) -> np.ndarray:
+        """User normals (callable of position or array) at the snapped corners, ``(ns, nfv, 3)``.
+
+        Orientation is free (aligned with the estimate ``est``); corners where
+        the supplied normal is more than ``crease_angle`` from the estimate
+        keep the estimate, with a warning.
+        """
+        nfv = coords.shape[1]
+        if callable(normals):
+            pts = coords.reshape(-1, 3)
+            val = np.asarray(normals(pts), dtype=float)
+            if val.shape == (len(pts), 2):
+                val = np.c_[val, np.zeros(len(pts))]
+            if val.shape != (len(pts), 3):
+                raise ValueError(
+                    f"normals callable returned shape {val.shape}, expected ({len(pts)}, 3)"
+                )
+            un = val.reshape(-1, nfv, 3)
+        else:
+            un = user
+        un = _unit(un, "user-supplied", coords)
+        # orientation is free (Nagata's c(d, n0, n1) is unchanged when both
+        # normals flip): align each with the outward estimate
+        dot = np.einsum("fvi,fvi->fv", un, est)
+        un = np.where(dot[..., None] < 0, -un, un)
+        far = np.abs(dot) < np.cos(np.radians(crease_angle))
+        if far.any():
+            warnings.warn(
+                f"{int(far.sum())} supplied normals differ from the estimated normal of "
+                f"their facet side by more than {crease_angle} deg (other side of a "
+                "crease?); the estimated normal is kept there",
+                stacklevel=4,
+            )
+        return np.where(far[..., None], est, un)
 
     # ------------------------------------------------------------------
-    def _edge_coefficients(self, cn, n: np.ndarray, eps: float) -> np.ndarray:
+    def _edge_coefficients(self, cn, n: np.ndarray, crease: np.ndarray, eps: float) -> np.ndarray:
         x = self.x
         F, nfv = self.ids.shape
         if nfv == 2:
             cos = np.einsum("fi,fi->f", n[:, 0], n[:, 1])
             self._check_opposite(cos)
-            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps,
-                                            nagata.TILT_MAX)[:, None, :]
+            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps)[:, None, :]
         local = nagata.LOCAL_EDGES[3]
         a, b = local[:, 0], local[:, 1]
         d = x[:, b] - x[:, a]  # (F, 3, 3)
         n0, n1 = n[:, a], n[:, b]
         cos = np.einsum("fei,fei->fe", n0, n1)
         self._check_opposite(cos)
-        coef = nagata.curve_coefficient(d, n0, n1, eps, nagata.TILT_MAX)
+        coef = nagata.curve_coefficient(d, n0, n1, eps)
         # crease ridges: one coefficient from all normals of both facets (eq. 32)
-        cr = np.flatnonzero(cn.crease)
+        cr = np.flatnonzero(crease)
         if len(cr):
             rf = cn.ridge_facets[cr]  # (R, 2)
             rv = cn.ridge_vertices[cr]  # (R, 2) vertex ids, sorted
@@ -559,6 +602,60 @@ class NagataGeometry:
         """Points on patches ``patch (P,)`` at barycentric ``lam (P, k, nfv)``: ``(P, k, 3)``."""
         patch = np.asarray(patch)
         return nagata.evaluate(self.x[patch], self.coef[patch], lam)
+
+
+def _cad_vertex_normals(cad, coords: np.ndarray, gids: np.ndarray, snap: np.ndarray) -> np.ndarray:
+    """Unit CAD normals ``(nf, nfv, 3)`` at the corners of the ``snap`` facets, zero elsewhere.
+
+    Each snapped facet ``coords (nf, nfv, 3)`` (vertex ids ``gids (nf, nfv)``)
+    is attached to its own CAD face (``cad.attach``) and gets that face's
+    normals at its vertices (``cad.vertex_normals``), whatever the normals of
+    the neighbouring faces at the same vertex.
+    """
+    out = np.zeros_like(coords)
+    if not snap.any():
+        return out
+    val = np.asarray(cad.vertex_normals(cad.attach(coords[snap], gids[snap])), dtype=float)
+    if val.shape != coords[snap].shape:
+        raise ValueError(
+            f"the CAD geometry's vertex_normals returned shape {val.shape}, expected {coords[snap].shape}"
+        )
+    out[snap] = _unit(val, "CAD", coords[snap])
+    return out
+
+
+def _sector_consistent(cn, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One normal per sector where supplied normals allow it; creases where they differ.
+
+    Corners of one sector whose normals differ (per-facet CAD normals of two
+    faces meeting tangentially) get their mean when they are at most
+    :data:`SECTOR_MERGE_DEG` apart; a smooth ridge whose two facets still
+    carry different normals at a common vertex is then treated as a crease
+    (the multi-normal coefficient uses both facets' normals alike, so the
+    patches keep sharing the edge curve).
+
+    Returns:
+        ``(normals (F, nfv, 3), crease (R,))``.
+    """
+    F, nfv = cn.sector.shape
+    lab = cn.sector.ravel()
+    flat = n.reshape(-1, 3)
+    mean = np.zeros((lab.max() + 1, 3))
+    np.add.at(mean, lab, flat)
+    mean /= np.linalg.norm(mean, axis=1, keepdims=True)
+    cos = np.ones(len(mean))
+    np.minimum.at(cos, lab, np.einsum("ci,ci->c", flat, mean[lab]))
+    differ = np.zeros(len(mean), dtype=bool)
+    np.logical_or.at(differ, lab, np.any(flat != flat[np.unique(lab, return_index=True)[1]][lab], axis=1))
+    merge = differ & (cos >= np.cos(np.radians(SECTOR_MERGE_DEG)))
+    flat = np.where(merge[lab, None], mean[lab], flat)
+    n = flat.reshape(F, nfv, 3)
+    rf, crease = cn.ridge_facets, cn.crease.copy()
+    vid = cn.vertex
+    for k in range(cn.ridge_vertices.shape[1]):  # the ridge's vertices (1 in 2D, 2 in 3D)
+        pos = [np.argmax(vid[rf[:, s]] == cn.ridge_vertices[:, k, None], axis=1) for s in (0, 1)]
+        crease |= np.any(n[rf[:, 0], pos[0]] != n[rf[:, 1], pos[1]], axis=1)
+    return n, crease
 
 
 def _rows_searchsorted(table: np.ndarray, rows: np.ndarray) -> np.ndarray:

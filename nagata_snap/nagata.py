@@ -9,8 +9,10 @@ Edge curve (eq. 1), for end points ``x0, x1`` and unit normals ``n0, n1``::
     x(xi) = x0 + (d - c) xi + c xi^2 = (1 - xi) x0 + xi x1 - c xi (1 - xi),   d = x1 - x0
 
 The curvature coefficient ``c`` is eq. (15) for one normal per end, or the
-generalized-inverse solution eq. (20) with eqs. (29)-(32) when an edge carries
-several normals per end (sharp edges, open boundaries).
+generalized-inverse solution eq. (20) (the inverse of eqs. 26-33, computed
+from the eigen-decomposition of ``[s]``) when an edge carries several normals
+per end (sharp edges, open boundaries); both are bounded by :data:`B_MAX`
+where Nagata's formula is ill-determined.
 
 Triangular patch (eq. 44), written with barycentric coordinates
 ``l1 = 1 - eta, l2 = eta - zeta, l3 = zeta``::
@@ -39,6 +41,7 @@ import numpy.typing as npt
 
 __all__ = [
     "EPS",
+    "B_MAX",
     "curve_coefficient",
     "curve_coefficient_multi",
     "curve",
@@ -57,23 +60,13 @@ __all__ = [
 #: corresponds to normals about 2e-5 rad apart.
 EPS = 1.0e-10
 
-#: Bound on the second term of eq. (15), ``|d.v| <= TILT_MAX Dc |d|`` (Nagata,
+#: Bound of the coefficients of eq. (15) relative to the edge length (Nagata,
 #: after eq. 33: "similar constraint can be imposed also on the magnitude of
-#: the solution c").  ``|(d.v) / Dc dv| = |d.v| / sqrt(Dc)`` does not vanish
-#: as the normals become parallel: a chord tilted by ``t`` against nearly
-#: parallel normals ``phi`` apart gets ``|c| ~ |d| t / phi``.  Exact normals of
-#: a smooth curve give ``|d.v| / (Dc |d|) ~ |kappa'| / kappa^2`` (0 on a
-#: circle); estimated ones add noise ``t`` independent of ``phi``, e.g. a
-#: straight edge on a cylinder with normals 0.3 deg apart got ``|c| = 1.7 |d|``.
-TILT_MAX = 1.0
-
-#: Rank threshold of :func:`curve_coefficient_multi`: ``[s]`` counts as rank 2
-#: when its smallest eigenvalue is below this fraction of its largest.
-#: Estimated normals on both sides of a straight crease are never exactly
-#: coplanar at the two ends; the nearly-null direction (along the edge) then
-#: carries ``rhs / lambda_min``, a coefficient of many edge lengths (a folded
-#: patch), where the exact normals give none.
-RANK_TOL = 0.1
+#: the solution c"; see :func:`curve_coefficient`).  It is the only safeguard
+#: of the curve coefficient: it keeps nearly parallel estimated normals from
+#: bending straight edges and, in :func:`curve_coefficient_multi`, the nearly
+#: null eigen-direction of a crease's ``[s]`` from folding coarse patches.
+B_MAX = 1.0
 
 #: Local vertex pairs of the edges of a facet with ``nfv`` vertices, in the
 #: order c1, c2, c3 of eq. (39): (v1,v2), (v2,v3), (v1,v3).
@@ -85,8 +78,7 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def curve_coefficient(
-    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS,
-    tilt_max: float | None = None,
+    d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS
 ) -> np.ndarray:
     """Curvature coefficient ``c(d, n0, n1)`` of the Nagata curve, eq. (15).
 
@@ -97,16 +89,29 @@ def curve_coefficient(
 
     Singular cases (sec. 2.1.1): the first term is dropped when
     ``1 - Dc < eps`` and the second when ``Dc < eps``; parallel normals thus
-    give ``c = 0`` (a straight edge stays exactly straight).  With
-    ``tilt_max`` (for estimated normals, see :data:`TILT_MAX`) the second
-    term is bounded, ``|d.v| <= tilt_max Dc |x1 - x0|``; then eq. (6) no
-    longer holds exactly where the bound is active.
+    give ``c = 0`` (a straight edge stays exactly straight).
+
+    Nearly parallel (or opposite) normals: by eq. (18) an error ``delta_2``
+    in the second coefficient ``b = d / Dc`` changes the orthogonality
+    conditions only by ``Dc delta_2``, so as the normals approach each other
+    ``b`` becomes ill-determined: a normal error ``e`` changes ``d`` by
+    ``|d| e`` and ``b`` by ``|d| e / Dc``, without bound (on a cylinder
+    generator, estimated normals 1e-4 apart bend a straight edge by a tenth
+    of its length).  Following the suggestion of sec. 2.1.2 to bound the
+    solution, ``b`` is clipped to ``|b| <= B_MAX |d| / (1 - Dc)`` and, for
+    nearly opposite normals, ``a`` to ``|a| <= B_MAX |d| / Dc`` (in terms of
+    :func:`curve_coefficient_multi`: the component along each eigenvector
+    of ``[s]`` is bounded by ``B_MAX |d| sqrt(mu) / (1 - mu)``, ``mu`` the
+    eigenvalue per normal, ``Dc`` and ``1 - Dc`` here).  On a smooth curve
+    ``b ~ -|d| (dR/ds) / 3`` (``R`` the radius of curvature), so the clip
+    only acts where the radius changes by more than ``3 B_MAX`` per unit
+    length (inflections, nearly straight edges); exact normals on circles,
+    spheres and cylinders have ``b = 0``.
 
     Args:
         d: ``(..., 3)`` edge vectors ``x1 - x0`` (length units).
         n0, n1: ``(..., 3)`` unit normals at the two ends.
         eps: dimensionless singularity threshold.
-        tilt_max: bound of the second term (None: eq. (15) as published).
 
     Returns:
         ``(..., 3)`` coefficients ``c`` (length units).  The result is the
@@ -120,32 +125,40 @@ def curve_coefficient(
     dd = _dot(d, v)
     ddelta = _dot(d, dv)
     dc = _dot(n0, dv)
+    lim = B_MAX * np.linalg.norm(d, axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        a = np.where(1.0 - dc < eps, 0.0, ddelta / (1.0 - dc))
-        if tilt_max is not None:
-            lim = tilt_max * dc * np.linalg.norm(d, axis=-1)
-            dd = np.clip(dd, -lim, lim)
-        b = np.where(dc < eps, 0.0, dd / dc)
+        lim_a = np.where(dc > 0.0, lim / dc, np.inf)
+        lim_b = np.where(1.0 - dc > 0.0, lim / (1.0 - dc), np.inf)
+        a = np.where(1.0 - dc < eps, 0.0, np.clip(ddelta / (1.0 - dc), -lim_a, lim_a))
+        b = np.where(dc < eps, 0.0, np.clip(dd / dc, -lim_b, lim_b))
     return a[..., None] * v + b[..., None] * dv
 
 
 def curve_coefficient_multi(
     d: npt.ArrayLike, n0: npt.ArrayLike, n1: npt.ArrayLike, eps: float = EPS
 ) -> np.ndarray:
-    """Curvature coefficient for several normals per end, eqs. (20), (31), (32).
+    """Curvature coefficient for several normals per end, eqs. (20), (32), (33).
 
     The orthogonality conditions ``n0k.(d - c) = 0`` and ``n1k.(d + c) = 0``
     for all normals ``n0k`` at the first end and ``n1k`` at the second end
     (eq. 32) are solved in the minimum-norm least-squares sense,
-    ``c = [n]^+ {d}`` (eq. 20), with the generalized inverse from eq. (31):
-    ``[s] = [n]^T [n]`` (eq. 33), ``a_i^(0) = s_j x s_k`` (26c),
-    ``a_i^(1) = s_j x e_k + e_j x s_k`` (26b), ``D^(2) = e_i.(s_i + a_i^(1))``,
-    ``D^(1) = s_i.a_i^(1) + e_i.a_i^(0)``, ``D^(0) = s_i.a_i^(0)`` (29), each
-    treated as zero below ``eps`` (sec. 2.1.2).  A nearly rank-2 ``[s]``
-    (smallest eigenvalue below :data:`RANK_TOL` of the largest) is solved
-    as rank 2: its nearly-null eigen-direction is dropped (the truncated
-    pseudo-inverse, which is eq. (31) with ``D^(0) = 0`` for an exactly
-    rank-2 ``[s]``).
+    ``c = [n]^+ {d} = [s]^+ [n]^T {d}`` (eq. 20) with ``[s] = [n]^T [n]``
+    (eq. 33).  The generalized inverse of the symmetric ``[s]`` is taken from
+    its eigen-decomposition ``[s] = sum_i lambda_i e_i e_i^T`` (the same
+    inverse as Nagata's closed form, eqs. 26-31): components with
+    ``lambda_i < m eps`` (``m`` the number of normals) count as zero (the
+    rank test of sec. 2.1.2), and each component ``(e_i.[n]^T{d}) / lambda_i``
+    is clipped to ``B_MAX |d| sqrt(mu_i) / (1 - mu_i)``, ``mu_i = lambda_i / m``,
+    the bound of :func:`curve_coefficient`, which this function reproduces
+    for one normal per end.  Near-duplicate normals (a straight crease whose
+    estimated normals along one side differ by rounding) thus cannot bend
+    the edge: the four normals of such a crease span space only by a sliver
+    (``mu_min`` of the order of the normal error squared), and the component
+    along it, ``rhs / lambda_min`` unbounded (many edge lengths: a folded
+    patch), is at most ``B_MAX |d| sqrt(mu_min)``, of the order of the normal
+    error, as a truncated (rank-2) inverse would give, without a rank
+    threshold.  Exact normals of two planes meeting at a straight crease make
+    ``[s]`` rank 2 (``lambda_min`` below ``m eps``, dropped: Nagata's case).
 
     Zero rows are allowed as padding (they add nothing to ``[s]`` nor to
     ``[n]^T{d}``), so edges with different numbers of normals share one array.
@@ -154,7 +167,7 @@ def curve_coefficient_multi(
         d: ``(E, 3)`` edge vectors.
         n0: ``(E, p, 3)`` normals at the first end (unit, or zero padding).
         n1: ``(E, q, 3)`` normals at the second end.
-        eps: dimensionless threshold for ``D^(k)``.
+        eps: dimensionless rank threshold.
 
     Returns:
         ``(E, 3)`` coefficients.
@@ -167,38 +180,16 @@ def curve_coefficient_multi(
         "eqi,eq->ei", n1, _dot(n1, d[:, None, :])
     )
     s = np.einsum("epi,epj->eij", n0, n0) + np.einsum("eqi,eqj->eij", n1, n1)  # eq. (33)
-    e = np.eye(3)
-    # columns s_i of [s] (eq. 22); (i, j, k) cyclic
-    sc = np.moveaxis(s, 2, 1)  # sc[:, i] = s_i
-    ijk = [(0, 1, 2), (1, 2, 0), (2, 0, 1)]
-    a0 = np.stack([np.cross(sc[:, j], sc[:, k]) for i, j, k in ijk], axis=1)  # (26c)
-    a1 = np.stack(
-        [np.cross(sc[:, j], e[k]) + np.cross(e[j], sc[:, k]) for i, j, k in ijk], axis=1
-    )  # (26b)
-    d2 = sc[:, 0, 0] + a1[:, 0, 0]  # (29a) with i = 1
-    d1 = _dot(sc[:, 0], a1[:, 0]) + a0[:, 0, 0]  # (29b)
-    d0 = _dot(sc[:, 0], a0[:, 0])  # (29c)
-    c0 = np.einsum("eij,ej->ei", a0, rhs)
-    c1 = np.einsum("eij,ej->ei", a1, rhs)
+    m = np.maximum(np.count_nonzero(np.any(n0 != 0, axis=2), axis=1)
+                   + np.count_nonzero(np.any(n1 != 0, axis=2), axis=1), 1)[:, None]
+    lam, vec = np.linalg.eigh(s)
+    mu = np.clip(lam / m, 0.0, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        c = np.where(
-            (np.abs(d0) > eps)[:, None],
-            c0 / d0[:, None],
-            np.where(
-                (np.abs(d1) > eps)[:, None],
-                c1 / d1[:, None],
-                np.where((np.abs(d2) > eps)[:, None], rhs / d2[:, None], 0.0),
-            ),
-        )
-    near = np.flatnonzero(np.abs(d0) > eps)
-    if near.size:
-        lam, vec = np.linalg.eigh(s[near])  # ascending eigenvalues
-        trunc = lam[:, 0] < RANK_TOL * lam[:, 2]
-        if trunc.any():
-            lam, vec, r = lam[trunc, 1:], vec[trunc][:, :, 1:], rhs[near[trunc]]
-            coef = np.einsum("eik,ei->ek", vec, r) / lam
-            c[near[trunc]] = np.einsum("eik,ek->ei", vec, coef)
-    return c
+        lim = np.where(mu < 1.0, B_MAX * np.linalg.norm(d, axis=1)[:, None] * np.sqrt(mu) / (1.0 - mu),
+                       np.inf)
+        comp = np.where(lam < m * eps, 0.0,
+                        np.clip(np.einsum("eij,ei->ej", vec, rhs) / lam, -lim, lim))
+    return np.einsum("eij,ej->ei", vec, comp)
 
 
 def curve(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, xi: npt.ArrayLike) -> np.ndarray:

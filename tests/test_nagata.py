@@ -56,11 +56,47 @@ def test_coefficient_symmetry_and_flat_edges():
     np.testing.assert_allclose(nagata.curve_coefficient(-d, n1, n0), c, atol=1e-12)
     # both normals flipped: same curve
     np.testing.assert_allclose(nagata.curve_coefficient(d, -n0, -n1), c, atol=1e-12)
-    # eq. (6) holds: n0.(d - c) = 0, n1.(d + c) = 0
-    np.testing.assert_allclose(np.einsum("ei,ei->e", n0, d - c), 0, atol=1e-10)
-    np.testing.assert_allclose(np.einsum("ei,ei->e", n1, d + c), 0, atol=1e-10)
     # parallel normals: exactly straight
     assert np.all(nagata.curve_coefficient(d, n0, n0) == 0)
+    # eq. (6), n0.(d - c) = 0 and n1.(d + c) = 0, on chords of an ellipsoid with exact normals
+    # (the bound B_MAX does not act on a smooth surface)
+    a2 = np.array([1.0, 0.49, 0.25])
+    u = rng.normal(size=(200, 3))
+    x0 = u / np.sqrt((u**2 / a2).sum(axis=1, keepdims=True))
+    u = x0 + 0.3 * rng.normal(size=(200, 3))
+    x1 = u / np.sqrt((u**2 / a2).sum(axis=1, keepdims=True))
+    g0, g1 = x0 / a2, x1 / a2
+    m0, m1 = g0 / np.linalg.norm(g0, axis=1, keepdims=True), g1 / np.linalg.norm(g1, axis=1, keepdims=True)
+    keep = np.einsum("ei,ei->e", m0, m1) > 0.3
+    c = nagata.curve_coefficient(x1 - x0, m0, m1)[keep]
+    e = (x1 - x0)[keep]
+    np.testing.assert_allclose(np.einsum("ei,ei->e", m0[keep], e - c), 0, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("ei,ei->e", m1[keep], e + c), 0, atol=1e-12)
+
+
+def test_nearly_parallel_normals_do_not_bend_a_straight_edge():
+    """A cylinder generator with estimated normals 1e-4 off: eq. (15) as printed bends it by
+    a tenth of its length or more; the bound keeps the bend O(|d| normal error)."""
+    rng = np.random.default_rng(4)
+    d = np.tile([0.0, 0.0, 0.1], (100, 1))
+    n = np.tile([1.0, 0.0, 0.0], (100, 1))
+    n0 = n + 1e-4 * rng.normal(size=(100, 3))
+    n1 = n + 1e-4 * rng.normal(size=(100, 3))
+    n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+    n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
+    v, dv = (n0 + n1) / 2, (n0 - n1) / 2
+    dc = np.einsum("ei,ei->e", n0, dv)
+    unbounded = (np.einsum("ei,ei->e", d, v) / dc)[:, None] * dv  # second term of eq. (15)
+    assert np.linalg.norm(unbounded, axis=1).max() > 0.01
+    err = np.maximum(np.linalg.norm(n0 - n, axis=1), np.linalg.norm(n1 - n, axis=1))  # about 2e-4
+    c = nagata.curve_coefficient(d, n0, n1)
+    assert np.all(np.linalg.norm(c, axis=1) <= 2 * 0.1 * err)  # O(|d| error), as for curved edges
+    cm = nagata.curve_coefficient_multi(d, n0[:, None], n1[:, None])
+    np.testing.assert_allclose(cm, c, atol=1e-15)
+    # a straight crease whose side normals differ by rounding: the multi-normal curve stays straight
+    m = np.tile([0.0, 1.0, 0.0], (100, 1))
+    cm = nagata.curve_coefficient_multi(d, np.stack([n0, m], 1), np.stack([n1, m], 1))
+    assert np.all(np.linalg.norm(cm, axis=1) <= 2 * 0.1 * err)
 
 
 def test_multi_normal_reduces_to_two_normal_and_keeps_planes():
@@ -108,24 +144,31 @@ def test_multi_normal_nearly_coplanar_crease_stays_straight():
 
 
 
-def test_tilt_bound_keeps_nearly_parallel_normals_straight():
+def test_bound_keeps_tilted_chord_against_nearly_parallel_normals_straight():
     """Eq. (15) with normals 0.35 deg apart and a chord tilted 0.3 deg against
     them (estimated normals on a straight edge of a cylinder): |c| = 1.7 |d|
-    as published, of the order of the normals' difference with the bound;
-    a circle (no tilt) is unchanged."""
+    as published, of the order of the normals' difference with the bound
+    (B_MAX); a circle (no tilt) is unchanged."""
     d = np.array([[0.0, 0.0, 0.12]])
     n0 = np.array([[-1.0, 0.0, 0.002]])
     n1 = np.array([[-1.0, 0.0, 0.008]])
     n0 /= np.linalg.norm(n0)
     n1 /= np.linalg.norm(n1)
-    assert np.linalg.norm(nagata.curve_coefficient(d, n0, n1)) > 1.5 * 0.12
-    c = nagata.curve_coefficient(d, n0, n1, tilt_max=nagata.TILT_MAX)
+    v, dv = (n0 + n1) / 2, (n0 - n1) / 2
+    dc = np.einsum("ei,ei->e", n0, dv)
+    published = (np.einsum("ei,ei->e", d, dv) / (1 - dc))[:, None] * v \
+        + (np.einsum("ei,ei->e", d, v) / dc)[:, None] * dv  # eq. (15) as printed
+    assert np.linalg.norm(published) > 1.5 * 0.12
+    c = nagata.curve_coefficient(d, n0, n1)
     assert np.linalg.norm(c) < 0.01 * 0.12
+    # the unit circle in 6 segments: eq. (15) has b = 0 there, the bound does not act
     th = np.linspace(0, np.pi / 2, 7)
     x = np.c_[np.cos(th), np.sin(th), 0 * th]
-    np.testing.assert_array_equal(
-        nagata.curve_coefficient(x[1:] - x[:-1], x[:-1], x[1:], tilt_max=nagata.TILT_MAX),
-        nagata.curve_coefficient(x[1:] - x[:-1], x[:-1], x[1:]))
+    e = x[1:] - x[:-1]
+    v, dv = (x[:-1] + x[1:]) / 2, (x[:-1] - x[1:]) / 2
+    dc = np.einsum("ei,ei->e", x[:-1], dv)
+    np.testing.assert_allclose(nagata.curve_coefficient(e, x[:-1], x[1:]),
+                               (np.einsum("ei,ei->e", e, dv) / (1 - dc))[:, None] * v, atol=1e-15)
 
 
 def test_patch_reproduces_vertices_and_planes():
