@@ -203,12 +203,15 @@ class AnalyticSurface:
     def _local(self, u, v, c, s, nderiv):  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _coords(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Local coordinates ``x, y, z`` (contiguous ``(k,)`` rows of one array) of ``points (k, 3)``
-        in the frame ``e(shift), e'(shift), Z`` (``shift = u0 + pi`` on closed surfaces, else 0)."""
-        L = self._frame @ np.asarray(points, dtype=float).T  # (3, k): one BLAS pass, rows x, y, z
-        L -= self._o_local[:, None]
-        return L[0], L[1], L[2]
+    def _coords(self, points: np.ndarray) -> np.ndarray:
+        """``(4, k)``: local coordinates ``x, y, z`` (contiguous rows) of ``points (k, 3)`` in the
+        frame ``e(shift), e'(shift), Z`` (``shift = u0 + pi`` on closed surfaces, else 0), and a
+        spare row (the plane builds its foot in place)."""
+        X = np.asarray(points, dtype=float)
+        L = np.empty((4, len(X)))  # rows x, y, z and a spare one (the plane's foot reuses L)
+        np.matmul(self._frame, X.T, out=L[:3])  # one BLAS pass
+        L[:3] -= self._o_local[:, None]
+        return L
 
     def _angle(self, x: np.ndarray, y: np.ndarray, rho: np.ndarray, seed) -> tuple[np.ndarray, np.ndarray]:
         """``(u, axis)``: the angle in ``[u0, u0 + 2 pi)`` of local coordinates ``x, y``
@@ -269,7 +272,7 @@ class AnalyticSurface:
             s = seeds[rows, a]
             return np.where(np.isfinite(s), s, self.bounds[a, 0])
 
-        u, v, S, dist = self._closest(*self._coords(X), seed)
+        u, v, S, dist = self._closest(self._coords(X), seed)
         P = np.empty((len(X), 2))
         P[:, 0], P[:, 1] = u, v
         return P, S, dist
@@ -306,10 +309,11 @@ class Plane(AnalyticSurface):
             out[2] = self.Y[:, None]
         return out
 
-    def _closest(self, x, y, z, seed):
-        loc = np.empty((4, len(x)))
-        loc[0], loc[1], loc[2], loc[3] = x, y, 0.0, 1.0
-        return x, y, loc.T @ self._frame4, np.abs(z)
+    def _closest(self, L, seed):
+        x, y = L[0], L[1]
+        dist = np.abs(L[2])
+        L[2], L[3] = 0.0, 1.0  # rows x, y, 0, 1: the foot
+        return x, y, L.T @ self._frame4, dist
 
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)
@@ -344,7 +348,8 @@ class Cylinder(AnalyticSurface):
             out[3, 0] = -R
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
         rho = _norm2(x, y)
         u, axis = self._angle(x, y, rho, seed)
         S = self._foot(x, y, rho, u, self.radius, z, axis)
@@ -396,7 +401,8 @@ class Cone(AnalyticSurface):
             out[4, 1] = self.sin
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
         # the meridian section is two rays, (r(v), v cos a) in the point's half-plane u and
         # (-r(v), ...) in the opposite one u + pi; r(v) has the sign of sin a times the
         # nappe.  The ray at a <= 0 is at least rho away: tried only where the other is not
@@ -478,7 +484,8 @@ class Sphere(AnalyticSurface):
             out[5, 0], out[5, 2] = -R * cv, -R * sv
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
         rho = _norm2(x, y)
         u, _ = self._angle(x, y, rho, seed)
         t = _norm2(rho, z)
@@ -537,7 +544,8 @@ class Torus(AnalyticSurface):
             out[5, 0], out[5, 2] = -r * cv, -r * sv
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
         rho = _norm2(x, y)
         u, axis = self._angle(x, y, rho, seed)
         w = rho - self.major
