@@ -56,6 +56,9 @@ CASES = {
     "cylinder": (lambda lf: Cylinder(*frame(lf), 0.7, BOX), lambda lf: Geom_CylindricalSurface(ax3(lf), 0.7)),
     "cone": (lambda lf: Cone(*frame(lf), 0.4, 0.5, [[0, 2 * np.pi], [-0.5, 1.0]]),
              lambda lf: Geom_ConicalSurface(ax3(lf), 0.5, 0.4)),
+    # the other nappe (v below the apex): the generator at negative radius, u + pi
+    "cone_lower": (lambda lf: Cone(*frame(lf), 0.4, 0.5, [[0, 2 * np.pi], [-2.5, -1.0]]),
+                   lambda lf: Geom_ConicalSurface(ax3(lf), 0.5, 0.4)),
     "sphere": (lambda lf: Sphere(*frame(lf), 0.9, [[0, 2 * np.pi], [-np.pi / 2, np.pi / 2]]),
                lambda lf: Geom_SphericalSurface(ax3(lf), 0.9)),
     "torus": (lambda lf: Torus(*frame(lf), 1.0, 0.3, [[0, 2 * np.pi], [0, 2 * np.pi]]),
@@ -106,8 +109,8 @@ def test_closest_point_matches_occ(kind, left):
     X = np.concatenate([near_points(ours, 200, 0.05), near_points(ours, 50, 0.3)])
     P, S, d = ours.closest(X)
     uv, dref = occ_project(theirs, X)
-    if kind == "cone":  # OCC's cone has both nappes; ours the face's (v >= apex)
-        keep = uv[:, 1] >= ours.v_apex
+    if kind.startswith("cone"):  # OCC's cone has both nappes; ours the face's
+        keep = ours.nappe * (uv[:, 1] - ours.v_apex) >= 0
         X, P, S, d, uv, dref = X[keep], P[keep], S[keep], d[keep], uv[keep], dref[keep]
         assert keep.sum() > 200
     size = ours.bbox_size
@@ -216,7 +219,8 @@ def test_closest_wraps_angles_into_the_face_box_and_matches_evaluation():
     for u0 in (-7.0, -np.pi, 0.0, 2 * np.pi, 11.0):
         box = [[u0, u0 + 2 * np.pi], [0.0, 2 * np.pi]]
         for s in (Cylinder(O, X, Y, Z, 0.7, box), Torus(O, X, Y, Z, 1.0, 0.3, box),
-                  Cone(O, X, Y, Z, 0.5, 0.4, [box[0], [-0.5, 1.0]])):
+                  Cone(O, X, Y, Z, 0.5, 0.4, [box[0], [-0.5, 1.0]]),
+                  Cone(O, X, Y, Z, 0.5, 0.4, [box[0], [-4.0, -2.0]])):
             ang = np.concatenate([RNG.uniform(-20, 20, 300), 2 * np.pi * np.arange(-3, 4) + 1e-17,
                                   2 * np.pi * np.arange(-3, 4) - 1e-17])
             q = np.c_[np.cos(ang), np.sin(ang), RNG.uniform(-0.2, 0.2, len(ang))] * [1.2, 1.2, 1.0]

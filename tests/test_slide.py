@@ -76,10 +76,8 @@ def test_cad_project_keeps_vertices_on_their_feature(tmp_path):
     """What sliding asks of a 3D CadGeometry (OpenCASCADE): every facet vertex pushed
     off the part comes back onto its own face, a vertex on a CAD edge onto that edge
     (on both its faces).  Checked on the concave cylinder (groove r = 0.6, axis
-    y = 0.5, z = 1) against its exact faces.  CAD vertices (on three faces) may move
-    along one of their edges under ``project``: the slide stage never lets them
-    slide (``SlideFacets.corner``: facets on three distinct entities), so they are
-    left out here."""
+    y = 0.5, z = 1) against its exact faces; a CAD vertex (on three faces) stays
+    on all three."""
     import warnings
 
     import hard_parts
@@ -115,10 +113,70 @@ def test_cad_project_keeps_vertices_on_their_feature(tmp_path):
     n_roots = np.bincount(roots[:, 0], minlength=int(nodes.max()) + 1)
     np.testing.assert_array_equal(n_roots[nodes] >= 3, corner)
     # still on every face it was on (an edge vertex on both faces of its edge)
-    keep = before & ~corner[..., None]
-    assert np.all(after[keep])
+    assert np.all(after[before])
     # an edge vertex gets the same point from all its facets
     for v in np.unique(nodes[edge]):
         p = out[edge & (nodes == v)]
         assert np.abs(p - p[0]).max() < 1e-9
     assert np.abs(out - x)[edge].max() > 1e-3  # they did move (along their edge)
+
+
+def test_cad_project_keeps_corners_at_their_cad_vertex(tmp_path):
+    """``CadGeometry.project`` on a real part (``meshes/parts.py`` "plate": holes,
+    counterbores, a pocket; STEP through OpenCASCADE, meshed by gmsh): every vertex
+    pushed tangentially comes back so that a mesh vertex at a CAD vertex stays on
+    that vertex and a vertex on two faces stays on both (OCC's own distances).
+    On this mesh most CAD-vertex mesh vertices have no facet with two edges on CAD
+    edges (checked below): the corner rule must come from all facets of the vertex."""
+    import parts
+    from occ_reference import OccShape
+    from OCP.BRep import BRep_Tool
+    from OCP.TopoDS import TopoDS
+
+    from nagata_snap import Snapper
+    from nagata_snap.cad import mesh_cad
+    from nagata_snap.cad.read import shape_maps
+
+    path = str(parts.write_part("plate", tmp_path, ("step",))["step"])
+    cm, geo = mesh_cad(path, MPI.COMM_SELF, size_factor=0.3, curvature=8)
+    level = Snapper(cm.mesh, cm.facet_tags, geo)._level
+    nodes = level.boundary.nodes[level.snapped]  # (nf, 3)
+    x = cm.mesh.geometry.x[nodes]
+    root = np.repeat(level.records.root, 3)
+    occ = OccShape(path, cm.unit or "MM")
+    vm = shape_maps(occ.shape)[2]
+    corners = np.array([[c.X(), c.Y(), c.Z()] for c in (
+        BRep_Tool.Pnt_s(TopoDS.Vertex(vm.FindKey(i))) for i in range(1, vm.Extent() + 1))])
+    tol = 1e-9 * occ.size
+
+    d = np.linalg.norm(x[:, :, None] - corners[None, None], axis=3)
+    at = d.min(axis=2) < tol  # (nf, 3) slots of mesh vertices at a CAD vertex
+    target = corners[d.argmin(axis=2)]
+    n = int(nodes.max()) + 1
+    two = np.zeros(n, dtype=bool)  # a facet of the vertex has both its edges there on CAD edges
+    two[nodes[np.count_nonzero(level.records.params[..., 2:] == 1.0, axis=2) >= 2]] = True
+    assert at.any() and np.count_nonzero(~two[np.unique(nodes[at])]) >= 4
+
+    # one tangential push per vertex, a tenth of its shortest facet edge
+    e = x - np.roll(x, 1, axis=1)
+    h = np.full(n, np.inf)
+    np.minimum.at(h, nodes, np.repeat(np.linalg.norm(e, axis=2).min(axis=1, keepdims=True), 3, axis=1))
+    nrm = np.ones((n, 3))  # in the plane of one of the vertex's facets
+    nrm[nodes] = np.repeat(np.cross(e[:, 1], e[:, 2])[:, None], 3, axis=1)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    push = np.random.default_rng(1).normal(size=(n, 3))
+    push -= np.einsum("ij,ij->i", push, nrm)[:, None] * nrm
+    push *= (0.1 * h / np.linalg.norm(push, axis=1))[:, None]
+    out, _ = geo.project(level.records, x + push[nodes])
+
+    assert np.linalg.norm(out - target, axis=2)[at].max() <= tol
+    # vertices on exactly two faces: on both (OCC's distance to each face)
+    pairs = np.unique(np.stack([nodes.ravel(), root], 1), axis=0)
+    nfaces = np.bincount(pairs[:, 0], minlength=n)
+    on_edge = nfaces[pairs[:, 0]] == 2
+    pos = np.zeros((n, 3))
+    pos[nodes.ravel()] = out.reshape(-1, 3)
+    dist = occ.face_distance(pairs[on_edge, 1], pos[pairs[on_edge, 0]])
+    assert on_edge.sum() >= 20 and dist.max() <= tol
+    # and every slot of a vertex got the same point
+    assert np.abs(out.reshape(-1, 3) - pos[nodes.ravel()]).max() <= tol

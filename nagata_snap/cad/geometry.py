@@ -33,8 +33,13 @@ facet.  Barycentric combinations (the refinement's weights 0, 1/2, 1) keep
 these values exact, and a vertex is on coarse edge ``m`` of a flagged edge
 exactly when its channel ``m`` equals 1.  Such a vertex is projected onto
 the nearest edge curve of its face (closed form for lines and circles,
-Newton for NURBS); a vertex on two flagged edges (a coarse vertex at a
-corner) goes to the nearest CAD vertex of its face.  Every facet then takes
+Newton for NURBS); a corner goes to the nearest CAD vertex of its face.  A
+vertex is a corner if one of its facets has two flagged edges there, if its
+facets together lie on three or more faces or on two or more distinct edge
+curves, or if it is on a flagged edge and its record puts it at a CAD vertex
+(the mesher's node there, e.g. the end of a seam on a closed edge); one rule
+for :meth:`place` and :meth:`project` (:meth:`_merge`), so a corner never
+moves along one of its edges.  Every facet then takes
 the ``(u, v)`` of that point on its own face.  All processes that hold a
 facet of the vertex compute the same point, so sharp edges stay sharp after
 any number of levels and in parallel.  Geometries built from bare entities
@@ -1033,8 +1038,9 @@ class CadGeometry:
         """Closest points of ``points`` on each facet's own entity (no other entity).
 
         Seeded by ``records.params``; a vertex on a CAD edge (its record's
-        edge channels) goes to the closest point of that edge, a corner vertex
-        to its CAD vertex, so it stays on its feature.  Used to slide boundary
+        edge channels) goes to the closest point of that edge, a corner (see
+        the module docstring: decided from all facets of the vertex) stays at
+        its CAD vertex, so it stays on its feature.  Used to slide boundary
         vertices tangentially.
 
         Args:
@@ -1220,6 +1226,17 @@ class CadGeometry:
                 proj[feat[ok]] = fx[ok]
                 fid[feat] = ff
                 cls[feat[~ok]] = 0
+            # corners not yet at a CAD vertex (decided from all slots of the vertex, not per
+            # facet; X may be a target off the vertex), and edge slots whose record is at a
+            # CAD vertex (a seam's end on a closed edge): the CAD vertex where the record is
+            corner = np.flatnonzero((self._corner_groups(gid, ent, fid)[gid] | (cls >= 1)) & (fid >= 0)
+                                    & np.all(np.isfinite(seed), axis=1))
+            if corner.size:
+                at = self.evaluate(ent[corner], seed[corner][:, None]).reshape(-1, 3)
+                fx, ff = self._features(ent[corner], at, hs[corner], np.full(corner.size, 2))
+                hit = ff < 0
+                c = corner[hit]
+                proj[c], fid[c], cls[c] = fx[hit], ff[hit], 2
         order = np.lexsort((dist, ~on_root, ~valid, -np.minimum(cls, 2), gid))
         g_sorted = gid[order]
         first = np.ones(ns, dtype=bool)
@@ -1249,6 +1266,24 @@ class CadGeometry:
             n_edge, gap = self._edge_vertices(gid, ent, proj, par, seed, X, hs)
         dist = np.linalg.norm(proj - X, axis=1)
         return proj, par, dist, gid, rep_of_group, n_edge, gap, n_left
+
+    def _corner_groups(self, gid: np.ndarray, ent: np.ndarray, fid: np.ndarray) -> np.ndarray:
+        """``(n_groups,)`` mask of the vertices that are CAD corners.
+
+        A vertex (group ``gid`` of its slots) is a corner if its slots lie on
+        three or more distinct faces (``ent``) or on two or more distinct CAD
+        edges (``fid > 0``: edge curve ``fid - 1``, see :meth:`_features`),
+        whatever each facet's own edge channels say: a facet at a corner often
+        has only one of its edges there on a CAD edge.
+        """
+        ng = int(gid.max()) + 1
+
+        def distinct(key: np.ndarray, sel: np.ndarray) -> np.ndarray:
+            k = np.unique(gid[sel] * (int(key.max(initial=0)) + 1) + key[sel])
+            return np.bincount(k // (int(key.max(initial=0)) + 1), minlength=ng)
+
+        all_slots = np.ones(len(gid), dtype=bool)
+        return (distinct(ent, all_slots) >= 3) | (distinct(fid, fid > 0) >= 2)
 
     def _onto_feature(self, rep_of_group, gid, ent, proj, par, fid, hs) -> float:
         """Move feature vertices onto the intersection of their edge's (vertex's) faces.

@@ -874,7 +874,7 @@ MAX_COORD = 1e100
 
 def _check_finite(a: np.ndarray, what: str) -> None:
     """``ValueError`` for NaN/infinite entries, or coordinates beyond :data:`MAX_COORD`."""
-    if a.size == 0 or np.abs(a).max() <= MAX_COORD:  # one pass; False for NaN and inf too
+    if a.size == 0 or (a.max() <= MAX_COORD and a.min() >= -MAX_COORD):  # no temporary; False for NaN
         return
     ok = np.isfinite(a) & (np.abs(a) <= MAX_COORD)
     if not ok.all():

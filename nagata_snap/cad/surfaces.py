@@ -66,10 +66,23 @@ def _norm2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(out, out=out)
 
 
-def _wrap(t: np.ndarray, lo: float) -> np.ndarray:
-    """Angles ``t`` wrapped into ``[lo, lo + 2 pi)``, in place (``t`` returned)."""
+def _wrap(t: np.ndarray, lo: float, top: float = np.pi) -> np.ndarray:
+    """Angles ``t`` in ``[-pi, top]`` (``top <= 2 pi``) wrapped into ``[lo, lo + 2 pi)``, in place.
+
+    Where ``lo`` is within a turn of the range (every face read so far) one
+    masked shift by ``2 pi`` each way suffices; else the general ``floor``.
+    Returns ``t``.
+    """
+    if -np.pi - TWO_PI < lo <= -np.pi + TWO_PI - max(top - np.pi, 0.0):
+        np.add(t, TWO_PI, out=t, where=t < lo)
+        if top >= lo + TWO_PI:
+            np.subtract(t, TWO_PI, out=t, where=t >= lo + TWO_PI)
+        return np.maximum(t, lo, out=t)  # t + 2 pi rounded: not below lo
     t -= lo
-    t -= TWO_PI * np.floor(t * (1.0 / TWO_PI))
+    q = t * (1.0 / TWO_PI)
+    np.floor(q, out=q)
+    q *= TWO_PI
+    t -= q
     np.maximum(t, 0.0, out=t)  # t/2pi rounded up to an integer: -1 ulp, not below lo
     t += lo
     return t
@@ -102,9 +115,14 @@ class AnalyticSurface:
         if not np.all(np.isfinite(b)) or np.any(b[:, 1] < b[:, 0]):
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
         self.bounds = b
-        self._frame = np.stack([self.X, self.Y, self.Z])  # (3, 3) rows X, Y, Z
+        #: closest points measure the angle from e(u0 + pi): atan2 then lands in
+        #: [u0, u0 + 2 pi] with one addition, no wrapping
+        self._shift = float(b[0, 0] + np.pi) if self.closed[0] else 0.0
+        c, sn = np.cos(self._shift), np.sin(self._shift)
+        # (3, 3) rows e(shift), e'(shift), Z: the local frame of :meth:`_coords`
+        self._frame = np.stack([c * self.X + sn * self.Y, c * self.Y - sn * self.X, self.Z])
         self._o_local = self._frame @ self.origin
-        self._frame4 = np.vstack([self._frame, self.origin])  # [x y z 1] @ _frame4 = O + xX + yY + zZ
+        self._frame4 = np.vstack([self._frame, self.origin])  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
         self._box = None
 
     @property
@@ -185,41 +203,52 @@ class AnalyticSurface:
     def _local(self, u, v, c, s, nderiv):  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _coords(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Local coordinates ``x, y, z`` (contiguous ``(k,)`` each) of ``points (k, 3)``."""
-        L = np.asarray(points, dtype=float) @ self._frame.T  # one BLAS pass; the origin per column
-        return L[:, 0] - self._o_local[0], L[:, 1] - self._o_local[1], L[:, 2] - self._o_local[2]
+    def _coords(self, points: np.ndarray) -> np.ndarray:
+        """``(4, k)``: local coordinates ``x, y, z`` (contiguous rows) of ``points (k, 3)`` in the
+        frame ``e(shift), e'(shift), Z`` (``shift = u0 + pi`` on closed surfaces, else 0), and a
+        spare row (the plane builds its foot in place)."""
+        X = np.asarray(points, dtype=float)
+        L = np.empty((4, len(X)))  # rows x, y, z and a spare one (the plane's foot reuses L)
+        np.matmul(self._frame, X.T, out=L[:3])  # one BLAS pass
+        L[:3] -= self._o_local[:, None]
+        return L
 
-    def _wrap_u(self, u: np.ndarray) -> np.ndarray:
-        """``u`` wrapped into ``[u0, u0 + 2 pi)`` (``u0`` the lower bound), in place."""
-        return _wrap(u, self.bounds[0, 0])
-
-    def _angle(self, x: np.ndarray, y: np.ndarray, rho: np.ndarray, seed) -> np.ndarray:
-        """``atan2(y, x)`` wrapped into ``[u0, u0 + 2 pi)``; the seed where ``rho`` is 0."""
-        u = self._wrap_u(np.arctan2(y, x))
+    def _angle(self, x: np.ndarray, y: np.ndarray, rho: np.ndarray, seed) -> tuple[np.ndarray, np.ndarray]:
+        """``(u, axis)``: the angle in ``[u0, u0 + 2 pi)`` of local coordinates ``x, y``
+        (:meth:`_coords`), the seed on the axis (``axis``: the rows where ``rho`` is 0)."""
+        u = self._from_local(np.arctan2(y, x))
         axis = np.flatnonzero(rho <= 1e-300)
         if axis.size:
             u[axis] = seed(axis, 0)
-        return u
+        return u, axis
 
-    def _foot(self, x, y, rho, u, a, b) -> np.ndarray:
+    def _from_local(self, t: np.ndarray) -> np.ndarray:
+        """Angles ``t`` in ``[-pi, pi]`` from ``e(shift)`` -> ``u`` in ``[u0, u0 + 2 pi)``, in place."""
+        lo = self.bounds[0, 0]
+        t += self._shift
+        np.maximum(t, lo, out=t)  # shift - pi rounded: not below u0
+        t[t >= lo + TWO_PI] = lo  # atan2 = pi: the seam
+        return t
+
+    def _foot(self, x, y, rho, u, a, b, axis: np.ndarray) -> np.ndarray:
         """``(k, 3)`` foot points ``O + a e(u) + b Z`` of a surface of revolution.
 
-        ``e(u) = (x X + y Y) / rho`` (the meridian direction of the point, no
-        trigonometry) where ``rho > 0``, ``cos u X + sin u Y`` on the axis;
-        ``a`` is the signed radial coordinate of the foot along it.
+        ``e(u) = (x e + y e') / rho`` (the meridian direction of the point, no
+        trigonometry; :meth:`_coords`) where ``rho > 0``, ``e(u)`` on the ``axis``
+        rows; ``a`` (scalar or ``(k,)``) is the signed radial coordinate of the
+        foot along it.  Built as rows ``(4, k)``, mapped by one BLAS product.
         """
-        loc = np.empty((len(x), 4))
+        loc = np.empty((4, len(x)))
         with np.errstate(divide="ignore", invalid="ignore"):
-            f = a / rho
-            np.multiply(f, x, out=loc[:, 0])
-            np.multiply(f, y, out=loc[:, 1])
-        loc[:, 2], loc[:, 3] = b, 1.0
-        axis = np.flatnonzero(rho <= 1e-300)
+            np.divide(a, rho, out=loc[3])
+            np.multiply(loc[3], x, out=loc[0])
+            np.multiply(loc[3], y, out=loc[1])
+        loc[2], loc[3] = b, 1.0
         if axis.size:
-            loc[axis, 0] = a[axis] * np.cos(u[axis])
-            loc[axis, 1] = a[axis] * np.sin(u[axis])
-        return loc @ self._frame4
+            aa = a if np.ndim(a) == 0 else a[axis]
+            loc[0, axis] = aa * np.cos(u[axis] - self._shift)
+            loc[1, axis] = aa * np.sin(u[axis] - self._shift)
+        return loc.T @ self._frame4
 
     def closest(self, points: npt.ArrayLike, seeds: npt.ArrayLike | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -243,7 +272,7 @@ class AnalyticSurface:
             s = seeds[rows, a]
             return np.where(np.isfinite(s), s, self.bounds[a, 0])
 
-        u, v, S, dist = self._closest(*self._coords(X), seed)
+        u, v, S, dist = self._closest(self._coords(X), seed)
         P = np.empty((len(X), 2))
         P[:, 0], P[:, 1] = u, v
         return P, S, dist
@@ -280,10 +309,11 @@ class Plane(AnalyticSurface):
             out[2] = self.Y[:, None]
         return out
 
-    def _closest(self, x, y, z, seed):
-        loc = np.empty((len(x), 4))
-        loc[:, 0], loc[:, 1], loc[:, 2], loc[:, 3] = x, y, 0.0, 1.0
-        return x, y, loc @ self._frame4, np.abs(z)
+    def _closest(self, L, seed):
+        x, y = L[0], L[1]
+        dist = np.abs(L[2])
+        L[2], L[3] = 0.0, 1.0  # rows x, y, 0, 1: the foot
+        return x, y, L.T @ self._frame4, dist
 
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)
@@ -318,11 +348,13 @@ class Cylinder(AnalyticSurface):
             out[3, 0] = -R
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
         rho = _norm2(x, y)
-        u = self._angle(x, y, rho, seed)
-        S = self._foot(x, y, rho, u, np.full_like(rho, self.radius), z)
-        return u, z, S, np.abs(rho - self.radius)
+        u, axis = self._angle(x, y, rho, seed)
+        S = self._foot(x, y, rho, u, self.radius, z, axis)
+        rho -= self.radius
+        return u, z, S, np.abs(rho, out=rho)
 
     def _normal_local(self, u, v):
         return np.ones_like(u), np.zeros_like(u)
@@ -369,32 +401,53 @@ class Cone(AnalyticSurface):
             out[4, 1] = self.sin
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
+        # the meridian section is two rays, (r(v), v cos a) in the point's half-plane u and
+        # (-r(v), ...) in the opposite one u + pi; r(v) has the sign of sin a times the
+        # nappe.  The ray at a <= 0 is at least rho away: tried only where the other is not
         rho = _norm2(x, y)
-        lo, hi = self.limits[1]
-        best = None
-        for sign in (1.0, -1.0):  # the point's half-plane u, and the opposite one u + pi
-            v = np.clip((sign * rho - self.radius) * self.sin + z * self.cos, lo, hi)
-            r = self.radius + v * self.sin
-            d = _norm2(sign * rho - r, z - v * self.cos)
-            if best is None:
-                best = [v, sign * r, d, np.zeros(len(v), dtype=bool)]
-            else:
-                take = d < best[2]
-                best = [np.where(take, v, best[0]), np.where(take, -r, best[1]), np.where(take, d, best[2]), take]
-        v, a, dist, opposite = best
-        u = np.arctan2(y, x)
-        u[opposite] += np.pi
-        u = self._wrap_u(u)
-        free = np.flatnonzero((np.abs(v - self.v_apex) * abs(self.sin) <= 1e-15 * max(self.bbox_size, 1e-300))
-                              | (rho <= 1e-300))
+        zc = z * self.cos
+        s0 = 1.0 if self.sin * self.nappe > 0 else -1.0
+        v, a, dist = self._generator(rho, zc, z, s0)
+        u = self._from_local(np.arctan2(y, x))
+        if s0 < 0:
+            u = _wrap(u + (np.pi - self.bounds[0, 0]), 0.0, 3 * np.pi) + self.bounds[0, 0]
+        other = np.flatnonzero(dist > rho)
+        if other.size:
+            v2, a2, d2 = self._generator(rho[other], zc[other], z[other], -s0)
+            win = d2 < dist[other]
+            w = other[win]
+            v[w], a[w], dist[w] = v2[win], a2[win], d2[win]
+            u[w] = _wrap(u[w] + s0 * np.pi - self.bounds[0, 0], 0.0, 3 * np.pi) + self.bounds[0, 0]
+        dv = v - self.v_apex
+        free = np.abs(dv, out=dv) <= 1e-15 * max(self.bbox_size, 1e-300) / abs(self.sin)
+        free |= rho <= 1e-300
+        free = np.flatnonzero(free)
         if free.size:  # u is free at the apex and on the axis: the seed's
             u[free] = seed(free, 0)
-            a[free] = np.abs(a[free])
-            rho = rho.copy()
-            rho[free] = 0.0  # the foot's direction is then e(u)
-        S = self._foot(x, y, rho, u, a, v * self.cos)
+            a[free] = np.abs(a[free])  # the foot's direction is then e(u)
+        S = self._foot(x, y, rho, u, a, v * self.cos, free)
         return u, v, S, dist
+
+    def _generator(self, rho, zc, z, sign: float):
+        """``(v, a, d)``: nearest point of the generator in half-plane ``sign`` (clipped to
+        the nappe), its signed radial coordinate and its distance, for meridian
+        coordinates ``(sign rho, z)`` (``zc = z cos a``)."""
+        lo, hi = self.limits[1]
+        v = rho * (sign * self.sin)
+        v += zc
+        v -= self.radius * self.sin
+        np.clip(v, lo, hi, out=v)
+        r = v * self.sin
+        r += self.radius
+        e = rho * sign
+        e -= r
+        w = v * self.cos
+        np.subtract(z, w, out=w)
+        if sign < 0:
+            np.negative(r, out=r)
+        return v, r, _norm2(e, w)
 
     def _normal_local(self, u, v):
         # S_u x S_v = r (cos a e - sin a Z) in a right-handed frame; sign(r) = nappe
@@ -431,20 +484,28 @@ class Sphere(AnalyticSurface):
             out[5, 0], out[5, 2] = -R * cv, -R * sv
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
         rho = _norm2(x, y)
-        u = self._angle(x, y, rho, seed)
+        u, _ = self._angle(x, y, rho, seed)
         t = _norm2(rho, z)
         v = np.arctan2(z, rho)
         R = self.radius
+        loc = np.empty((4, len(x)))  # the foot O + (R / t) (x X + y Y + z Z), as rows
         with np.errstate(divide="ignore", invalid="ignore"):
-            f = R / t
-            a, b = f * rho, f * z
+            np.divide(R, t, out=loc[3])
+            for i, c in enumerate((x, y, z)):
+                np.multiply(loc[3], c, out=loc[i])
+        loc[3] = 1.0
         centre = np.flatnonzero(t <= 1e-300)
-        if centre.size:
+        if centre.size:  # u and v are free at the centre: the seeds'
             v[centre] = seed(centre, 1)
-            a[centre], b[centre] = R * np.cos(v[centre]), R * np.sin(v[centre])
-        return u, v, self._foot(x, y, rho, u, a, b), np.abs(t - R)
+            a = R * np.cos(v[centre])
+            w = u[centre] - self._shift
+            loc[0, centre], loc[1, centre] = a * np.cos(w), a * np.sin(w)
+            loc[2, centre] = R * np.sin(v[centre])
+        t -= R
+        return u, v, loc.T @ self._frame4, np.abs(t, out=t)
 
     def _normal_local(self, u, v):
         return np.cos(v), np.sin(v)
@@ -483,23 +544,27 @@ class Torus(AnalyticSurface):
             out[5, 0], out[5, 2] = -r * cv, -r * sv
         return out
 
-    def _closest(self, x, y, z, seed):
+    def _closest(self, L, seed):
+        x, y, z = L[0], L[1], L[2]
         rho = _norm2(x, y)
-        u = self._angle(x, y, rho, seed)
+        u, axis = self._angle(x, y, rho, seed)
         w = rho - self.major
         t = _norm2(w, z)
         v0 = self.bounds[1, 0]
         v = _wrap(np.arctan2(z, w), v0)
         r = self.minor
         with np.errstate(divide="ignore", invalid="ignore"):
-            f = r / t
-            a, b = f * w, f * z
+            f = np.divide(r, t)
+            w *= f
+            f *= z
+            a, b = w, f
         a += self.major
         tube = np.flatnonzero(t <= 1e-300)
         if tube.size:  # v is free on the tube's centre circle: the seed's
             v[tube] = seed(tube, 1)
             a[tube], b[tube] = self.major + r * np.cos(v[tube]), r * np.sin(v[tube])
-        return u, v, self._foot(x, y, rho, u, a, b), np.abs(t - r)
+        t -= r
+        return u, v, self._foot(x, y, rho, u, a, b, axis), np.abs(t, out=t)
 
     def _normal_local(self, u, v):
         sign = np.sign(self.major + self.minor * np.cos(v))
