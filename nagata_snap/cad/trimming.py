@@ -105,9 +105,9 @@ class _Slabs:
 
     def candidates(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(point, edge)`` pairs to test for query ordinates ``y``."""
-        s = ((y - self.y0) / self.dy).astype(np.int64)
-        inside = (s >= 0) & (s < self.n)
-        s = np.where(inside, s, 0)
+        t = (y - self.y0) / self.dy
+        inside = (t > -1.0) & (t < self.n)  # the slabs trunc(t) in 0..n-1; NaN is outside
+        s = np.where(inside, t, 0.0).astype(np.int64)
         cnt = np.where(inside, self.ptr[s + 1] - self.ptr[s], 0)
         pt = np.repeat(np.arange(len(y)), cnt)
         off = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
