@@ -491,22 +491,23 @@ def _face(face, index: int, edge_map, size: float) -> dict:
     }
 
 
-def _ancestors(shape, kind, parent, maps_child, maps_parent) -> list[list[int]]:
-    """Indices of the ``parent`` shapes of every ``kind`` sub-shape (e.g. solids of faces)."""
-    from OCP.OCP.collections import (
-        IndexedDataMap_TopoDS_Shape_List_TopoDS_Shape_TopTools_ShapeMapHasher as DMap,
-    )
-    from OCP.TopExp import TopExp
+def _ancestors(kind, maps_child, maps_parent) -> list[list[int]]:
+    """Indices of the parent shapes (``maps_parent``, e.g. solids) of every ``kind`` sub-shape.
 
-    dm = DMap()
-    TopExp.MapShapesAndAncestors_s(shape, kind, parent, dm)
-    out = [[] for _ in range(maps_child.Extent())]
-    for i in range(1, dm.Extent() + 1):
-        c = maps_child.FindIndex(dm.FindKey(i)) - 1
-        if c < 0:
-            continue
-        out[c] = sorted({maps_parent.FindIndex(s) - 1 for s in dm.FindFromIndex(i)})
-    return out
+    One explorer per parent (few) rather than ``TopExp::MapShapesAndAncestors``,
+    whose per-child lists cost far more to walk through OCP.
+    """
+    from OCP.TopExp import TopExp_Explorer
+
+    out = [set() for _ in range(maps_child.Extent())]
+    for j in range(1, maps_parent.Extent() + 1):
+        ex = TopExp_Explorer(maps_parent.FindKey(j), kind)
+        while ex.More():
+            c = maps_child.FindIndex(ex.Current()) - 1
+            if c >= 0:
+                out[c].add(j - 1)
+            ex.Next()
+    return [sorted(s) for s in out]
 
 
 def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
@@ -581,7 +582,7 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
             that cannot be converted to NURBS, non-finite geometry.
     """
     from OCP.BRep import BRep_Tool
-    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopAbs import TopAbs_FACE
     from OCP.TopExp import TopExp
     from OCP.TopoDS import TopoDS
 
@@ -608,8 +609,7 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
         })
     faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, info["size"])
              for i in range(1, fmap.Extent() + 1)]
-    solids = _ancestors(shape, TopAbs_FACE, TopAbs_SOLID, fmap, smap) if smap.Extent() else \
-        [[] for _ in faces]
+    solids = _ancestors(TopAbs_FACE, fmap, smap)
     for f, s in zip(faces, solids):
         f["solids"] = s
     times["convert"] = time.perf_counter() - t0

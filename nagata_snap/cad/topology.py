@@ -25,6 +25,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +34,7 @@ from .curves import Circle, Line, analytic_curve
 from .nurbs import NurbsCurve, NurbsError, NurbsSurface
 from .surfaces import AnalyticSurface, analytic_surface
 
-__all__ = ["CadModel", "Face", "Edge", "Loop", "sample_pcurve", "nurbs_curve", "nurbs_surface"]
+__all__ = ["CadModel", "Face", "Edge", "Loop", "sample_pcurve", "sample_pcurves", "nurbs_curve", "nurbs_surface"]
 
 #: samples of a circular p-curve per radian (``pi / 16`` steps)
 CIRCLE_STEP = np.pi / 16
@@ -153,44 +154,63 @@ def pcurve_evaluator(desc: dict):
 
 def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_map=None
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Polygon of a p-curve, refined until its chords are within ``tol`` of the curve.
+    """Polygon of one p-curve: :func:`sample_pcurves` of one edge use."""
+    return sample_pcurves([desc], [reverse], surface, tol, uv_map)[0]
+
+
+def sample_pcurves(descs: Sequence[dict], reverses: Sequence[bool], surface=None, tol: float = 0.0,
+                   uv_map=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Polygons of p-curves on one surface, refined until their chords are within ``tol``.
 
     Segments whose mid-parameter point is farther than ``tol`` from the chord's
     midpoint (in length units through the ``surface``'s first derivatives;
     parametric distance without a surface) are split, up to
-    :data:`MAX_REFINE` times.
+    :data:`MAX_REFINE` times.  All curves are refined together: one surface
+    derivative evaluation per refinement pass for every segment of every curve.
 
     Returns:
-        ``(points (m, 2), dev (m - 1,))``: samples in traversal order (reversed
-        if the edge is used reversed), mapped by ``uv_map`` ``(3, 2)`` if
-        given, and each segment's deviation.
+        per curve ``(points (m, 2), dev (m - 1,))``: samples in traversal order
+        (reversed if the edge is used reversed), mapped by ``uv_map``
+        ``(3, 2)`` if given, and each segment's deviation.
     """
-    f, t = pcurve_evaluator(desc)
-    if uv_map is not None:
-        f0 = f
-
-        def f(t):
-            return np.c_[f0(t), np.ones(len(t))] @ uv_map
-    P = f(t)
-    if desc["type"] == "line":  # linear in t: the chord is the curve (deviation 0)
-        dev = np.zeros(len(P) - 1)
-        return (P[::-1], dev) if reverse else (P, dev)
-    for _ in range(MAX_REFINE + 1):
-        tm = 0.5 * (t[1:] + t[:-1])
-        off = f(tm) - 0.5 * (P[1:] + P[:-1])  # (m - 1, 2)
+    n = len(descs)
+    fs, ts, Ps, devs = [], [], [], [None] * n
+    for i, desc in enumerate(descs):
+        f, t = pcurve_evaluator(desc)
+        if uv_map is not None:
+            f = _mapped(f, uv_map)
+        fs.append(f)
+        ts.append(t)
+        Ps.append(f(t))
+        if desc["type"] == "line":  # linear in t: the chord is the curve (deviation 0)
+            devs[i] = np.zeros(len(Ps[i]) - 1)
+    active = [i for i in range(n) if devs[i] is None]
+    for it in range(MAX_REFINE + 1):
+        if not active:
+            break
+        tms = [0.5 * (ts[i][1:] + ts[i][:-1]) for i in active]
+        mids = [0.5 * (Ps[i][1:] + Ps[i][:-1]) for i in active]
+        off = np.concatenate([fs[i](tm) - m for i, tm, m in zip(active, tms, mids)])  # (s, 2)
         if surface is None:
             dev = np.linalg.norm(off, axis=1)
         else:
-            T = _tangents(surface, 0.5 * (P[1:] + P[:-1]))
+            T = _tangents(surface, np.concatenate(mids))
             dev = np.linalg.norm(off[:, 0, None] * T[:, 0] + off[:, 1, None] * T[:, 1], axis=1)
-        split = dev > tol
-        if not split.any() or _ == MAX_REFINE:
-            break
-        t = np.sort(np.concatenate([t, tm[split]]))
-        P = f(t)
-    if reverse:
-        P, dev = P[::-1], dev[::-1]
-    return P, dev
+        refine = []
+        for i, tm, d in zip(active, tms, np.split(dev, np.cumsum([len(m) for m in mids])[:-1])):
+            devs[i] = d
+            split = d > tol
+            if split.any() and it < MAX_REFINE:
+                ts[i] = np.sort(np.concatenate([ts[i], tm[split]]))
+                Ps[i] = fs[i](ts[i])
+                refine.append(i)
+        active = refine
+    return [(P[::-1], d[::-1]) if rev else (P, d) for P, d, rev in zip(Ps, devs, reverses)]
+
+
+def _mapped(f, uv_map: np.ndarray):
+    """``f`` followed by the affine map ``[u, v, 1] uv_map`` ``(3, 2)``."""
+    return lambda t: np.c_[f(t), np.ones(len(t))] @ uv_map
 
 
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
@@ -240,28 +260,35 @@ def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
     return analytic_surface(desc, np.stack([corners.min(axis=0), corners.max(axis=0)], axis=1)), M
 
 
-def _loop(face_surface, wire: dict, tolerances: np.ndarray, uv_map=None) -> Loop:
-    """Closed polygon of one wire: its edge uses' p-curve samples, joined.
+def _loops(face_surface, wires: Sequence[dict], tolerances: np.ndarray, uv_map=None) -> list[Loop]:
+    """Closed polygons of a face's wires: their edge uses' p-curve samples, joined.
 
     Each segment's band is twice its deviation from the p-curve (length
-    units, see :func:`sample_pcurve`) plus the edge's tolerance.  ``uv_map``
-    ``(3, 2)`` maps the file's parameters to the surface's.
+    units, see :func:`sample_pcurves`, all the face's p-curves sampled
+    together) plus the edge's tolerance.  ``uv_map`` ``(3, 2)`` maps the
+    file's parameters to the surface's.
     """
-    tol = SAMPLE_RTOL * face_surface.bbox_size
-    pts, dev, edge, sense = [], [], [], []
-    for use in wire["uses"]:
-        p, d = sample_pcurve(use["pcurve"], use["reversed"], face_surface, tol, uv_map)
-        pts.append(p[:-1])  # the next use starts where this one ends
-        dev.append(d)
-        edge.append(np.full(len(d), use["edge"], dtype=np.int64))
-        sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
-    E = np.concatenate(edge)
-    P = np.concatenate(pts)
-    if not np.all(np.isfinite(P)) or not _three_distinct(np.round(P / max(np.ptp(P), 1e-300), 12)):
-        raise ValueError("a trimming wire has fewer than 3 distinct (finite) points in the "
-                         "parameter plane")
-    band = 2.0 * np.concatenate(dev) + tolerances[E]
-    return Loop(P, E, band, np.concatenate(sense), bool(wire["outer"]))
+    wires = [w for w in wires if w["uses"]]
+    uses = [u for w in wires for u in w["uses"]]
+    samples = iter(sample_pcurves([u["pcurve"] for u in uses], [u["reversed"] for u in uses],
+                                  face_surface, SAMPLE_RTOL * face_surface.bbox_size, uv_map))
+    loops = []
+    for wire in wires:
+        pts, dev, edge, sense = [], [], [], []
+        for use in wire["uses"]:
+            p, d = next(samples)
+            pts.append(p[:-1])  # the next use starts where this one ends
+            dev.append(d)
+            edge.append(np.full(len(d), use["edge"], dtype=np.int64))
+            sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
+        E = np.concatenate(edge)
+        P = np.concatenate(pts)
+        if not np.all(np.isfinite(P)) or not _three_distinct(np.round(P / max(np.ptp(P), 1e-300), 12)):
+            raise ValueError("a trimming wire has fewer than 3 distinct (finite) points in the "
+                             "parameter plane")
+        band = 2.0 * np.concatenate(dev) + tolerances[E]
+        loops.append(Loop(P, E, band, np.concatenate(sense), bool(wire["outer"])))
+    return loops
 
 
 def _three_distinct(R: np.ndarray) -> bool:
@@ -339,7 +366,7 @@ class CadModel:
             desc = f["surface"]
             try:
                 surface, uv_map = _surface(desc, f["uv"])
-                loops = [_loop(surface, w, tol, uv_map) for w in f["wires"] if w["uses"]]
+                loops = _loops(surface, f["wires"], tol, uv_map)
             except (ValueError, NurbsError) as err:
                 raise ValueError(f"{path}: face {i} ({desc['type']} surface): {err}") from None
             # a map that flips the parameter plane flips S_u x S_v
