@@ -247,16 +247,34 @@ def _box_pairs(points: np.ndarray, tol: np.ndarray, lo: np.ndarray, hi: np.ndarr
     return pt[ok], box[ok]
 
 
+class _Ragged:
+    """Integer lists of different lengths as one flat array with offsets (CSR).
+
+    ``take(rows)`` gathers many rows at once without a Python loop over them.
+    """
+
+    def __init__(self, lists: list):
+        self.counts = np.array([len(a) for a in lists], dtype=np.int64)
+        self.ptr = np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
+        self.flat = np.concatenate([np.asarray(a, dtype=np.int64) for a in lists] + [np.zeros(0, np.int64)])
+
+    def take(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(counts (k,), values (counts.sum(),))``: the rows ``rows (k,)``, concatenated in order."""
+        cnt = self.counts[rows]
+        return cnt, self.flat[np.repeat(self.ptr[rows], cnt) + _ramp(cnt)]
+
+
 class _Topology:
     """Edges and vertices of a 3D model, as arrays over the geometry's faces.
 
     Attributes:
         curves: 3D curves of the non-degenerate edges (their order = curve index).
         curve_of_edge: ``(ne,)`` curve index of each model edge (-1 if degenerate).
-        face_curves: per face, ``(k,)`` curve indices of its edges.
-        face_vertices: per face, ``(k,)`` indices into :attr:`points` of its CAD vertices.
+        face_curves: per face: curve indices of its edges (:class:`_Ragged`).
+        face_vertices: per face: indices into :attr:`points` of its CAD vertices (:class:`_Ragged`).
         points: ``(nv, 3)`` CAD vertices.
-        curve_faces, vertex_faces: the faces of each curve's edge / around each vertex.
+        feature_faces: the faces of each curve's edge (rows ``0..nc-1``), then
+            the faces around each CAD vertex (rows ``nc + v``) (:class:`_Ragged`).
         searcher: closest points on given edges (closed form / Newton).
     """
 
@@ -269,20 +287,18 @@ class _Topology:
                 self.curve_of_edge[i] = len(self.curves)
                 self.curves.append(e.curve)
         self.points = model.vertices
-        self.face_curves, self.face_vertices = [], []
-        for f in model.faces:
+        face_curves, face_vertices = [], []
+        for f in model.faces:  # loop over CAD faces (set-up)
             c = self.curve_of_edge[f.edges]
-            self.face_curves.append(c[c >= 0])
-            vs = {v for e in f.edges for v in edges[e].vertices if v >= 0}
-            self.face_vertices.append(np.array(sorted(vs), dtype=np.int64))
-        #: faces of each curve's edge, and faces around each CAD vertex
-        self.curve_faces = [np.array(edges[i].faces, dtype=np.int64)
-                            for i in np.flatnonzero(self.curve_of_edge >= 0)]
+            face_curves.append(c[c >= 0])
+            face_vertices.append(sorted({v for e in f.edges for v in edges[e].vertices if v >= 0}))
+        curve_faces = [edges[i].faces for i in np.flatnonzero(self.curve_of_edge >= 0)]
         around: list[set] = [set() for _ in range(len(self.points))]
-        for f, vs in enumerate(self.face_vertices):
+        for f, vs in enumerate(face_vertices):
             for v in vs:
                 around[v].add(f)
-        self.vertex_faces = [np.array(sorted(a), dtype=np.int64) for a in around]
+        self.face_curves, self.face_vertices = _Ragged(face_curves), _Ragged(face_vertices)
+        self.feature_faces = _Ragged(curve_faces + [sorted(a) for a in around])
         self.searcher = GlobalSearcher(self.curves) if self.curves else None
         if self.curves:
             self.lo = np.array([c.bbox[0] for c in self.curves])
@@ -1295,14 +1311,14 @@ class CadGeometry:
         top = self.topology
         reps = rep_of_group[np.unique(gid)]
         reps = reps[fid[reps] != 0]
-        faces = [top.curve_faces[f - 1] if f > 0 else top.vertex_faces[-f - 1] for f in fid[reps]]
-        cnt = np.array([len(f) for f in faces])
-        multi = cnt > 1
-        reps, cnt = reps[multi], cnt[multi]
+        f = fid[reps]
+        rows = np.where(f > 0, f - 1, len(top.curves) - f - 1)  # see _Topology.feature_faces
+        multi = top.feature_faces.counts[rows] > 1  # on the intersection of several faces
+        reps, rows = reps[multi], rows[multi]
         if reps.size == 0:
             return 0.0
+        cnt, pe = top.feature_faces.take(rows)
         gpos = np.repeat(np.arange(reps.size), cnt)
-        pe = np.concatenate([f for f, m in zip(faces, multi) if m])
         # seeds: the representative's own parameters on its own face
         seeds = np.full((len(pe), self.param_dim), np.nan)
         own = pe == ent[reps][gpos]
@@ -1389,10 +1405,8 @@ class CadGeometry:
         # corners: the nearest CAD vertex of the face within the facet's tolerance
         corner = np.flatnonzero(cls >= 2)
         if corner.size:
-            cnt = np.array([len(top.face_vertices[e]) for e in ent[corner]])
+            cnt, vert = top.face_vertices.take(ent[corner])
             slot = np.repeat(corner, cnt)
-            vert = np.concatenate([top.face_vertices[e] for e in ent[corner]]) if cnt.sum() else \
-                np.zeros(0, dtype=np.int64)
             dv = np.linalg.norm(top.points[vert] - X[slot], axis=1)
             best = _best_rows(np.repeat(np.arange(corner.size), cnt), dv,
                               dv <= self.tol_factor * hs[slot], corner.size)
@@ -1402,10 +1416,8 @@ class CadGeometry:
         # edges (and corners without a vertex nearby): the nearest edge curve of the face
         todo = np.flatnonzero(fid == 0)
         if todo.size and top.searcher is not None:
-            cnt = np.array([len(top.face_curves[e]) for e in ent[todo]])
+            cnt, crv = top.face_curves.take(ent[todo])
             slot = np.repeat(todo, cnt)
-            crv = np.concatenate([top.face_curves[e] for e in ent[todo]]) if cnt.sum() else \
-                np.zeros(0, dtype=np.int64)
             t = hs[slot][:, None]
             inbox = np.all((X[slot] >= top.lo[crv] - t) & (X[slot] <= top.hi[crv] + t), axis=1)
             slot, crv = slot[inbox], crv[inbox]
