@@ -16,7 +16,6 @@ from nagata_snap.cad.curves import Circle, Line
 from nagata_snap.cad.projection import project_newton
 from nagata_snap.cad.surfaces import Cone, Cylinder, Plane, Sphere, Torus
 
-OCP = pytest.importorskip("OCP")
 from OCP.Geom import (  # noqa: E402
     Geom_Circle,
     Geom_ConicalSurface,

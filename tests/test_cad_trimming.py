@@ -22,7 +22,6 @@ from nagata_snap.cad.projection import entity_limits, entity_periods, evaluate_p
 
 from occ_reference import OccShape
 
-pytest.importorskip("OCP")
 from OCP.BRepClass import BRepClass_FaceClassifier  # noqa: E402
 from OCP.TopAbs import TopAbs_State  # noqa: E402
 from OCP.gp import gp_Pnt2d  # noqa: E402

@@ -247,7 +247,8 @@ def test_frozen_points_keep_their_result():
 # ----------------------------------------------------------------------
 @pytest.fixture()
 def gmsh_session():
-    gmsh = pytest.importorskip("gmsh")
+    import gmsh
+
     gmsh.initialize()
     gmsh.option.setNumber("General.Terminal", 0)
     gmsh.model.add("projection")
