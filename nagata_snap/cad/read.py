@@ -596,19 +596,22 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     _check_finite(vertices, f"{path}: the vertices")
     vtol = np.array([BRep_Tool.Tolerance_s(TopoDS.Vertex(vmap.FindKey(i)))
                      for i in range(1, vmap.Extent() + 1)])
-    edges = []
-    for i in range(1, emap.Extent() + 1):
-        e = TopoDS.Edge(emap.FindKey(i))
-        v0, v1 = TopExp.FirstVertex_s(e), TopExp.LastVertex_s(e)
-        edges.append({
-            "curve": _curve3d(e),
-            "vertices": (vmap.FindIndex(v0) - 1 if not v0.IsNull() else -1,
-                         vmap.FindIndex(v1) - 1 if not v1.IsNull() else -1),
-            "tolerance": BRep_Tool.Tolerance_s(e),
-            "degenerate": BRep_Tool.Degenerated_s(e),
-        })
-    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, info["size"])
-             for i in range(1, fmap.Extent() + 1)]
+    try:  # the edge and face errors name their entity; the file is named here
+        edges = []
+        for i in range(1, emap.Extent() + 1):  # loop over CAD edges (reading)
+            e = TopoDS.Edge(emap.FindKey(i))
+            v0, v1 = TopExp.FirstVertex_s(e), TopExp.LastVertex_s(e)
+            edges.append({
+                "curve": _curve3d(e),
+                "vertices": (vmap.FindIndex(v0) - 1 if not v0.IsNull() else -1,
+                             vmap.FindIndex(v1) - 1 if not v1.IsNull() else -1),
+                "tolerance": BRep_Tool.Tolerance_s(e),
+                "degenerate": BRep_Tool.Degenerated_s(e),
+            })
+        faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, info["size"])
+                 for i in range(1, fmap.Extent() + 1)]
+    except ReadError as err:
+        raise ReadError(f"{path}: {err}") from None
     solids = _ancestors(TopAbs_FACE, fmap, smap)
     for f, s in zip(faces, solids):
         f["solids"] = s
