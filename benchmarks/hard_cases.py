@@ -41,10 +41,9 @@ import os
 import sys
 import warnings
 
+import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
-
-import dolfinx.mesh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "meshes"))
@@ -53,8 +52,8 @@ import generate  # noqa: E402
 import hard_parts  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.quality import quality_stats  # noqa: E402
-from nagata_snap.repair import repair  # noqa: E402
+from nagata_snap.smoothing.quality import quality_stats  # noqa: E402
+from nagata_snap.smoothing.repair import repair  # noqa: E402
 
 OPTS: dict = {}
 #: the ladder before the untangler (Snapper's schedule then): for --compare

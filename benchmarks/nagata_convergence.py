@@ -8,7 +8,7 @@
    r = 0.4; an ellipsoid 1 x 0.7 x 0.5; a closed cylinder R = 1, height 1
    with sharp rims), all of its surface snapped, ``crease_angle = 80``.  The
    surface triangles are those gmsh's volume mesh of the solid keeps.  The
-   default estimate (``"jet"``, :mod:`nagata_snap.jets`) next to exact
+   default estimate (``"jet"``, :mod:`nagata_snap.nagata.jets`) next to exact
    normals, then every weighted mean Neto (2010) compares.
 3. 2D: polygons inscribed in an ellipse 1 x 0.5 (unequal segments).
 
@@ -48,7 +48,7 @@ from surfaces import (  # noqa: E402
 )
 
 from nagata_snap import NagataGeometry  # noqa: E402
-from nagata_snap.normals import SCHEMES  # noqa: E402
+from nagata_snap.nagata.normals import SCHEMES  # noqa: E402
 
 SURFACES = ("torus", "ellipsoid", "cylinder")
 

@@ -7,7 +7,7 @@ by :func:`nagata_snap.meshing.mesh_cad_file` (curvature sizing, 12 elements
 per 2 pi; one facet tag per CAD face).  The whole boundary is snapped in
 Nagata mode through ``levels`` uniform refinements, with
 
-* ``jet``: the default estimate (:mod:`nagata_snap.jets`),
+* ``jet``: the default estimate (:mod:`nagata_snap.nagata.jets`),
 * ``mwselr``: Max's weighting (the previous default),
 * ``cad``: the CAD's exact normals, each facet's on its own face
   (``--cad occ``, the default: the ``CadGeometry`` of
@@ -37,15 +37,14 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 
+import dolfinx.mesh  # noqa: E402
 import gmsh  # noqa: E402
 import parts  # noqa: E402
 from surfaces import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance  # noqa: E402
 
-import dolfinx.mesh  # noqa: E402
-
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.boundary import boundary_facets  # noqa: E402
 from nagata_snap.cad import mesh_cad  # noqa: E402
+from nagata_snap.mesh.boundary import boundary_facets  # noqa: E402
 from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file  # noqa: E402
 
 

@@ -54,9 +54,8 @@ import pathlib
 import sys
 import time
 
-import mpi4py.MPI as MPI
-
 import dolfinx.mesh
+import mpi4py.MPI as MPI
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

@@ -46,10 +46,9 @@ import itertools
 import sys
 import time
 
+import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
-
-import dolfinx.mesh
 
 from nagata_snap import Snapper
 from nagata_snap.cad import CadGeometry
@@ -74,9 +73,8 @@ def curved_distance(mesh) -> float:
 
 def domain_error(mesh) -> float:
     """|area / volume - exact| of the channel minus the disk / box minus the ball."""
-    import ufl
-
     import dolfinx.fem as fem
+    import ufl
 
     tdim = mesh.topology.dim
     c, r = CASES[tdim]

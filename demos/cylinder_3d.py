@@ -21,10 +21,9 @@ import sys
 import time
 import warnings
 
+import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
-
-import dolfinx.mesh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "meshes"))

@@ -230,9 +230,8 @@ def gmsh_occ_surface(build, h: float):
         ``(points (nv, 3), triangles (F, 3) outward, tags (F,))``, ``tags``
         the gmsh surface (CAD face) of each triangle.
     """
-    import gmsh
-
     import generate
+    import gmsh
 
     with generate._gmsh_session("surface", False):
         build()

@@ -9,12 +9,12 @@ NURBS of an IGES file.  See :class:`Snapper`.
 # libmpi is not found.
 import mpi4py.MPI  # noqa: F401
 
-from .cad import CadError, CadGeometry
-from .geometry import NagataGeometry
-from .hook import InvertedCellsError, Refined, Snapper, SnapReport
-from .lineage import LineageError
-from .normals import NonManifoldError, NormalsError
-from .records import Records
+from nagata_snap.cad import CadError, CadGeometry
+from nagata_snap.mesh.lineage import LineageError
+from nagata_snap.mesh.records import Records
+from nagata_snap.nagata.geometry import NagataGeometry
+from nagata_snap.nagata.normals import NonManifoldError, NormalsError
+from nagata_snap.snapper import InvertedCellsError, Refined, Snapper, SnapReport
 
 __all__ = [
     "NagataGeometry",

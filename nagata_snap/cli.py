@@ -41,7 +41,6 @@ import time
 import xml.etree.ElementTree as ET
 
 import mpi4py.MPI as MPI
-
 import numpy as np
 
 __all__ = ["main"]
@@ -85,9 +84,8 @@ def read_msh(path: str, comm):
     a bad file is an error message on every rank instead of a hang; gmsh's
     log is off and an already initialised gmsh session is left as it was.
     """
-    import gmsh
-
     import dolfinx.io.gmsh
+    import gmsh
 
     info, err = None, None
     initialized = False
@@ -186,11 +184,10 @@ def read_xdmf(path: str, comm, mesh_name: str | None, tag_name: str | None):
 def read_meshio(path: str, comm, tag_key: str | None):
     """Any meshio format -> (mesh, facet_tags), built with ``dolfinx.mesh.create_mesh``."""
     import basix.ufl
-    import ufl
-
     import dolfinx.graph
     import dolfinx.io
     import dolfinx.mesh
+    import ufl
 
     payload, err = None, None
     if comm.rank == 0:
@@ -412,7 +409,7 @@ def _check_options(args) -> bool:
 
 def _cad_input(args, comm, say):
     """Mesh the CAD input with gmsh; its geometry, facets matched to the faces."""
-    from .cad import CadError, mesh_cad
+    from nagata_snap.cad import CadError, mesh_cad
 
     t0 = time.perf_counter()
     try:
@@ -447,7 +444,7 @@ def _mesh_input(args, comm, say):
         f"facet tags {present} ({time.perf_counter() - t0:.2f} s)")
     if args.cad is None:
         return mesh, ft, None, args.tags
-    from .cad import CadError, CadGeometry
+    from nagata_snap.cad import CadError, CadGeometry
 
     try:
         geometry = CadGeometry.from_file(args.cad, dim=tdim, unit=(args.unit or "FILE").upper(),

@@ -53,15 +53,14 @@ import itertools
 from dataclasses import dataclass
 
 import basix
-import numpy as np
-
 import dolfinx.fem
 import dolfinx.la
 import dolfinx.mesh
+import numpy as np
 
-from .boundary import BoundaryFacets, local_facet_vertices, update_nodes
-from .parallel import collective_place
-from .records import Records
+from nagata_snap.mesh.boundary import BoundaryFacets, local_facet_vertices, update_nodes
+from nagata_snap.mesh.parallel import collective_place
+from nagata_snap.mesh.records import Records
 
 __all__ = ["CurvedInfo", "curved_mesh", "jacobian_determinants", "VARIANTS"]
 
@@ -128,7 +127,7 @@ def _fit_extension(lam: np.ndarray, own: np.ndarray, basis) -> np.ndarray:
     return basis(lam) @ np.linalg.inv(basis(lam[own]))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _reference(tdim: int, degree: int, variant: str) -> _Reference:
     ct = basix.CellType.triangle if tdim == 2 else basix.CellType.tetrahedron
     el = basix.create_element(basix.ElementFamily.P, ct, degree, basix.LagrangeVariant[variant])
@@ -358,7 +357,7 @@ class _CurvedCells:
         so that every cell and process sees the same value for a node.
         """
         on = self.row >= 0
-        D = np.zeros(self.dofs.shape + (3,))
+        D = np.zeros((*self.dofs.shape, 3))
         D[on] = alpha[self.row[on], None] * self.disp[self.row[on]]
         if self.scratch is not None:
             b = blend(D, self.faces, self.ref)

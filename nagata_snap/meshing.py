@@ -5,7 +5,7 @@ kernel, meshes it (size from ``size`` or a fraction of the model's diagonal,
 curvature sizing), converts the mesh with :func:`dolfinx.io.gmsh.model_to_mesh`
 (serial or distributed) and returns a :class:`CadMesh`: the DOLFINx mesh and
 tags, and for every exterior facet that this process owns (the facets of
-:func:`nagata_snap.boundary.boundary_facets`, in that order)
+:func:`nagata_snap.mesh.boundary.boundary_facets`, in that order)
 
 * the gmsh entity it was generated on (surface tag in 3D, curve tag in 2D),
 * for each of its vertices: the parametric coordinates on that entity and the
@@ -66,17 +66,15 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import dolfinx.mesh
+import gmsh
 import mpi4py.MPI as MPI
 import numpy as np
 import numpy.typing as npt
-
-import gmsh
-
-import dolfinx.mesh
 from dolfinx.io import gmsh as _dxgmsh
 
-from .boundary import BoundaryFacets, boundary_facets
-from .parallel import collective
+from nagata_snap.mesh.boundary import BoundaryFacets, boundary_facets
+from nagata_snap.mesh.parallel import collective
 
 __all__ = ["CadMesh", "EntityInfo", "mesh_cad_file", "import_cad", "gmsh_session", "CAD_SUFFIXES"]
 
@@ -132,7 +130,7 @@ class CadMesh:
     """A gmsh mesh of a CAD file as DOLFINx objects, with gmsh's classification of its boundary.
 
     Per-facet arrays run over ``facets`` (the exterior facets whose cell this
-    process owns, :func:`nagata_snap.boundary.boundary_facets`); ``nfv`` = 2
+    process owns, :func:`nagata_snap.mesh.boundary.boundary_facets`); ``nfv`` = 2
     (2D) or 3 (3D) vertices per facet, in the order of ``facets.nodes``;
     ``pdim = tdim - 1`` parameters per vertex.
 
@@ -604,8 +602,8 @@ def _boundary_table(tdim: int) -> dict:
         for _, t in gmsh.model.getEntities(d):
             infos[(d, t)] = _entity_info(d, t, None)
     node_index, node_dim, node_tag = _classified_nodes(tdim)
-    return dict(keys=np.concatenate(keys), entity=np.concatenate(ents), params=np.concatenate(params),
-                node_index=node_index, node_dim=node_dim, node_tag=node_tag, entities=infos)
+    return {"keys": np.concatenate(keys), "entity": np.concatenate(ents), "params": np.concatenate(params),
+                "node_index": node_index, "node_dim": node_dim, "node_tag": node_tag, "entities": infos}
 
 
 # ----------------------------------------------------------------------

@@ -33,8 +33,8 @@ over all cells at once, basix for the tabulations):
 Polynomials that the parent space reproduces are transferred exactly, also
 at points outside the parent (the extension is the same polynomial).  The
 parent-cell map must be the one in the refined mesh's final cell order
-(:func:`nagata_snap.lineage.parent_cells` gives it from DOLFINx's
-``parent_cell``; :class:`~nagata_snap.hook.Snapper` keeps it).  It may map
+(:func:`nagata_snap.mesh.lineage.parent_cells` gives it from DOLFINx's
+``parent_cell``; :class:`~nagata_snap.snapper.Snapper` keeps it).  It may map
 to any ancestor level (compose the maps of several refinements): the
 pull-back does not assume that the child lies in the cell it is mapped to.
 
@@ -49,15 +49,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import basix
+import dolfinx.fem
+import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
-import dolfinx.fem
-import dolfinx.mesh
-
-from ._batched import inverse_small
-from .parallel import collective
+from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.mesh.parallel import collective
+from nagata_snap.mesh.simplex import inverse_small
 
 __all__ = ["TransferInfo", "transfer", "pull_back"]
 
@@ -287,16 +287,6 @@ def _evaluate(u: dolfinx.fem.Function, space: _Space, cells: np.ndarray, X: np.n
     return out
 
 
-def _best(index: np.ndarray, score: np.ndarray, n: int) -> np.ndarray:
-    """``(n,)`` position in ``index`` of the highest-scoring entry of each value, -1 if none."""
-    best = np.full(n, -np.inf)
-    np.maximum.at(best, index, score)
-    win = np.flatnonzero(score == best[index])
-    pick = np.full(n, -1, dtype=np.int64)
-    pick[index[win]] = win
-    return pick
-
-
 def _owner_best(imap, score: np.ndarray, values: np.ndarray, comm: MPI.Comm
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Give each owned dof the best candidate over all processes.
@@ -328,7 +318,7 @@ def _owner_best(imap, score: np.ndarray, values: np.ndarray, comm: MPI.Comm
     idx = np.concatenate([np.arange(n_own), local])
     sc = np.concatenate([score[:n_own], recv[:, 1]])
     val = np.concatenate([values[:n_own], recv[:, 2:]])
-    pick = _best(idx, np.where(np.isfinite(sc), sc, -np.inf), n_own)
+    pick = best_per_group(idx, -np.where(np.isfinite(sc), sc, -np.inf), n_own)
     ok = pick >= 0
     out_s = np.full(n_own, -np.inf)
     out_v = np.zeros((n_own, values.shape[1]))
@@ -343,7 +333,7 @@ def _point_dofs(u, src: _Space, tgt: _Space, P: np.ndarray, X: np.ndarray, score
     comm = tgt.mesh.comm
     n_loc = tgt.imap.size_local + tgt.imap.num_ghosts
     dof = tgt.dofs[:n1].reshape(-1)
-    pick = _best(dof, score.reshape(-1), n_loc)
+    pick = best_per_group(dof, -score.reshape(-1), n_loc)
     have = np.flatnonzero(pick >= 0)
     pairs = pick[have]
     vals = np.zeros((n_loc, src.bs), dtype=u.x.array.dtype)
@@ -394,7 +384,7 @@ def transfer(
             shape as ``u``.
         parent_cells: ``(num_owned_cells,)`` local cell of ``u``'s mesh for
             every owned cell of ``V``'s mesh, in the child mesh's final cell
-            order (:func:`nagata_snap.lineage.parent_cells`; ``Snapper`` keeps
+            order (:func:`nagata_snap.mesh.lineage.parent_cells`; ``Snapper`` keeps
             it), or the composition of such maps over several levels.
         return_info: also return a :class:`TransferInfo`.
 

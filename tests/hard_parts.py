@@ -20,10 +20,9 @@ from __future__ import annotations
 
 import math
 
+import generate
 import gmsh
 import numpy as np
-
-import generate
 
 #: Curvature sizing (elements per 2 pi) and largest size (fraction of the diagonal).
 CURVATURE_ELEMENTS = 12
@@ -109,7 +108,7 @@ _MAKE = {"plate": _plate, "thin_wall": _thin_wall, "concave_cylinder": _concave_
 def folded_patches(geo, samples: int = 11) -> int:
     """Snapped coarse Nagata patches of ``geo`` (3D) whose normal turns against the flat
     facet's somewhere on a ``samples`` x ``samples`` barycentric grid."""
-    from nagata_snap import nagata
+    from nagata_snap.nagata import patch as nagata
 
     if geo.tdim != 3:
         return 0

@@ -1,8 +1,7 @@
 """Inputs shared by tests/test_robustness.py and tests/mpi/bad_input.py (serial and MPI)."""
 
-import numpy as np
-
 import dolfinx.mesh
+import numpy as np
 
 
 def exterior_tags(mesh, value=1):

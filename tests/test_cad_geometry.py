@@ -13,7 +13,7 @@ import pytest
 
 from nagata_snap.cad import CadError, CadGeometry
 from nagata_snap.cad.nurbs import NurbsCurve, circle, cylinder, sphere
-from nagata_snap.records import Records
+from nagata_snap.mesh.records import Records
 
 S2 = np.sqrt(0.5)
 

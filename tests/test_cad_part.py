@@ -19,17 +19,16 @@ from __future__ import annotations
 import math
 import os
 
+import dolfinx.mesh
+import generate
 import gmsh
 import numpy as np
 import pytest
 from mpi4py import MPI
 
-import dolfinx.mesh
-import generate
-
 from nagata_snap import Snapper
 from nagata_snap.cad import CadGeometry
-from nagata_snap.quality import inverted_cells
+from nagata_snap.smoothing.quality import inverted_cells
 
 SIZE = math.sqrt(3.0)  # model size: the box diagonal
 H = 0.2  # coarse mesh size

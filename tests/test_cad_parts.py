@@ -27,9 +27,8 @@ import os
 import subprocess
 import sys
 
-import pytest
-
 import parts  # meshes/ is on sys.path (conftest.py)
+import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TOL = 1e-9

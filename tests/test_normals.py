@@ -25,8 +25,8 @@ from surfaces import (
 )
 
 from nagata_snap import NagataGeometry, NonManifoldError, NormalsError, Records
-from nagata_snap.boundary import facet_normal_vectors
-from nagata_snap.normals import SCHEMES, corner_normals
+from nagata_snap.mesh.boundary import facet_normal_vectors
+from nagata_snap.nagata.normals import SCHEMES, corner_normals
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 

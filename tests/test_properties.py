@@ -1,6 +1,6 @@
 """Property tests (hypothesis) of the Nagata kernels and the NURBS projection.
 
-Nagata kernels (:mod:`nagata_snap.nagata`), for random valid input: unit
+Nagata kernels (:mod:`nagata_snap.nagata.patch`), for random valid input: unit
 normals within 80 degrees of each other, finite points:
 
 * ``curve_coefficient``, ``curve_coefficient_multi`` and ``evaluate`` never

@@ -1,17 +1,21 @@
-"""Tests of nagata_snap.quality against closed-form / independently computed truth."""
+"""Tests of nagata_snap.smoothing.quality against closed-form / independently computed truth."""
 
 import json
 import math
 
+import dolfinx
+import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
 import pytest
 
-import dolfinx
-import dolfinx.mesh
-
-from nagata_snap.quality import (QualityReport, inverted_cells, mean_ratio, quality_stats,
-                                 signed_volumes)
+from nagata_snap.smoothing.quality import (
+    QualityReport,
+    inverted_cells,
+    mean_ratio,
+    quality_stats,
+    signed_volumes,
+)
 
 TRI = np.array([[0, 1, 2]])
 TET = np.array([[0, 1, 2, 3]])

@@ -1,4 +1,4 @@
-"""Boundary vertices that slide on the geometry (nagata_snap.slide, the repair's slide stage).
+"""Boundary vertices that slide on the geometry (nagata_snap.smoothing.slide, the repair's slide stage).
 
 The problem (tests/mpi/slide_mpi.py): on a unit disk with two snapped
 levels (Nagata and CAD mode), the boundary vertex at 22.5 degrees is prescribed a place on its
@@ -81,6 +81,7 @@ def test_cad_project_keeps_vertices_on_their_feature(tmp_path):
     import warnings
 
     import hard_parts
+
     from nagata_snap import Snapper
     from nagata_snap.cad import CadGeometry
 

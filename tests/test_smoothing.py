@@ -1,4 +1,4 @@
-"""Tests of nagata_snap.smoothing: interior smoothing, guard and repair."""
+"""Tests of nagata_snap.smoothing.smooth: interior smoothing, guard and repair."""
 
 import json
 import os
@@ -6,16 +6,15 @@ import pathlib
 import subprocess
 import sys
 
+import dolfinx
+import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
 import pytest
 
-import dolfinx
-import dolfinx.mesh
-
-from nagata_snap.quality import inverted_cells, mean_ratio
-from nagata_snap.repair import InvertedCellsError, RepairResult, repair
-from nagata_snap.smoothing import smooth
+from nagata_snap.smoothing.quality import inverted_cells, mean_ratio
+from nagata_snap.smoothing.repair import InvertedCellsError, RepairResult, repair
+from nagata_snap.smoothing.smooth import smooth
 
 COMM = MPI.COMM_SELF
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -115,8 +114,8 @@ def test_band_system_equals_ufl_assembly(dim, model, exponent):
     the same displacement as the same problem written in UFL and assembled
     and solved (LU) by DOLFINx on the whole mesh, with Dirichlet data on
     every node that is not an unknown of the band."""
-    import ufl
     import dolfinx.fem.petsc
+    import ufl
 
     if dim == 2:
         msh = dolfinx.mesh.create_unit_square(COMM, 10, 10, dolfinx.mesh.CellType.triangle)
@@ -187,9 +186,8 @@ def test_unlisted_boundary_nodes_are_held(pushed):
 
 def circle_hole_mesh(n_refine=4, R=0.5, L=2.0):
     """Square minus a hole meshed as an inscribed 8-gon, uniformly refined."""
-    import gmsh
-
     import dolfinx.io.gmsh
+    import gmsh
 
     gmsh.initialize()
     try:

@@ -18,8 +18,8 @@ Modules:
 * :mod:`~nagata_snap.cad.iges`: an IGES writer (tests).
 """
 
-from .geometry import CadError, CadGeometry
-from .meshed import mesh_cad
-from .trimming import TrimLoops
+from nagata_snap.cad.geometry import CadError, CadGeometry
+from nagata_snap.cad.meshed import mesh_cad
+from nagata_snap.cad.trimming import TrimLoops
 
 __all__ = ["CadError", "CadGeometry", "TrimLoops", "mesh_cad"]

@@ -8,7 +8,7 @@ through OpenCASCADE) or on bare NURBS entities:
   boundary facet gets ONE entity (face in 3D, edge curve in 2D) on which all
   its vertices lie (Kadir 2.3.4) and the parameters of its vertices there
   (the ``(n, u)`` / ``(n, u, v)`` tuples of Kadir 2.3.2), stored per facet in
-  :class:`nagata_snap.records.Records`.  The entity is known when the mesh
+  :class:`nagata_snap.mesh.records.Records`.  The entity is known when the mesh
   came from the CAD (``faces``, or the gmsh classification recorded with
   :meth:`CadGeometry.set_mesh_hints`), which costs one projection per
   vertex; otherwise a global search finds it: every entity whose bounding
@@ -79,7 +79,7 @@ facets' vertices (``mesh.geometry.x[...]``); the ``Snapper`` hook calls
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -87,17 +87,16 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ..records import Records
-from .nurbs import NurbsCurve, NurbsSurface
-from .projection import (
+from nagata_snap.cad.projection import (
     GlobalSearcher,
     entity_periods,
     evaluate_params,
     is_analytic,
     normalize_params,
-    project_points,
 )
-from .trimming import TRIM_RTOL, TrimLoops
+from nagata_snap.cad.trimming import TRIM_RTOL, TrimLoops
+from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.mesh.records import Records
 
 __all__ = ["CadError", "CadGeometry", "TrimLoops"]
 
@@ -129,7 +128,7 @@ def _facets(a: npt.ArrayLike, what: str) -> np.ndarray:
     if x.ndim != 3 or x.shape[2] not in (2, 3) or x.shape[1] < 1:
         raise ValueError(f"{what} must have shape (nf, nfv, 3), got {x.shape}")
     if x.shape[2] == 2:
-        x = np.concatenate([x, np.zeros(x.shape[:2] + (1,))], axis=2)
+        x = np.concatenate([x, np.zeros((*x.shape[:2], 1))], axis=2)
     if not np.all(np.isfinite(x)):
         raise ValueError(f"{what} contains NaN or infinite coordinates")
     return x
@@ -181,17 +180,6 @@ def _groups(points: np.ndarray, radius: float, nodes: np.ndarray | None = None) 
         _, lab = connected_components(g, directed=False)
         return lab[inv]
     return inv
-
-
-def _best_rows(group: np.ndarray, score: np.ndarray, mask: np.ndarray, n: int) -> np.ndarray:
-    """Per group ``0..n-1``: row with the smallest ``score`` among ``mask``, or -1."""
-    out = np.full(n, -1, dtype=np.int64)
-    rows = np.flatnonzero(mask)
-    if rows.size:
-        order = rows[np.lexsort((score[rows], group[rows]))]
-        g, first = np.unique(group[order], return_index=True)
-        out[g] = order[first]
-    return out
 
 
 def _ramp(counts: np.ndarray) -> np.ndarray:
@@ -416,7 +404,7 @@ class CadGeometry:
     # construction from CAD files
     # ------------------------------------------------------------------
     @classmethod
-    def from_model(cls, model, *, dim: int | None = None, **kwargs) -> "CadGeometry":
+    def from_model(cls, model, *, dim: int | None = None, **kwargs) -> CadGeometry:
         """Geometry of a :class:`~nagata_snap.cad.topology.CadModel`.
 
         Args:
@@ -458,7 +446,7 @@ class CadGeometry:
         timeout: float | None = None,
         comm=None,
         **kwargs,
-    ) -> "CadGeometry":
+    ) -> CadGeometry:
         """Geometry of a STEP (``.step/.stp``), IGES (``.igs/.iges``) or BREP file.
 
         The file is read by OpenCASCADE (:mod:`nagata_snap.cad.read`):
@@ -489,8 +477,8 @@ class CadGeometry:
                 be converted, a crash or time-out of the reader), or holds no
                 entity of the kind needed.
         """
-        from .topology import CadModel
-        from .worker import read_cad
+        from nagata_snap.cad.topology import CadModel
+        from nagata_snap.cad.worker import read_cad
 
         data, err = None, None
         if comm is None or comm.rank == 0:
@@ -512,7 +500,7 @@ class CadGeometry:
 
     @classmethod
     def from_iges(cls, path: str | os.PathLike, *, dim: int | None = None, unit: str = "FILE",
-                  **kwargs) -> "CadGeometry":
+                  **kwargs) -> CadGeometry:
         """Geometry of an IGES file: :meth:`from_file`, by default in the file's own unit."""
         return cls.from_file(path, dim=dim, unit=unit, **kwargs)
 
@@ -717,7 +705,7 @@ class CadGeometry:
                 raise err
             if any(k is None for k in every):
                 raise CadError("attach failed on another process")
-            allkeys = np.concatenate([k for k in every])
+            allkeys = np.concatenate(list(every))
         else:
             if err is not None:
                 raise err
@@ -842,7 +830,7 @@ class CadGeometry:
         fac = np.repeat(np.repeat(np.arange(nf), nfv), cnt)
         near = dist[rows] <= tol[fac]
         # ... and each vertex's nearest entity (the facet's distance for the error message)
-        best = _best_rows(pv, dist, np.ones(len(pv), dtype=bool), nv)[vid]
+        best = best_per_group(pv, dist, nv)[vid]
         bf = np.repeat(np.arange(nf), nfv)[best >= 0]
         pair = np.unique(np.concatenate([fac[near] * ne + key[rows[near]] % ne,
                                          bf * ne + pe[best[best >= 0]]]))
@@ -1114,7 +1102,7 @@ class CadGeometry:
             pt = np.repeat(bad, m)
             cp, cx, cd, _, cc = self.searcher.refine(pt, ent[pt], cand.reshape(-1, d), X, self.max_iter)
             good = cc & (cd <= hs[pt] if jump else np.isfinite(cd))
-            rows = _best_rows(np.repeat(np.arange(bad.size), m), cd, good, bad.size)
+            rows = best_per_group(np.repeat(np.arange(bad.size), m), cd, bad.size, good)
             hit = rows >= 0
             s, r = bad[hit], rows[hit]
             par[s], proj[s], dist[s], ok[s] = cp[r], cx[r], cd[r], True
@@ -1151,9 +1139,9 @@ class CadGeometry:
             qok = qd <= hs[bad][bi]
             if acc is not None:  # only results on the faces (neighbours sharing the edge)
                 qok &= res[3]
-            r_root = _best_rows(bi, qd, qroot, bad.size)  # best attempt on the root
-            r_ok = _best_rows(bi, qd, qok & qroot, bad.size)  # acceptable on the root
-            r_any = _best_rows(bi, qd, qok, bad.size)  # acceptable anywhere
+            r_root = best_per_group(bi, qd, bad.size, qroot)  # best attempt on the root
+            r_ok = best_per_group(bi, qd, bad.size, qok & qroot)  # acceptable on the root
+            r_any = best_per_group(bi, qd, bad.size, qok)  # acceptable anywhere
             use_root = r_ok >= 0
             use_other = ~use_root & (r_any >= 0)
             s, r = bad[use_root], r_ok[use_root]
@@ -1408,8 +1396,8 @@ class CadGeometry:
             cnt, vert = top.face_vertices.take(ent[corner])
             slot = np.repeat(corner, cnt)
             dv = np.linalg.norm(top.points[vert] - X[slot], axis=1)
-            best = _best_rows(np.repeat(np.arange(corner.size), cnt), dv,
-                              dv <= self.tol_factor * hs[slot], corner.size)
+            best = best_per_group(np.repeat(np.arange(corner.size), cnt), dv, corner.size,
+                                  dv <= self.tol_factor * hs[slot])
             hit = best >= 0
             out[corner[hit]] = top.points[vert[best[hit]]]
             fid[corner[hit]] = -(vert[best[hit]] + 1)
@@ -1423,7 +1411,7 @@ class CadGeometry:
             slot, crv = slot[inbox], crv[inbox]
             grp = np.searchsorted(todo, slot)
             res = top.searcher.search_on(X[slot], crv)
-            best = _best_rows(grp, res[2], res[2] <= hs[slot], todo.size)
+            best = best_per_group(grp, res[2], todo.size, res[2] <= hs[slot])
             hit = best >= 0
             out[todo[hit]] = res[1][best[hit]]
             fid[todo[hit]] = crv[best[hit]] + 1

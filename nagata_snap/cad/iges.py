@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 
-from .nurbs import NurbsCurve, NurbsSurface
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
 
 __all__ = ["write_iges", "format_iges", "UNIT_FLAGS"]
 
@@ -108,7 +108,7 @@ def _curve_params(c: NurbsCurve) -> list[str]:
     nrm = _planar_normal(P)
     ends = c.evaluate(np.array([U[p], U[n]]))[0]
     closed = _close(ends[0], ends[1], size)
-    poly = bool(np.all(W == W[0]))
+    poly = bool(np.all(W[0] == W))
     toks = ["126", str(n - 1), str(p), "1" if nrm is not None else "0", "1" if closed else "0",
             "1" if poly else "0", "0"]
     toks += [_fmt_real(x) for x in U]
@@ -129,7 +129,7 @@ def _surface_params(s: NurbsSurface) -> list[str]:
     size = float(np.linalg.norm(P.reshape(-1, 3).max(0) - P.reshape(-1, 3).min(0)))
     cu = _close(P[0], P[-1], size) and _is_clamped(p, U, nu)
     cv = _close(P[:, 0], P[:, -1], size) and _is_clamped(q, V, nv)
-    poly = bool(np.all(W == W.flat[0]))
+    poly = bool(np.all(W.flat[0] == W))
     toks = ["128", str(nu - 1), str(nv - 1), str(p), str(q), "1" if cu else "0", "1" if cv else "0",
             "1" if poly else "0", "0", "0"]
     toks += [_fmt_real(x) for x in U]
@@ -180,7 +180,7 @@ def format_iges(
     s_lines = [s[:72] for s in start] or [""]
     for k, s in enumerate(s_lines, 1):
         out.append(f"{s:<72s}S{k:07d}")
-    g_lines = _pack(["1H,", "1H;"] + list(global_params), 72)
+    g_lines = _pack(["1H,", "1H;", *list(global_params)], 72)
     for k, s in enumerate(g_lines, 1):
         out.append(f"{s:<72s}G{k:07d}")
     d_lines, p_lines = [], []

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import CadError, CadGeometry
-from .projection import entity_periods
+from nagata_snap.cad.geometry import CadError, CadGeometry
+from nagata_snap.cad.projection import entity_periods
 
 __all__ = ["mesh_cad", "use_cad_mesh", "match_entities"]
 
@@ -113,7 +113,7 @@ def use_cad_mesh(geometry: CadGeometry, cad_mesh) -> None:
     if tags.size and not set(np.unique(tags).tolist()) <= set(match):
         missing = sorted(set(np.unique(tags).tolist()) - set(match))
         raise CadError(f"boundary facets lie on gmsh entities {missing[:5]} without samples to match")
-    lut = {t: m for t, m in match.items()}
+    lut = dict(match.items())
     faces = np.array([lut[int(t)][0] for t in tags], dtype=np.int64)
     params = np.asarray(cad_mesh.node_params, dtype=float).copy()
     for t in np.unique(tags):
@@ -130,7 +130,7 @@ def use_cad_mesh(geometry: CadGeometry, cad_mesh) -> None:
 
 def _exterior_tags(cad_mesh) -> np.ndarray:
     """Facet tag values on this process's exterior facets (not the faces two solids share)."""
-    from ..boundary import tag_values
+    from nagata_snap.mesh.boundary import tag_values
 
     return np.unique(tag_values(cad_mesh.facet_tags, cad_mesh.facets.facet_indices(cad_mesh.mesh)))
 
@@ -160,8 +160,8 @@ def mesh_cad(path, comm=None, *, unit: str = "MM", geometry_options: dict | None
     """
     import mpi4py.MPI as MPI
 
-    from ..meshing import mesh_cad_file
-    from ..parallel import collective
+    from nagata_snap.mesh.parallel import collective
+    from nagata_snap.meshing import mesh_cad_file
 
     comm = MPI.COMM_WORLD if comm is None else comm
     cad_mesh = mesh_cad_file(path, comm, unit=unit, **mesh_options)

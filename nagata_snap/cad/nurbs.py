@@ -321,10 +321,10 @@ def _control_points(a: npt.ArrayLike, shape_prefix: tuple, what: str) -> np.ndar
     cp = _as_float(a, f"{what}: control_points")
     if cp.shape[:-1] != shape_prefix or cp.shape[-1] not in (2, 3):
         raise NurbsError(
-            f"{what}: control_points must have shape {shape_prefix + (3,)}, got {cp.shape}"
+            f"{what}: control_points must have shape {(*shape_prefix, 3)}, got {cp.shape}"
         )
     if cp.shape[-1] == 2:  # planar data: z = 0
-        cp = np.concatenate([cp, np.zeros(cp.shape[:-1] + (1,))], axis=-1)
+        cp = np.concatenate([cp, np.zeros((*cp.shape[:-1], 1))], axis=-1)
     if not np.all(np.isfinite(cp)):
         raise NurbsError(f"{what}: control points contain NaN or infinite values")
     return cp

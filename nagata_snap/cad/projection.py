@@ -58,14 +58,15 @@ refines each, the best is kept.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from .nurbs import NurbsCurve, NurbsSurface
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
+from nagata_snap.mesh.arrays import best_per_group, dot
 
 __all__ = [
     "ProjectionResult",
@@ -206,11 +207,6 @@ def _eval_soa(entity: Entity, P: np.ndarray, nderiv: int) -> np.ndarray:
     return entity._eval_soa(P, nderiv)
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise dot product of ``(3, k)`` arrays."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
 def _newton_system(E: np.ndarray, r: np.ndarray, d: int):
     """Gradient ``g (d, k)`` and the matrices ``J`` (B.1/B.2) and ``G`` (Gauss-Newton).
 
@@ -219,13 +215,13 @@ def _newton_system(E: np.ndarray, r: np.ndarray, d: int):
     """
     if d == 1:
         C1, C2 = E[1], E[2]
-        g = _dot(C1, r)[None, :]  # f(u) of (B.1)
-        G = _dot(C1, C1)
-        return g, (G + _dot(C2, r),), (G,)
+        g = dot(C1, r)[None, :]  # f(u) of (B.1)
+        G = dot(C1, C1)
+        return g, (G + dot(C2, r),), (G,)
     Su, Sv, Suu, Suv, Svv = E[1], E[2], E[3], E[4], E[5]
-    g = np.stack([_dot(r, Su), _dot(r, Sv)])  # f, g of (B.2)
-    Guu, Guv, Gvv = _dot(Su, Su), _dot(Su, Sv), _dot(Sv, Sv)
-    J = (Guu + _dot(r, Suu), Guv + _dot(r, Suv), Gvv + _dot(r, Svv))
+    g = np.stack([dot(r, Su), dot(r, Sv)])  # f, g of (B.2)
+    Guu, Guv, Gvv = dot(Su, Su), dot(Su, Sv), dot(Sv, Sv)
+    J = (Guu + dot(r, Suu), Guv + dot(r, Suv), Gvv + dot(r, Svv))
     return g, J, (Guu, Guv, Gvv)
 
 
@@ -263,7 +259,7 @@ def _cosine(E: np.ndarray, g: np.ndarray, dist: np.ndarray, d: int) -> np.ndarra
     """Criterion 3: largest ``|S_a . r| / (|S_a| |r|)``; 0 for a zero tangent."""
     cos = np.zeros_like(dist)
     for a in range(d):
-        den = np.sqrt(_dot(E[1 + a], E[1 + a])) * dist
+        den = np.sqrt(dot(E[1 + a], E[1 + a])) * dist
         c = np.divide(np.abs(g[a]), den, out=np.zeros_like(den), where=den > 0)
         np.maximum(cos, c, out=cos)
     return cos
@@ -296,7 +292,7 @@ def _step_length(E: np.ndarray, actual: np.ndarray, d: int) -> np.ndarray:
     v = E[1] * actual[0]
     if d == 2:
         v = v + E[2] * actual[1]
-    return np.sqrt(_dot(v, v))
+    return np.sqrt(dot(v, v))
 
 
 def _escape_collapsed_edges(
@@ -339,8 +335,8 @@ def _escape_collapsed_edges(
             E = _eval_soa(entity, out_P[:, cand], 1)
             r = E[0] - X[cand].T
             Ta, To = E[1 + a], E[1 + o]
-            degen = np.sqrt(_dot(To, To)) <= 1e-9 * size / olen
-            rate0 = s * _dot(r, Ta)
+            degen = np.sqrt(dot(To, To)) <= 1e-9 * size / olen
+            rate0 = s * dot(r, Ta)
             stuck = degen & (rate0 >= 0.0)
             if not stuck.any():
                 continue
@@ -351,7 +347,7 @@ def _escape_collapsed_edges(
             P[a] = bound
             P[o] = np.tile(vs, nc)
             Ts = _eval_soa(entity, P, 1)[1 + a]
-            rate = (s * _dot(np.repeat(r, ns, axis=1), Ts)).reshape(nc, ns)
+            rate = (s * dot(np.repeat(r, ns, axis=1), Ts)).reshape(nc, ns)
             best = np.argmin(rate, axis=1)
             go = rate[np.arange(nc), best] < 0.0
             if not go.any():
@@ -450,7 +446,7 @@ def project_newton(
     Pa = out_P.copy()
     E = _eval_soa(entity, Pa, 2)
     r = E[0] - Xa
-    dist = np.sqrt(_dot(r, r))
+    dist = np.sqrt(dot(r, r))
     sprev = np.full(k, np.inf)  # length of the previous step (quadratic-rate estimate)
 
     def finish(mask: np.ndarray, converged: bool | np.ndarray, P_, S_, d_) -> None:
@@ -492,7 +488,7 @@ def project_newton(
             Pf = np.where(lin[None, :], new, Pa)
             Sf = E[0] + np.where(lin[None, :], np.einsum("ak,ack->ck", actual, E[1 : 1 + d]), 0.0)
             rf = Sf - Xa
-            df = np.sqrt(_dot(rf, rf))
+            df = np.sqrt(dot(rf, rf))
             iters[idx[lin & (steplen > zero_tol)]] += 1
             finish(done_all, done, Pf, Sf, df)
             keep = ~done_all
@@ -504,7 +500,7 @@ def project_newton(
             sprev = sprev[keep]
         En = _eval_soa(entity, new, 2)
         rn = En[0] - Xa
-        dn = np.sqrt(_dot(rn, rn))
+        dn = np.sqrt(dot(rn, rn))
         # backtracking where the distance grew (inactive for well-seeded points)
         worse = np.flatnonzero(dn > dist + slack)
         alpha = 1.0
@@ -515,7 +511,7 @@ def project_newton(
             nw, aw = _apply_step(entity, Pa[:, worse], alpha * step[:, worse])
             Ew = _eval_soa(entity, nw, 2)
             rw = Ew[0] - Xa[:, worse]
-            dw = np.sqrt(_dot(rw, rw))
+            dw = np.sqrt(dot(rw, rw))
             new[:, worse], En[:, :, worse], rn[:, worse], dn[worse] = nw, Ew, rw, dw
             steplen[worse] = _step_length(E[:, :, worse], aw, d)
             worse = worse[dw > dist[worse] + slack]
@@ -596,16 +592,6 @@ def sample_entity(
         uu, vv = np.meshgrid(u, v, indexing="ij")
         P = np.stack([uu.ravel(), vv.ravel()], axis=1)
     return P, evaluate_params(entity, P, 0)
-
-
-def _best_per_point(n: int, pt: np.ndarray, dist: np.ndarray, rank: np.ndarray | None = None) -> np.ndarray:
-    """Index (into the pair arrays) of the smallest distance of each point ``0..n-1``.
-
-    With ``rank``, the smallest rank wins first (e.g. ``~accepted``), then the distance.
-    """
-    order = np.lexsort((dist, pt) if rank is None else (dist, rank, pt))
-    first = np.searchsorted(pt[order], np.arange(n))
-    return order[first]
 
 
 class GlobalSearcher:
@@ -769,7 +755,7 @@ class GlobalSearcher:
         n = len(X)
         if n == 0:
             empty = (np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0))
-            return empty if accept is None else empty + (np.zeros(0, dtype=bool),)
+            return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
         return _pick(n, pt, ent, params, dist, (ent, params), accept)
 
@@ -820,7 +806,7 @@ class GlobalSearcher:
             raise ValueError(f"{ent.shape[0]} entity indices for {n} points")
         if n == 0:
             empty = (np.zeros((0, self.param_dim)), np.zeros((0, 3)), np.zeros(0))
-            return empty if accept is None else empty + (np.zeros(0, dtype=bool),)
+            return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
         kk = self.k_seeds if k_seeds is None else int(k_seeds)
         pts, ents, seeds = [], [], []
         for e in np.unique(ent):  # loop over entities
@@ -848,11 +834,11 @@ def _pick(n: int, pt, ent, params, dist, columns: tuple, accept) -> tuple:
     flag is appended (see :meth:`GlobalSearcher.search`).
     """
     if accept is None:
-        best = _best_per_point(n, pt, dist)
-        return tuple(c[best] for c in columns) + (dist[best],)
+        best = best_per_group(pt, dist, n)
+        return (*tuple(c[best] for c in columns), dist[best])
     ok = np.asarray(accept(ent, params), dtype=bool)
-    best = _best_per_point(n, pt, dist, ~ok)
-    return tuple(c[best] for c in columns) + (dist[best], ok[best])
+    best = best_per_group(pt, (~ok, dist), n)
+    return (*tuple(c[best] for c in columns), dist[best], ok[best])
 
 
 def _points3(points: npt.ArrayLike) -> np.ndarray:

@@ -63,12 +63,8 @@ class ReadError(Exception):
 
 def preload() -> None:
     """Import the OpenCASCADE modules :func:`read_shape` uses (a forked reader starts warm)."""
-    import OCP.BRep, OCP.BRepAdaptor, OCP.BRepBndLib, OCP.BRepBuilderAPI, OCP.BRepTools  # noqa: F401,E401
-    import OCP.Geom, OCP.Geom2d, OCP.Geom2dConvert, OCP.GeomAbs, OCP.GeomConvert  # noqa: F401,E401
-    import OCP.IFSelect, OCP.IGESControl, OCP.Interface, OCP.ShapeFix, OCP.STEPControl  # noqa: F401,E401
-    import OCP.TopAbs, OCP.TopExp, OCP.TopoDS, OCP.Bnd  # noqa: F401,E401
-    from OCP.STEPControl import STEPControl_Reader
     from OCP.IGESControl import IGESControl_Reader
+    from OCP.STEPControl import STEPControl_Reader
 
     STEPControl_Reader()  # registers the static parameters (xstep.cascade.unit, ...)
     IGESControl_Reader()
@@ -213,7 +209,9 @@ def _heal(shape, size: float, sew: bool | None):
 
 
 def _count(shape, kind) -> int:
-    from OCP.OCP.collections import IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as IMap
+    from OCP.OCP.collections import (
+        IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as IMap,
+    )
     from OCP.TopExp import TopExp
 
     m = IMap()
@@ -276,8 +274,13 @@ def _bspline_curve(c, dim: int) -> dict:
 
 def _elementary(s) -> dict | None:
     """Description of an OpenCASCADE elementary surface (``Geom_Plane``, ...), else None."""
-    from OCP.Geom import (Geom_ConicalSurface, Geom_CylindricalSurface, Geom_Plane,
-                          Geom_SphericalSurface, Geom_ToroidalSurface)
+    from OCP.Geom import (
+        Geom_ConicalSurface,
+        Geom_CylindricalSurface,
+        Geom_Plane,
+        Geom_SphericalSurface,
+        Geom_ToroidalSurface,
+    )
 
     if isinstance(s, Geom_Plane):
         return {"type": "plane", **_ax3(s.Position())}
@@ -548,7 +551,9 @@ def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
 
 def shape_maps(shape) -> tuple:
     """``(faces, edges, vertices, solids)`` index maps of a shape (``TopExp::MapShapes``)."""
-    from OCP.OCP.collections import IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as IMap
+    from OCP.OCP.collections import (
+        IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as IMap,
+    )
     from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_SOLID, TopAbs_VERTEX
     from OCP.TopExp import TopExp
 

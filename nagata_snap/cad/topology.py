@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .curves import Circle, Line, analytic_curve
-from .nurbs import NurbsCurve, NurbsError, NurbsSurface
-from .surfaces import AnalyticSurface, analytic_surface
+from nagata_snap.cad.curves import Circle, Line, analytic_curve
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
+from nagata_snap.cad.surfaces import AnalyticSurface, analytic_surface
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "sample_pcurve", "sample_pcurves", "nurbs_curve", "nurbs_surface"]
 
@@ -295,16 +295,16 @@ def _three_distinct(R: np.ndarray) -> bool:
     """Rows of ``R (m, 2)`` take at least three distinct values (no sort: two passes)."""
     if len(R) < 3:
         return False
-    off_a = np.any(R != R[0], axis=1)
+    off_a = np.any(R[0] != R, axis=1)
     if not off_a.any():
         return False
     b = R[np.argmax(off_a)]
-    return bool(np.any(off_a & np.any(R != b, axis=1)))
+    return bool(np.any(off_a & np.any(b != R, axis=1)))
 
 
 def _tangents(surface, params: np.ndarray) -> np.ndarray:
     """``(k, 2, 3)`` first derivatives at parameters (wrapped/clamped for NURBS)."""
-    from .projection import evaluate_params, normalize_params
+    from nagata_snap.cad.projection import evaluate_params, normalize_params
 
     _, T = evaluate_params(surface, normalize_params(surface, params), 1)
     return T
@@ -338,7 +338,7 @@ class CadModel:
         self.healed = dict(healed or {})
 
     @classmethod
-    def from_data(cls, data: dict) -> "CadModel":
+    def from_data(cls, data: dict) -> CadModel:
         """Build the model from :func:`~nagata_snap.cad.read.read_shape`'s result.
 
         Raises:

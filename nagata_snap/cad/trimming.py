@@ -25,7 +25,7 @@ period, the seam edge being used twice).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -54,7 +54,7 @@ def points_in_polygon(polygon: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return _crossings(np.asarray(polygon, dtype=float), np.atleast_2d(np.asarray(pts, dtype=float))) % 2 == 1
 
 
-def _crossings(poly: np.ndarray, pts: np.ndarray, slabs: "_Slabs | None" = None) -> np.ndarray:
+def _crossings(poly: np.ndarray, pts: np.ndarray, slabs: _Slabs | None = None) -> np.ndarray:
     """Number of polygon edges crossed by the ray ``+x`` from each point, ``(m,)``.
 
     With ``slabs`` (:class:`_Slabs` of the polygon) only the edges in the
@@ -147,7 +147,7 @@ class TrimLoops:
 
     def __init__(self, entities: Sequence, loops: Sequence[Sequence[np.ndarray]],
                  bands: Sequence[Sequence[np.ndarray]] | None = None, rtol: float = TRIM_RTOL):
-        from .projection import entity_periods
+        from nagata_snap.cad.projection import entity_periods
 
         n = len(entities)
         if len(loops) != n:
@@ -176,7 +176,7 @@ class TrimLoops:
         self._period = np.array([entity_periods(ent) for ent in self.entities])
 
     @classmethod
-    def from_outer_holes(cls, entities, outer=None, holes=None, rtol: float = TRIM_RTOL) -> "TrimLoops":
+    def from_outer_holes(cls, entities, outer=None, holes=None, rtol: float = TRIM_RTOL) -> TrimLoops:
         """Loops from per-entity ``outer`` polygons (or ``None``) and lists of ``holes``."""
         n = len(entities)
         for name, arr in (("trim_loops", outer), ("trim_holes", holes)):
@@ -198,7 +198,7 @@ class TrimLoops:
 
     def _scales(self, e: int, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``|S_u|, |S_v|`` at ``params (m, 2)`` of entity ``e``."""
-        from .projection import evaluate_params, normalize_params
+        from nagata_snap.cad.projection import evaluate_params, normalize_params
 
         ent = self.entities[e]
         _, T = evaluate_params(ent, normalize_params(ent, params), 1)
@@ -240,7 +240,7 @@ class TrimLoops:
         surfaces); a positive value is the distance to the nearest loop
         beyond its band.
         """
-        from .projection import normalize_params
+        from nagata_snap.cad.projection import normalize_params
 
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
         params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
@@ -273,7 +273,7 @@ class TrimLoops:
         ``band``: inside the polygons, even-odd, at the wrapped parameter only)."""
         if band:
             return self.excess(ent, params) <= 0.0
-        from .projection import normalize_params
+        from nagata_snap.cad.projection import normalize_params
 
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
         params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]

@@ -248,14 +248,14 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
         CadError: the file is missing or not a CAD file, OpenCASCADE cannot
             read or convert it, crashed or did not finish in time.
     """
-    from .geometry import CadError
+    from nagata_snap.cad.geometry import CadError
 
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise CadError(f"CAD file {path} does not exist")
     kwargs = {"unit": unit, "heal": heal}
     if not isolate:
-        from . import read
+        from nagata_snap.cad import read
 
         try:
             return read.read_shape(path, **kwargs)

@@ -7,7 +7,7 @@ degrees (the middle of a coarse segment) is prescribed a new position on its
 Nagata curve at 36 degrees, beyond its neighbour at 33.75 degrees: the
 boundary edge between them turns over, and no interior motion can repair
 the cell on it.  ``repair`` is called on the level-2 mesh with and without a
-:class:`~nagata_snap.slide.SlidingBoundary`.
+:class:`~nagata_snap.smoothing.slide.SlidingBoundary`.
 
 Run serially (by the tests) or under ``mpiexec -n N [mode]``: rank 0 prints
 one JSON line, the result of the distributed run and, for comparison, of
@@ -30,10 +30,10 @@ from surfaces import nagata_surface_error  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.quality import inverted_cells  # noqa: E402
-from nagata_snap.records import Records  # noqa: E402
-from nagata_snap.repair import repair  # noqa: E402
-from nagata_snap.slide import SlidingBoundary  # noqa: E402
+from nagata_snap.mesh.records import Records  # noqa: E402
+from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
+from nagata_snap.smoothing.repair import repair  # noqa: E402
+from nagata_snap.smoothing.slide import SlidingBoundary  # noqa: E402
 
 ANGLE_FROM, ANGLE_TO = np.radians(22.5), np.radians(36.0)
 

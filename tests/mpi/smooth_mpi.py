@@ -1,4 +1,4 @@
-"""MPI consistency check for nagata_snap.smoothing (run under mpiexec).
+"""MPI consistency check for nagata_snap.smoothing.smooth (run under mpiexec).
 
 For each ghost mode, the same boundary displacement is applied to a
 distributed unit-square mesh and to a serial copy (COMM_SELF) on every rank;
@@ -12,15 +12,14 @@ import json
 import os
 import sys
 
+import dolfinx
+import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
 
-import dolfinx
-import dolfinx.mesh
-
-from nagata_snap.quality import inverted_cells
-from nagata_snap.repair import repair
-from nagata_snap.smoothing import smooth
+from nagata_snap.smoothing.quality import inverted_cells
+from nagata_snap.smoothing.repair import repair
+from nagata_snap.smoothing.smooth import smooth
 
 N = 16
 H = 1.0 / N

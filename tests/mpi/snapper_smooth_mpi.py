@@ -8,7 +8,7 @@ Usage: ``mpiexec -n N python snapper_smooth_mpi.py [CASE ...]``; cases
 The gmsh meshes are distributed by the DOLFINx default partitioner, i.e.
 WITHOUT ghost cells (checked). ``dolfinx.mesh.refine`` adds a ghost layer
 to the refined meshes; the ``direct*`` cases call
-:func:`nagata_snap.smoothing.repair` on the unghosted gmsh mesh itself.
+:func:`nagata_snap.smoothing.repair.repair` on the unghosted gmsh mesh itself.
 
 Two comparisons per case, smoother and level:
 
@@ -45,17 +45,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "meshes"))
-import generate  # noqa: E402
-
 import basix.ufl  # noqa: E402
 import dolfinx  # noqa: E402
 import dolfinx.la  # noqa: E402
 import dolfinx.mesh  # noqa: E402
+import generate  # noqa: E402
 
-import nagata_snap.hook as hook  # noqa: E402
+import nagata_snap.snapper as hook  # noqa: E402
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.quality import inverted_cells  # noqa: E402
-from nagata_snap.repair import repair  # noqa: E402
+from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
+from nagata_snap.smoothing.repair import repair  # noqa: E402
 
 WORLD = MPI.COMM_WORLD
 METHODS = ("elastic", "laplace")

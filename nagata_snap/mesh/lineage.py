@@ -28,13 +28,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 
-import dolfinx.mesh
-
-from ._batched import inverse_small
-from .boundary import BoundaryFacets, cell_facet_nodes, facet_normal_vectors
+from nagata_snap.mesh.boundary import (
+    BoundaryFacets,
+    cell_facet_nodes,
+    facet_normal_vectors,
+)
+from nagata_snap.mesh.simplex import inverse_small
 
 __all__ = [
     "LineageError",

@@ -6,7 +6,7 @@ quality floor) or raises :class:`InvertedCellsError`.  It runs these stages
 and stops at the first that leaves no bad cell:
 
 ``smooth`` (:func:`_linear`)
-    The requested smoother of :mod:`nagata_snap.smoothing` (stiffened linear
+    The requested smoother of :mod:`nagata_snap.smoothing.smooth` (stiffened linear
     elasticity by default) on the band of cells around the moved vertices:
     the fast path, and the start of every later stage.
 ``optimise`` (:func:`_optimise`)
@@ -17,17 +17,17 @@ and stops at the first that leaves no bad cell:
 ``untangle`` (:func:`_untangle`)
     The neighbourhood of the bad (and poor) cells (:data:`UNTANGLE_LAYERS`
     vertex layers, wider while that helps, within a size budget) is gathered
-    (:class:`~nagata_snap.neighbourhood.Neighbourhood`) and its interior
+    (:class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`) and its interior
     nodes are moved by the simultaneous untangling and shape optimisation
-    of :mod:`nagata_snap.untangle` (a regularised mean-ratio objective that
+    of :mod:`nagata_snap.smoothing.untangle` (a regularised mean-ratio objective that
     accepts an inverted start; a linear extension of the boundary
     displacement cannot untangle).  Skipped for the slide stage when a bad
     cell has only constrained vertices or a turned-over constrained facet.
 ``slide`` (:func:`_slide`)
     If bad cells remain (their nodes are constrained: all on the boundary,
     or pinned by it), snapped boundary vertices within :data:`SLIDE_LAYERS`
-    of them also move, tangentially on the geometry (:mod:`nagata_snap.slide`;
-    needs ``slide=``, which :class:`~nagata_snap.hook.Snapper` passes): they
+    of them also move, tangentially on the geometry (:mod:`nagata_snap.smoothing.slide`;
+    needs ``slide=``, which :class:`~nagata_snap.snapper.Snapper` passes): they
     stay on the geometry and their records are updated.
 ``partial`` (:func:`_partial`)
     The last resort, always reported: the moved vertices near the remaining
@@ -51,7 +51,7 @@ cells, moving nodes, seconds, bad cells left).
 
 MPI: the band solve is distributed (PETSc); the neighbourhood problems are
 gathered in a canonical order and solved identically on every process (see
-:mod:`nagata_snap.neighbourhood`), so decisions (bad-cell counts, stages)
+:mod:`nagata_snap.smoothing.neighbourhood`), so decisions (bad-cell counts, stages)
 are collective and the result does not depend on the partition beyond the
 round-off of the band solve.
 """
@@ -65,12 +65,26 @@ from typing import Any
 import mpi4py.MPI
 import numpy as np
 
-from .boundary import facet_normal_vectors, local_facet_vertices
-from .neighbourhood import Neighbourhood, layer_distance
-from .quality import QualityReport, _columns, _inverted_mask, _touching, mean_ratio, signed_volumes
-from .slide import SlideFacets, SlidingBoundary
-from .smoothing import _acc, _auto_layers, _max_layers, _options, _prepare, _Smoother
-from .untangle import optimise, targets, volume_ratio_min
+from nagata_snap.mesh.boundary import facet_normal_vectors, local_facet_vertices
+from nagata_snap.smoothing.neighbourhood import Neighbourhood, layer_distance
+from nagata_snap.smoothing.quality import (
+    QualityReport,
+    _columns,
+    _inverted_mask,
+    _touching,
+    mean_ratio,
+    signed_volumes,
+)
+from nagata_snap.smoothing.slide import SlideFacets, SlidingBoundary
+from nagata_snap.smoothing.smooth import (
+    _acc,
+    _auto_layers,
+    _max_layers,
+    _options,
+    _prepare,
+    _Smoother,
+)
+from nagata_snap.smoothing.untangle import optimise, targets, volume_ratio_min
 
 __all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "SLIDE_LAYERS",
            "TAPER_LAYERS"]
@@ -587,7 +601,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         x_target: (n, 3) coordinates with the moved nodes at their targets;
             its other rows (fixed nodes, nodes outside the band) are kept.
         moved, fixed: (k,), (m,) int32 local geometry-node indices, as in
-            :func:`~nagata_snap.smoothing.smooth`.
+            :func:`~nagata_snap.smoothing.smooth.smooth`.
         method: first smoother, ``'elastic'``, ``'laplace'`` or ``'none'``.
         rel_floor: relative volume floor for inversion.
         min_quality: mean-ratio floor in [0, 1] (0 disables the quality
@@ -595,7 +609,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
             ``min(min_quality, 0.5 q_ref)``.
         untangle: run the untangle (and slide) stages.
         slide: the snapped facets whose vertices may slide
-            (:class:`~nagata_snap.slide.SlidingBoundary`); None: no sliding.
+            (:class:`~nagata_snap.smoothing.slide.SlidingBoundary`); None: no sliding.
         stiffen: optional band-wide re-solves after the first smoother, each
             ``(exponent increment, band multiplier)`` (the repair before the
             untangler; kept for comparisons, default none).
@@ -608,7 +622,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         report: build a :class:`QualityReport`: ``True`` or ``"changed"``
             (metrics over the cells snapping / smoothing changed, O(band)),
             ``"all"`` (every cell, O(mesh)) or ``False`` (none).
-        **opts: smoothing options of :func:`~nagata_snap.smoothing.smooth`
+        **opts: smoothing options of :func:`~nagata_snap.smoothing.smooth.smooth`
             (``layers``, ``exponent``, ...).
 
     Returns:

@@ -1,8 +1,8 @@
 """The neighbourhood of a few bad cells, gathered on every process in a canonical order.
 
-The repair (:mod:`nagata_snap.repair`) fixes the cells that a linear
+The repair (:mod:`nagata_snap.smoothing.repair`) fixes the cells that a linear
 smoother left inverted or degenerate by a nonlinear optimisation
-(:mod:`nagata_snap.untangle`) over the nodes near them.  That neighbourhood
+(:mod:`nagata_snap.smoothing.untangle`) over the nodes near them.  That neighbourhood
 is small (the cost of a repair follows the trouble, not the mesh), so
 instead of a distributed nonlinear solve it is gathered whole on every
 process and solved there serially, identically:
@@ -25,12 +25,11 @@ neighbourhood's nodes, so no scatter is needed.
 
 from __future__ import annotations
 
+import mpi4py.MPI  # noqa: F401  (must precede dolfinx imports)
 import numpy as np
 
-import mpi4py.MPI  # noqa: F401  (must precede dolfinx imports)
-
-from .quality import _columns, _touching, edge_length_range
-from .smoothing import _expand
+from nagata_snap.smoothing.quality import _columns, _touching, edge_length_range
+from nagata_snap.smoothing.smooth import _expand
 
 __all__ = ["Neighbourhood", "layer_distance"]
 
@@ -116,7 +115,7 @@ class Neighbourhood:
         """Canonical ``(N, ...)`` copy of a local node array ``(n, ...)`` (owners' values; collective)."""
         a = np.asarray(a)
         vals = _allgather(self.comm, a[self._own])
-        out = np.empty((self.n_nodes,) + a.shape[1:], dtype=a.dtype)
+        out = np.empty((self.n_nodes, *a.shape[1:]), dtype=a.dtype)
         out[self._to_canon] = vals
         return out
 

@@ -39,6 +39,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from nagata_snap.mesh.arrays import dot_last
+
 __all__ = [
     "EPS",
     "B_MAX",
@@ -71,10 +73,6 @@ B_MAX = 1.0
 #: Local vertex pairs of the edges of a facet with ``nfv`` vertices, in the
 #: order c1, c2, c3 of eq. (39): (v1,v2), (v2,v3), (v1,v3).
 LOCAL_EDGES = {2: np.array([[0, 1]]), 3: np.array([[0, 1], [1, 2], [0, 2]])}
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("...i,...i->...", a, b)
 
 
 def curve_coefficient(
@@ -122,9 +120,9 @@ def curve_coefficient(
     n1 = np.asarray(n1, dtype=float)
     v = 0.5 * (n0 + n1)
     dv = 0.5 * (n0 - n1)
-    dd = _dot(d, v)
-    ddelta = _dot(d, dv)
-    dc = _dot(n0, dv)
+    dd = dot_last(d, v)
+    ddelta = dot_last(d, dv)
+    dc = dot_last(n0, dv)
     lim = B_MAX * np.linalg.norm(d, axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         lim_a = np.where(dc > 0.0, lim / dc, np.inf)
@@ -176,8 +174,8 @@ def curve_coefficient_multi(
     n0 = np.asarray(n0, dtype=float)
     n1 = np.asarray(n1, dtype=float)
     # [n]^T {d}: rows n0k with right-hand side n0k.d, rows n1k with -n1k.d (eq. 32)
-    rhs = np.einsum("epi,ep->ei", n0, _dot(n0, d[:, None, :])) - np.einsum(
-        "eqi,eq->ei", n1, _dot(n1, d[:, None, :])
+    rhs = np.einsum("epi,ep->ei", n0, dot_last(n0, d[:, None, :])) - np.einsum(
+        "eqi,eq->ei", n1, dot_last(n1, d[:, None, :])
     )
     s = np.einsum("epi,epj->eij", n0, n0) + np.einsum("eqi,eqj->eij", n1, n1)  # eq. (33)
     m = np.maximum(np.count_nonzero(np.any(n0 != 0, axis=2), axis=1)
@@ -324,8 +322,8 @@ def closest_on_curve(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, xi: np.ndarr
         tt = t[:, None]
         r = x0 + (d - c) * tt + c * tt * tt - p
         xt = d - c + 2.0 * c * tt
-        gn = _dot(xt, xt)
-        step = _newton_step_1d(_dot(xt, r), gn + 2.0 * _dot(r, c), gn)
+        gn = dot_last(xt, xt)
+        step = _newton_step_1d(dot_last(xt, r), gn + 2.0 * dot_last(r, c), gn)
         t = np.clip(t + np.clip(step, -0.5, 0.5), 0.0, 1.0)
     return t
 
@@ -360,13 +358,13 @@ def closest_on_patch(x: np.ndarray, c: np.ndarray, lam: np.ndarray, p: np.ndarra
             + m["c02"] * z * z - p
         xe = m["c10"] + m["c11"] * z + 2.0 * m["c20"] * e
         xz = m["c01"] + m["c11"] * e + 2.0 * m["c02"] * z
-        a, b, d = _dot(xe, xe), _dot(xe, xz), _dot(xz, xz)  # J^T J
-        ha = a + 2.0 * _dot(r, m["c20"])
-        hb = b + _dot(r, m["c11"])
-        hd = d + 2.0 * _dot(r, m["c02"])
+        a, b, d = dot_last(xe, xe), dot_last(xe, xz), dot_last(xz, xz)  # J^T J
+        ha = a + 2.0 * dot_last(r, m["c20"])
+        hb = b + dot_last(r, m["c11"])
+        hd = d + 2.0 * dot_last(r, m["c02"])
         pd = (ha > 0) & (ha * hd - hb * hb > 1e-2 * (a * d - b * b))
         ha, hb, hd = np.where(pd, ha, a), np.where(pd, hb, b), np.where(pd, hd, d)
-        ge, gz = _dot(xe, r), _dot(xz, r)
+        ge, gz = dot_last(xe, r), dot_last(xz, r)
         det = ha * hd - hb * hb
         with np.errstate(divide="ignore", invalid="ignore"):
             de = np.where(det > 0, -(hd * ge - hb * gz) / det, 0.0)

@@ -5,7 +5,7 @@ Every snapped boundary facet of every refinement level is known by a
 each of its vertices on that entity (``params``).
 
 * Nagata mode: ``root`` is the coarse boundary facet (an index into the
-  patches of :class:`nagata_snap.geometry.NagataGeometry`) and ``params``
+  patches of :class:`nagata_snap.nagata.geometry.NagataGeometry`) and ``params``
   are barycentric coordinates in that coarse facet, shape ``(nf, nfv, nfv)``.
 * CAD mode: ``root`` is the CAD face (2D: edge curve) and ``params`` are
   its ``(u, v)`` (``(u,)``) parameters, unwrapped per facet across periodic
@@ -43,7 +43,7 @@ class Records:
     def __len__(self) -> int:
         return int(self.root.shape[0])
 
-    def take(self, index: npt.ArrayLike) -> "Records":
+    def take(self, index: npt.ArrayLike) -> Records:
         """Records of a subset of facets, ``index`` into the facet axis."""
         index = np.asarray(index)
         return Records(self.root[index], self.params[index])

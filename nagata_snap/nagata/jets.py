@@ -1,7 +1,7 @@
 """Vertex normals from weighted least-squares fits of a local surface (osculating jets).
 
 A weighted average of facet normals (MWSELR and the other weightings Neto
-2010 compares, :mod:`nagata_snap.normals`) is only first-order accurate on
+2010 compares, :mod:`nagata_snap.nagata.normals`) is only first-order accurate on
 irregular meshes: its error is O(h), and a normal error O(h^p) moves the
 Nagata curve coefficient by O(h^(p+1)).  Nagata patches with exact normals
 converge at order 3-4, so the normals must be better than second order.
@@ -192,7 +192,7 @@ def _basis(u: np.ndarray, v: np.ndarray, w: np.ndarray, degree: int, planar: boo
         cols += prev
     high = np.arange(len(cols) + 2) >= 6
     high[-2:] = False
-    return np.stack(cols + [u, v], axis=-1), high
+    return np.stack([*cols, u, v], axis=-1), high
 
 
 def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarray, linear: int) -> np.ndarray:

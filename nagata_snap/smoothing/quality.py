@@ -36,8 +36,10 @@ import dataclasses
 import math
 from typing import Any
 
-import mpi4py.MPI  # noqa: F401  (must precede dolfinx/petsc4py imports)
+import mpi4py.MPI
 import numpy as np
+
+from nagata_snap.mesh.arrays import dot
 
 __all__ = [
     "degenerate_cells",
@@ -94,13 +96,6 @@ def _sub(a: list[np.ndarray], b: list[np.ndarray]) -> list[np.ndarray]:
     return [ai - bi for ai, bi in zip(a, b)]
 
 
-def _dot(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
-    out = a[0] * b[0]
-    for ai, bi in zip(a[1:], b[1:]):
-        out += ai * bi
-    return out
-
-
 def _cross3(a: list[np.ndarray], b: list[np.ndarray]) -> list[np.ndarray]:
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
@@ -109,7 +104,7 @@ def _signed_volumes_v(P: list[list[np.ndarray]], gdim: int) -> np.ndarray:
     e1, e2 = _sub(P[1], P[0]), _sub(P[2], P[0])
     if gdim == 2:
         return 0.5 * (e1[0] * e2[1] - e1[1] * e2[0])
-    return _dot(e1, _cross3(e2, _sub(P[3], P[0]))) / 6.0
+    return dot(e1, _cross3(e2, _sub(P[3], P[0]))) / 6.0
 
 
 def signed_volumes(x: np.ndarray, cells: np.ndarray, gdim: int) -> np.ndarray:
@@ -157,7 +152,7 @@ def degenerate_cells(x: np.ndarray, cells: np.ndarray, gdim: int,
 def edge_length_range(x: np.ndarray, cells: np.ndarray, gdim: int) -> tuple[np.ndarray, np.ndarray]:
     """``(shortest, longest)`` edge length of every cell, two (nc,) arrays (length unit)."""
     _check(cells, gdim)
-    l2 = [_dot(e, e) for e in _edges_v(_verts(x, cells, gdim), gdim)]
+    l2 = [dot(e, e) for e in _edges_v(_verts(x, cells, gdim), gdim)]
     return np.sqrt(np.minimum.reduce(l2)), np.sqrt(np.maximum.reduce(l2))
 
 
@@ -216,7 +211,7 @@ def mean_ratio(x: np.ndarray, cells: np.ndarray, gdim: int) -> np.ndarray:
     _check(cells, gdim)
     P = _verts(x, cells, gdim)
     ev = _edges_v(P, gdim)
-    l2sum = sum(_dot(e, e) for e in ev)
+    l2sum = sum(dot(e, e) for e in ev)
     return _mean_ratio_v(np.abs(_signed_volumes_v(P, gdim)), l2sum, gdim)
 
 
@@ -256,7 +251,7 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
     vol = _signed_volumes_v(P, gdim)
     avol = np.abs(vol)
     ev = _edges_v(P, gdim)
-    l2 = [_dot(e, e) for e in ev]  # squared edge lengths
+    l2 = [dot(e, e) for e in ev]  # squared edge lengths
     mr = _mean_ratio_v(avol, sum(l2), gdim)
 
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -265,9 +260,9 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
             # angle_k = atan2(2|A|, dot of the two edges leaving vertex k)
             e01, e02, e12 = ev
             twoA = 2.0 * avol
-            ang = [np.arctan2(twoA, _dot(e01, e02)),
-                   np.arctan2(twoA, -_dot(e01, e12)),
-                   np.arctan2(twoA, _dot(e02, e12))]
+            ang = [np.arctan2(twoA, dot(e01, e02)),
+                   np.arctan2(twoA, -dot(e01, e12)),
+                   np.arctan2(twoA, dot(e02, e12))]
             amin = np.minimum(np.minimum(ang[0], ang[1]), ang[2])
             amax = np.maximum(np.maximum(ang[0], ang[1]), ang[2])
             la, lb, lc = np.sqrt(l2[0]), np.sqrt(l2[1]), np.sqrt(l2[2])
@@ -283,7 +278,7 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
             c3 = _cross3(e1, e2)
             c0 = [-(a + b + c) for a, b, c in zip(c1, c2, c3)]
             cof = [c0, c1, c2, c3]
-            nrm = [np.sqrt(_dot(c, c)) for c in cof]  # 2 * face areas
+            nrm = [np.sqrt(dot(c, c)) for c in cof]  # 2 * face areas
             # The dihedral angle at the edge shared by faces fa, fb is
             # pi - angle(cof[fa], cof[fb]), an increasing function of the
             # cosine of that angle: the min / max dihedral angles come from
@@ -293,7 +288,7 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
             cmin = cmax = None
             for fa, fb in _TET_EDGE_FACES:
                 den = nrm[fa] * nrm[fb]
-                c = np.divide(_dot(cof[fa], cof[fb]), den, out=np.ones_like(den),
+                c = np.divide(dot(cof[fa], cof[fb]), den, out=np.ones_like(den),
                               where=den > 0)
                 cmin = c if cmin is None else np.minimum(cmin, c)
                 cmax = c if cmax is None else np.maximum(cmax, c)
@@ -370,7 +365,7 @@ class MetricSummary:
     hist: np.ndarray
 
     @classmethod
-    def reduce(cls, comm, values: np.ndarray, bins: np.ndarray) -> "MetricSummary":
+    def reduce(cls, comm, values: np.ndarray, bins: np.ndarray) -> MetricSummary:
         """Collective: summarise ``values`` (owned cells) over ``comm``."""
         values = np.asarray(values, dtype=np.float64)
         n = comm.allreduce(values.size)
@@ -455,7 +450,7 @@ class QualityReport:
                     rel_floor: float = 1e-12,
                     timings: dict[str, float] | None = None,
                     shortfall: np.ndarray | None = None,
-                    scope: str = "all") -> "QualityReport":
+                    scope: str = "all") -> QualityReport:
         """Collective: build the report from raw arrays.
 
         Args:
@@ -553,7 +548,7 @@ class QualityReport:
         return rep
 
     @classmethod
-    def from_mesh(cls, mesh, x_new: np.ndarray | None = None, **kwargs) -> "QualityReport":
+    def from_mesh(cls, mesh, x_new: np.ndarray | None = None, **kwargs) -> QualityReport:
         """Collective: report for a DOLFINx P1 simplex mesh.
 
         Args:

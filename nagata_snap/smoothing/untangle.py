@@ -1,6 +1,6 @@
 """Simultaneous untangling and shape optimisation of a small simplex mesh.
 
-The repair (:mod:`nagata_snap.repair`) hands this module the neighbourhood
+The repair (:mod:`nagata_snap.smoothing.repair`) hands this module the neighbourhood
 of the cells that a linear smoother left inverted or degenerate, as plain
 arrays (coordinates, cells, which nodes may move); it returns new
 coordinates.  There is no MPI in here: the neighbourhood is gathered on
@@ -68,7 +68,7 @@ import mpi4py.MPI  # noqa: F401  (must precede petsc4py)
 import numpy as np
 from petsc4py import PETSc
 
-from ._batched import inverse_small
+from nagata_snap.mesh.simplex import inverse_small
 
 __all__ = ["targets", "energy", "optimise", "OptimiseResult", "volume_ratio_min", "EPS",
            "DELTA_MIN", "SLIDE_STEP"]
@@ -285,7 +285,7 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
     return OptimiseResult(x, smin, pb.count, rounds)
 
 
-def _newton(pb: "_Problem", z: np.ndarray, delta: float, max_iterations: int) -> np.ndarray:
+def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> np.ndarray:
     """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps).
 
     Stops at a gradient below ``GTOL`` (scaled variables), or when an
@@ -325,7 +325,7 @@ def _newton(pb: "_Problem", z: np.ndarray, delta: float, max_iterations: int) ->
     return z
 
 
-def _armijo(pb: "_Problem", z, p, F, slope, delta):
+def _armijo(pb: _Problem, z, p, F, slope, delta):
     """``(z_new, F_new)`` of the first halving of the step that decreases ``F`` enough, or None."""
     t = 1.0
     for _ in range(20):

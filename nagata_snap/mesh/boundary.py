@@ -10,12 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-import numpy.typing as npt
-
 import dolfinx.common
 import dolfinx.la
 import dolfinx.mesh
+import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     "BoundaryFacets",
@@ -133,7 +132,7 @@ class BoundaryFacets:
 
     @classmethod
     def from_cells(cls, mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarray,
-                   facets: np.ndarray | None = None) -> "BoundaryFacets":
+                   facets: np.ndarray | None = None) -> BoundaryFacets:
         """The facets ``local`` of the owned ``cells`` (nodes and opposite vertices looked up)."""
         cells = np.asarray(cells, dtype=np.int32)
         local = np.asarray(local, dtype=np.int32)

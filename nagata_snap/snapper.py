@@ -21,25 +21,32 @@ the mesh given to ``refine`` to the one it returned without a point search.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
+import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 
-import dolfinx.mesh
-
-from .boundary import (BoundaryFacets, boundary_facets, cell_facets_of, check_p1_simplex,
-                       facets_of_cells, tag_values, update_nodes)
-from .cad import CadGeometry
-from .curved import CurvedInfo, curved_mesh
-from .lineage import LineageError, child_facets, child_interior_facets
-from .parallel import collective, collective_place
-from .quality import QualityReport, degenerate_cells
-from .records import Records, refine_records
-from .repair import InvertedCellsError, repair
-from .slide import SlidingBoundary
-from .transfer import TransferInfo, transfer
+from nagata_snap.cad import CadGeometry
+from nagata_snap.curved import CurvedInfo, curved_mesh
+from nagata_snap.mesh.boundary import (
+    BoundaryFacets,
+    boundary_facets,
+    cell_facets_of,
+    check_p1_simplex,
+    facets_of_cells,
+    tag_values,
+    update_nodes,
+)
+from nagata_snap.mesh.lineage import LineageError, child_facets, child_interior_facets
+from nagata_snap.mesh.parallel import collective, collective_place
+from nagata_snap.mesh.records import Records, refine_records
+from nagata_snap.smoothing.quality import QualityReport, degenerate_cells
+from nagata_snap.smoothing.repair import InvertedCellsError, repair
+from nagata_snap.smoothing.slide import SlidingBoundary
+from nagata_snap.transfer import TransferInfo, transfer
 
 __all__ = ["Snapper", "Refined", "SnapReport", "InvertedCellsError", "LineageError"]
 
@@ -57,7 +64,7 @@ class SnapReport:
             snapped and the interior not yet smoothed.
         inverted_after_smoothing: always 0 in a returned report.
         repair_stage: ``'smooth'``, ``'untangle'``, ``'slide'`` or ``'partial'``
-            (see :mod:`nagata_snap.repair`).
+            (see :mod:`nagata_snap.smoothing.repair`).
         partially_moved, max_shortfall: vertices left short of the geometry and
             the largest remaining distance (length unit); printed by ``str``.
         slid_vertices: boundary vertices that slid along the geometry to make
@@ -67,10 +74,10 @@ class SnapReport:
             and the MeshTags, which a loop without snapping pays in
             ``transfer_meshtag`` too).
         geometry: the geometry's placement report (CAD: residuals, Newton histogram).
-        quality: :class:`~nagata_snap.quality.QualityReport` (None if switched off).
+        quality: :class:`~nagata_snap.smoothing.quality.QualityReport` (None if switched off).
         smoothing_attempts: one dict per smoothing / repair attempt: ``stage``,
             ``layers``, ``cells`` and ``nodes`` it worked on, ``seconds``,
-            ``n_bad`` (bad cells left), see :class:`~nagata_snap.repair.RepairResult`.
+            ``n_bad`` (bad cells left), see :class:`~nagata_snap.smoothing.repair.RepairResult`.
     """
 
     level: int
@@ -142,7 +149,7 @@ class Snapper:
     Args:
         mesh: the coarse mesh the geometry describes.
         facet_tags: its facet tags (transferred to every refined level).
-        geometry: a :class:`~nagata_snap.geometry.NagataGeometry` or
+        geometry: a :class:`~nagata_snap.nagata.geometry.NagataGeometry` or
             :class:`~nagata_snap.cad.CadGeometry`.
         tags: facet tag values to snap; default ``geometry.tags`` (Nagata) or all tags.
         smoothing: interior smoothing after the boundary moved: ``'elastic'``
@@ -158,9 +165,9 @@ class Snapper:
         min_quality: mean-ratio floor (0..1) below which a changed cell counts
             as degenerate (cells already poor before snapping only if they lose
             half their quality).
-        smoothing_options: options of :func:`nagata_snap.smoothing.smooth`
+        smoothing_options: options of :func:`nagata_snap.smoothing.smooth.smooth`
             (``layers``, ``exponent``, ``solver``, ...).
-        quality_report: build a :class:`~nagata_snap.quality.QualityReport`
+        quality_report: build a :class:`~nagata_snap.smoothing.quality.QualityReport`
             each level: ``True`` / ``"changed"`` (default): angles and ratios
             of the cells that snapping and smoothing changed (O(band) work);
             ``"all"``: of every cell (O(mesh), about 1 us per tetrahedron);
@@ -252,7 +259,7 @@ class Snapper:
         """The mesh of the current level (the one :meth:`refine` expects)."""
         return self._level.mesh
 
-    def curved_mesh(self, degree: int = 2, **kwargs) -> tuple[dolfinx.mesh.Mesh, "CurvedInfo"]:
+    def curved_mesh(self, degree: int = 2, **kwargs) -> tuple[dolfinx.mesh.Mesh, CurvedInfo]:
         """Degree-``degree`` version of the current level's mesh, boundary nodes on the geometry.
 
         The result shares the straight mesh's topology, so its facet tags and
@@ -403,7 +410,7 @@ class Snapper:
         cell of the mesh it returned, in that mesh's final cell order.
 
         Unlike DOLFINx 0.11's ``parent_cell``, it is indexed by the refined
-        mesh's cells as numbered (see :func:`nagata_snap.lineage.parent_cells`).
+        mesh's cells as numbered (see :func:`nagata_snap.mesh.lineage.parent_cells`).
         Maps of successive levels compose (``P1[P2]`` maps level-2 cells to
         level 0), for :func:`nagata_snap.transfer.transfer` across levels.
         """

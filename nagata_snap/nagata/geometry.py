@@ -12,30 +12,34 @@ A snapping geometry offers two methods used by :class:`nagata_snap.Snapper`:
   facet vertices described by ``records``;
 * ``project(records, points) -> (points, records)``: closest points on each
   facet's own patch, for boundary vertices that slide during the repair
-  (:mod:`nagata_snap.slide`).
+  (:mod:`nagata_snap.smoothing.slide`).
 """
 
 from __future__ import annotations
 
 import warnings
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
+import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
-import dolfinx.mesh
-
-from . import nagata
-from .boundary import boundary_facets, check_p1_simplex, facet_normal_vectors, tag_values
-from .normals import NormalsError, corner_normals
-from .parallel import collective
-from .records import Records
+from nagata_snap.mesh.boundary import (
+    boundary_facets,
+    check_p1_simplex,
+    facet_normal_vectors,
+    tag_values,
+)
+from nagata_snap.mesh.parallel import collective
+from nagata_snap.mesh.records import Records
+from nagata_snap.nagata import patch as patches
+from nagata_snap.nagata.normals import NormalsError, corner_normals
 
 __all__ = ["NagataGeometry", "NormalSource"]
 
-#: Vertex normals: ``None`` or a name from :data:`nagata_snap.normals.SCHEMES`
+#: Vertex normals: ``None`` or a name from :data:`nagata_snap.nagata.normals.SCHEMES`
 #: (estimate; ``None`` is ``"jet"``), an array ``(num_nodes, gdim)`` over the
 #: coarse mesh's local geometry nodes, a callable ``f(x) -> n`` mapping
 #: ``(k, 3)`` points to ``(k, 3)`` (or ``(k, gdim)``) normals, or a CAD
@@ -105,7 +109,7 @@ def _check_winding(fac: np.ndarray) -> None:
 
     A manifold ridge (2D: vertex, 3D: edge) shared by two facets must be
     traversed in opposite directions by them; non-manifold ridges are left to
-    :class:`~nagata_snap.normals.NonManifoldError`.
+    :class:`~nagata_snap.nagata.normals.NonManifoldError`.
     """
     nfv = fac.shape[1]
     if nfv == 2:  # each vertex must start one segment and end one
@@ -145,8 +149,8 @@ class NagataGeometry:
         tags: tag values whose facets are snapped (default: all tags present).
         normals: vertex normals of the snapped surface: ``None`` to estimate
             them (a fourth-order fit of the surface around each vertex, see
-            :mod:`nagata_snap.jets`), the name of an estimate
-            (:data:`nagata_snap.normals.SCHEMES`: ``"jet"`` or one of Neto's
+            :mod:`nagata_snap.nagata.jets`), the name of an estimate
+            (:data:`nagata_snap.nagata.normals.SCHEMES`: ``"jet"`` or one of Neto's
             weighted means such as ``"mwselr"``), an array
             ``(num_geometry_nodes, gdim)`` on the coarse mesh's local geometry
             nodes, a callable of position ``f(x: (k, 3)) -> (k, 3)`` such as an
@@ -159,7 +163,7 @@ class NagataGeometry:
         crease_angle: degrees; a boundary ridge turning by more than this is
             sharp, and one turning by more than a third of it is sharp when it
             turns more than three times the largest facet-to-facet turn next to
-            it on either side (:mod:`nagata_snap.normals`).  A vertex on a sharp ridge keeps one
+            it on either side (:mod:`nagata_snap.nagata.normals`).  A vertex on a sharp ridge keeps one
             normal per smooth side and the ridge uses the multi-normal
             coefficient (eqs. 20-32 of Nagata 2005).
         split_tags: also treat ridges between facets of different tags as sharp.
@@ -184,7 +188,7 @@ class NagataGeometry:
         normals: NormalSource = None,
         crease_angle: float = 60.0,
         split_tags: bool = True,
-        eps: float = nagata.EPS,
+        eps: float = patches.EPS,
     ):
         check_p1_simplex(mesh)
         comm = mesh.comm
@@ -263,8 +267,8 @@ class NagataGeometry:
         normals: NormalSource = None,
         crease_angle: float = 60.0,
         split_tags: bool = True,
-        eps: float = nagata.EPS,
-    ) -> "NagataGeometry":
+        eps: float = patches.EPS,
+    ) -> NagataGeometry:
         """Nagata patches over a closed polygon (2D) or closed triangulated surface (3D).
 
         For use without a DOLFINx mesh (tests, benchmarks, surface studies).
@@ -415,14 +419,14 @@ class NagataGeometry:
         if nfv == 2:
             cos = np.einsum("fi,fi->f", n[:, 0], n[:, 1])
             self._check_opposite(cos)
-            return nagata.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps)[:, None, :]
-        local = nagata.LOCAL_EDGES[3]
+            return patches.curve_coefficient(x[:, 1] - x[:, 0], n[:, 0], n[:, 1], eps)[:, None, :]
+        local = patches.LOCAL_EDGES[3]
         a, b = local[:, 0], local[:, 1]
         d = x[:, b] - x[:, a]  # (F, 3, 3)
         n0, n1 = n[:, a], n[:, b]
         cos = np.einsum("fei,fei->fe", n0, n1)
         self._check_opposite(cos)
-        coef = nagata.curve_coefficient(d, n0, n1, eps)
+        coef = patches.curve_coefficient(d, n0, n1, eps)
         # crease ridges: one coefficient from all normals of both facets (eq. 32)
         cr = np.flatnonzero(crease)
         if len(cr):
@@ -437,7 +441,7 @@ class NagataGeometry:
             N0 = np.stack([n[rf[:, s], pos[:, s, 0]] for s in (0, 1)], axis=1)
             N1 = np.stack([n[rf[:, s], pos[:, s, 1]] for s in (0, 1)], axis=1)
             dr = x[rf[:, 0], pos[:, 0, 1]] - x[rf[:, 0], pos[:, 0, 0]]
-            cm = nagata.curve_coefficient_multi(dr, N0, N1, eps)
+            cm = patches.curve_coefficient_multi(dr, N0, N1, eps)
             # write into the local edge slot of each facet
             for s in (0, 1):
                 p = np.sort(pos[:, s], axis=1)
@@ -527,14 +531,14 @@ class NagataGeometry:
             ``(points (nf, nfv, 3), records, report)``.
         """
         r = records.root
-        pts = nagata.evaluate(self.x[r], self.coef[r], records.params)
+        pts = patches.evaluate(self.x[r], self.coef[r], records.params)
         return pts, records, {"n_points": int(pts.shape[0] * pts.shape[1])}
 
     def project(self, records: Records, points: np.ndarray) -> tuple[np.ndarray, Records]:
         """Closest points on each facet's own coarse patch, seeded by the records.
 
         Every facet vertex (slot) is projected onto the Nagata patch of its
-        record's coarse facet (:func:`~nagata_snap.nagata.closest_on_patch`,
+        record's coarse facet (:func:`~nagata_snap.nagata.patch.closest_on_patch`,
         Newton from the record's barycentrics), and stays inside that facet:
         a slot whose record has one zero barycentric coordinate lies on a
         coarse edge (shared with the neighbouring patch, or a crease) and
@@ -565,7 +569,7 @@ class NagataGeometry:
         if nfv == 3:
             inner = np.flatnonzero(nz == 0)
             r = root[inner]
-            lam[inner] = nagata.closest_on_patch(self.x[r], self.coef[r], lam[inner], p[inner])
+            lam[inner] = patches.closest_on_patch(self.x[r], self.coef[r], lam[inner], p[inner])
             # off the triangle: drop the most negative coordinate, go on along that edge
             out = inner[lam[inner].min(axis=1) < 0.0]
             lam[out, np.argmin(lam[out], axis=1)] = 0.0
@@ -592,7 +596,7 @@ class NagataGeometry:
         la, lb = lam[rows, a], lam[rows, b]
         with np.errstate(divide="ignore", invalid="ignore"):
             t0 = np.where(la + lb > 0, lb / (la + lb), 0.5)
-        t = nagata.closest_on_curve(xs[rows, a], xs[rows, b], self.coef[patch, slot], t0, p)
+        t = patches.closest_on_curve(xs[rows, a], xs[rows, b], self.coef[patch, slot], t0, p)
         out = np.zeros_like(lam)
         out[rows, a] = 1.0 - t
         out[rows, b] = t
@@ -601,7 +605,7 @@ class NagataGeometry:
     def evaluate(self, patch: npt.ArrayLike, lam: np.ndarray) -> np.ndarray:
         """Points on patches ``patch (P,)`` at barycentric ``lam (P, k, nfv)``: ``(P, k, 3)``."""
         patch = np.asarray(patch)
-        return nagata.evaluate(self.x[patch], self.coef[patch], lam)
+        return patches.evaluate(self.x[patch], self.coef[patch], lam)
 
 
 def _cad_vertex_normals(cad, coords: np.ndarray, gids: np.ndarray, snap: np.ndarray) -> np.ndarray:

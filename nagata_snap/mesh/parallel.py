@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import mpi4py.MPI as MPI
 
@@ -50,7 +51,7 @@ def collective_place(comm: MPI.Comm, geometry, records, straight, what: str):
     pts, recs, report = collective(comm, geometry.place, records, straight)
     unresolved = comm.allreduce(int(report.get("n_unresolved", 0)))
     if unresolved:
-        from .cad import CadError
+        from nagata_snap.cad import CadError
 
         raise CadError(
             f"{unresolved} {what} have no acceptable projection onto the CAD geometry (Newton "

@@ -30,7 +30,7 @@ own facet-to-facet turn (and less than ``crease_angle``) counts as smooth:
 lower ``crease_angle`` or use tags (``split_tags``) to keep it sharp.
 
 Normals (``scheme``).  The default ``"jet"`` fits a local surface per sector
-(:mod:`nagata_snap.jets`: fourth order in 3D, exact on spheres and, in 2D,
+(:mod:`nagata_snap.nagata.jets`: fourth order in 3D, exact on spheres and, in 2D,
 on circles), starting from Max's (1999) weighting, which Neto (2010, seed 000,
 sec. 4.1.3, eq. 22) found best of the facet-normal means ("MWSELR")::
 
@@ -56,7 +56,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
-from .jets import _angle, fit_sector_normals, padded_rows
+from nagata_snap.nagata.jets import _angle, fit_sector_normals, padded_rows
 
 __all__ = [
     "NormalsError",

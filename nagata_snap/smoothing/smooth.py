@@ -63,7 +63,7 @@ Parallel
     a parallel refinement of the same coarse mesh can differ in their
     interior diagonals, and the smoothed coordinates then differ too.
 
-:func:`nagata_snap.repair.repair` wraps the band smoother in the guard:
+:func:`nagata_snap.smoothing.repair.repair` wraps the band smoother in the guard:
 check, untangle the neighbourhood of bad cells, slide boundary vertices,
 partial moves as the last resort.
 """
@@ -74,17 +74,15 @@ import itertools
 import time
 from typing import Any
 
-import mpi4py.MPI  # noqa: F401  (must precede dolfinx/petsc4py imports)
-import numpy as np
-
 import dolfinx
 import dolfinx.la
 import dolfinx.mesh
+import mpi4py.MPI
+import numpy as np
 from petsc4py import PETSc
 
-from ._batched import inverse_small
-
-from .quality import _columns, _touching, edge_length_range
+from nagata_snap.mesh.simplex import inverse_small
+from nagata_snap.smoothing.quality import _columns, _touching, edge_length_range
 
 __all__ = ["smooth", "SMOOTH_DEFAULTS"]
 
@@ -177,7 +175,7 @@ AUTO_LAYERS_MAX = 4
 
 
 def _auto_layers(comm, x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
-                 touched: np.ndarray, sync: "_NodeSync") -> np.ndarray:
+                 touched: np.ndarray, sync: _NodeSync) -> np.ndarray:
     """Band width of every node for the prescribed displacement ``disp`` (n, 3) (collective).
 
     ``touched`` (nc,) bool: the cells with a displaced node (a superset does
@@ -263,7 +261,7 @@ def _exterior_nodes(mesh, sync: _NodeSync) -> np.ndarray:
     """(n,) bool: nodes on the exterior boundary of ``mesh`` (collective).
 
     Creates the facets and the facet-to-cell connectivity if the mesh has
-    none (O(mesh)); :class:`~nagata_snap.hook.Snapper` lists its boundary
+    none (O(mesh)); :class:`~nagata_snap.snapper.Snapper` lists its boundary
     nodes as ``fixed`` instead, which costs nothing.
     """
     tdim = mesh.topology.dim

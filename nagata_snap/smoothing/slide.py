@@ -2,9 +2,9 @@
 
 A cell whose vertices are all on the boundary (common in coarse meshes of
 thin walls, fillets and holes) cannot be helped by moving interior nodes.
-The repair (:mod:`nagata_snap.repair`) may then move nearby snapped
+The repair (:mod:`nagata_snap.smoothing.repair`) may then move nearby snapped
 boundary vertices *along* the geometry: each sliding vertex moves in its
-tangent space (optimised together with the interior, :mod:`nagata_snap.untangle`)
+tangent space (optimised together with the interior, :mod:`nagata_snap.smoothing.untangle`)
 and is projected back onto its facets' geometric entity, so it stays exactly
 on the geometry and its lineage record follows it (no drift at later levels).
 Corners (vertices whose facets lie on ``nfv`` or more distinct entities:
@@ -14,7 +14,7 @@ projection does with them.
 The geometry is asked through one call, ``project(records, points) ->
 (points (nf, nfv, 3), records)``: the closest point of each facet vertex on
 its facet's own entity, seeded by the record, with sharp edges and corners
-kept on their feature (:meth:`nagata_snap.geometry.NagataGeometry.project`:
+kept on their feature (:meth:`nagata_snap.nagata.geometry.NagataGeometry.project`:
 a vertex on a coarse edge moves along it, a coarse vertex not at all;
 :meth:`nagata_snap.cad.CadGeometry.project`: a vertex on a CAD edge moves
 along that edge, a CAD vertex not at all).  The tangent space of a vertex is that of the projection: the
@@ -22,18 +22,18 @@ span of the projection's finite-difference Jacobian ``(P(p + h e_j) - P(p)) / h`
 (rank 2 on a face, 1 on an edge, 0 at a corner), so the feature rules live
 in the geometry only.
 
-Everything here works on the gathered :class:`~nagata_snap.neighbourhood.Neighbourhood`
+Everything here works on the gathered :class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`
 (identical on every process); the facets around the sliding vertices are
 gathered too, and every process updates the records of its own facets.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from .records import Records
+from nagata_snap.mesh.records import Records
 
 __all__ = ["SlidingBoundary", "SlideFacets"]
 
@@ -54,14 +54,14 @@ class SlidingBoundary:
 
     Args:
         nodes: ``(nf, nfv)`` local geometry nodes of this process's snapped facets.
-        records: their :class:`~nagata_snap.records.Records` (copied).
+        records: their :class:`~nagata_snap.mesh.records.Records` (copied).
         geometry: the snapping geometry (its ``project``, see the module docstring).
         blocked: ``(m,)`` local nodes that never slide (e.g. on boundary facets
             that are not snapped).
 
     Attributes:
         records: the records, updated where vertices slid (read them after
-            :func:`~nagata_snap.repair.repair` succeeded).
+            :func:`~nagata_snap.smoothing.repair.repair` succeeded).
         n_slid: global number of vertices that slid.
     """
 
@@ -114,7 +114,7 @@ class SlideFacets:
         parts = comm.allgather((cf[rows], recs.root[rows], recs.params[rows]))
         fac = np.concatenate([p[0] for p in parts]).reshape(-1, fn.shape[1])
         root = np.concatenate([p[1] for p in parts])
-        params = np.concatenate([p[2] for p in parts]).reshape((len(root),) + recs.params.shape[1:])
+        params = np.concatenate([p[2] for p in parts]).reshape((len(root), *recs.params.shape[1:]))
         key = np.sort(fac, axis=1)
         order = np.lexsort(key.T[::-1])
         inv = np.empty_like(order)
@@ -146,7 +146,7 @@ class SlideFacets:
         for :meth:`commit`.
         """
         d = x.shape[1]
-        pts = np.zeros(self.facets.shape + (3,))
+        pts = np.zeros((*self.facets.shape, 3))
         pts[..., :d] = x[self.facets]
         mask = np.isin(self.facets, self.slide)
         pos = np.full(x.shape[0], -1, dtype=np.int64)

@@ -1,0 +1,20 @@
+"""After the boundary moved: the interior follows, and no cell may invert.
+
+* :mod:`~nagata_snap.smoothing.quality` -- signed volumes, mean ratio,
+  angles and the per-level :class:`QualityReport`;
+* :mod:`~nagata_snap.smoothing.neighbourhood` -- the band of cells around the
+  moved vertices that the smoothers work on;
+* :mod:`~nagata_snap.smoothing.smooth` -- the interior smoother;
+* :mod:`~nagata_snap.smoothing.untangle` -- Escobar's regularised mean-ratio
+  optimisation that untangles inverted cells;
+* :mod:`~nagata_snap.smoothing.slide` -- boundary vertices that may slide on
+  their geometry during the repair;
+* :mod:`~nagata_snap.smoothing.repair` -- the guard: check, smooth, untangle,
+  shorten moves, in that order.
+"""
+
+from nagata_snap.smoothing.quality import QualityReport
+from nagata_snap.smoothing.repair import InvertedCellsError, RepairResult, repair
+from nagata_snap.smoothing.smooth import smooth
+
+__all__ = ["InvertedCellsError", "QualityReport", "RepairResult", "repair", "smooth"]
