@@ -125,7 +125,7 @@ def snap_part(name: str, fmt: str, path: str) -> dict:
     for _ in range(2):
         prev = mesh
         mesh, ft, _, _, rep = snapper.refine(mesh)
-        place_us.append(1e6 * rep.times["place"] / max(rep.geometry["n_points"], 1))
+        place_us.append(1e6 * rep.times["place"] / max(rep.geometry.n_points, 1))
         prev.topology.create_entities(1)
         straight, *_ = dolfinx.mesh.refine(prev, None, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
         inverted += inverted_cells(mesh.geometry.x, straight.geometry.x, mesh.geometry.dofmaps[0], tdim).size
@@ -138,7 +138,7 @@ def snap_part(name: str, fmt: str, path: str) -> dict:
     d = occ.face_distance(F, P) if tdim == 3 else occ.edge_distance(geo._curve_edges[F], P)
     worst = float(d.max()) / occ.size
     return {"faces": geo.num_entities, "vertices": nv, "attach_hint": t_hint, "attach_search": t_search,
-            "place": place_us[-1], "points": rep.geometry["n_points"], "worst": worst,
+            "place": place_us[-1], "points": rep.geometry.n_points, "worst": worst,
             "inverted": inverted, "short": rep.partially_moved}
 
 

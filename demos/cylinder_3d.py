@@ -127,7 +127,7 @@ def main(argv=None) -> dict:
         edges = mark_near_cylinder(mesh, args.band / 2**k)
         mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
         new = mesh.geometry.index_map().size_global
-        hist = np.asarray(rep.geometry["iterations_histogram"], dtype=np.int64)
+        hist = np.asarray(rep.geometry.iterations_histogram, dtype=np.int64)
         hist = np.asarray(comm.allreduce(np.pad(hist, (0, 64 - len(hist)))))
         total_hist = np.pad(total_hist, (0, len(hist) - len(total_hist))) + hist
         projected = n_on_cylinder(mesh, ft) - on_before  # new vertices snapped onto the cylinder
@@ -139,7 +139,7 @@ def main(argv=None) -> dict:
         rows.append(dict(level=k + 1, old_points=old, new_points=new, projected=projected,
                          projection_time=t_proj, newton_histogram=hist.tolist(),
                          max_iterations=int(np.flatnonzero(hist)[-1]) if hist.any() else 0,
-                         unresolved=rep.geometry.get("n_unresolved", 0),
+                         unresolved=rep.geometry.n_unresolved,
                          inverted_after=rep.inverted_after_smoothing,
                          cylinder_distance=cylinder_distance(mesh, ft),
                          times=rep.times))

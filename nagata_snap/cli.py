@@ -530,8 +530,8 @@ def _run(args, comm) -> None:
             f"{time.perf_counter() - t0:.2f} s")
         if args.report:
             say(f"  {report}")
-            if report.geometry:
-                say("  geometry: " + ", ".join(f"{k} {v}" for k, v in report.geometry.items()))
+            if report.geometry.n_points:
+                say("  geometry: " + report.geometry.summary())
         dist = boundary_distance(snapper) if cad and (args.plot or level == args.levels) else None
         history.append((level, report, dist))
     _summary(say, comm, snapper, history, cad)

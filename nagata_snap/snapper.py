@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from nagata_snap.cad import CadGeometry
 from nagata_snap.curved import CurvedInfo, curved_mesh
+from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.boundary import (
     BoundaryFacets,
     boundary_facets,
@@ -91,7 +92,7 @@ class SnapReport:
     partially_moved: int
     max_shortfall: float
     times: dict[str, float] = field(default_factory=dict)
-    geometry: dict = field(default_factory=dict)
+    geometry: PlaceReport = field(default_factory=PlaceReport)
     quality: QualityReport | None = None
     smoothing_attempts: list[dict] = field(default_factory=list)
     slid_vertices: int = 0

@@ -96,15 +96,15 @@ def test_circle_polygon_refinement(offset):
         np.testing.assert_allclose(pts, c + R * d / np.linalg.norm(d, axis=2)[..., None], rtol=0, atol=1e-12 * R)
         assert same_vertex_agreement(st, pts) <= 1e-12 * R
         check_records(geo, pts, rec, 1e-15)
-        assert report["n_points"] == st.shape[0] * 2 and report["n_fallback"] == 0
-        assert report["n_vertices"] == st.shape[0]
-        h = report["iterations_histogram"]
+        assert report.n_points == st.shape[0] * 2 and report.n_fallback == 0
+        assert report.n_vertices == st.shape[0]
+        h = report.iterations_histogram
         # one seeded projection per distinct (vertex, seed), not per facet slot:
         # only the vertex on the seam has two seeds (u = 0 and u = 1)
-        assert report["n_vertices"] <= h.sum() <= report["n_vertices"] + 1 and len(h) - 1 <= 7
+        assert report.n_vertices <= h.sum() <= report.n_vertices + 1 and len(h) - 1 <= 7
         # the old vertices (half of them) are exact already: 0 iterations
         assert h[0] >= st.shape[0] // 2
-        np.testing.assert_allclose(report["max_residual"], np.max(np.linalg.norm(pts - st, axis=2)), rtol=1e-12)
+        np.testing.assert_allclose(report.max_residual, np.max(np.linalg.norm(pts - st, axis=2)), rtol=1e-12)
         x = pts
 
 
@@ -128,7 +128,7 @@ def test_multiple_curves_and_shared_vertices():
         pts, rec, report = geo.place(rec, st)
         np.testing.assert_allclose(np.linalg.norm(pts, axis=2), 1.0, rtol=1e-12, atol=0)
         assert same_vertex_agreement(st, pts) == 0.0
-        assert report["n_fallback"] == 0 and report["n_off_root"] == 0
+        assert report.n_fallback == 0 and report.n_off_root == 0
         check_records(geo, pts, rec, 1e-15)
         x = pts
 
@@ -167,7 +167,7 @@ def test_place_fallback_from_bad_seeds():
     bad = rec.params.copy()
     bad[:3, 1] = anti
     pts, rec2, report = geo.place(Records(rec.root, bad), st)
-    assert report["n_fallback"] == 3 and report["n_unresolved"] == 0
+    assert report.n_fallback == 3 and report.n_unresolved == 0
     np.testing.assert_allclose(pts, truth, rtol=0, atol=1e-12)
     check_records(geo, pts, rec2, 1e-15)
 
@@ -219,8 +219,8 @@ def test_cylinder_triangulation_refinement(offset):
         np.testing.assert_allclose(pts[..., 2], st[..., 2], rtol=0, atol=1e-12 * H)  # radial projection
         assert same_vertex_agreement(st, pts) <= 1e-12 * R
         check_records(geo, pts, rec, 1e-15)
-        assert report["n_fallback"] == 0
-        assert len(report["iterations_histogram"]) - 1 <= 7
+        assert report.n_fallback == 0
+        assert len(report.iterations_histogram) - 1 <= 7
         x = pts
 
 
@@ -250,8 +250,8 @@ def test_sphere_with_poles_refinement():
         np.testing.assert_allclose(pts, d, rtol=0, atol=1e-12)
         assert same_vertex_agreement(st, pts) <= 1e-12
         check_records(geo, pts, rec, 1e-14)
-        assert report["n_unresolved"] == 0
-        assert len(report["iterations_histogram"]) - 1 <= 7
+        assert report.n_unresolved == 0
+        assert len(report.iterations_histogram) - 1 <= 7
         x = pts
 
 
@@ -299,7 +299,7 @@ def test_place_fallback_from_nan_seeds():
     d = st.copy()
     d[..., 2] = 0
     np.testing.assert_allclose(pts, R * d / np.linalg.norm(d, axis=2)[..., None], rtol=0, atol=1e-12)
-    assert report["n_fallback"] == 2 and report["n_unresolved"] == 0
+    assert report.n_fallback == 2 and report.n_unresolved == 0
     assert np.all(np.isfinite(rec2.params))
     check_records(geo, pts, rec2, 1e-15)
 
@@ -331,7 +331,7 @@ def test_two_surface_patches():
         pts, rec, report = geo.place(rec, st)
         np.testing.assert_allclose(np.hypot(pts[..., 0], pts[..., 1]), R, rtol=1e-12, atol=0)
         assert same_vertex_agreement(st, pts) == 0.0
-        assert report["n_fallback"] == 0
+        assert report.n_fallback == 0
         check_records(geo, pts, rec, 1e-15)
         x = pts
 
@@ -455,10 +455,10 @@ def test_edge_vertices_of_plate_and_hole_land_on_the_trimming_curve():
             w = pts[rec.root == 1]
             np.testing.assert_allclose(np.hypot(w[..., 0], w[..., 1]), R, rtol=0, atol=1e-14)
             assert same_vertex_agreement(st, pts) == 0.0
-            assert report["n_unresolved"] == 0
-            assert (report["n_left_face"] > 0) == trimmed
-            assert report["n_edge_vertices"] == 8 * 2 ** (level + 1)
-            assert report["max_edge_gap"] <= 1e-14
+            assert report.n_unresolved == 0
+            assert (report.n_left_face > 0) == trimmed
+            assert report.n_edge_vertices == 8 * 2 ** (level + 1)
+            assert report.max_edge_gap <= 1e-14
             # records: every slot's parameters evaluate to its vertex on its own entity
             np.testing.assert_allclose(geo.evaluate(rec.root, rec.params), pts, rtol=0, atol=1e-14)
             assert geo.inside(np.repeat(rec.root, 3), rec.params.reshape(-1, 2)).all()

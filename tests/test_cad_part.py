@@ -166,12 +166,12 @@ def test_occ_part_snapping_matches_occ(occ, part):
         prev = mesh
         mesh, ft, *_, report = snapper.refine(mesh)
         g = report.geometry
-        assert g["n_unresolved"] == 0
+        assert g.n_unresolved == 0
         # the rim vertices between two rim vertices go onto the rim circle (CAD
         # edge), not onto the top plane inside the hole; they are on both faces
-        assert g["n_edge_vertices"] > 0
-        assert g["max_edge_gap"] <= 1e-13 * SIZE
-        assert len(g["iterations_histogram"]) - 1 <= 7
+        assert g.n_edge_vertices > 0
+        assert g.max_edge_gap <= 1e-13 * SIZE
+        assert len(g.iterations_histogram) - 1 <= 7
 
         nodes, tags = boundary_data(mesh, ft)
         x = mesh.geometry.x
@@ -270,8 +270,8 @@ def test_occ_features_place_on_trimmed_curved_faces(tmp_path):
     for level in range(2):
         st, rec = split_triangles(x, rec)
         pts, rec, report = geo.place(rec, st)
-        assert report["n_unresolved"] == 0
-        assert report["n_edge_vertices"] > 0 and report["max_edge_gap"] <= 1e-13
+        assert report.n_unresolved == 0
+        assert report.n_edge_vertices > 0 and report.max_edge_gap <= 1e-13
         d = on_features(pts.reshape(-1, 3))
         assert d.max() <= 1e-9 * SIZE, f"level {level + 1}: {pts.reshape(-1, 3)[np.argmax(d)]} is {d.max():.3e} off"
         for e in planar:  # flat faces stay flat

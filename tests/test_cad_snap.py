@@ -92,5 +92,5 @@ def test_kadir_cylinder_file_snapping_matches_occ(tmp_path):
         gmsh.finalize()
     interior = (x[:, 2] > 1e-6) & (x[:, 2] < 0.4 - 1e-6)  # OCC is ~1e-9 off at face ends
     assert np.linalg.norm(cp - x, axis=1)[interior].max() <= 1e-9 * 1.1
-    assert report.geometry["n_unresolved"] == 0
-    assert len(report.geometry["iterations_histogram"]) - 1 <= 7
+    assert report.geometry.n_unresolved == 0
+    assert len(report.geometry.iterations_histogram) - 1 <= 7

@@ -175,7 +175,7 @@ def test_machined_part_cad_mode(name, tmp_path):
         warnings.simplefilter("ignore")  # OCC's group entity (type 402)
         geo = CadGeometry.from_iges(path)
     for rep in two_levels_nothing_short(mesh, ft, geo):
-        assert rep.geometry["n_unresolved"] == 0
+        assert rep.geometry.n_unresolved == 0
 
 
 @pytest.mark.parametrize("name", PARTS)

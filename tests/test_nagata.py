@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from surfaces import barycentric_grid, closed_cylinder, sphere_octahedron
 
-from nagata_snap import NagataGeometry, nagata
+from nagata_snap import NagataGeometry
+from nagata_snap.nagata import patch as nagata
 
 
 def quarter_circle(ne):

@@ -34,7 +34,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from nagata_snap import NagataGeometry
-from nagata_snap import nagata as N
+from nagata_snap.nagata import patch as N
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
 from nagata_snap.cad.projection import GlobalSearcher, global_search, project_newton
 

@@ -66,6 +66,7 @@ Snapper.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -611,7 +612,7 @@ class FailingOnce:
         pts, rec, rep = self.geo.place(records, straight)
         self.calls += 1
         if self.calls == 1:
-            rep = dict(rep, n_unresolved=int(pts.shape[0] * pts.shape[1]))
+            rep = dataclasses.replace(rep, n_unresolved=int(pts.shape[0] * pts.shape[1]))
         return pts, rec, rep
 
 

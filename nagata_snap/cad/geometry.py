@@ -95,6 +95,7 @@ from nagata_snap.cad.projection import (
     normalize_params,
 )
 from nagata_snap.cad.trimming import TRIM_RTOL, TrimLoops
+from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.arrays import best_per_group
 from nagata_snap.mesh.records import Records
 
@@ -953,7 +954,7 @@ class CadGeometry:
     # ------------------------------------------------------------------
     def place(
         self, records: Records, straight: npt.ArrayLike
-    ) -> tuple[np.ndarray, Records, dict]:
+    ) -> tuple[np.ndarray, Records, PlaceReport]:
         """Snap facet vertices onto their facets' entities (Kadir 2.2 + 2.3.3).
 
         Args:
@@ -992,13 +993,7 @@ class CadGeometry:
         d = self.param_dim
         ns = nf * nfv
         if ns == 0:
-            report = {
-                "max_residual": 0.0, "mean_residual": 0.0,
-                "iterations_histogram": np.zeros(1, dtype=np.int64), "n_points": 0,
-                "n_vertices": 0, "n_fallback": 0, "n_off_root": 0, "n_unresolved": 0,
-                "n_left_face": 0, "n_edge_vertices": 0, "max_edge_gap": 0.0,
-            }
-            return np.zeros((nf, nfv, 3)), Records(root.copy(), np.asarray(records.params).copy()), report
+            return np.zeros((nf, nfv, 3)), Records(root.copy(), np.asarray(records.params).copy()), PlaceReport()
         X = st.reshape(ns, 3)
         ent = np.repeat(root, nfv)
         seed = params.reshape(ns, d)
@@ -1021,19 +1016,19 @@ class CadGeometry:
         if self.topology is not None:
             info["n_left_face"] = n_left
         vd = dist[rep_of_group]  # one value per distinct vertex
-        report = {
-            "max_residual": float(vd.max()) if vd.size else 0.0,
-            "mean_residual": float(vd.mean()) if vd.size else 0.0,
-            "iterations_histogram": np.bincount(its, minlength=1),
-            "n_points": int(ns),
-            "n_vertices": int(vd.size),
-            "n_fallback": info["n_fallback"],
-            "n_off_root": int(np.sum(~on_root)),
-            "n_unresolved": n_unresolved,
-            "n_left_face": info["n_left_face"],
-            "n_edge_vertices": n_edge,
-            "max_edge_gap": gap,
-        }
+        report = PlaceReport(
+            max_residual=float(vd.max()) if vd.size else 0.0,
+            mean_residual=float(vd.mean()) if vd.size else 0.0,
+            iterations_histogram=np.bincount(its, minlength=1),
+            n_points=int(ns),
+            n_vertices=int(vd.size),
+            n_fallback=int(info["n_fallback"]),
+            n_off_root=int(np.sum(~on_root)),
+            n_unresolved=n_unresolved,
+            n_left_face=int(info["n_left_face"]),
+            n_edge_vertices=int(n_edge),
+            max_edge_gap=float(gap),
+        )
         out = np.concatenate([par.reshape(nf, nfv, d), chan], axis=2) if chan.shape[2] else \
             par.reshape(nf, nfv, d)
         return proj.reshape(nf, nfv, 3), Records(root.copy(), out), report

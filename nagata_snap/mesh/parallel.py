@@ -43,13 +43,13 @@ def collective_place(comm: MPI.Comm, geometry, records, straight, what: str):
 
     Raises:
         CadError: on every process, if any point found no acceptable CAD
-            projection (``report["n_unresolved"]``); ``what`` names the points.
+            projection (``report.n_unresolved``); ``what`` names the points.
 
     Returns:
         What ``place`` returned: ``(points, records, report)``.
     """
     pts, recs, report = collective(comm, geometry.place, records, straight)
-    unresolved = comm.allreduce(int(report.get("n_unresolved", 0)))
+    unresolved = comm.allreduce(report.n_unresolved)
     if unresolved:
         from nagata_snap.cad import CadError
 

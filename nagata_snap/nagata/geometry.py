@@ -26,6 +26,7 @@ import numpy.typing as npt
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
+from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.boundary import (
     boundary_facets,
     check_p1_simplex,
@@ -520,7 +521,7 @@ class NagataGeometry:
 
     def place(
         self, records: Records, straight: np.ndarray | None = None
-    ) -> tuple[np.ndarray, Records, dict]:
+    ) -> tuple[np.ndarray, Records, PlaceReport]:
         """Evaluate each facet vertex on its coarse facet's Nagata patch.
 
         Args:
@@ -532,7 +533,7 @@ class NagataGeometry:
         """
         r = records.root
         pts = patches.evaluate(self.x[r], self.coef[r], records.params)
-        return pts, records, {"n_points": int(pts.shape[0] * pts.shape[1])}
+        return pts, records, PlaceReport(n_points=int(pts.shape[0] * pts.shape[1]))
 
     def project(self, records: Records, points: np.ndarray) -> tuple[np.ndarray, Records]:
         """Closest points on each facet's own coarse patch, seeded by the records.

@@ -90,7 +90,7 @@ for k in range(levels):
         result[f"snapped{k + 1}"] = np.unique(np.concatenate(ss), axis=0)
         result[f"tagmid{k + 1}"] = np.concatenate(tm)
         result[f"tagarea{k + 1}"] = np.column_stack([vals, area])
-        result[f"iterations{k + 1}"] = np.asarray(rep.geometry.get("iterations_histogram", [0]))
+        result[f"iterations{k + 1}"] = np.asarray(rep.geometry.iterations_histogram)
 if comm.rank == 0:
     np.savez(out, **result)
     print("done", comm.size, flush=True)
