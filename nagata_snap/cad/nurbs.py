@@ -190,52 +190,41 @@ def _basis_soa(
         N^{(d)}_{i,r} = r ( N^{(d-1)}_{i,r-1} / D_r[a-1] - N^{(d-1)}_{i+1,r-1} / D_r[a] ).
     """
     k = u.shape[0]
-    left: list = [None] * (p + 1)
-    right: list = [None] * (p + 1)
-    for j in range(1, p + 1):
-        left[j] = u - knots[span + 1 - j]
-        right[j] = knots[span + j] - u
-    N: list[list[np.ndarray]] = [[np.ones(k)]]
-    inv: list[list[np.ndarray]] = [[]]
+    j = np.arange(1, p + 1)[:, None]
+    left = np.empty((p + 1, k))  # rows 1..p: u - u_{s+1-j}
+    right = np.empty((p + 1, k))  # rows 1..p: u_{s+j} - u
+    np.subtract(u, knots[span + 1 - j], out=left[1:])
+    np.subtract(knots[span + j], u, out=right[1:])
+    N = np.ones((1, k))  # the r + 1 non-zero functions of degree r, rows a = 0..r
+    levels, inv = [N], [N]  # inv[r] (r, k): 1 / D_r[a], a = 0..r-1
     for r in range(1, p + 1):
-        prev = N[r - 1]
-        cur: list[np.ndarray] = []
-        inv_r: list[np.ndarray] = []
-        saved = None
-        for a in range(r):
-            ia = 1.0 / (right[a + 1] + left[r - a])
-            inv_r.append(ia)
-            temp = prev[a] * ia
-            term = right[a + 1] * temp
-            cur.append(term if saved is None else saved + term)
-            saved = left[r - a] * temp
-        cur.append(saved)
-        N.append(cur)
-        inv.append(inv_r)
+        ia = np.add(right[1 : r + 1], left[r:0:-1])
+        np.divide(1.0, ia, out=ia)
+        temp = N * ia
+        N = np.empty((r + 1, k))
+        np.multiply(right[1 : r + 1], temp, out=N[:r])
+        N[r] = 0.0
+        temp *= left[r:0:-1]
+        N[1:] += temp
+        levels.append(N)
+        inv.append(ia)
     if out is None:
         out = np.empty((nderiv + 1, p + 1, k))
+    out[0] = N
     out[p + 1 :] = 0.0  # derivatives of order > p
-    for a, row in enumerate(N[p]):
-        out[0, a] = row
     # D[r]: (d-1)-th derivatives of the r+1 non-zero degree-r functions
-    D: list = N
+    D: list = levels
     for d in range(1, min(nderiv, p) + 1):
         newD: list = [None] * (p + 1)
-        for r in range(p - nderiv + d if p - nderiv + d > d else d, p + 1):
-            prev = D[r - 1]
-            cur = []
-            for a in range(r + 1):
-                val = None
-                if a >= 1:
-                    val = prev[a - 1] * inv[r][a - 1]
-                if a <= r - 1:
-                    t = prev[a] * inv[r][a]
-                    val = -t if val is None else val - t
-                cur.append(r * val)
+        for r in range(max(p - nderiv + d, d), p + 1):
+            t = D[r - 1] * inv[r]  # (r, k)
+            cur = np.zeros((r + 1, k))
+            cur[1:] += t
+            cur[:-1] -= t
+            cur *= r
             newD[r] = cur
         D = newD
-        for a, row in enumerate(D[p]):
-            out[d, a] = row
+        out[d] = D[p]
     return out
 
 
@@ -781,18 +770,10 @@ class NurbsSurface:
         np.add(self._block_offsets(), su, out=flat)
         L = np.take(self._pwT, flat, axis=1, out=work.get("L", (ch, p + 1, q + 1, kc)), mode="clip")
         # along v: T[b] = sum_j N^{(b)}_j(v) Pw_ij -> (nd+1, channels, p+1, kc)
-        T = work.get("T", (nderiv + 1, ch, p + 1, kc))
-        tmp = work.get("tmp", (ch, p + 1, kc))
-        for b in range(nderiv + 1):
-            np.multiply(Nv[b, 0], L[:, :, 0], out=T[b])
-            for j in range(1, q + 1):
-                T[b] += np.multiply(Nv[b, j], L[:, :, j], out=tmp)
+        T = np.einsum("bjk,cijk->bcik", Nv, L, out=work.get("T", (nderiv + 1, ch, p + 1, kc)))
         # along u: H_ab = sum_i N^{(a)}_i(u) T[b]_i
-        tmp2 = tmp[:, 0]
         for n, (a, b) in enumerate(_ORDERS[nderiv]):
-            np.multiply(Nu[a, 0], T[b][:, 0], out=H[n])
-            for i in range(1, p + 1):
-                H[n] += np.multiply(Nu[a, i], T[b][:, i], out=tmp2)
+            np.einsum("ik,cik->ck", Nu[a], T[b], out=H[n])
         return H
 
     def _block_offsets(self) -> np.ndarray:
