@@ -860,7 +860,12 @@ MAX_COORD = 1e100
 
 def _check_finite(a: np.ndarray, what: str) -> None:
     """``ValueError`` for NaN/infinite entries, or coordinates beyond :data:`MAX_COORD`."""
-    if a.size == 0 or (a.max() <= MAX_COORD and a.min() >= -MAX_COORD):  # no temporary; False for NaN
+    if a.size == 0:
+        return
+    flat = a.reshape(-1)
+    # one pass, no temporary: every |a_i| <= sqrt(sum a_i^2) (a sum of non-negative terms is
+    # not rounded below its largest term); NaN, inf and overflow fail it and go to the exact test
+    if flat @ flat <= MAX_COORD * MAX_COORD:
         return
     ok = np.isfinite(a) & (np.abs(a) <= MAX_COORD)
     if not ok.all():

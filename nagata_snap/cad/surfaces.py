@@ -88,6 +88,25 @@ def _wrap(t: np.ndarray, lo: float, top: float = np.pi) -> np.ndarray:
     return t
 
 
+#: rows per block of :func:`_add_rows`
+_ROW_BLOCK = 256
+
+
+def _add_rows(a: np.ndarray, c: np.ndarray) -> None:
+    """``a += c`` in place for a C-contiguous ``(k, m)`` array and a ``(m,)`` vector.
+
+    Done on blocks of :data:`_ROW_BLOCK` rows viewed as one long row against ``c``
+    tiled, because a broadcast over rows runs numpy's inner loop over only ``m``
+    (2 or 3) elements at a time, several times slower.
+    """
+    k, m = a.shape
+    q = k - k % _ROW_BLOCK
+    if q:
+        body = a[:q].reshape(-1, _ROW_BLOCK * m)
+        body += np.tile(c, _ROW_BLOCK)
+    a[q:] += c
+
+
 class AnalyticSurface:
     """Common part of the analytic surfaces: frame, bounds, periods, evaluation.
 
@@ -309,11 +328,26 @@ class Plane(AnalyticSurface):
             out[2] = self.Y[:, None]
         return out
 
-    def _closest(self, L, seed):
-        x, y = L[0], L[1]
-        dist = np.abs(L[2])
-        L[2], L[3] = 0.0, 1.0  # rows x, y, 0, 1: the foot
-        return x, y, L.T @ self._frame4, dist
+    def closest(self, points: npt.ArrayLike, seeds: npt.ArrayLike | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest points ``O + u X + v Y`` of ``points (k, 3)``, ``u, v = (P - O).X, (P - O).Y``
+        (seeds are not needed).  Only the returned arrays are allocated, in three passes
+        over ``points``.  Returns ``(params (k, 2), foot points (k, 3), distances (k,))``."""
+        X = np.asarray(points, dtype=float).reshape(-1, 3)
+        uv = X @ self._uv_cols  # (k, 2)
+        _add_rows(uv, -self._uv_origin)
+        dist = X @ self.Z  # (k,): signed height over the plane
+        dist -= self._z_origin
+        S = uv @ self._uv_axes  # the foot O + u X + v Y
+        _add_rows(S, self.origin)
+        return uv, S, np.abs(dist, out=dist)
+
+    def __init__(self, origin, x, y, z, bounds):
+        super().__init__(origin, x, y, z, bounds)
+        self._uv_axes = np.stack([self.X, self.Y])  # (2, 3)
+        self._uv_cols = np.ascontiguousarray(self._uv_axes.T)  # (3, 2): contiguous for BLAS
+        self._uv_origin = self._uv_axes @ self.origin
+        self._z_origin = float(self.Z @ self.origin)
 
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)
