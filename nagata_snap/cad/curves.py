@@ -64,6 +64,14 @@ class _Curve:
     def _pieces(self) -> int:
         return 1
 
+    def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
+        """``params (1, k)`` -> ``(nderiv + 1, 3, k)``: ``C, C', C''``."""
+        raise NotImplementedError  # pragma: no cover - abstract
+
+    def _closest_t(self, X: np.ndarray, seed: np.ndarray) -> np.ndarray:
+        """``(k,)`` parameters of the closest points of ``X (k, 3)`` (``seed`` where free)."""
+        raise NotImplementedError  # pragma: no cover - abstract
+
     def _points(self, t: np.ndarray) -> np.ndarray:
         return self._eval_soa(np.asarray(t, dtype=float)[None, :], 0)[0].T
 

@@ -45,7 +45,7 @@ The end of the knot range is evaluated with the last non-empty span, so
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -401,6 +401,11 @@ class NurbsCurve:
     knots: np.ndarray
     control_points: np.ndarray
     weights: np.ndarray
+    # derived in __post_init__ (homogeneous control points (4, n), span table, bbox size, closedness)
+    _pwT: np.ndarray = field(init=False, repr=False)
+    _spans: np.ndarray = field(init=False, repr=False)
+    _size: float = field(init=False, repr=False)
+    _closed: bool = field(init=False, repr=False)
 
     #: number of parameters of the entity (1 for curves)
     param_dim = 1
@@ -568,6 +573,15 @@ class NurbsSurface:
     knots_v: np.ndarray
     control_points: np.ndarray
     weights: np.ndarray
+    # derived in __post_init__: control net (channels, nu nv) and whether it is rational,
+    # span tables, bbox size, closedness
+    _pwT: np.ndarray = field(init=False, repr=False)
+    _rational: bool = field(init=False, repr=False)
+    _spans_u: np.ndarray = field(init=False, repr=False)
+    _spans_v: np.ndarray = field(init=False, repr=False)
+    _size: float = field(init=False, repr=False)
+    _closed_u: bool = field(init=False, repr=False)
+    _closed_v: bool = field(init=False, repr=False)
 
     #: number of parameters of the entity (2 for surfaces)
     param_dim = 2
@@ -852,7 +866,7 @@ def cylinder(
     ring = radius * (_CIRCLE_NET[:, :1] * x + _CIRCLE_NET[:, 1:] * y)
     P = np.stack([c + ring, c + ring + height * z], axis=1)  # (9, 2, 3)
     W = np.stack([CIRCLE_WEIGHTS, CIRCLE_WEIGHTS], axis=1)
-    return NurbsSurface(2, 1, CIRCLE_KNOTS, [0.0, 0.0, 1.0, 1.0], P, W)
+    return NurbsSurface(2, 1, CIRCLE_KNOTS, np.array([0.0, 0.0, 1.0, 1.0]), P, W)
 
 
 def sphere(

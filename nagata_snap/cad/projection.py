@@ -60,12 +60,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal, Protocol, TypeGuard, overload
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
 from nagata_snap.mesh.arrays import best_per_group, dot
 
 __all__ = [
@@ -81,7 +81,43 @@ __all__ = [
     "is_analytic",
 ]
 
-Entity = NurbsCurve | NurbsSurface
+
+
+class Entity(Protocol):
+    """What the projection needs of a curve (``param_dim`` 1) or surface (2): a
+    :class:`~nagata_snap.cad.nurbs.NurbsCurve`, :class:`~nagata_snap.cad.nurbs.NurbsSurface` or an analytic entity of
+    :mod:`~nagata_snap.cad.surfaces` / :mod:`~nagata_snap.cad.curves`."""
+
+    param_dim: int
+
+    @property
+    def bounds(self) -> np.ndarray: ...  # (d, 2) parameter box
+
+    @property
+    def closed(self) -> tuple[bool, ...]: ...  # per direction
+
+    @property
+    def bbox(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @property
+    def bbox_size(self) -> float: ...
+
+    def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray: ...  # (d, k) -> (n, 3, k)
+
+
+class AnalyticEntity(Entity, Protocol):
+    """An entity with a closed-form projection (:func:`is_analytic`)."""
+
+    def closest(self, points: npt.ArrayLike, seeds: npt.ArrayLike | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+def _distinct_knots(entity: Entity, a: int) -> np.ndarray:
+    """Span boundaries of parameter direction ``a`` (``distinct_knots`` of a curve,
+    ``distinct_knots_u`` / ``_v`` of a surface)."""
+    name = "distinct_knots" if entity.param_dim == 1 else ("distinct_knots_u", "distinct_knots_v")[a]
+    return np.asarray(getattr(entity, name))
+
 
 #: default step-length tolerance (criterion 2), relative to the entity's bbox size
 STEP_RTOL = 1e-9
@@ -173,24 +209,29 @@ def normalize_params(entity: Entity, params: npt.ArrayLike) -> np.ndarray:
     return p
 
 
-def evaluate_params(entity: Entity, params: np.ndarray, nderiv: int = 0):
+@overload
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: Literal[0] = 0) -> np.ndarray: ...
+@overload
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: Literal[1]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: Literal[2]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: int = 0
+                    ) -> np.ndarray | tuple[np.ndarray, ...]:
     """Evaluate at ``(k, d)`` parameters already inside the domain.
 
     Returns ``S (k, 3)`` for ``nderiv=0``, else ``(S, T, H)`` with tangents
     ``T (k, d, 3)`` (``T[:, a] = dS/dp_a``) and, for ``nderiv=2``, second
     derivatives ``H (k, d, d, 3)`` (``H[:, a, b] = d2S/dp_a dp_b``).
     """
+    D = entity._eval_soa(np.ascontiguousarray(params.T), nderiv).transpose(0, 2, 1)  # (n, k, 3)
+    if nderiv == 0:
+        return D[0]
     if entity.param_dim == 1:
-        D = entity._evaluate_inside(params[:, 0], nderiv)
-        if nderiv == 0:
-            return D[0]
         T = D[1][:, None, :]
         if nderiv == 1:
             return D[0], T
         return D[0], T, D[2][:, None, None, :]
-    D = entity._evaluate_inside(params[:, 0], params[:, 1], nderiv)
-    if nderiv == 0:
-        return D[0]
     T = np.stack([D[1], D[2]], axis=1)
     if nderiv == 1:
         return D[0], T
@@ -299,7 +340,7 @@ def _step_length(E: np.ndarray, actual: np.ndarray, d: int) -> np.ndarray:
 
 
 def _escape_collapsed_edges(
-    entity: NurbsSurface, X: np.ndarray, out: _Output, max_iter: int, tols: _Tolerances
+    entity: Entity, X: np.ndarray, out: _Output, max_iter: int, tols: _Tolerances
 ) -> None:
     """Restart points stuck on a collapsed boundary (a pole) with the wrong free parameter.
 
@@ -318,7 +359,7 @@ def _escape_collapsed_edges(
         if entity.closed[a]:
             continue
         o = 1 - a
-        knots_o = entity.distinct_knots_v if o == 1 else entity.distinct_knots_u
+        knots_o = _distinct_knots(entity, o)
         olen = bnd[o, 1] - bnd[o, 0]
         for bound, s in ((bnd[a, 0], 1.0), (bnd[a, 1], -1.0)):
             cand = np.flatnonzero((out.P[a] == bound) & (out.dist > tols.zero))
@@ -548,7 +589,7 @@ def project_newton(
     halving), :func:`_escape_collapsed_edges` (restarts at poles).
 
     Args:
-        entity: :class:`NurbsCurve` or :class:`NurbsSurface`.
+        entity: :class:`~nagata_snap.cad.nurbs.NurbsCurve` or :class:`~nagata_snap.cad.nurbs.NurbsSurface`.
         points: ``(k, 3)`` points to project (``(k, 2)`` accepted, z = 0).
         seeds: ``(k,)`` (curves) or ``(k, 2)`` (surfaces) start parameters;
             wrapped/clamped into the domain first.
@@ -606,7 +647,7 @@ def project_newton(
     return out.result(d)
 
 
-def is_analytic(entity) -> bool:
+def is_analytic(entity: object) -> TypeGuard[AnalyticEntity]:
     """The entity projects in closed form (:mod:`~nagata_snap.cad.surfaces`, :mod:`~nagata_snap.cad.curves`)."""
     return hasattr(entity, "closest")
 
@@ -654,12 +695,12 @@ def sample_entity(
     """
     if entity.param_dim == 1:
         per_span = 8 if per_span is None else per_span
-        u = _direction_samples(entity.distinct_knots, per_span, min_per_direction)
+        u = _direction_samples(_distinct_knots(entity, 0), per_span, min_per_direction)
         P = u[:, None]
     else:
         per_span = 6 if per_span is None else per_span
-        u = _direction_samples(entity.distinct_knots_u, per_span, min_per_direction)
-        v = _direction_samples(entity.distinct_knots_v, per_span, min_per_direction)
+        u = _direction_samples(_distinct_knots(entity, 0), per_span, min_per_direction)
+        v = _direction_samples(_distinct_knots(entity, 1), per_span, min_per_direction)
         uu, vv = np.meshgrid(u, v, indexing="ij")
         P = np.stack([uu.ravel(), vv.ravel()], axis=1)
     return P, evaluate_params(entity, P, 0)
@@ -715,7 +756,7 @@ class GlobalSearcher:
         #: per entity ``(params (s, d), points (s, 3))``, built on first use
         self._samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._trees: dict[int, cKDTree] = {}
-        self._all = None
+        self._all: tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree] | None = None
         lo = np.array([e.bbox[0] for e in entities])
         hi = np.array([e.bbox[1] for e in entities])
         self.bbox_lo, self.bbox_hi = lo, hi
@@ -966,7 +1007,7 @@ def global_search(
     the closest" (App. B.1), without the per-point scan of the whole grid.
 
     Args:
-        entities: list of :class:`NurbsCurve` or of :class:`NurbsSurface`
+        entities: list of :class:`~nagata_snap.cad.nurbs.NurbsCurve` or of :class:`~nagata_snap.cad.nurbs.NurbsSurface`
             (a single entity is accepted).
         points: ``(k, 3)`` points.
 
@@ -974,6 +1015,7 @@ def global_search(
         ``(entity_index (k,) int64, params (k, d), distance (k,))`` with
         ``d = 1`` for curves and ``2`` for surfaces.
     """
-    if isinstance(entities, (NurbsCurve, NurbsSurface)):
+    if not isinstance(entities, Sequence):
         entities = [entities]
-    return GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds, max_iter=max_iter).search(points)
+    ent, params, dist = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds, max_iter=max_iter).search(points)
+    return ent, params, dist

@@ -36,6 +36,8 @@ taken); evaluation is not clamped to it: the surface extends beyond its face.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
@@ -184,8 +186,9 @@ class AnalyticSurface:
 
     def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box of the face's parameter box (grid samples plus their sagitta)."""
-        u = np.linspace(*self.bounds[0], 17)
-        v = np.linspace(*self.bounds[1], 17)
+        (u0, u1), (v0, v1) = self.bounds
+        u = np.linspace(u0, u1, 17)
+        v = np.linspace(v0, v1, 17)
         uu, vv = np.meshgrid(u, v, indexing="ij")
         S = self._points(uu.ravel(), vv.ravel())
         pad = self._sagitta(u[1] - u[0], v[1] - v[0])
@@ -221,6 +224,12 @@ class AnalyticSurface:
 
     def _local(self, u, v, c, s, nderiv):  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def _closest(self, L: np.ndarray, seed: Callable[[np.ndarray, int], np.ndarray]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(u, v, foot (k, 3), distance)`` from local coordinates ``L`` (:meth:`_coords`);
+        ``seed(rows, a)`` gives parameter ``a`` where the point leaves it free."""
+        raise NotImplementedError  # pragma: no cover - abstract
 
     def _coords(self, points: np.ndarray) -> np.ndarray:
         """``(4, k)``: local coordinates ``x, y, z`` (contiguous rows) of ``points (k, 3)`` in the
