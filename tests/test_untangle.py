@@ -8,7 +8,8 @@ from scipy.optimize import minimize
 
 import dolfinx.mesh
 
-from nagata_snap import NagataGeometry, untangle
+from nagata_snap import NagataGeometry
+from nagata_snap.smoothing import untangle
 from nagata_snap.smoothing.quality import inverted_cells
 from nagata_snap.mesh.records import Records
 
