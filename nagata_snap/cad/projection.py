@@ -35,7 +35,7 @@ Two refinements of criterion 2 (not in the seed):
 An iteration is one Newton update; the final first-order update counts as
 one (as in Kadir's counting, the step that meets criterion 2 is an
 iteration).  With neighbour seeds (parametric midpoints of the parent edge)
-most points converge in 2 iterations, cf. Kadir Table 4.2.
+Kadir's Table 4.2 reports mostly 2 iterations.
 
 Parameters leaving the domain are clamped in open directions and wrapped
 modulo the period in closed ones (Kadir, App. B.1, last paragraph).
