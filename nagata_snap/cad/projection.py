@@ -555,17 +555,6 @@ def _backtrack(entity: Entity, a: _Active, s: _Step, tols: _Tolerances, max_halv
     return E, r, dist, stalled
 
 
-def _newton_points(points: npt.ArrayLike) -> np.ndarray:
-    """``(k, 3)`` float points (``(k, 2)``: z = 0), checked finite."""
-    X = np.asarray(points, dtype=float)
-    if X.ndim != 2 or X.shape[1] not in (2, 3):
-        raise ValueError(f"points must have shape (k, 3), got {X.shape}")
-    if X.shape[1] == 2:
-        X = np.c_[X, np.zeros(len(X))]
-    _check_finite(X, "points")
-    return X
-
-
 def project_newton(
     entity: Entity,
     points: npt.ArrayLike,
@@ -614,7 +603,7 @@ def project_newton(
         ValueError: points that are NaN, infinite or beyond :data:`MAX_COORD`
             (non-finite seeds are allowed: the point is returned unconverged).
     """
-    X = _newton_points(points)
+    X = _points3(points, single=False)
     k, d = X.shape[0], entity.param_dim
     tols = _Tolerances.of(entity, tol, zero_tol, cos_tol, acc_tol)
     P0 = np.ascontiguousarray(normalize_params(entity, _params_2d(entity, seeds, k)).T)  # (d, k)
@@ -953,9 +942,11 @@ def _pick(n: int, pt, ent, params, dist, columns: tuple, accept) -> tuple:
     return (*tuple(c[best] for c in columns), dist[best], ok[best])
 
 
-def _points3(points: npt.ArrayLike) -> np.ndarray:
+def _points3(points: npt.ArrayLike, single: bool = True) -> np.ndarray:
+    """``(k, 3)`` float points (``(k, 2)``: z = 0; with ``single`` one ``(3,)`` point too),
+    checked finite."""
     X = np.asarray(points, dtype=float)
-    if X.ndim == 1 and X.shape[0] in (2, 3):
+    if single and X.ndim == 1 and X.shape[0] in (2, 3):
         X = X[None, :]
     if X.ndim != 2 or X.shape[1] not in (2, 3):
         raise ValueError(f"points must have shape (k, 3), got {X.shape}")
