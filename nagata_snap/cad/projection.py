@@ -966,9 +966,10 @@ def _check_finite(a: np.ndarray, what: str) -> None:
     if a.size == 0:
         return
     flat = a.reshape(-1)
-    # one pass, no temporary: every |a_i| <= sqrt(sum a_i^2) (a sum of non-negative terms is
-    # not rounded below its largest term); NaN, inf and overflow fail it and go to the exact test
-    if flat @ flat <= MAX_COORD * MAX_COORD:
+    # one pass, no temporary: every |a_i| <= sqrt(sum a_i^2) (a rounded sum of non-negative
+    # terms is not below its largest term, itself rounded: the 1e-15 margin); NaN, inf and
+    # overflow fail it and go to the exact test
+    if flat @ flat <= MAX_COORD * MAX_COORD * (1.0 - 1e-15):
         return
     ok = np.isfinite(a) & (np.abs(a) <= MAX_COORD)
     if not ok.all():
