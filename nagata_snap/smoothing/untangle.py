@@ -68,7 +68,7 @@ import mpi4py.MPI  # noqa: F401  (must precede petsc4py)
 import numpy as np
 from petsc4py import PETSc
 
-from nagata_snap.mesh.simplex import inverse_small
+from nagata_snap.mesh.simplex import cell_columns, edge_matrices, inverse_small
 
 __all__ = ["targets", "energy", "optimise", "OptimiseResult", "volume_ratio_min", "EPS",
            "DELTA_MIN", "SLIDE_STEP"]
@@ -104,9 +104,8 @@ def targets(x_ref: np.ndarray, cells: np.ndarray) -> np.ndarray:
 
 
 def _edges(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Edge matrices ``A`` ``(m, d, d)``, column ``j`` = ``x_{j+1} - x_0``."""
-    X = x[cells]
-    return np.swapaxes(X[:, 1:] - X[:, :1], 1, 2)
+    """Edge matrices ``A`` ``(m, d, d)``, column ``j`` = ``x_{j+1} - x_0`` (``x (n, d)``)."""
+    return np.swapaxes(edge_matrices(x, cells, x.shape[1]), 1, 2)
 
 
 class _Cells:
@@ -119,7 +118,7 @@ class _Cells:
 
     def __init__(self, cells: np.ndarray, winv: np.ndarray, n: int):
         self.n, self.d = n, winv.shape[1]
-        self.cols = [np.ascontiguousarray(cells[:, k]) for k in range(cells.shape[1])]
+        self.cols = cell_columns(cells)
         self.w = [[np.ascontiguousarray(winv[:, i, j]) for j in range(self.d)]
                   for i in range(self.d)]
         self.B = np.concatenate([-winv.sum(axis=1, keepdims=True), winv], axis=1)  # (m, d+1, d)
