@@ -9,12 +9,12 @@ import mpi4py.MPI as MPI
 import numpy as np
 import pytest
 
+from nagata_snap.mesh.simplex import signed_volumes
 from nagata_snap.smoothing.quality import (
     QualityReport,
     inverted_cells,
     mean_ratio,
     quality_stats,
-    signed_volumes,
 )
 
 TRI = np.array([[0, 1, 2]])

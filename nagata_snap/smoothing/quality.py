@@ -13,6 +13,10 @@ Conventions
   The topological dimension is taken from ``cells.shape[1] - 1`` and must
   equal ``gdim``.
 
+The geometric kernels (signed volumes, edge vectors, the local edge
+tables) are those of :mod:`nagata_snap.mesh.simplex`; this module builds
+the validity checks and shape measures on them.
+
 Quality measures (all dimensionless, 1 for the equilateral triangle /
 regular tetrahedron, tending to 0 for degenerate cells):
 
@@ -309,8 +313,8 @@ class _Reference:
         self.v_ref: np.ndarray | None = None
         self.v_before: np.ndarray | None = None
 
-    def volumes(self, cells: np.ndarray, v_new: np.ndarray, gdim: int) -> None:
-        """Set ``v_ref`` (and ``v_before``) of ``cells``, whose volumes in ``x_new`` are ``v_new``.
+    def volumes(self, cells: np.ndarray, v_new: np.ndarray, gdim: int) -> np.ndarray:
+        """Set (and return) ``v_ref``, and ``v_before``, of ``cells``, whose volumes in ``x_new`` are ``v_new``.
 
         A cell whose nodes all kept their reference coordinates has exactly
         the volume ``v_new``, so only the changed cells need the reference
@@ -325,6 +329,7 @@ class _Reference:
             self.v_before = self.v_ref.copy()
             ch = cells_touching(self.moved_before, cols)
             self.v_before[ch] = signed_volumes(self.x_before, cells[ch], gdim)
+        return self.v_ref
 
 
 def _max_timings(comm, timings: dict[str, float]) -> dict[str, float]:
@@ -371,7 +376,7 @@ class MetricSummary:
         # the clipped values, but without its sort)
         # (count of interior edges e with not v < e: as searchsorted(side="right")
         # with the clipping, NaN last; ~2.5x faster than searchsorted)
-        idx = np.zeros(values.size, dtype=np.uint8 if len(bins) <= 256 else np.intp)
+        idx: np.ndarray = np.zeros(values.size, dtype=np.uint8 if len(bins) <= 256 else np.intp)
         for e in np.asarray(bins, dtype=np.float64)[1:-1]:
             idx += ~(values < e)
         h = np.bincount(idx, minlength=len(bins) - 1)
@@ -485,8 +490,7 @@ class QualityReport:
                 cells = cells[cells_touching(ref.changed, cell_columns(cells))]
         q = quality_stats(x_new, cells, gdim)
         if ref is not None:
-            ref.volumes(cells, q["volume"], gdim)
-            _orient(q, ref.v_ref)
+            _orient(q, ref.volumes(cells, q["volume"], gdim))
         rep = cls(
             n_cells=comm.allreduce(int(cells.shape[0])),
             scope=scope,

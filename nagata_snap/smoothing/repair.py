@@ -59,9 +59,12 @@ round-off of the band solve.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
+from collections.abc import Callable
 from typing import Any
 
+import dolfinx.mesh
 import mpi4py.MPI
 import numpy as np
 
@@ -164,7 +167,9 @@ class RepairResult:
 class _Guard:
     """What every stage shares: masks, targets, the bad-cell check, the attempt log."""
 
-    def __init__(self, mesh, x_ref, x_target, moved, fixed, rel_floor, min_quality, opts):
+    def __init__(self, mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray,
+                 moved: np.ndarray, fixed: np.ndarray, rel_floor: float, min_quality: float,
+                 opts: dict[str, Any]):
         self.mesh, self.comm = mesh, mesh.comm
         self.gdim = mesh.geometry.dim
         self.sync, self.x_ref, self.moved_mask, self.fixed_mask = prepare(
@@ -185,7 +190,7 @@ class _Guard:
         n = self.cells.shape[0]
         self._v_ref, self._q_floor, self._q_ref = np.empty(n), np.empty(n), np.empty(n)
         self._have_ref = np.zeros(n, dtype=bool)
-        self._pool_key = None
+        self._pool_key: np.ndarray | None = None
         self.timings: dict[str, float] = {}
         self.attempts: list[dict] = []
         self.slid = 0
@@ -261,8 +266,8 @@ class _Guard:
 # ---------------------------------------------------------------------------
 
 
-def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.ndarray, int,
-                                                                 Smoother]:
+def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[float, int], ...]
+            ) -> tuple[np.ndarray, np.ndarray, int, Smoother]:
     """Stage ``smooth``: the band smoother (then the optional ``stiffen`` schedule)."""
     schedule = [(method, o)] + [("elastic", dict(o, exponent=o["exponent"] + dp,
                                                  layers=np.asarray(o["layers"]) * int(mult)))
@@ -283,6 +288,7 @@ def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.nd
               nodes=band.n_free_global if band else 0)
         if nbad == 0:
             break
+    assert sm is not None  # the schedule has at least the first smoother
     return x, bad, nbad, sm
 
 
@@ -405,6 +411,7 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: b
         if can_slide and not progress and loc.reach(g, bn, dist) < layers - 1:
             break  # pinned by the boundary: sliding is the next step
     add_time(g.timings, "untangle", time.perf_counter() - t_stage)
+    assert loc is not None  # the first attempt always gathers its neighbourhood
     return x, bad, nbad, loc
 
 
@@ -470,6 +477,43 @@ def _blame(dist: np.ndarray, moved: np.ndarray, radius: int, taper: int) -> np.n
     return np.where(moved, w, 0.0)
 
 
+_TrialResult = tuple[np.ndarray, np.ndarray, np.ndarray, int]
+
+
+def _partial_trial(g: _Guard, loc: _Local, free: np.ndarray, alpha: np.ndarray, w_loc: np.ndarray,
+                   base_x: np.ndarray, fmin: float, rnd: int, t: float) -> _TrialResult:
+    """One trial of a partial round: blamed vertices (weights ``w_loc (n,)``) at ``t`` of the way (collective).
+
+    The fractions are ``alpha - (1 - t) w (alpha - fmin)``; the neighbourhood
+    ``loc`` is re-optimised (its ``free`` nodes) from ``base_x`` with the
+    moved nodes there.  Returns ``(x, alpha_t (n,), bad (nc,), nbad)``.
+    """
+    t0 = time.perf_counter()
+    a_t = alpha - (1.0 - t) * w_loc * (alpha - fmin)
+    xt = np.where(g.moved_mask[:, None], g.positions(a_t), base_x)
+    xn, _ = loc.run(g, xt, free)
+    bn, nb = g.check(xn)
+    g.log("partial", t0, nb, round=rnd, t=t, layers=loc.layers,
+          cells=loc.cells_moving(free), nodes=int(free.sum()))
+    return xn, a_t, bn, nb
+
+
+def _bisect(trial: Callable[[float], _TrialResult], steps: int) -> _TrialResult:
+    """The valid trial of the largest ``t`` found by ``steps`` bisection steps on ``(0, 1)``.
+
+    Without a valid trial, the trial at ``t = 0`` (which may still leave bad cells).
+    """
+    good, t_lo, t_hi = None, 0.0, 1.0  # good: (x, alpha, bad, nbad) of the best valid trial
+    for _ in range(steps):
+        t = 0.5 * (t_lo + t_hi)
+        out = trial(t)
+        if out[3] == 0:
+            t_lo, good = t, out
+        else:
+            t_hi = t
+    return trial(0.0) if good is None else good
+
+
 def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: Smoother,
              min_fraction: float, bisection_steps: int, implicate_layers: int,
              max_rounds: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -491,27 +535,8 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: Smoother,
         free = ~loc.constrained & (dist <= radius + TAPER_LAYERS + 2)
         w_loc = np.zeros(g.sync.n)
         w_loc[nbh.local_nodes] = w[nbh.local_pos]
-
-        def trial(t):
-            t0 = time.perf_counter()
-            a_t = alpha - (1.0 - t) * w_loc * (alpha - fmin)
-            xt = np.where(g.moved_mask[:, None], g.positions(a_t), base_x)
-            xn, _ = loc.run(g, xt, free)
-            bn, nb = g.check(xn)
-            g.log("partial", t0, nb, round=rnd, t=t, layers=loc.layers,
-                  cells=loc.cells_moving(free), nodes=int(free.sum()))
-            return xn, a_t, bn, nb
-
-        good, t_lo, t_hi = None, 0.0, 1.0  # good: (x, alpha, bad, nbad) of the best valid trial
-        for _ in range(int(bisection_steps)):
-            t = 0.5 * (t_lo + t_hi)
-            out = trial(t)
-            if out[3] == 0:
-                t_lo, good = t, out
-            else:
-                t_hi = t
-        if good is None:
-            good = trial(0.0)
+        good = _bisect(functools.partial(_partial_trial, g, loc, free, alpha, w_loc, base_x, fmin, rnd),
+                       int(bisection_steps))
         if good[3] == 0:
             return good[0], good[1], good[2], 0
         if good[3] >= nbad:

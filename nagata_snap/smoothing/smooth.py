@@ -75,8 +75,8 @@ import time
 from typing import Any
 
 import dolfinx.mesh
-import mpi4py.MPI
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from nagata_snap.mesh.simplex import cell_columns, cells_touching, p1_gradients
@@ -139,6 +139,7 @@ def _summed_blocks(G: np.ndarray, w: np.ndarray | None, model: str, nu: float, c
         return np.zeros((0, d, d))
     if model == "graph":
         return np.add.reduceat(G.shape[1] * (a == b) - 1.0, start)[:, None, None] * eye
+    assert w is not None  # the weights of the finite element models
     P = G[c, a][:, :, None] * (w[c, None] * G[c, b])[:, None, :]  # (m, d, d)
     P = np.add.reduceat(P, start, axis=0)
     tr = np.trace(P, axis1=1, axis2=2)[:, None, None]
@@ -148,7 +149,7 @@ def _summed_blocks(G: np.ndarray, w: np.ndarray | None, model: str, nu: float, c
     return mu * (tr * eye + P.transpose(0, 2, 1)) + lmbda * P
 
 
-def _apply(G: np.ndarray, w: np.ndarray, model: str, nu: float, u: np.ndarray) -> np.ndarray:
+def _apply(G: np.ndarray, w: np.ndarray | None, model: str, nu: float, u: np.ndarray) -> np.ndarray:
     """Element stiffness matrices times element displacements, without forming them.
 
     ``u``: (nc, nv, gdim) displacement at the cell's vertices. With
@@ -161,6 +162,7 @@ def _apply(G: np.ndarray, w: np.ndarray, model: str, nu: float, u: np.ndarray) -
     """
     if model == "graph":
         return G.shape[1] * u - u.sum(axis=1, keepdims=True)
+    assert w is not None  # the weights of the finite element models
     H = G.transpose(0, 2, 1) @ u  # (nc, d, d): H_ij = sum_b g_b,i u_b,j
     if model == "harmonic":
         return w[:, None, None] * (G @ H)
@@ -193,6 +195,100 @@ def _scalar_coo(rn: np.ndarray, cn: np.ndarray, blocks: np.ndarray):
     return rows, cols, vals
 
 
+def _stiffness(comm: MPI.Comm, x_ref: np.ndarray, cells: np.ndarray, gdim: int, model: str,
+               exponent: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """Hat-function gradients ``(nc, nv, gdim)`` and weights ``E |K|`` ``(nc,)`` of band cells (collective).
+
+    ``E = (V_max / |K|)^exponent`` with ``|K|`` the reference measure; for
+    ``model='graph'`` the gradients are zeros and the weights None.
+
+    Raises:
+        ValueError: a band cell is degenerate in ``x_ref`` (on every process).
+    """
+    nc, nv = cells.shape
+    if model == "graph":
+        return np.zeros((nc, nv, gdim)), None
+    G, meas = p1_gradients(x_ref, cells, gdim)
+    # E = (V_max / |K|)^p; V_max only scales the system (no effect on u)
+    vmax = comm.allreduce(float(meas.max(initial=0.0)), op=MPI.MAX)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        weight = meas * (vmax / np.maximum(meas, 1e-300)) ** float(exponent)
+    singular = ~np.isfinite(weight) | ~np.isfinite(G).all(axis=(1, 2)) | (meas <= 0)
+    n_bad = comm.allreduce(int(np.count_nonzero(singular)))
+    if n_bad:
+        raise ValueError(
+            f"{n_bad} cells of the smoothing band have zero area / volume in the "
+            "reference coordinates x_ref: no stiffness can be built for them")
+    return G, weight
+
+
+def _band_matrix(comm: MPI.Comm, band: Band, G: np.ndarray, weight: np.ndarray | None, model: str,
+                 nu: float, gid: np.ndarray, free: np.ndarray) -> PETSc.Mat:
+    """The assembled distributed matrix ``K_ff`` over the band's free nodes (collective).
+
+    ``gid (nc, nv)``: global free-node number of each cell vertex (-1 if
+    constrained); ``free = gid >= 0``.  The blocks of free-free vertex pairs
+    are summed per node pair (sorted keys, so PETSc's COO set-up sees each
+    entry once, in order).
+    """
+    gdim = G.shape[2]
+    c, a, b = np.nonzero(free[:, :, None] & free[:, None, :])
+    n_free = band.n_free_global
+    key = gid[c, a] * n_free + gid[c, b]
+    order = np.argsort(key)
+    key = key[order]
+    start = np.flatnonzero(np.r_[key.size > 0, key[1:] != key[:-1]])
+    blocks = _summed_blocks(G, weight, model, nu, c[order], a[order], b[order], start)
+    rn, cn = np.divmod(key[start], n_free)
+    rows, cols, vals = _scalar_coo(rn, cn, blocks)
+    n_loc = band.own_free.size * gdim
+    # (petsc4py takes an mpi4py communicator; its stub lists only PETSc.Comm)
+    A = PETSc.Mat().create(comm)  # type: ignore[arg-type]
+    A.setSizes(((n_loc, PETSc.DETERMINE), (n_loc, PETSc.DETERMINE)))
+    A.setType(PETSc.Mat.Type.AIJ)
+    A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))
+    # (petsc4py's stub types addv as InsertMode, but its members are typed int)
+    A.setValuesCOO(vals, addv=PETSc.InsertMode.ADD_VALUES)  # type: ignore[arg-type]
+    A.assemble()
+    return A
+
+
+def _band_ksp(comm: MPI.Comm, A: PETSc.Mat, model: str, solver: str, rtol: float, sweeps: int,
+              petsc_options: dict[str, Any] | None) -> tuple[PETSc.KSP, str]:
+    """The PETSc solver of the band system and its kind (``'cg'``, ``'mumps'`` or ``'sweeps'``).
+
+    The options are set under a prefix of their own and removed from the
+    global options database afterwards.
+    """
+    ksp = PETSc.KSP().create(comm)  # type: ignore[arg-type]  # (as for the matrix)
+    ksp.setOperators(A)
+    prefix = f"nagata_smooth_{next(_counter)}_"
+    ksp.setOptionsPrefix(prefix)
+    popts: dict[str, Any]
+    if model == "graph":
+        popts = {"ksp_type": "richardson", "pc_type": "jacobi", "ksp_max_it": int(sweeps),
+                 "ksp_norm_type": "none", "ksp_convergence_test": "skip"}
+        solver = "sweeps"
+    elif solver == "mumps":
+        popts = {"ksp_type": "preonly", "pc_type": "lu",
+                 "pc_factor_mat_solver_type": "mumps", "ksp_error_if_not_converged": True}
+    elif solver == "cg":
+        popts = {"ksp_type": "cg", "pc_type": "jacobi", "ksp_rtol": rtol,
+                 "ksp_atol": 0.0, "ksp_max_it": 5000, "ksp_error_if_not_converged": True}
+    else:
+        raise ValueError(f"unknown solver {solver!r} (use 'mumps' or 'cg')")
+    popts.update(petsc_options or {})
+    opts = PETSc.Options()
+    opts.prefixPush(prefix)
+    for k, val in popts.items():
+        opts.setValue(k, val)
+    ksp.setFromOptions()
+    for k in popts:
+        opts.delValue(k)
+    opts.prefixPop()
+    return ksp, solver
+
+
 class _BandSolver:
     """The band system ``K_ff u_f = -K_fc u_c`` (assembled once) and its PETSc solver.
 
@@ -202,9 +298,10 @@ class _BandSolver:
     a zero start (PETSc Richardson + Jacobi, no convergence test).
     """
 
-    def __init__(self, mesh, band: Band, x_ref: np.ndarray, model: str, *,
+    def __init__(self, mesh: dolfinx.mesh.Mesh, band: Band, x_ref: np.ndarray, model: str, *,
                  exponent: float = 1.0, nu: float = 0.3, solver: str = "cg",
-                 rtol: float = 1e-12, petsc_options: dict | None = None, sweeps: int = 50):
+                 rtol: float = 1e-12, petsc_options: dict[str, Any] | None = None,
+                 sweeps: int = 50):
         comm = mesh.comm
         gdim = mesh.geometry.dim
         self.gdim = gdim
@@ -213,74 +310,16 @@ class _BandSolver:
         gid = band.gid[cells]
         keep = (gid >= 0).any(axis=1)  # cells with an unknown
         cells, gid = cells[keep], gid[keep]
-        nc, nv = cells.shape
-        if model == "graph":
-            G, weight = np.zeros((nc, nv, gdim)), None
-        else:
-            G, meas = p1_gradients(x_ref, cells, gdim)
-            # E = (V_max / |K|)^p; V_max only scales the system (no effect on u)
-            vmax = comm.allreduce(float(meas.max(initial=0.0)), op=mpi4py.MPI.MAX)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                weight = meas * (vmax / np.maximum(meas, 1e-300)) ** float(exponent)
-            singular = ~np.isfinite(weight) | ~np.isfinite(G).all(axis=(1, 2)) | (meas <= 0)
-            n_bad = comm.allreduce(int(np.count_nonzero(singular)))
-            if n_bad:
-                raise ValueError(
-                    f"{n_bad} cells of the smoothing band have zero area / volume in the "
-                    "reference coordinates x_ref: no stiffness can be built for them")
+        G, weight = _stiffness(comm, x_ref, cells, gdim, model, exponent)
         self.G, self.w, self.model, self.nu = G, weight, model, nu
         self.cells = cells
         self.free = gid >= 0  # (nc, nv)
-        # matrix: the blocks of free-free vertex pairs, summed per node pair
-        # (sorted keys, so PETSc's COO set-up sees each entry once, in order)
-        c, a, b = np.nonzero(self.free[:, :, None] & self.free[:, None, :])
-        n_free = band.n_free_global
-        key = gid[c, a] * n_free + gid[c, b]
-        order = np.argsort(key)
-        key = key[order]
-        start = np.flatnonzero(np.r_[key.size > 0, key[1:] != key[:-1]])
-        blocks = _summed_blocks(G, weight, model, nu, c[order], a[order], b[order], start)
-        rn, cn = np.divmod(key[start], n_free)
-        rows, cols, vals = _scalar_coo(rn, cn, blocks)
         # global unknowns of the free vertices of each cell, (c, a, i) order
         free_dof = np.repeat(self.free[:, :, None], gdim, axis=2)
         self.gdof = (gid[:, :, None] * gdim + np.arange(gdim))[free_dof]
-        n_loc = band.own_free.size * gdim
-        A = PETSc.Mat().create(comm)
-        A.setSizes([[n_loc, PETSc.DETERMINE], [n_loc, PETSc.DETERMINE]])
-        A.setType(PETSc.Mat.Type.AIJ)
-        A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))
-        A.setValuesCOO(vals, addv=PETSc.InsertMode.ADD_VALUES)
-        A.assemble()
-        self.A = A
-        self.b, self.x = A.createVecs()
-        ksp = PETSc.KSP().create(comm)
-        ksp.setOperators(A)
-        prefix = f"nagata_smooth_{next(_counter)}_"
-        ksp.setOptionsPrefix(prefix)
-        if model == "graph":
-            popts = {"ksp_type": "richardson", "pc_type": "jacobi", "ksp_max_it": int(sweeps),
-                     "ksp_norm_type": "none", "ksp_convergence_test": "skip"}
-            solver = "sweeps"
-        elif solver == "mumps":
-            popts = {"ksp_type": "preonly", "pc_type": "lu",
-                     "pc_factor_mat_solver_type": "mumps", "ksp_error_if_not_converged": True}
-        elif solver == "cg":
-            popts = {"ksp_type": "cg", "pc_type": "jacobi", "ksp_rtol": rtol,
-                     "ksp_atol": 0.0, "ksp_max_it": 5000, "ksp_error_if_not_converged": True}
-        else:
-            raise ValueError(f"unknown solver {solver!r} (use 'mumps' or 'cg')")
-        popts.update(petsc_options or {})
-        opts = PETSc.Options()
-        opts.prefixPush(prefix)
-        for k, val in popts.items():
-            opts[k] = val
-        ksp.setFromOptions()
-        for k in popts:
-            del opts[k]
-        opts.prefixPop()
-        self.ksp = ksp
-        self.solver = solver
+        self.A = _band_matrix(comm, band, G, weight, model, nu, gid, self.free)
+        self.b, self.x = self.A.createVecRight(), self.A.createVecLeft()
+        self.ksp, self.solver = _band_ksp(comm, self.A, model, solver, rtol, sweeps, petsc_options)
         self.n_fallback = 0
 
     def _switch_to_lu(self) -> None:
@@ -305,7 +344,7 @@ class _BandSolver:
         f = -_apply(self.G, self.w, self.model, self.nu, u)
         self.b.zeroEntries()
         self.b.setValues(self.gdof.astype(PETSc.IntType), f[self.free].reshape(-1),
-                         addv=PETSc.InsertMode.ADD_VALUES)
+                         addv=PETSc.InsertMode.ADD_VALUES)  # type: ignore[arg-type]  # (as above)
         self.b.assemble()
         try:
             self.ksp.solve(self.b, self.x)
@@ -359,7 +398,7 @@ class Smoother:
         if method not in ("elastic", "laplace", "none"):
             raise ValueError(f"unknown method {method!r} (use 'elastic', 'laplace' or 'none')")
         any_moved = mesh.comm.allreduce(bool(moved_mask[: sync.n_owned].any()),
-                                        op=mpi4py.MPI.LOR)
+                                        op=MPI.LOR)
         if method == "none" or not any_moved:
             return
         t0 = time.perf_counter()

@@ -63,6 +63,7 @@ caller projects them back onto the geometry and calls again
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import mpi4py.MPI  # noqa: F401  (must precede petsc4py)
 import numpy as np
@@ -147,8 +148,8 @@ def _det_cof(S: list[list[np.ndarray]]) -> tuple[np.ndarray, list[list[np.ndarra
     return sum(S[c][0] * cof[c][0] for c in range(len(S))), cof
 
 
-def energy(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, delta: float,
-           grad: bool = True, prepared: _Cells | None = None, hessian: bool = False):
+def energy(x: np.ndarray, cells: np.ndarray | None, winv: np.ndarray | None, delta: float,
+           grad: bool = True, prepared: _Cells | None = None, hessian: bool = False) -> tuple[Any, ...]:
     """``F = sum eta_delta(S_K)``, its gradient, the volume ratios, and the cell Hessians.
 
     Args:
@@ -159,11 +160,15 @@ def energy(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, delta: float,
         hessian: also return the cell Hessians (module docstring).
 
     Returns:
-        ``(F, dF/dx (n, d) or None, sigma (m,))``, and with ``hessian`` a
+        ``(F (float), dF/dx (n, d) or None, sigma (m,))``, and with ``hessian`` a
         fourth item ``(m, d + 1, d, d + 1, d)``: second derivatives of each
         cell's ``eta`` with respect to its vertex coordinates.
     """
-    cc = prepared if prepared is not None else _Cells(cells, winv, x.shape[0])
+    if prepared is None:
+        if cells is None or winv is None:
+            raise ValueError("energy needs cells and winv, or prepared")
+        prepared = _Cells(cells, winv, x.shape[0])
+    cc = prepared
     d = cc.d
     S = cc.shape(x)
     sigma, cof = _det_cof(S)
@@ -271,7 +276,8 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
     if pb.size == 0:
         return OptimiseResult(x, pb.sigma_min(pb.z0), 0, 0)
     z, rounds, smin = pb.z0, 0, pb.sigma_min(pb.z0)
-    for rounds in range(1, max_rounds + 1):
+    while rounds < max_rounds:
+        rounds += 1
         delta = max(np.sqrt(EPS * (EPS - smin)) if smin < EPS else 0.0, DELTA_MIN)
         z = _newton(pb, z, delta, max_iterations if delta == DELTA_MIN else max_iterations // 2)
         prev, smin = smin, pb.sigma_min(z)
@@ -345,7 +351,7 @@ class _Problem:
     """
 
     def __init__(self, x, cells, winv, free, scale, slide, basis):
-        n, d = x.shape
+        d = x.shape[1]
         si = np.zeros(0, np.int64) if slide is None else np.asarray(slide, dtype=np.int64)
         moving = np.asarray(free, dtype=bool).copy()
         moving[si] = True
@@ -406,7 +412,7 @@ class _Problem:
             pc.setType("cholesky")
             pc.setFactorSolverType("mumps")
             self._A, self._ksp = A, ksp
-            self._b, self._x = A.createVecs()
+            self._b, self._x = A.createVecRight(), A.createVecLeft()
 
     def coords(self, z: np.ndarray) -> np.ndarray:
         xx = self.x0.copy()

@@ -12,10 +12,12 @@ import json
 import os
 import sys
 
+import mpi4py.MPI as MPI  # before dolfinx: its wheel needs the MPI library that mpi4py loads
+import numpy as np
+
+# isort: split
 import dolfinx
 import dolfinx.mesh
-import mpi4py.MPI as MPI
-import numpy as np
 
 from nagata_snap.smoothing.quality import inverted_cells
 from nagata_snap.smoothing.repair import repair
