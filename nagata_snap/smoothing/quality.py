@@ -42,6 +42,7 @@ import math
 import operator
 from typing import Any
 
+import dolfinx.mesh
 import mpi4py.MPI
 import numpy as np
 
@@ -332,7 +333,7 @@ class _Reference:
         return self.v_ref
 
 
-def _max_timings(comm, timings: dict[str, float]) -> dict[str, float]:
+def _max_timings(comm: mpi4py.MPI.Comm, timings: dict[str, float]) -> dict[str, float]:
     """Stage -> seconds, the largest over the processes (collective).
 
     Stages missing on a process count 0 there; the caller's stage order is
@@ -364,7 +365,7 @@ class MetricSummary:
     hist: np.ndarray
 
     @classmethod
-    def reduce(cls, comm, values: np.ndarray, bins: np.ndarray) -> MetricSummary:
+    def reduce(cls, comm: mpi4py.MPI.Comm, values: np.ndarray, bins: np.ndarray) -> MetricSummary:
         """Collective: summarise ``values`` (owned cells) over ``comm``."""
         values = np.asarray(values, dtype=np.float64)
         n = comm.allreduce(values.size)
@@ -442,7 +443,7 @@ class QualityReport:
 
     # -- construction --------------------------------------------------------
     @classmethod
-    def from_arrays(cls, comm, x_new: np.ndarray, cells: np.ndarray, gdim: int,
+    def from_arrays(cls, comm: mpi4py.MPI.Comm, x_new: np.ndarray, cells: np.ndarray, gdim: int,
                     num_owned_nodes: int | None = None, *,
                     x_ref: np.ndarray | None = None,
                     x_before: np.ndarray | None = None,
@@ -511,7 +512,7 @@ class QualityReport:
             rep.timings = _max_timings(comm, timings)
         return rep
 
-    def _count_inversions(self, comm, ref: _Reference, v_new: np.ndarray, rel_floor: float) -> None:
+    def _count_inversions(self, comm: mpi4py.MPI.Comm, ref: _Reference, v_new: np.ndarray, rel_floor: float) -> None:
         """Set ``n_inverted_after`` (and ``n_inverted_before`` with ``x_before``) (collective)."""
         assert ref.v_ref is not None  # set by ref.volumes
         self.n_inverted_after = comm.allreduce(
@@ -520,14 +521,14 @@ class QualityReport:
             self.n_inverted_before = comm.allreduce(
                 int(np.count_nonzero(inverted_mask(ref.v_before, ref.v_ref, rel_floor))))
 
-    def _displacements(self, comm, disp: np.ndarray) -> None:
+    def _displacements(self, comm: mpi4py.MPI.Comm, disp: np.ndarray) -> None:
         """Set ``n_moved`` and ``max_displacement`` from the owned nodes' ``disp (k, 3)`` (collective)."""
         d = np.linalg.norm(disp, axis=1)
         self.n_moved = comm.allreduce(int(np.count_nonzero(d > 0.0)))
         self.max_displacement = comm.allreduce(float(d.max()) if d.size else 0.0,
                                                op=mpi4py.MPI.MAX)
 
-    def _shortfalls(self, comm, shortfall: np.ndarray) -> None:
+    def _shortfalls(self, comm: mpi4py.MPI.Comm, shortfall: np.ndarray) -> None:
         """Set ``n_shortfall`` and ``max_shortfall`` from the owned ``shortfall (k,)`` (collective)."""
         sf = shortfall[shortfall > 0.0]
         self.n_shortfall = comm.allreduce(int(sf.size))
@@ -535,7 +536,7 @@ class QualityReport:
                                             op=mpi4py.MPI.MAX)
 
     @classmethod
-    def from_mesh(cls, mesh, x_new: np.ndarray | None = None, **kwargs) -> QualityReport:
+    def from_mesh(cls, mesh: dolfinx.mesh.Mesh, x_new: np.ndarray | None = None, **kwargs) -> QualityReport:
         """Collective: report for a DOLFINx P1 simplex mesh.
 
         Args:
@@ -587,7 +588,7 @@ class QualityReport:
             lines.append(f"    {name:<{w - 2}} " + "".join(f"{s:>{cw}}" for s in labels))
             lines.append(f"    {'':<{w - 2}} " + "".join(f"{c:>{cw}d}" for c in m.hist))
 
-        def kv(k, v):
+        def kv(k: str, v: object) -> None:
             lines.append(f"  {k:<{w}} {v}")
 
         kv("inverted before smooth", self.n_inverted_before if self.n_inverted_before >= 0 else "n/a")

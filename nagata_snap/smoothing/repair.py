@@ -568,7 +568,7 @@ def _fail(g: _Guard, bad: np.ndarray, why: str) -> None:
 
 
 def _result(g: _Guard, x: np.ndarray, alpha: np.ndarray, stage: str, n_unsmoothed: int,
-            report, t_start: float) -> RepairResult:
+            report: bool | str, t_start: float) -> RepairResult:
     """The :class:`RepairResult` (and its quality report) of a valid ``x``."""
     disp = np.linalg.norm(g.disp, axis=1)
     short_all = np.where(g.moved_mask, (1.0 - alpha) * disp, 0.0)
@@ -597,7 +597,7 @@ def _result(g: _Guard, x: np.ndarray, alpha: np.ndarray, stage: str, n_unsmoothe
 # ---------------------------------------------------------------------------
 
 
-def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
+def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
            fixed: np.ndarray, method: str = "elastic", *,
            rel_floor: float = 1e-12, min_quality: float = 0.01,
            untangle: bool = True, slide: SlidingBoundary | None = None,

@@ -172,7 +172,8 @@ def _apply(G: np.ndarray, w: np.ndarray | None, model: str, nu: float, u: np.nda
     return w[:, None, None] * out
 
 
-def _scalar_coo(rn: np.ndarray, cn: np.ndarray, blocks: np.ndarray):
+def _scalar_coo(rn: np.ndarray, cn: np.ndarray, blocks: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scalar COO arrays of a block matrix, in row-major order.
 
     ``rn, cn``: (u,) block row / column, sorted by row then column;
@@ -246,7 +247,8 @@ def _band_matrix(comm: MPI.Comm, band: Band, G: np.ndarray, weight: np.ndarray |
     A = PETSc.Mat().create(comm)  # type: ignore[arg-type]
     A.setSizes(((n_loc, PETSc.DETERMINE), (n_loc, PETSc.DETERMINE)))
     A.setType(PETSc.Mat.Type.AIJ)
-    A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))
+    # (petsc4py takes integer arrays; its stub says Sequence[int], which ndarray is not)
+    A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))  # type: ignore[arg-type]
     # (petsc4py's stub types addv as InsertMode, but its members are typed int)
     A.setValuesCOO(vals, addv=PETSc.InsertMode.ADD_VALUES)  # type: ignore[arg-type]
     A.assemble()
@@ -477,7 +479,7 @@ def smooth_options(opts: dict[str, Any]) -> dict[str, Any]:
 # ---------------------------------------------------------------------------
 
 
-def smooth(mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
+def smooth(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, moved: np.ndarray, fixed: np.ndarray,
            method: str = "elastic", **opts) -> np.ndarray:
     """Move interior nodes to follow prescribed boundary displacements.
 

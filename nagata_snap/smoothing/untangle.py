@@ -215,7 +215,8 @@ def _cofactor_derivative(d: int) -> np.ndarray:
 _DCOF = {2: _cofactor_derivative(2), 3: _cofactor_derivative(3)}
 
 
-def _hessian_S(S, C, sigma, r, a, b) -> np.ndarray:
+def _hessian_S(S: np.ndarray, C: np.ndarray, sigma: np.ndarray, r: np.ndarray, a: np.ndarray,
+               b: np.ndarray) -> np.ndarray:
     """``d^2 eta / dS^2`` ``(m, d, d, d, d)`` (module docstring)."""
     m, d, _ = S.shape
     if d == 2:
@@ -330,7 +331,8 @@ def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> n
     return z
 
 
-def _armijo(pb: _Problem, z, p, F, slope, delta):
+def _armijo(pb: _Problem, z: np.ndarray, p: np.ndarray, F: float, slope: float, delta: float
+            ) -> tuple[np.ndarray, float] | None:
     """``(z_new, F_new)`` of the first halving of the step that decreases ``F`` enough, or None."""
     t = 1.0
     for _ in range(20):
@@ -350,7 +352,8 @@ class _Problem:
     columns are zero, their variables stay 0).
     """
 
-    def __init__(self, x, cells, winv, free, scale, slide, basis):
+    def __init__(self, x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarray,
+                 scale: np.ndarray, slide: np.ndarray | None, basis: np.ndarray | None):
         d = x.shape[1]
         si = np.zeros(0, np.int64) if slide is None else np.asarray(slide, dtype=np.int64)
         moving = np.asarray(free, dtype=bool).copy()
@@ -367,6 +370,8 @@ class _Problem:
         E[self.moving] = np.eye(d)
         self.lim = np.full((self.nodes.size, d), np.inf)
         if si.size:
+            if basis is None:
+                raise ValueError("sliding nodes need their tangent basis (basis=)")
             pos = np.searchsorted(self.nodes, si)
             T = np.zeros((si.size, d, d))
             T[:, :, : basis.shape[2]] = basis
@@ -400,11 +405,12 @@ class _Problem:
         self._ksp = None
         if self.size:  # COO pattern: cell blocks, then the diagonal (damping, dead variables)
             A = PETSc.Mat().create(PETSc.COMM_SELF)
-            A.setSizes([self.size, self.size])
+            A.setSizes((self.size, self.size))
             A.setType(PETSc.Mat.Type.AIJ)
             A.setPreallocationCOO(np.r_[ii[ok], diag].astype(PETSc.IntType),
                                   np.r_[jj[ok], diag].astype(PETSc.IntType))
-            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            # (petsc4py's stub types the option as Mat.Option, but its members are typed int)
+            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)  # type: ignore[arg-type]
             ksp = PETSc.KSP().create(PETSc.COMM_SELF)
             ksp.setOperators(A)
             ksp.setType("preonly")
@@ -426,7 +432,7 @@ class _Problem:
         self.count += 1
         return energy(self.coords(z), None, None, delta, grad=False, prepared=self.cells)[0]
 
-    def evaluate(self, z: np.ndarray, delta: float):
+    def evaluate(self, z: np.ndarray, delta: float) -> tuple[float, np.ndarray, np.ndarray]:
         """``(F, gradient (size,), Hessian values)`` in the variables ``z`` (values for :meth:`solve`)."""
         self.count += 1
         F, g, _, Hx = energy(self.coords(z), None, None, delta, prepared=self.cells,
@@ -448,9 +454,11 @@ class _Problem:
         if held.any():
             hv = np.where(fixed[self._r] | fixed[self._c], 0.0, hv)
         extra = mu * np.maximum(diag, 1e-12) * ~fixed + fixed
-        self._A.setValuesCOO(np.r_[hv, extra], addv=PETSc.InsertMode.INSERT_VALUES)
+        assert self._ksp is not None  # solve is only called on a problem with variables
+        # (petsc4py's stub: addv typed InsertMode but its members int; arrays where it says Sequence)
+        self._A.setValuesCOO(np.r_[hv, extra], addv=PETSc.InsertMode.INSERT_VALUES)  # type: ignore[arg-type]
         self._A.assemble()
-        self._b.setArray(rhs)
+        self._b.setArray(rhs)  # type: ignore[arg-type]
         try:
             self._ksp.setOperators(self._A)
             self._ksp.solve(self._b, self._x)
