@@ -24,6 +24,15 @@ tetrahedron is the one opposite local vertex ``j``; edges are listed in
 Cell arrays are ``(nc, tdim + 1)`` integer indices into ``x (n, 3)`` (as
 ``mesh.geometry.dofmaps[0]`` of a P1 mesh; in 2D the third coordinate is
 ignored); lengths are in the unit of the mesh.
+
+>>> import numpy as np
+>>> x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+>>> signed_volumes(x, np.array([[0, 1, 2, 3], [1, 0, 2, 3]]), 3) * 6
+array([ 1., -1.])
+>>> edge_lengths(x[None, :3]) ** 2
+array([[1., 1., 2.]])
+>>> barycentric(np.array([[[0.25, 0.25, 0.0]]]), x[None, :3])[0]
+array([[[0.5 , 0.25, 0.25]]])
 """
 
 from __future__ import annotations
