@@ -41,9 +41,11 @@ import os
 import sys
 import warnings
 
-import dolfinx.mesh
-import mpi4py.MPI as MPI
+import mpi4py.MPI as MPI  # before dolfinx: its wheel needs the MPI library that mpi4py loads
 import numpy as np
+
+# isort: split
+import dolfinx.mesh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "meshes"))

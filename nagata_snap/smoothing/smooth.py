@@ -87,7 +87,7 @@ __all__ = ["smooth", "SMOOTH_DEFAULTS", "smooth_options", "Smoother", "add_time"
 #: Default options of :func:`smooth` (``**opts``).
 SMOOTH_DEFAULTS: dict[str, Any] = {
     "layers": "auto",       # band width in vertex-neighbour layers (>= 1), or 'auto'
-                            # (2, 3 or 4 from the relative displacement, see _auto_layers)
+                            # (2, 3 or 4 from the relative displacement, see band.auto_layers)
     "exponent": 1.0,        # stiffening exponent p in E = (V_max/|K|)^p
     "model": "elastic",     # 'elastic' (linear elasticity) or 'harmonic'
     "nu": 0.3,              # Poisson ratio for model='elastic'
