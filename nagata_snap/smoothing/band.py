@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
+from nagata_snap.mesh.boundary import check_p1_simplex
 from nagata_snap.mesh.simplex import cell_columns, cells_touching, edge_length_range
 
 __all__ = ["NodeSync", "node_mask", "AUTO_LAYERS", "AUTO_LAYERS_MAX", "auto_layers", "expand",
@@ -217,13 +218,11 @@ def prepare(mesh: dolfinx.mesh.Mesh, x_ref: npt.ArrayLike, moved: npt.ArrayLike,
         a node both moved and fixed counts as moved.
 
     Raises:
-        ValueError: not a P1 simplex mesh, or ``x_ref`` of the wrong shape.
+        ValueError: not a P1 simplex mesh with finite coordinates
+            (:func:`~nagata_snap.mesh.boundary.check_p1_simplex`, the check of
+            every entry point), or ``x_ref`` of the wrong shape.
     """
-    if mesh.geometry.cmaps[0].degree != 1:
-        raise ValueError("only P1 (affine) geometry is supported")
-    tdim = mesh.topology.dim
-    if tdim != mesh.geometry.dim or tdim not in (2, 3):
-        raise ValueError("only triangles in 2D and tetrahedra in 3D are supported")
+    check_p1_simplex(mesh)
     sync = NodeSync(mesh.geometry.index_map())
     n = sync.n
     x_ref = np.asarray(x_ref, dtype=np.float64)

@@ -614,7 +614,7 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
 
     Args:
         mesh: P1 simplex ``dolfinx.mesh.Mesh`` (topology / parallel layout;
-            its coordinates are not read).
+            its coordinates are only checked to be finite).
         x_ref: (n, 3) straight reference coordinates (all local nodes).
         x_target: (n, 3) coordinates with the moved nodes at their targets;
             its other rows (fixed nodes, nodes outside the band) are kept.
