@@ -41,10 +41,9 @@ import os
 import sys
 import warnings
 
-import mpi4py.MPI as MPI  # before dolfinx: its wheel needs the MPI library that mpi4py loads
+import mpi4py.MPI as MPI
 import numpy as np
 
-# isort: split
 import dolfinx.mesh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -101,7 +100,7 @@ def old_ladder(snapper, mesh_in, edges):
     """The same level repaired by the previous ladder: (stage, partial, seconds)."""
     import time
 
-    from nagata_snap import hook
+    from nagata_snap import snapper as hook
 
     calls = {}
     orig = hook.repair

@@ -12,10 +12,9 @@ import json
 import os
 import sys
 
-import mpi4py.MPI as MPI  # before dolfinx: its wheel needs the MPI library that mpi4py loads
+import mpi4py.MPI as MPI
 import numpy as np
 
-# isort: split
 import dolfinx
 import dolfinx.mesh
 
