@@ -40,7 +40,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 import dolfinx.mesh  # noqa: E402
 import gmsh  # noqa: E402
 import parts  # noqa: E402
-from surfaces import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance  # noqa: E402
+from occ_reference import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import mesh_cad  # noqa: E402

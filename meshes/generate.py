@@ -48,7 +48,7 @@ from dolfinx.io import gmsh as _dxgmsh
 
 if os.path.dirname(os.path.dirname(os.path.abspath(__file__))) not in sys.path:  # run as a script
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from nagata_snap.meshing import DETERMINISTIC_OPTIONS, gmsh_session  # noqa: E402
+from nagata_snap.meshing import DETERMINISTIC_OPTIONS, gmsh_session
 
 # --------------------------------------------------------------------------
 # Tags
@@ -324,7 +324,7 @@ def dfg_channel(
         surfaces = []
         if boundary_layer:
             outer_arcs, outer_pts = _geo_circle(xc, yc, r_out, counts, centre)
-            radial = [geo.addLine(a, b) for a, b in zip(inner_pts, outer_pts)]
+            radial = [geo.addLine(a, b) for a, b in zip(inner_pts, outer_pts, strict=True)]
             m = len(inner_arcs)
             for k in range(m):
                 loop = geo.addCurveLoop(
@@ -340,10 +340,10 @@ def dfg_channel(
         geo.synchronize()
 
         mesh = gmsh.model.mesh
-        for arc, c in zip(inner_arcs, counts):
+        for arc, c in zip(inner_arcs, counts, strict=True):
             mesh.setTransfiniteCurve(arc, int(c) + 1)
         if boundary_layer:
-            for arc, c in zip(outer_arcs, counts):
+            for arc, c in zip(outer_arcs, counts, strict=True):
                 mesh.setTransfiniteCurve(arc, int(c) + 1)
             for line in radial:
                 mesh.setTransfiniteCurve(line, n_bl + 1, "Progression", bl_ratio)
@@ -357,7 +357,7 @@ def dfg_channel(
                 mesh.setTransfiniteSurface(s, bl_arrangement, corners)
         _threshold_field(hole_arcs, 1, h_c, h_far, dist_far)
 
-        gmsh.model.addPhysicalGroup(2, [fluid] + surfaces, FLUID, name="fluid")
+        gmsh.model.addPhysicalGroup(2, [fluid, *surfaces], FLUID, name="fluid")
         gmsh.model.addPhysicalGroup(1, [inlet], INLET, name="inlet")
         gmsh.model.addPhysicalGroup(1, [outlet], OUTLET, name="outlet")
         gmsh.model.addPhysicalGroup(1, [bottom, top], WALLS, name="walls")
@@ -429,7 +429,7 @@ def unit_disk(
         loop = geo.addCurveLoop(arcs)
         surf = geo.addPlaneSurface([loop])
         geo.synchronize()
-        for arc, c in zip(arcs, counts):
+        for arc, c in zip(arcs, counts, strict=True):
             gmsh.model.mesh.setTransfiniteCurve(arc, int(c) + 1)
         _threshold_field(arcs, 1, h_b, h_in, max(radius, 1e-12))
         gmsh.model.addPhysicalGroup(2, [surf], VOLUME, name="disk")

@@ -359,7 +359,7 @@ def write_dfg_circle(outdir: str | Path = HERE) -> Path:
 
 def write_all(outdir: str | Path = HERE) -> list[Path]:
     """Write every file listed in the module docstring; returns their paths."""
-    return write_kadir(outdir) + [write_dfg_circle(outdir)] + write_occ_models(outdir)
+    return [*write_kadir(outdir), write_dfg_circle(outdir), *write_occ_models(outdir)]
 
 
 if __name__ == "__main__":
