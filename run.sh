@@ -2,7 +2,7 @@
 # Set up (or reuse) the virtual environment and run the demo, the tests or the checks.
 #   bash run.sh demo         -- flow past a cylinder with snapping (main demo)
 #   bash run.sh test         -- the whole test suite (serial and mpiexec -n 2/3)
-#   bash run.sh check        -- ruff, mypy and the API reference build (fails on any problem)
+#   bash run.sh check        -- ruff, mypy, API reference build, README layout (fails on any problem)
 #   bash run.sh docs [DIR]   -- the API reference (HTML from the docstrings) into DIR (out/api)
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -49,11 +49,13 @@ check() {
   api=$(mktemp -d)
   "$VENV/bin/python" docs/build_api.py "$api" || failed+=(pdoc)
   rm -rf "$api"
+  echo "== README layout (docs/layout.py)"
+  "$VENV/bin/python" docs/layout.py || failed+=(layout)
   if [ ${#failed[@]} -gt 0 ]; then
     echo "check FAILED: ${failed[*]}" >&2
     return 1
   fi
-  echo "check passed: ruff, mypy, API reference"
+  echo "check passed: ruff, mypy, API reference, README layout"
 }
 
 case "${1:-test}" in
