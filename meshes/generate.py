@@ -550,6 +550,17 @@ def _constant_size(h: float) -> None:
     fld.setAsBackgroundMesh(f)
 
 
+def _mesh_solid(add_solid: typing.Callable[[], int], h: float, tag: int, name: str) -> None:
+    """Tetrahedra of size ``h`` in the one OCC solid ``add_solid()`` makes (its volume tag):
+    cell tag VOLUME, its boundary surfaces facet tag ``tag`` (physical name ``name``)."""
+    vol = add_solid()
+    gmsh.model.occ.synchronize()
+    _constant_size(h)
+    gmsh.model.addPhysicalGroup(3, [vol], VOLUME, name="volume")
+    gmsh.model.addPhysicalGroup(2, _boundary_surfaces([(3, vol)]), tag, name=name)
+    gmsh.model.mesh.generate(3)
+
+
 def ball(
     comm,
     radius: float = 1.0,
@@ -568,14 +579,7 @@ def ball(
     """
 
     def build():
-        occ = gmsh.model.occ
-        s = occ.addSphere(*center, radius)
-        occ.synchronize()
-        surfs = _boundary_surfaces([(3, s)])
-        _constant_size(h)
-        gmsh.model.addPhysicalGroup(3, [s], VOLUME, name="volume")
-        gmsh.model.addPhysicalGroup(2, surfs, BALL_SPHERE, name="sphere")
-        gmsh.model.mesh.generate(3)
+        _mesh_solid(lambda: gmsh.model.occ.addSphere(*center, radius), h, BALL_SPHERE, "sphere")
 
     return _build_and_convert(
         comm, "ball", build, 3, msh_file=msh_file, verbose=verbose, root=root,
@@ -604,13 +608,8 @@ def solid_torus(
     """
 
     def build():
-        occ = gmsh.model.occ
-        t = occ.addTorus(0.0, 0.0, 0.0, major_radius, minor_radius)
-        occ.synchronize()
-        _constant_size(h)
-        gmsh.model.addPhysicalGroup(3, [t], VOLUME, name="volume")
-        gmsh.model.addPhysicalGroup(2, _boundary_surfaces([(3, t)]), TORUS_SURFACE, name="torus")
-        gmsh.model.mesh.generate(3)
+        _mesh_solid(lambda: gmsh.model.occ.addTorus(0.0, 0.0, 0.0, major_radius, minor_radius), h,
+                    TORUS_SURFACE, "torus")
 
     return _build_and_convert(
         comm, "solid_torus", build, 3, msh_file=msh_file, verbose=verbose, root=root,
