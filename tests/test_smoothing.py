@@ -389,6 +389,13 @@ def test_bad_inputs():
     flat[v0] = 0.5 * (flat[w] + flat[v1])
     with pytest.raises(ValueError, match="zero area / volume"):
         smooth(msh, flat, left, fixed)
+    # NaN in the prescribed positions: the check of every entry point names it
+    msh, x_ref, left, fixed = square_push(0.05 * H)
+    msh.geometry.x[left[0], 0] = np.nan
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        smooth(msh, x_ref, left, fixed)
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        repair(msh, x_ref, msh.geometry.x.copy(), left, fixed)
 
 
 @pytest.mark.mpi
