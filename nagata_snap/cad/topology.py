@@ -247,6 +247,41 @@ class _Metric:
         return dev
 
 
+def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols: np.ndarray
+                       ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Circular p-curves on (unmapped) planes sampled at once to their final step.
+
+    On a plane the metric is the identity (orthonormal ``X``, ``Y``) and every
+    chord of a uniformly sampled circle deviates by its sagitta
+    ``R (1 - cos(dt / 2))``: the refinement of :func:`_refine` would halve
+    every step ``h`` times, ``h`` the least number (at most
+    :data:`MAX_REFINE`) that brings the sagitta within the face's tolerance.
+
+    Returns:
+        ``(ts, dev (n_uses,))``: the samples (those circles' replaced) and their
+        chords' deviation (NaN for the uses still to refine).
+    """
+    done = np.full(len(ts), np.nan)
+    sel = np.flatnonzero((f.kind == 1) & metric.plane[f.face] & ~f.mapped)
+    if sel.size == 0:
+        return ts, done
+    n0 = np.array([len(ts[j]) - 1 for j in sel])
+    t0, t1 = np.array([ts[j][0] for j in sel]), np.array([ts[j][-1] for j in sel])
+    dt0 = np.abs(t1 - t0) / n0
+    R, tol = np.abs(f.R[sel]), tols[f.face[sel]]
+    h = np.zeros(sel.size, dtype=np.int64)
+    for _ in range(MAX_REFINE):  # at most MAX_REFINE halvings (vectorised over the circles)
+        more = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h)) > tol
+        if not more.any():
+            break
+        h += more
+    ts = list(ts)
+    for j, a, b, n in zip(sel, t0, t1, n0 * 2 ** h, strict=True):  # loop over those circles
+        ts[j] = np.linspace(a, b, n + 1)
+    done[sel] = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h))
+    return ts, done
+
+
 def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: Sequence,
             tols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample every use's p-curve and refine its chords until within its face's tolerance.
@@ -261,13 +296,14 @@ def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: S
         ``dev[k]`` the deviation of the segment from ``P[k]`` to ``P[k + 1]``
         (0 for lines; meaningless at a use's last point).
     """
+    metric = _Metric(surfaces)
+    ts, done = _circles_on_planes(f, ts, metric, tols)
     ts = [t[::-1] if r else t for t, r in zip(ts, reverses, strict=True)]  # traversal order
     use = np.repeat(np.arange(len(ts)), [len(t) for t in ts])
     t = np.concatenate(ts) if ts else np.zeros(0)
     P = f(t, use)
-    dev = np.zeros(len(t))
-    metric = _Metric(surfaces)
-    active = f.kind != 0  # lines: the chord is the curve
+    dev = np.nan_to_num(done, nan=0.0)[use]
+    active = (f.kind != 0) & np.isnan(done)  # lines: the chord is the curve
     for it in range(MAX_REFINE + 1):
         k = np.flatnonzero((use[:-1] == use[1:]) & active[use[:-1]])
         if k.size == 0:
