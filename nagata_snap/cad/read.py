@@ -515,7 +515,7 @@ def _ancestors(kind, maps_child, maps_parent) -> list[list[int]]:
     """
     from OCP.TopExp import TopExp_Explorer
 
-    out = [set() for _ in range(maps_child.Extent())]
+    out: list[set[int]] = [set() for _ in range(maps_child.Extent())]
     for j in range(1, maps_parent.Extent() + 1):
         ex = TopExp_Explorer(maps_parent.FindKey(j), kind)
         while ex.More():
@@ -631,7 +631,7 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     except ReadError as err:
         raise ReadError(f"{path}: {err}") from None
     solids = _ancestors(TopAbs_FACE, fmap, smap)
-    for f, s in zip(faces, solids):
+    for f, s in zip(faces, solids, strict=True):
         f["solids"] = s
     times["convert"] = time.perf_counter() - t0
     return {"path": path, "format": info["format"], "unit": info["unit"],

@@ -25,6 +25,8 @@
 
 from __future__ import annotations
 
+import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -349,7 +351,7 @@ def sample_pcurves(descs: Sequence[dict], reverses: Sequence[bool], surface=None
     P, use, dev = _refine(f, f.initial(descs), np.asarray(reverses, dtype=bool), [surface],
                           np.array([tol], dtype=float))
     ends = np.searchsorted(use, np.arange(len(descs) + 1))
-    return [(P[a:b], dev[a:b - 1]) for a, b in zip(ends[:-1], ends[1:], strict=True)]
+    return [(P[a:b], dev[a:b - 1]) for a, b in itertools.pairwise(ends)]
 
 
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
@@ -379,7 +381,7 @@ def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
         ValueError: no affine map fits (the caller converts to NURBS instead).
     """
     uv, xyz = (np.asarray(a, dtype=float) for a in desc["samples"])
-    n = int(round(np.sqrt(len(uv))))
+    n = math.isqrt(len(uv))
     size = float(np.linalg.norm(xyz.max(axis=0) - xyz.min(axis=0)))
     probe = analytic_surface(desc, [[0.0, 2 * np.pi], [-1.0, 1.0]])
     P = probe.closest(xyz)[0]
@@ -387,9 +389,9 @@ def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
         if np.isfinite(per):
             g = np.unwrap(P[:, a].reshape(n, n), period=per, axis=1)
             P[:, a] = np.unwrap(g, period=per, axis=0).ravel()
-    inner = np.zeros((n, n), dtype=bool)
-    inner[1:-1, 1:-1] = True
-    inner = inner.ravel() if n > 2 else np.ones(len(uv), dtype=bool)
+    grid = np.zeros((n, n), dtype=bool)
+    grid[1:-1, 1:-1] = True
+    inner = grid.ravel() if n > 2 else np.ones(len(uv), dtype=bool)
     A = np.c_[uv, np.ones(len(uv))]
     M = np.linalg.lstsq(A[inner], P[inner], rcond=None)[0]  # (3, 2)
     err = np.linalg.norm(probe._points(*(A @ M).T) - xyz, axis=1).max()
@@ -413,7 +415,10 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
         _FaceError: a p-curve that is not a valid B-spline, or a wire with
             fewer than 3 distinct finite points.
     """
-    descs, face, wire, edge, rev, wires = [], [], [], [], [], []
+    descs: list[dict] = []
+    face, wire, edge = [], [], []
+    rev: list[bool] = []
+    wires: list[tuple[int, bool]] = []
     for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
         for w in fd["wires"]:
             if not w["uses"]:
@@ -512,7 +517,8 @@ class CadModel:
                     analytic_curve(c) if c["type"] in ("line", "circle") else nurbs_curve(c))
             except (ValueError, NurbsError) as err:
                 raise ValueError(f"{path}: edge {i} ({c['type']} curve): {err}") from None
-            edges.append(Edge(curve, tuple(int(v) for v in e["vertices"]), (),
+            v0, v1 = e["vertices"]
+            edges.append(Edge(curve, (int(v0), int(v1)), (),
                               float(e.get("tolerance", 0.0))))
         tol = np.array([e.tolerance for e in edges] + [0.0])
         fdata = data["faces"]
@@ -548,7 +554,7 @@ class CadModel:
         for i, own in enumerate(face_edges):
             for e in own:
                 users[e].append(i)
-        for e, u in zip(edges, users):
+        for e, u in zip(edges, users, strict=True):
             e.faces = tuple(sorted(u))
         times = dict(data.get("times", {}))
         times["build"] = time.perf_counter() - t0

@@ -86,7 +86,17 @@ class _Slabs:
 
     A query point's ray ``+x`` can only cross edges whose ``y`` range holds the
     point's ``y``: those listed for its slab (``k / 2`` slabs for ``k`` edges).
+
+    Attributes:
+        y0, dy, n: the slabs ``[y0 + i dy, y0 + (i + 1) dy)``, ``i < n``.
+        seg, ptr: CSR lists of the edges spanning each slab.
     """
+
+    y0: float
+    dy: float
+    n: int
+    seg: np.ndarray
+    ptr: np.ndarray
 
     def __init__(self, P: np.ndarray):
         built = _Slabs.many([P])[0]

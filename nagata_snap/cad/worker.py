@@ -185,7 +185,7 @@ def _kill(ctl: socket.socket, child) -> int:
 
 def _ask(child, msg) -> tuple:
     """A reader's reply to ``msg``; ``("crash" | "timeout", ...)`` if it died or hung."""
-    pid, req_w, res_r = child
+    _, req_w, res_r = child
     with contextlib.suppress(OSError):  # a dead reader: its reply pipe tells
         os.write(req_w, _frame(msg))
     deadline = time.monotonic() + msg[2]
@@ -267,7 +267,7 @@ class _Client:
             self.proc = None
 
     def request(self, path: str, kwargs: dict, timeout: float) -> tuple:
-        for attempt in range(2):  # a dead server is restarted once
+        for _ in range(2):  # a dead server is restarted once
             if self.proc is None or self.proc.poll() is not None:
                 self.start()
             try:
@@ -310,12 +310,11 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise CadError(f"CAD file {path} does not exist")
-    kwargs = {"unit": unit, "heal": heal}
     if not isolate:
         from nagata_snap.cad import read
 
         try:
-            return read.read_shape(path, **kwargs)
+            return read.read_shape(path, unit=unit, heal=heal)
         except read.ReadError as e:
             raise CadError(str(e)) from None
         except Exception as e:  # OpenCASCADE's exceptions arrive as Python exceptions
@@ -323,7 +322,8 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
     if timeout is None:
         timeout = 60.0 + 30.0 * os.path.getsize(path) / 1e6
     try:
-        status, payload = _CLIENT.request(os.path.abspath(path), kwargs, float(timeout))
+        status, payload = _CLIENT.request(os.path.abspath(path), {"unit": unit, "heal": heal},
+                                          float(timeout))
     except RuntimeError as e:
         raise CadError(f"{path}: {e}") from None
     if status == "ok":
