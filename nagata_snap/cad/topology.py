@@ -440,26 +440,63 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
     E = np.array(edge, dtype=np.int64)[use]
     S = np.where(np.array(rev, dtype=bool)[use], -1.0, 1.0)
     ends = np.searchsorted(np.array(wire, dtype=np.int64)[use], np.arange(len(wires) + 1))
+    _check_wires(P, ends, [i for i, _ in wires])
+    band = 2.0 * dev + tolerances[E]
     loops: list[list[Loop]] = [[] for _ in faces]
-    for w, (i, outer) in enumerate(wires):  # loop over wires (checks and Loop objects)
+    for w, (i, outer) in enumerate(wires):  # loop over wires (Loop objects)
         sl = slice(ends[w], ends[w + 1])
-        Pw = P[sl]
-        if not np.all(np.isfinite(Pw)) or not _three_distinct(np.round(Pw / max(np.ptp(Pw), 1e-300), 12)):
-            raise _FaceError(i, "a trimming wire has fewer than 3 distinct (finite) points in the "
-                                "parameter plane")
-        loops[i].append(Loop(Pw, E[sl], 2.0 * dev[sl] + tolerances[E[sl]], S[sl], outer))
+        loops[i].append(Loop(P[sl], E[sl], band[sl], S[sl], outer))
     return loops
 
 
+def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
+    """Every wire (rows ``ends[w]:ends[w + 1]`` of ``P (m, 2)``) has 3 distinct finite points.
+
+    Points are compared rounded to 1e-12 of the wire's extent.
+
+    Raises:
+        _FaceError: naming the face (``face[w]``) of the first wire that has not.
+    """
+    if len(ends) < 2:
+        return
+    start = ends[:-1]
+    finite = np.isfinite(P).all(axis=1)
+    ok = np.bincount(np.repeat(np.arange(len(start)), np.diff(ends))[~finite], minlength=len(start)) == 0
+    if len(P):
+        lo = np.minimum.reduceat(np.where(finite, P.min(axis=1), np.inf), start)
+        hi = np.maximum.reduceat(np.where(finite, P.max(axis=1), -np.inf), start)
+        scale = np.maximum(hi - lo, 1e-300)
+        grp = np.repeat(np.arange(len(start)), np.diff(ends))
+        with np.errstate(invalid="ignore"):
+            ok &= _three_distinct_groups(np.round(P / scale[grp, None], 12), ends)
+    if not ok.all():
+        raise _FaceError(face[int(np.argmin(ok))], "a trimming wire has fewer than 3 distinct (finite) "
+                                                   "points in the parameter plane")
+
+
 def _three_distinct(R: np.ndarray) -> bool:
-    """Rows of ``R (m, 2)`` take at least three distinct values (no sort: two passes)."""
-    if len(R) < 3:
-        return False
-    off_a = np.any(R[0] != R, axis=1)
-    if not off_a.any():
-        return False
-    b = R[np.argmax(off_a)]
-    return bool(np.any(off_a & np.any(b != R, axis=1)))
+    """Rows of ``R (m, 2)`` take at least three distinct values (:func:`_three_distinct_groups`)."""
+    return bool(_three_distinct_groups(np.asarray(R).reshape(-1, 2), np.array([0, len(R)]))[0])
+
+
+def _three_distinct_groups(R: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """``(g,)``: the rows ``ends[i]:ends[i + 1]`` of ``R (m, 2)`` take at least three distinct values.
+
+    No sort, two passes over all groups at once: the rows differing from
+    the group's first row ``a``; the first of them ``b``; a third value is a
+    row differing from both.
+    """
+    start, size = ends[:-1], np.diff(ends)
+    ok = size >= 3
+    if not ok.any():
+        return ok
+    grp = np.repeat(np.arange(len(size)), size)
+    off_a = np.any(R[start[grp]] != R, axis=1)
+    first_b = np.minimum.reduceat(np.where(off_a, np.arange(len(R)), len(R)), np.minimum(start, len(R) - 1))
+    ok &= first_b < np.minimum(ends[1:], len(R))
+    b = np.minimum(first_b, len(R) - 1)
+    third = off_a & np.any(R[b[grp]] != R, axis=1)
+    return ok & (np.bincount(grp[third], minlength=len(size)) > 0)
 
 
 def _tangents(surface, params: np.ndarray) -> np.ndarray:
