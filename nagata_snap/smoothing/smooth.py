@@ -81,6 +81,7 @@ import mpi4py.MPI
 import numpy as np
 from petsc4py import PETSc
 
+from nagata_snap.mesh.boundary import check_p1_simplex
 from nagata_snap.mesh.simplex import inverse_small
 from nagata_snap.smoothing.quality import _columns, _touching, edge_length_range
 
@@ -627,11 +628,7 @@ def _prepare(mesh, x_ref, moved, fixed, fix_boundary: bool):
 
     With ``fix_boundary`` every exterior-boundary node that is not moved is fixed.
     """
-    if mesh.geometry.cmaps[0].degree != 1:
-        raise ValueError("only P1 (affine) geometry is supported")
-    tdim = mesh.topology.dim
-    if tdim != mesh.geometry.dim or tdim not in (2, 3):
-        raise ValueError("only triangles in 2D and tetrahedra in 3D are supported")
+    check_p1_simplex(mesh)
     sync = _NodeSync(mesh.geometry.index_map())
     n = sync.n
     x_ref = np.asarray(x_ref, dtype=np.float64)
