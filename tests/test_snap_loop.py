@@ -54,7 +54,7 @@ def test_dfg_cylinder_converges_to_circle(dfg, mode):
     plain = mesh
     exact_area = generate.DFG_LENGTH * generate.DFG_HEIGHT - np.pi * R**2
     area_err = []
-    for k in range(5 if mode == "uniform" else 4):
+    for _ in range(5 if mode == "uniform" else 4):
         edges = None
         if mode == "adaptive":
             mid = dolfinx.mesh.compute_midpoints(
@@ -63,7 +63,7 @@ def test_dfg_cylinder_converges_to_circle(dfg, mode):
             cells = np.flatnonzero(np.linalg.norm(mid - CENTRE, axis=1) < 0.1).astype(np.int32)
             mesh.topology.create_connectivity(2, 1)
             edges = dolfinx.mesh.compute_incident_entities(mesh.topology, cells, 2, 1)
-        mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
+        mesh, ft, _, _, rep = snapper.refine(mesh, edges)
         assert rep.inverted_after_smoothing == 0 and rep.partially_moved == 0
         cyl = facet_vertices(mesh, ft, generate.CYLINDER)
         assert circle_dist(cyl).max() <= e_nagata * (1 + 1e-9)
@@ -104,8 +104,8 @@ def test_sphere_in_box_converges_and_box_stays_flat():
     snapper = Snapper(mesh, ft, geo)
     exact = 8.0 - 4 / 3 * np.pi * 0.5**3
     errs = []
-    for k in range(2):
-        mesh, ft, pc, pf, rep = snapper.refine(mesh)
+    for _ in range(2):
+        mesh, ft, _, _, rep = snapper.refine(mesh)
         assert rep.inverted_after_smoothing == 0 and rep.partially_moved == 0
         assert dist(facet_vertices(mesh, ft, generate.SPHERE)).max() <= e_nagata * (1 + 1e-9)
         box = facet_vertices(mesh, ft, generate.BOX)
