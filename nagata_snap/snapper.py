@@ -178,7 +178,7 @@ class Snapper:
         quality_report: build a :class:`~nagata_snap.smoothing.quality.QualityReport`
             each level: ``True`` / ``"changed"`` (default): angles and ratios
             of the cells that snapping and smoothing changed (O(band) work);
-            ``"all"``: of every cell (O(mesh), about 1 us per tetrahedron);
+            ``"all"``: of every cell (O(mesh) work);
             ``False``: none.
         verbose: print the per-level report on rank 0.
     """

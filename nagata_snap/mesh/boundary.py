@@ -178,9 +178,9 @@ class BoundaryFacets:
     """Exterior facets whose cell is owned by this process.
 
     A facet is identified by its cell and its local index in that cell, so
-    refined levels need no facet entities (creating them costs about a
-    sixth of ``dolfinx.mesh.refine`` on tetrahedra); the facet indices are
-    computed on demand by :meth:`facet_indices`.
+    refined levels need no facet entities (creating them is O(mesh) work on
+    the order of the refinement itself); the facet indices are computed on
+    demand by :meth:`facet_indices`.
 
     Attributes:
         cells: ``(nf,)`` local index of the owned cell of each facet.
