@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -32,12 +32,15 @@ if TYPE_CHECKING:
 __all__ = ["SnapGeometry", "PlaceReport"]
 
 
+@runtime_checkable
 class SnapGeometry(Protocol):
     """A geometry the snapper places boundary vertices on.
 
     Shapes: ``nf`` facets of ``nfv`` vertices (2 in 2D, 3 in 3D), points in
     3D (``z = 0`` for 2D meshes), lengths in mesh units.  ``attach`` is called
     collectively (every process, its own facets); the others are local.
+    ``isinstance(g, SnapGeometry)`` checks that the members exist (mypy
+    checks their signatures).
     """
 
     @property

@@ -12,7 +12,9 @@ from mpi4py import MPI
 from scipy.spatial import cKDTree
 from surfaces import nagata_surface_error
 
-from nagata_snap import LineageError, NagataGeometry, Snapper
+from nagata_snap import CadGeometry, LineageError, NagataGeometry, Snapper
+from nagata_snap.cad.nurbs import circle
+from nagata_snap.geometry import SnapGeometry
 
 HERE = os.path.dirname(__file__)
 CENTRE = np.array([0.2, 0.2, 0.0])
@@ -140,6 +142,30 @@ def test_unknown_and_interior_tags(dfg):
     bad = dolfinx.mesh.meshtags(mesh, 1, idx[o], val[o])
     with pytest.raises(ValueError, match="interior facets"):
         NagataGeometry(mesh, bad, tags=[generate.CYLINDER])
+    # the Snapper runs the same check (one check_snap_input for every entry point)
+    geo = NagataGeometry(mesh, ft, tags=[generate.CYLINDER])
+    with pytest.raises(ValueError, match="3 facets with snapped tags .* are interior facets"):
+        Snapper(mesh, bad, geo)
+    # tags on interior facets that are not snapped are fine (interfaces, kept by refine)
+    assert Snapper(mesh, bad, geo, tags=[generate.WALLS]).tags == [generate.WALLS]
+
+
+def test_both_geometries_are_snap_geometries(dfg):
+    """NagataGeometry and CadGeometry offer what the snapper uses (mypy checks the
+    signatures, in nagata_snap.cli); an object without ``project`` is not one."""
+    mesh, ft = dfg
+    cad = CadGeometry([circle((0.2, 0.2, 0.0), R)])
+    for geo in (NagataGeometry(mesh, ft, tags=[generate.CYLINDER]), cad):
+        assert isinstance(geo, SnapGeometry)
+
+    class NoProject:
+        tags = None
+
+        def attach(self, points, nodes=None, *, comm=None): ...
+        def place(self, records, straight): ...
+        def evaluate(self, root, params): ...
+
+    assert not isinstance(NoProject(), SnapGeometry)
 
 
 def _run_mpi(n, args, tmp_path):
