@@ -144,7 +144,7 @@ def test_unknown_and_interior_tags(dfg):
         NagataGeometry(mesh, bad, tags=[generate.CYLINDER])
     # the Snapper runs the same check (one check_snap_input for every entry point)
     geo = NagataGeometry(mesh, ft, tags=[generate.CYLINDER])
-    with pytest.raises(ValueError, match="3 facets with snapped tags .* are interior facets"):
+    with pytest.raises(ValueError, match=r"3 facets with snapped tags .* are interior facets"):
         Snapper(mesh, bad, geo)
     # tags on interior facets that are not snapped are fine (interfaces, kept by refine)
     assert Snapper(mesh, bad, geo, tags=[generate.WALLS]).tags == [generate.WALLS]
