@@ -41,9 +41,11 @@ import os
 import sys
 import typing
 
-import gmsh
 import mpi4py.MPI  # noqa: F401  (must precede dolfinx with the PyPI wheel)
+
+import gmsh
 import numpy as np
+
 from dolfinx.io import gmsh as _dxgmsh
 
 if os.path.dirname(os.path.dirname(os.path.abspath(__file__))) not in sys.path:  # run as a script

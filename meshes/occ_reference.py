@@ -54,8 +54,8 @@ class OccShape:
         from OCP.BRepAdaptor import BRepAdaptor_Surface
         from OCP.BRepClass import BRepClass_FaceClassifier
         from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
-        from OCP.gp import gp_Pnt, gp_Pnt2d
         from OCP.TopAbs import TopAbs_State
+        from OCP.gp import gp_Pnt, gp_Pnt2d
 
         faces, points = np.asarray(faces), np.asarray(points, dtype=float)
         d = np.full(len(points), np.inf)

@@ -230,8 +230,9 @@ def gmsh_occ_surface(build, h: float):
         ``(points (nv, 3), triangles (F, 3) outward, tags (F,))``, ``tags``
         the gmsh surface (CAD face) of each triangle.
     """
-    import generate
     import gmsh
+
+    import generate
 
     with generate._gmsh_session("surface", False):
         build()

@@ -14,18 +14,19 @@ import sys
 
 import basix
 import basix.ufl
-import dolfinx.fem as fem
-import generate
 import numpy as np
 import pytest
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
+import dolfinx.fem as fem
+import generate
+
 from nagata_snap import NagataGeometry, Snapper
 from nagata_snap.cad import CadGeometry
 from nagata_snap.cad.iges import write_iges
-from nagata_snap.cad.nurbs import sphere as nurbs_sphere
 from nagata_snap.mesh.lineage import parent_cells
+from nagata_snap.cad.nurbs import sphere as nurbs_sphere
 from nagata_snap.transfer import pull_back, transfer
 
 HERE = os.path.dirname(__file__)
