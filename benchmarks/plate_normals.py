@@ -39,7 +39,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 
 import gmsh  # noqa: E402
 import parts  # noqa: E402
-from surfaces import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance  # noqa: E402
+from occ_reference import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance  # noqa: E402
 
 import dolfinx.mesh  # noqa: E402
 
