@@ -44,11 +44,15 @@ class _Curve:
             raise ValueError(f"curve range must be finite with t0 < t1, got ({t0}, {t1})")
         self.bounds = np.array([[t0, t1]])
         self.limits = self.bounds
-        pts = self._points(np.linspace(t0, t1, 65))
-        pad = self._sagitta((t1 - t0) / 64)
-        lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+        lo, hi = self._box(t0, t1)
         self.bbox = (lo, hi)
         self.bbox_size = float(np.linalg.norm(hi - lo))
+
+    def _box(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)`` box of the curve on ``[t0, t1]``: 65 samples plus their sagitta."""
+        pts = self._points(np.linspace(t0, t1, 65))
+        pad = self._sagitta((t1 - t0) / 64)
+        return pts.min(axis=0) - pad, pts.max(axis=0) + pad
 
     closed = (False,)
 
@@ -124,6 +128,11 @@ class Line(_Curve):
 
     def _closest_t(self, X, seed):
         return np.clip((X - self.origin) @ self.direction, *self.bounds[0])
+
+    def _box(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """The box of the two end points (exact: the segment is linear in ``t``)."""
+        pts = self._points(np.array([t0, t1]))
+        return pts.min(axis=0), pts.max(axis=0)
 
 
 class Circle(_Curve):

@@ -358,6 +358,12 @@ class Plane(AnalyticSurface):
         self._uv_origin = self._uv_axes @ self.origin
         self._z_origin = float(self.Z @ self.origin)
 
+    def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box of the parameter box's four corners (exact: the plane is linear in ``u, v``)."""
+        (u0, u1), (v0, v1) = self.bounds
+        S = self._points(np.array([u0, u0, u1, u1]), np.array([v0, v1, v0, v1]))
+        return S.min(axis=0), S.max(axis=0)
+
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)
         n = np.cross(self.X, self.Y)
