@@ -131,7 +131,9 @@ class AnalyticSurface:
         if not np.all(np.isfinite(self.origin)):
             raise ValueError(f"origin must be finite, got {self.origin.tolist()}")
         #: +1 for a right-handed frame, -1 for a left-handed one
-        self.hand = 1.0 if np.dot(np.cross(self.X, self.Y), self.Z) > 0 else -1.0
+        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = self.X.tolist(), self.Y.tolist(), self.Z.tolist()
+        triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
+        self.hand = 1.0 if triple > 0 else -1.0
         b = np.asarray(bounds, dtype=float).reshape(2, 2)
         if not np.all(np.isfinite(b)) or np.any(b[:, 1] < b[:, 0]):
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
