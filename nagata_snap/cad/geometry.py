@@ -97,6 +97,7 @@ from nagata_snap.cad.projection import (
 from nagata_snap.cad.trimming import TRIM_RTOL, TrimLoops
 from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.mesh.corners import corner_vertices
 from nagata_snap.mesh.records import Records
 
 __all__ = ["CadError", "CadGeometry", "TrimLoops"]
@@ -1269,20 +1270,13 @@ class CadGeometry:
     def _corner_groups(self, gid: np.ndarray, ent: np.ndarray, fid: np.ndarray) -> np.ndarray:
         """``(n_groups,)`` mask of the vertices that are CAD corners.
 
-        A vertex (group ``gid`` of its slots) is a corner if its slots lie on
-        three or more distinct faces (``ent``) or on two or more distinct CAD
-        edges (``fid > 0``: edge curve ``fid - 1``, see :meth:`_features`),
-        whatever each facet's own edge channels say: a facet at a corner often
-        has only one of its edges there on a CAD edge.
+        The rule of :func:`nagata_snap.mesh.corners.corner_vertices`: a vertex
+        (group ``gid`` of its slots) is a corner if its slots lie on three or
+        more distinct faces (``ent``) or on two or more distinct CAD edges
+        (``fid > 0``: edge curve ``fid - 1``, see :meth:`_features`), whatever
+        each facet's own edge channels say.
         """
-        ng = int(gid.max()) + 1
-
-        def distinct(key: np.ndarray, sel: np.ndarray) -> np.ndarray:
-            k = np.unique(gid[sel] * (int(key.max(initial=0)) + 1) + key[sel])
-            return np.bincount(k // (int(key.max(initial=0)) + 1), minlength=ng)
-
-        all_slots = np.ones(len(gid), dtype=bool)
-        return (distinct(ent, all_slots) >= 3) | (distinct(fid, fid > 0) >= 2)
+        return corner_vertices(gid, ent, int(gid.max()) + 1, self.param_dim + 1, edge=np.where(fid > 0, fid - 1, -1))
 
     def _onto_feature(self, rep_of_group, gid, ent, proj, par, fid, hs) -> float:
         """Move feature vertices onto the intersection of their edge's (vertex's) faces.
