@@ -54,7 +54,7 @@ def match_entities(geometry: CadGeometry, entities: dict) -> dict:
     P = np.concatenate([e.points for e in infos])
     owner = np.repeat(np.arange(len(infos)), [len(e.points) for e in infos])
     res = geometry.searcher.search(P, accept=geometry._accept)
-    ent, params, dist = res[:3]
+    ent, _, dist = res[:3]
     ok = dist <= tol if geometry._accept is None else (dist <= tol) & res[3]
     out = {}
     for k, info in enumerate(infos):  # loop over gmsh entities (a few samples each)
@@ -72,6 +72,7 @@ def match_entities(geometry: CadGeometry, entities: dict) -> dict:
                 f"{'face' if d == 2 else 'edge'} of {geometry.model.path if geometry.model else 'the CAD'}"
                 f" within {tol:.1e} (samples {np.round(info.points[:2], 6).tolist()}): the mesh and "
                 "the CAD do not match (another file, unit or healing?)")
+        assert best_p is not None  # set with best
         out[int(info.tag)] = (best, _same_params(geometry, best, info.params, best_p))
     return out
 
