@@ -21,8 +21,11 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["facet_array", "longest_edge", "unique_rows", "row_index", "vertex_groups", "ramp",
+__all__ = ["MERGE_RTOL", "facet_array", "longest_edge", "unique_rows", "row_index", "vertex_groups", "ramp",
            "box_pairs", "Ragged"]
+
+#: two facet vertices closer than this (relative to the model size) are one vertex
+MERGE_RTOL = 1e-10
 
 
 def facet_array(a: npt.ArrayLike, what: str) -> np.ndarray:

@@ -27,7 +27,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.cad.arrays import box_pairs, facet_array, longest_edge, ramp, row_index, vertex_groups
+from nagata_snap.cad.arrays import (
+    MERGE_RTOL,
+    box_pairs,
+    facet_array,
+    longest_edge,
+    ramp,
+    row_index,
+    vertex_groups,
+)
 from nagata_snap.cad.errors import CadError
 from nagata_snap.cad.params import contiguous
 from nagata_snap.mesh.arrays import best_per_group
@@ -36,11 +44,7 @@ from nagata_snap.mesh.records import Records
 if TYPE_CHECKING:
     from nagata_snap.cad.geometry import CadGeometry
 
-__all__ = ["MERGE_RTOL", "MeshHints", "attach", "attach_local", "search_faces", "on_faces", "edge_channels"]
-
-#: two facet vertices closer than this (relative to the model size) are one vertex
-MERGE_RTOL = 1e-10
-
+__all__ = ["MeshHints", "attach", "attach_local", "search_faces", "on_faces", "edge_channels"]
 
 @dataclass(frozen=True)
 class MeshHints:

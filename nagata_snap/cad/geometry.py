@@ -131,7 +131,9 @@ class _PerEntity(Sequence[np.ndarray | None]):
     def __getitem__(self, i: int | slice) -> np.ndarray | list[np.ndarray | None] | None:
         if isinstance(i, slice):
             return [self._f(k) for k in range(self._n)[i]]
-        return self._f(i)
+        if not -self._n <= i < self._n:
+            raise IndexError(f"entity {i} of {self._n}")
+        return self._f(i % self._n)
 
 
 class CadGeometry:

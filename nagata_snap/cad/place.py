@@ -34,8 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.cad.arrays import box_pairs, facet_array, longest_edge, unique_rows, vertex_groups
-from nagata_snap.cad.attach import MERGE_RTOL
+from nagata_snap.cad.arrays import MERGE_RTOL, box_pairs, facet_array, longest_edge, unique_rows, vertex_groups
 from nagata_snap.cad.features import nearest_features, onto_feature, shared_entity_vertices
 from nagata_snap.cad.params import unwrap
 from nagata_snap.cad.projection import evaluate_params, normalize_params
