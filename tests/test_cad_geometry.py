@@ -513,3 +513,25 @@ def test_mesh_hints_find_facets_by_their_node_sets():
     np.testing.assert_array_equal(faces, [8, 7])
     np.testing.assert_array_equal(seeds, np.stack([params[1][[1, 2, 0]], params[0][[2, 0, 1]]]))
     assert hints.lookup(np.array([[10, 20, 40]])) is None
+
+
+def test_place_stages_recover_from_a_bad_seed_on_the_root_entity():
+    """``place.on_root``: a seed that sends Newton to the far side of the sphere (farther than the
+    facet's edge) is retried from the facet's other vertices; every slot ends at ``x / |x|``."""
+    from nagata_snap.cad.place import merge, on_root, slots_of
+
+    geo = CadGeometry([sphere()])
+    facets = octahedron_sphere(2)
+    rec = geo.attach(facets)
+    x = facets[:, :, :] * 1.01  # off the sphere, radially
+    i = np.flatnonzero(np.abs(facets[:, 0, 2]) < 0.9)[0]  # a first vertex away from the poles
+    anti = geo.attach(-facets[i:i + 1]).params[0, 0]
+    rec.params[i, 0] = anti  # its seed: the antipode
+    s = slots_of(geo, rec, x, "x")
+    p = on_root(geo, s)
+    assert p.n_fallback >= 1 and p.valid.all()
+    truth = (x / np.linalg.norm(x, axis=2)[..., None]).reshape(-1, 3)
+    np.testing.assert_allclose(p.proj, truth, rtol=0, atol=1e-12)
+    m = merge(geo, s, p)  # one position per vertex: the same here
+    np.testing.assert_allclose(p.proj, truth, rtol=0, atol=1e-12)
+    assert m.n_edge == 0 and len(m.rep_of_group) == len(np.unique(facets.reshape(-1, 3).round(12), axis=0))
