@@ -21,6 +21,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from nagata_snap.mesh.simplex import edge_lengths
+
 __all__ = ["MERGE_RTOL", "facet_array", "longest_edge", "unique_rows", "row_index", "vertex_groups", "ramp",
            "box_pairs", "Ragged"]
 
@@ -45,13 +47,10 @@ def facet_array(a: npt.ArrayLike, what: str) -> np.ndarray:
 
 
 def longest_edge(x: np.ndarray) -> np.ndarray:
-    """Largest edge (vertex-pair distance) of each facet ``(nf, nfv, 3)`` -> ``(nf,)``."""
-    nfv = x.shape[1]
-    h = np.zeros(x.shape[0])
-    for i in range(nfv):  # loop over facet vertices (2 or 3)
-        for j in range(i + 1, nfv):
-            np.maximum(h, np.linalg.norm(x[:, i] - x[:, j], axis=1), out=h)
-    return h
+    """Largest edge (vertex-pair distance) of each facet ``(nf, nfv, 3)`` -> ``(nf,)`` (0 for single points)."""
+    if x.shape[1] < 2:
+        return np.zeros(x.shape[0])
+    return edge_lengths(x).max(axis=1)
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
