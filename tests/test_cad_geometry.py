@@ -467,7 +467,7 @@ def test_edge_vertices_of_plate_and_hole_land_on_the_trimming_curve():
 
 def test_row_ids_by_lexsort_match_numpy_unique():
     """``_row_index`` (facet-edge and hint keys) numbers rows as ``np.unique(axis=0)`` does."""
-    from nagata_snap.cad.arrays import row_index as _row_index
+    from nagata_snap.mesh.arrays import row_index as _row_index
 
     rng = np.random.default_rng(3)
     for shape in ((0, 2), (1, 3), (500, 2), (2000, 3)):

@@ -17,7 +17,7 @@ Modules:
   onto their faces), :mod:`~nagata_snap.cad.place` (snapping after a
   refinement) and :mod:`~nagata_snap.cad.features` (CAD edges and corners),
   over :mod:`~nagata_snap.cad.params` (seams, poles, normals) and
-  :mod:`~nagata_snap.cad.arrays`;
+  :mod:`~nagata_snap.cad.slots`;
 * :mod:`~nagata_snap.cad.meshed`: a gmsh mesh of the file and its geometry,
   matched (:func:`mesh_cad`);
 * :mod:`~nagata_snap.cad.iges`: an IGES writer (tests).

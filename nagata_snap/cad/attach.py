@@ -27,18 +27,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.cad.arrays import (
-    MERGE_RTOL,
-    box_pairs,
-    facet_array,
-    longest_edge,
-    ramp,
-    row_index,
-    vertex_groups,
-)
 from nagata_snap.cad.errors import CadError
 from nagata_snap.cad.params import contiguous
-from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.cad.slots import MERGE_RTOL, box_pairs, facet_array, longest_edge, vertex_groups
+from nagata_snap.mesh.arrays import best_per_group, ramp, row_index
 from nagata_snap.mesh.records import Records
 
 if TYPE_CHECKING:

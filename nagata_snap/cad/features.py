@@ -2,7 +2,7 @@
 
 A 3D model's edges and vertices (:class:`CadTopology`) are gathered as
 arrays over the geometry's faces, so that the feature vertices of all
-facets are found at once (:class:`~nagata_snap.cad.arrays.Ragged` lists:
+facets are found at once (:class:`~nagata_snap.mesh.arrays.Ragged` lists:
 the edge curves and CAD vertices of each face, the faces of each feature).
 Placement (:mod:`nagata_snap.cad.place`) then moves them:
 
@@ -26,10 +26,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nagata_snap.cad.arrays import Ragged
 from nagata_snap.cad.params import unit_normals, unwrap
 from nagata_snap.cad.projection import GlobalSearcher
-from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.mesh.arrays import Ragged, best_per_group
 
 if TYPE_CHECKING:
     from nagata_snap.cad.geometry import CadGeometry

@@ -34,12 +34,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.cad.arrays import MERGE_RTOL, box_pairs, facet_array, longest_edge, unique_rows, vertex_groups
 from nagata_snap.cad.features import nearest_features, onto_feature, shared_entity_vertices
 from nagata_snap.cad.params import unwrap
 from nagata_snap.cad.projection import evaluate_params, normalize_params
+from nagata_snap.cad.slots import MERGE_RTOL, box_pairs, facet_array, longest_edge, vertex_groups
 from nagata_snap.geometry import PlaceReport
-from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.mesh.arrays import best_per_group, unique_rows
 from nagata_snap.mesh.corners import corner_vertices
 from nagata_snap.mesh.records import Records
 

@@ -30,6 +30,8 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from nagata_snap.mesh.arrays import ramp
+
 __all__ = ["TrimLoops", "points_in_polygon"]
 
 #: default absolute trimming tolerance, relative to the size of the face's surface
@@ -123,7 +125,7 @@ class _Slabs:
         cnt = s1 - s0 + 1
         first = np.concatenate([[0], np.cumsum(n)])  # global number of each polygon's first slab
         seg = np.repeat(np.arange(len(P)) - off[lid], cnt)
-        slab = np.repeat(s0 + first[lid], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+        slab = np.repeat(s0 + first[lid], cnt) + ramp(cnt)
         seg = seg[np.argsort(slab, kind="stable")]
         ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=int(first[-1])))])
         out = []
@@ -142,7 +144,7 @@ class _Slabs:
         s = np.where(inside, t, 0.0).astype(np.int64)
         cnt = np.where(inside, self.ptr[s + 1] - self.ptr[s], 0)
         pt = np.repeat(np.arange(len(y)), cnt)
-        off = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        off = ramp(cnt)
         return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
 
 

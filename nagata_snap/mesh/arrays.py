@@ -5,6 +5,12 @@
 array([ 1,  2,  3, -1])
 >>> dot(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([[1.0, 1.0], [1.0, 0.0]]))
 array([4., 2.])
+>>> row_index(np.array([[2, 1], [0, 5], [2, 1]]))
+array([1, 0, 1])
+>>> ramp(np.array([2, 0, 3]))
+array([0, 1, 0, 1, 2])
+>>> Ragged([[4, 5], [], [6]]).take(np.array([2, 0]))
+(array([1, 2]), array([6, 4, 5]))
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["best_per_group", "dot", "dot_last"]
+__all__ = ["best_per_group", "dot", "dot_last", "unique_rows", "row_index", "ramp", "Ragged"]
 
 
 def best_per_group(
@@ -56,3 +62,57 @@ def dot(a: Sequence[np.ndarray] | np.ndarray, b: Sequence[np.ndarray] | np.ndarr
 def dot_last(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot product over the last axis of ``(..., d)`` arrays."""
     return np.einsum("...i,...i->...", a, b)
+
+
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct rows of ``a (n, k)`` (float or int): ``(first (m,), inverse (n,), rows (m, k))``.
+
+    As ``np.unique(a, axis=0, return_index=True, return_inverse=True)`` (rows
+    compared by value: ``-0.0 == 0.0``; a row with NaN is its own group), but
+    with one ``np.lexsort`` of the columns instead of a sort of the rows as
+    opaque byte strings.
+    """
+    a = np.ascontiguousarray(a)
+    n = a.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), a[:0]
+    order = np.lexsort(a.T[::-1])  # stable: equal rows keep their input order
+    srt = a[order]
+    new = np.ones(n, dtype=bool)
+    new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
+    inverse = np.empty(n, dtype=np.intp)
+    inverse[order] = np.cumsum(new) - 1
+    return order[new], inverse, srt[new]
+
+
+def row_index(rows: np.ndarray) -> np.ndarray:
+    """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1``)."""
+    if len(rows) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return unique_rows(rows)[1].astype(np.int64, copy=False)
+
+
+def ramp(counts: np.ndarray) -> np.ndarray:
+    """``[0..c0-1, 0..c1-1, ...]`` for counts ``c`` (vectorised)."""
+    total = int(counts.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    starts = np.cumsum(counts) - counts
+    return np.arange(total) - np.repeat(starts, counts)
+
+
+class Ragged:
+    """Integer lists of different lengths as one flat array with offsets (CSR).
+
+    ``take(rows)`` gathers many rows at once without a Python loop over them.
+    """
+
+    def __init__(self, lists: Sequence[Sequence[int] | np.ndarray]):
+        self.counts = np.array([len(a) for a in lists], dtype=np.int64)
+        self.ptr = np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
+        self.flat = np.concatenate([np.asarray(a, dtype=np.int64) for a in lists] + [np.zeros(0, np.int64)])
+
+    def take(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(counts (k,), values (counts.sum(),))``: the rows ``rows (k,)``, concatenated in order."""
+        cnt = self.counts[rows]
+        return cnt, self.flat[np.repeat(self.ptr[rows], cnt) + ramp(cnt)]

@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 from mpi4py import MPI
 
+from nagata_snap.mesh.arrays import ramp
 from nagata_snap.mesh.simplex import facet_normal_vectors, local_facet_vertices
 
 __all__ = [
@@ -248,7 +249,7 @@ def cell_facets_of(
     facets = np.asarray(facets, dtype=np.int32)
     cnt = np.diff(f2c.offsets)[facets]
     index = np.repeat(np.arange(len(facets)), cnt)
-    pos = np.repeat(f2c.offsets[facets], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    pos = np.repeat(f2c.offsets[facets], cnt) + ramp(cnt)
     cells = f2c.array[pos]
     own = cells < mesh.topology.index_map(tdim).size_local
     index, cells = index[own], cells[own].astype(np.int32)

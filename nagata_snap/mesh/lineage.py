@@ -32,6 +32,7 @@ import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 
+from nagata_snap.mesh.arrays import ramp
 from nagata_snap.mesh.boundary import BoundaryFacets, cell_facet_nodes
 from nagata_snap.mesh.simplex import barycentric, edge_lengths, facet_measures, facet_normal_vectors
 
@@ -149,7 +150,7 @@ def _pairs(P: np.ndarray, cells0: np.ndarray, ncell0: int) -> tuple[np.ndarray, 
     ncand = counts[P]
     child = np.repeat(np.arange(len(P)), ncand)
     start = np.repeat(offsets[P], ncand)
-    k = np.arange(len(child)) - np.repeat(np.cumsum(ncand) - ncand, ncand)
+    k = ramp(ncand)
     return child, order[start + k]
 
 

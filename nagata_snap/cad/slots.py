@@ -1,19 +1,14 @@
-"""Array idioms of the CAD stages: facet arrays, vertex identity, row ids, ragged lists, box queries.
+"""Facet-vertex slots of the CAD stages: facet arrays, vertex identity, box queries.
 
 Everything works on all facets (or facet vertices, "slots") at once: a
 *slot* is one vertex of one facet, so a mesh vertex shared by ``k`` facets
 has ``k`` slots, and :func:`vertex_groups` tells which slots are one vertex.
 
->>> import numpy as np
->>> row_index(np.array([[2, 1], [0, 5], [2, 1]]))
-array([1, 0, 1])
->>> Ragged([[4, 5], [], [6]]).take(np.array([2, 0]))
-(array([1, 2]), array([6, 4, 5]))
+Generic idioms (distinct rows, ramps, ragged lists) are in
+:mod:`nagata_snap.mesh.arrays`.
 """
 
 from __future__ import annotations
-
-from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -21,10 +16,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from nagata_snap.mesh.arrays import unique_rows
 from nagata_snap.mesh.simplex import edge_lengths
 
-__all__ = ["MERGE_RTOL", "facet_array", "longest_edge", "unique_rows", "row_index", "vertex_groups", "ramp",
-           "box_pairs", "Ragged"]
+__all__ = ["MERGE_RTOL", "facet_array", "longest_edge", "vertex_groups", "box_pairs"]
 
 #: two facet vertices closer than this (relative to the model size) are one vertex
 MERGE_RTOL = 1e-10
@@ -53,34 +48,6 @@ def longest_edge(x: np.ndarray) -> np.ndarray:
     return edge_lengths(x).max(axis=1)
 
 
-def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distinct rows of ``a (n, k)`` (float or int): ``(first (m,), inverse (n,), rows (m, k))``.
-
-    As ``np.unique(a, axis=0, return_index=True, return_inverse=True)`` (rows
-    compared by value: ``-0.0 == 0.0``; a row with NaN is its own group), but
-    with one ``np.lexsort`` of the columns instead of a sort of the rows as
-    opaque byte strings.
-    """
-    a = np.ascontiguousarray(a)
-    n = a.shape[0]
-    if n == 0:
-        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), a[:0]
-    order = np.lexsort(a.T[::-1])  # stable: equal rows keep their input order
-    srt = a[order]
-    new = np.ones(n, dtype=bool)
-    new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
-    inverse = np.empty(n, dtype=np.intp)
-    inverse[order] = np.cumsum(new) - 1
-    return order[new], inverse, srt[new]
-
-
-def row_index(rows: np.ndarray) -> np.ndarray:
-    """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1``)."""
-    if len(rows) == 0:
-        return np.zeros(0, dtype=np.int64)
-    return unique_rows(rows)[1].astype(np.int64, copy=False)
-
-
 def vertex_groups(points: np.ndarray, radius: float, nodes: np.ndarray | None = None) -> np.ndarray:
     """``(n,)`` vertex id of each of ``points (n, 3)``: equal ``nodes`` ids, else points closer than ``radius``."""
     if nodes is not None:
@@ -96,15 +63,6 @@ def vertex_groups(points: np.ndarray, radius: float, nodes: np.ndarray | None = 
         _, lab = connected_components(g, directed=False)
         return np.asarray(lab[inv])
     return inv
-
-
-def ramp(counts: np.ndarray) -> np.ndarray:
-    """``[0..c0-1, 0..c1-1, ...]`` for counts ``c`` (vectorised)."""
-    total = int(counts.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    starts = np.cumsum(counts) - counts
-    return np.arange(total) - np.repeat(starts, counts)
 
 
 def box_pairs(points: np.ndarray, tol: np.ndarray, lo: np.ndarray, hi: np.ndarray
@@ -126,20 +84,3 @@ def box_pairs(points: np.ndarray, tol: np.ndarray, lo: np.ndarray, hi: np.ndarra
     t = tol[pt][:, None]
     ok = np.all((points[pt] >= lo[box] - t) & (points[pt] <= hi[box] + t), axis=1)
     return pt[ok], box[ok]
-
-
-class Ragged:
-    """Integer lists of different lengths as one flat array with offsets (CSR).
-
-    ``take(rows)`` gathers many rows at once without a Python loop over them.
-    """
-
-    def __init__(self, lists: Sequence[Sequence[int] | np.ndarray]):
-        self.counts = np.array([len(a) for a in lists], dtype=np.int64)
-        self.ptr = np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
-        self.flat = np.concatenate([np.asarray(a, dtype=np.int64) for a in lists] + [np.zeros(0, np.int64)])
-
-    def take(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(counts (k,), values (counts.sum(),))``: the rows ``rows (k,)``, concatenated in order."""
-        cnt = self.counts[rows]
-        return cnt, self.flat[np.repeat(self.ptr[rows], cnt) + ramp(cnt)]
