@@ -85,19 +85,22 @@ def surface_errors(points, tris, exact, tags=None, snap=None, samples=16):
     return h, exact.distance(curved).max(), exact.distance(flat).max()
 
 
-def edge_interior_error(geo, dist, per_edge=16):
-    """Largest ``dist`` of the samples on the snapped patches' edges and of those inside: ``(2,)``.
+def error_split(geo, dist, per_edge=16):
+    """Where the patch error sits: ``(3,)`` largest ``dist`` of the samples on the snapped patches' edges,
+    of those inside, and the largest patch error over the patch's longest edge cubed (1 / length^2).
 
     The same barycentric grid as :func:`nagata_surface_error` (its maximum is
-    the larger of the two).
+    the larger of the first two).  The third figure stays bounded as the
+    mesh is refined exactly when the error is at most ``C h_patch^3``.
     """
     g = barycentric_grid(3, per_edge)
     on_edge = (g == 0).any(axis=1)
     sel = np.flatnonzero(geo.snap)
-    out = np.zeros(2)
+    out = np.zeros(3)
     for s in np.array_split(sel, max(1, len(sel) // 2000)):  # bounded memory on fine meshes
         d = dist(geo.evaluate(s, np.broadcast_to(g, (len(s), *g.shape))))
-        out = np.maximum(out, [d[:, on_edge].max(), d[:, ~on_edge].max()])
+        h = np.linalg.norm(geo.x[s][:, [1, 2, 0]] - geo.x[s], axis=2).max(axis=1)
+        out = np.maximum(out, [d[:, on_edge].max(), d[:, ~on_edge].max(), (d.max(axis=1) / h**3).max()])
     return out
 
 
@@ -119,7 +122,7 @@ def torus_grid(n, R=1.0, r=0.4):
 
 
 def nested_study(n_max):
-    """Exact normals on nested structured meshes: ``{name: [(h_max, error, edge error, interior error)]}``."""
+    """Exact normals on nested structured meshes: ``{name: [(h_max, error, *error_split)]}``."""
     axes = np.array([1.0, 0.7, 0.5])
     finest = int(np.log2(n_max))  # torus grid 2^k ~ octahedron level k - 1 in h
     cases = {"torus grid": ([torus_grid(2**k) for k in range(3, finest + 1)], torus_exact()),
@@ -130,19 +133,20 @@ def nested_study(n_max):
         res[name] = []
         for p, t in meshes:
             geo = NagataGeometry.from_surface(p, t, normals=exact.normal)
-            e = edge_interior_error(geo, exact.distance)
+            e = error_split(geo, exact.distance)
             h = np.linalg.norm(p[t[:, [1, 2, 0]]] - p[t], axis=2).max()
-            res[name].append((h, e.max(), *e))
+            res[name].append((h, e[:2].max(), *e))
     return res
 
 
 def print_split(title, rows):
-    """Table of the error on the edges and inside: ``rows = [(h, error, edge, interior), ...]``."""
+    """Table of the error on the edges and inside: ``rows = [(h, error, edge, interior, error / h^3), ...]``."""
     print(f"\n{title}")
-    print(f"{'h':>8} {'error':>10} {'order':>6} {'on edges':>10} {'order':>6} {'inside':>10} {'order':>6}")
+    print(f"{'h':>8} {'error':>10} {'order':>6} {'on edges':>10} {'order':>6} {'inside':>10} {'order':>6}"
+          f" {'max err/h_T^3':>13}")
     for i, r in enumerate(rows):
         o = [f"{np.log2(rows[i - 1][k] / r[k]):6.2f}" if i else f"{'':>6}" for k in (1, 2, 3)]
-        print(f"{r[0]:8.4f} {r[1]:10.3e} {o[0]} {r[2]:10.3e} {o[1]} {r[3]:10.3e} {o[2]}")
+        print(f"{r[0]:8.4f} {r[1]:10.3e} {o[0]} {r[2]:10.3e} {o[1]} {r[3]:10.3e} {o[2]} {r[4]:13.4f}")
 
 
 def orders(errors):
@@ -177,9 +181,9 @@ def normal_error_deg(geo, exact, side_only):
 def estimated_study(hs, schemes, surfaces=SURFACES, algorithms=ALGORITHMS[:1]):
     """``res[kind][name] = [(h, patch error, normal error deg, seconds), ...]`` per h (first algorithm).
 
-    ``res[kind]["split"]``: ``(h, error, edge error, interior error)`` with
-    exact normals; ``res[kind]["meshes"][alg]``: ``(h, jet error, exact
-    error)`` per gmsh algorithm.
+    ``res[kind]["split"]``: ``(h, error, *error_split)`` with exact normals;
+    ``res[kind]["meshes"][alg]``: ``(h, jet error, exact error)`` per gmsh
+    algorithm.
     """
     res = {}
     for kind in surfaces:
@@ -196,8 +200,8 @@ def estimated_study(hs, schemes, surfaces=SURFACES, algorithms=ALGORITHMS[:1]):
                         geo = NagataGeometry.from_surface(p, t, crease_angle=80,
                                                           normals=exact.normal if name == "exact" else name)
                     dt = time.perf_counter() - t0
-                    split = edge_interior_error(geo, exact.distance)
-                    err[name] = split.max()
+                    split = error_split(geo, exact.distance)
+                    err[name] = split[:2].max()
                     if alg == algorithms[0]:
                         res[kind][name].append((h, err[name], normal_error_deg(geo, exact, kind == "cylinder"), dt))
                         if name == "exact":
@@ -298,7 +302,8 @@ def main() -> None:
     print_schemes(res, hs, schemes)
     if args.meshes > 1:
         print_spread(res)
-    print("\nWhere the error sits (exact normals): largest distance of the samples on the patch edges and inside")
+    print("\nWhere the error sits (exact normals): largest distance of the samples on the patch edges and inside;"
+          " largest patch error over its longest edge cubed")
     for kind in surfaces:
         print_split(f"{kind}, gmsh meshes", res[kind]["split"])
     for name, rows in nested_study(args.nested).items():
