@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Set up (or reuse) the virtual environment and run the demo or the tests.
-#   bash run.sh demo   -- flow past a cylinder with snapping (main demo)
-#   bash run.sh test   -- the whole test suite (serial and mpiexec -n 2/3)
+# Set up (or reuse) the virtual environment and run the demo, the tests or the checks.
+#   bash run.sh demo         -- flow past a cylinder with snapping (main demo)
+#   bash run.sh test         -- the whole test suite (serial and mpiexec -n 2/3)
+#   bash run.sh check        -- ruff, mypy, API reference build, README layout (fails on any problem)
+#   bash run.sh docs [DIR]   -- the API reference (HTML from the docstrings) into DIR (out/api)
 set -euo pipefail
 cd "$(dirname "$0")"
 VENV=${NAGATA_SNAP_VENV:-.venv}
@@ -25,19 +27,41 @@ find_python() {
   exit 1
 }
 
-if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import nagata_snap, dolfinx, gmsh, OCP, pytest, hypothesis, matplotlib' 2>/dev/null; then
+if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import nagata_snap, dolfinx, gmsh, OCP, pytest, hypothesis, matplotlib, ruff, mypy, pdoc' 2>/dev/null; then
   PY=$(find_python)
   echo "setting up $VENV with $($PY --version)" >&2
   $PY -m venv "$VENV"
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q -e ".[test,demo]"
+  "$VENV/bin/python" -m pip install -q -e ".[test,demo,dev]"
 fi
 case "$VENV" in /*) ;; *) VENV="$PWD/$VENV" ;; esac
 export PATH="$VENV/bin:$PATH"
 export OMP_NUM_THREADS=1
 
+check() {
+  # Every tool runs (all problems are listed); the step fails if any of them failed.
+  local failed=() api
+  echo "== ruff check nagata_snap"
+  "$VENV/bin/ruff" check nagata_snap || failed+=(ruff)
+  echo "== mypy (files and options: [tool.mypy] in pyproject.toml)"
+  "$VENV/bin/python" -m mypy || failed+=(mypy)
+  echo "== API reference (pdoc, docs/build_api.py)"
+  api=$(mktemp -d)
+  "$VENV/bin/python" docs/build_api.py "$api" || failed+=(pdoc)
+  rm -rf "$api"
+  echo "== README layout (docs/layout.py)"
+  "$VENV/bin/python" docs/layout.py || failed+=(layout)
+  if [ ${#failed[@]} -gt 0 ]; then
+    echo "check FAILED: ${failed[*]}" >&2
+    return 1
+  fi
+  echo "check passed: ruff, mypy, API reference, README layout"
+}
+
 case "${1:-test}" in
   demo) shift; exec "$VENV/bin/python" demos/flow_past_cylinder.py "$@" ;;
   test) shift; exec "$VENV/bin/python" -m pytest -q tests "$@" ;;
-  *) echo "usage: bash run.sh {demo|test} [args...]" >&2; exit 2 ;;
+  check) check ;;
+  docs) exec "$VENV/bin/python" docs/build_api.py "${2:-out/api}" ;;
+  *) echo "usage: bash run.sh {demo|test|check|docs} [args...]" >&2; exit 2 ;;
 esac

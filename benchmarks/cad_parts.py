@@ -53,7 +53,6 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [os.path.join(HERE, "..", "meshes"), os.path.join(HERE, "..")]
-import dolfinx.mesh  # noqa: E402
 import gmsh  # noqa: E402
 import parts  # noqa: E402
 from occ_reference import OccShape  # noqa: E402
@@ -61,9 +60,11 @@ from occ_reference import OccShape  # noqa: E402
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry, mesh_cad  # noqa: E402
 from nagata_snap.cad.projection import project_points  # noqa: E402
-from nagata_snap.mesh.records import Records  # noqa: E402
 from nagata_snap.meshing import gmsh_session, import_cad  # noqa: E402
 from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
+from nagata_snap.mesh.records import Records  # noqa: E402
+
+import dolfinx.mesh  # noqa: E402
 
 #: part -> (gmsh size factor, curvature): the sizes of tests/test_cad_parts.py (coarse, but fine
 #: enough that the current smoother needs no partial moves: coarser, the thin blade and the torus

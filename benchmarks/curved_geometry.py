@@ -27,11 +27,12 @@ import sys
 import tempfile
 import time
 
-import dolfinx.fem as fem
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
 import ufl
+
+import dolfinx.fem as fem
+import dolfinx.mesh
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 import generate  # noqa: E402

@@ -41,9 +41,10 @@ import os
 import sys
 import warnings
 
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
+
+import dolfinx.mesh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "meshes"))
@@ -99,7 +100,7 @@ def old_ladder(snapper, mesh_in, edges):
     """The same level repaired by the previous ladder: (stage, partial, seconds)."""
     import time
 
-    from nagata_snap import hook
+    from nagata_snap import snapper as hook
 
     calls = {}
     orig = hook.repair

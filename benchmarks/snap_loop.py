@@ -25,9 +25,10 @@ import argparse
 import os
 import sys
 
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
+
+import dolfinx.mesh
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 import generate  # noqa: E402

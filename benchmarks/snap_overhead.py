@@ -54,8 +54,9 @@ import pathlib
 import sys
 import time
 
-import dolfinx.mesh
 import mpi4py.MPI as MPI
+
+import dolfinx.mesh
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

@@ -39,9 +39,11 @@ import pathlib
 import sys
 import time
 
-import dolfinx.fem as fem
 import mpi4py.MPI as MPI
+
 import numpy as np
+
+import dolfinx.fem as fem
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

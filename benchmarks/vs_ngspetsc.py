@@ -46,9 +46,10 @@ import itertools
 import sys
 import time
 
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
+
+import dolfinx.mesh
 
 from nagata_snap import Snapper
 from nagata_snap.cad import CadGeometry
@@ -73,8 +74,9 @@ def curved_distance(mesh) -> float:
 
 def domain_error(mesh) -> float:
     """|area / volume - exact| of the channel minus the disk / box minus the ball."""
-    import dolfinx.fem as fem
     import ufl
+
+    import dolfinx.fem as fem
 
     tdim = mesh.topology.dim
     c, r = CASES[tdim]

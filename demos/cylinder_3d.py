@@ -21,9 +21,10 @@ import sys
 import time
 import warnings
 
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
+
+import dolfinx.mesh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "meshes"))

@@ -63,13 +63,15 @@ import itertools
 import time
 import typing
 
-import basix.ufl
-import dolfinx
-import dolfinx.fem.petsc
 import mpi4py.MPI as MPI  # noqa: F401  (must precede dolfinx/petsc4py)
+
+import basix.ufl
 import numpy as np
 import numpy.typing as npt
 import ufl
+
+import dolfinx
+import dolfinx.fem.petsc
 from dolfinx import fem, geometry
 from dolfinx import mesh as dmesh
 

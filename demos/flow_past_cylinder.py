@@ -54,6 +54,7 @@ import tempfile
 import time
 
 import mpi4py.MPI as MPI  # noqa: F401  (must precede dolfinx/petsc4py)
+
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

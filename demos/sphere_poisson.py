@@ -50,6 +50,7 @@ import sys
 import time
 
 import mpi4py.MPI as MPI  # noqa: F401  (must precede dolfinx/petsc4py)
+
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

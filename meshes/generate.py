@@ -41,14 +41,16 @@ import os
 import sys
 import typing
 
-import gmsh
 import mpi4py.MPI  # noqa: F401  (must precede dolfinx with the PyPI wheel)
+
+import gmsh
 import numpy as np
+
 from dolfinx.io import gmsh as _dxgmsh
 
 if os.path.dirname(os.path.dirname(os.path.abspath(__file__))) not in sys.path:  # run as a script
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from nagata_snap.meshing import DETERMINISTIC_OPTIONS, gmsh_session  # noqa: E402
+from nagata_snap.meshing import DETERMINISTIC_OPTIONS, gmsh_session
 
 # --------------------------------------------------------------------------
 # Tags
@@ -324,7 +326,7 @@ def dfg_channel(
         surfaces = []
         if boundary_layer:
             outer_arcs, outer_pts = _geo_circle(xc, yc, r_out, counts, centre)
-            radial = [geo.addLine(a, b) for a, b in zip(inner_pts, outer_pts)]
+            radial = [geo.addLine(a, b) for a, b in zip(inner_pts, outer_pts, strict=True)]
             m = len(inner_arcs)
             for k in range(m):
                 loop = geo.addCurveLoop(
@@ -340,10 +342,10 @@ def dfg_channel(
         geo.synchronize()
 
         mesh = gmsh.model.mesh
-        for arc, c in zip(inner_arcs, counts):
+        for arc, c in zip(inner_arcs, counts, strict=True):
             mesh.setTransfiniteCurve(arc, int(c) + 1)
         if boundary_layer:
-            for arc, c in zip(outer_arcs, counts):
+            for arc, c in zip(outer_arcs, counts, strict=True):
                 mesh.setTransfiniteCurve(arc, int(c) + 1)
             for line in radial:
                 mesh.setTransfiniteCurve(line, n_bl + 1, "Progression", bl_ratio)
@@ -357,7 +359,7 @@ def dfg_channel(
                 mesh.setTransfiniteSurface(s, bl_arrangement, corners)
         _threshold_field(hole_arcs, 1, h_c, h_far, dist_far)
 
-        gmsh.model.addPhysicalGroup(2, [fluid] + surfaces, FLUID, name="fluid")
+        gmsh.model.addPhysicalGroup(2, [fluid, *surfaces], FLUID, name="fluid")
         gmsh.model.addPhysicalGroup(1, [inlet], INLET, name="inlet")
         gmsh.model.addPhysicalGroup(1, [outlet], OUTLET, name="outlet")
         gmsh.model.addPhysicalGroup(1, [bottom, top], WALLS, name="walls")
@@ -429,7 +431,7 @@ def unit_disk(
         loop = geo.addCurveLoop(arcs)
         surf = geo.addPlaneSurface([loop])
         geo.synchronize()
-        for arc, c in zip(arcs, counts):
+        for arc, c in zip(arcs, counts, strict=True):
             gmsh.model.mesh.setTransfiniteCurve(arc, int(c) + 1)
         _threshold_field(arcs, 1, h_b, h_in, max(radius, 1e-12))
         gmsh.model.addPhysicalGroup(2, [surf], VOLUME, name="disk")
@@ -548,6 +550,17 @@ def _constant_size(h: float) -> None:
     fld.setAsBackgroundMesh(f)
 
 
+def _mesh_solid(add_solid: typing.Callable[[], int], h: float, tag: int, name: str) -> None:
+    """Tetrahedra of size ``h`` in the one OCC solid ``add_solid()`` makes (its volume tag):
+    cell tag VOLUME, its boundary surfaces facet tag ``tag`` (physical name ``name``)."""
+    vol = add_solid()
+    gmsh.model.occ.synchronize()
+    _constant_size(h)
+    gmsh.model.addPhysicalGroup(3, [vol], VOLUME, name="volume")
+    gmsh.model.addPhysicalGroup(2, _boundary_surfaces([(3, vol)]), tag, name=name)
+    gmsh.model.mesh.generate(3)
+
+
 def ball(
     comm,
     radius: float = 1.0,
@@ -566,14 +579,7 @@ def ball(
     """
 
     def build():
-        occ = gmsh.model.occ
-        s = occ.addSphere(*center, radius)
-        occ.synchronize()
-        surfs = _boundary_surfaces([(3, s)])
-        _constant_size(h)
-        gmsh.model.addPhysicalGroup(3, [s], VOLUME, name="volume")
-        gmsh.model.addPhysicalGroup(2, surfs, BALL_SPHERE, name="sphere")
-        gmsh.model.mesh.generate(3)
+        _mesh_solid(lambda: gmsh.model.occ.addSphere(*center, radius), h, BALL_SPHERE, "sphere")
 
     return _build_and_convert(
         comm, "ball", build, 3, msh_file=msh_file, verbose=verbose, root=root,
@@ -602,13 +608,8 @@ def solid_torus(
     """
 
     def build():
-        occ = gmsh.model.occ
-        t = occ.addTorus(0.0, 0.0, 0.0, major_radius, minor_radius)
-        occ.synchronize()
-        _constant_size(h)
-        gmsh.model.addPhysicalGroup(3, [t], VOLUME, name="volume")
-        gmsh.model.addPhysicalGroup(2, _boundary_surfaces([(3, t)]), TORUS_SURFACE, name="torus")
-        gmsh.model.mesh.generate(3)
+        _mesh_solid(lambda: gmsh.model.occ.addTorus(0.0, 0.0, 0.0, major_radius, minor_radius), h,
+                    TORUS_SURFACE, "torus")
 
     return _build_and_convert(
         comm, "solid_torus", build, 3, msh_file=msh_file, verbose=verbose, root=root,

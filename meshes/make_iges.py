@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -236,37 +237,30 @@ def write_occ_models(outdir: str | Path = HERE) -> list[Path]:
     """
     import gmsh
 
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    was = gmsh.isInitialized()
-    if not was:
-        gmsh.initialize(interruptible=False)
-    terminal = gmsh.option.getNumber("General.Terminal")
-    gmsh.option.setNumber("General.Terminal", 0)
+    occ = gmsh.model.occ
     models = {
-        "occ_sphere.igs": lambda: gmsh.model.occ.addSphere(0, 0, 0, 1),
-        "occ_torus.igs": lambda: gmsh.model.occ.addTorus(0, 0, 0, 1, 0.3),
-        "occ_part.igs": lambda: gmsh.model.occ.cut(
-            [(3, gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1))],
-            [(3, gmsh.model.occ.addCylinder(0.5, 0.5, -0.1, 0, 0, 1.2, 0.2))]),
+        "occ_sphere.igs": lambda: occ.addSphere(0, 0, 0, 1),
+        "occ_torus.igs": lambda: occ.addTorus(0, 0, 0, 1, 0.3),
+        "occ_part.igs": lambda: occ.cut([(3, occ.addBox(0, 0, 0, 1, 1, 1))],
+                                        [(3, occ.addCylinder(0.5, 0.5, -0.1, 0, 0, 1.2, 0.2))]),
     }
-    paths = []
-    try:
-        for name, build in models.items():
-            gmsh.model.add(name)
-            build()
-            gmsh.model.occ.synchronize()
-            path = outdir / name
-            gmsh.write(str(path))
-            path.write_text(_fix_global(path.read_text()), newline="\n")
-            gmsh.model.remove()
-            paths.append(path)
-    finally:
-        if was:
-            gmsh.option.setNumber("General.Terminal", terminal)
-        else:
-            gmsh.finalize()
-    return paths
+    return [_write_occ_iges(Path(outdir) / name, name, build) for name, build in models.items()]
+
+
+def _write_occ_iges(path: Path, model: str, build: Callable[[], object]) -> Path:
+    """Write what ``build()`` makes with ``gmsh.model.occ`` (in a fresh gmsh model named
+    ``model``, gmsh left as found) as the IGES file ``path``, date and author fixed."""
+    import gmsh
+
+    from nagata_snap.meshing import gmsh_session
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with gmsh_session(model, {"General.Terminal": 0}):
+        build()
+        gmsh.model.occ.synchronize()
+        gmsh.write(str(path))
+    path.write_text(_fix_global(path.read_text()), newline="\n")
+    return path
 
 
 #: the features part of :func:`build_occ_features`: a slab [0,1]x[0,1]x[0,0.5] with
@@ -313,28 +307,7 @@ def write_occ_features(outdir: str | Path = HERE) -> Path:
     Not part of :func:`write_all`: tests write it where they need it.  gmsh is
     initialised if needed and left as found.
     """
-    import gmsh
-
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    was = gmsh.isInitialized()
-    if not was:
-        gmsh.initialize(interruptible=False)
-    terminal = gmsh.option.getNumber("General.Terminal")
-    gmsh.option.setNumber("General.Terminal", 0)
-    path = outdir / "occ_features.igs"
-    try:
-        gmsh.model.add("occ_features")
-        build_occ_features()
-        gmsh.write(str(path))
-        path.write_text(_fix_global(path.read_text()), newline="\n")
-        gmsh.model.remove()
-    finally:
-        if was:
-            gmsh.option.setNumber("General.Terminal", terminal)
-        else:
-            gmsh.finalize()
-    return path
+    return _write_occ_iges(Path(outdir) / "occ_features.igs", "occ_features", build_occ_features)
 
 
 def write_kadir(outdir: str | Path = HERE) -> list[Path]:
@@ -359,7 +332,7 @@ def write_dfg_circle(outdir: str | Path = HERE) -> Path:
 
 def write_all(outdir: str | Path = HERE) -> list[Path]:
     """Write every file listed in the module docstring; returns their paths."""
-    return write_kadir(outdir) + [write_dfg_circle(outdir)] + write_occ_models(outdir)
+    return [*write_kadir(outdir), write_dfg_circle(outdir), *write_occ_models(outdir)]
 
 
 if __name__ == "__main__":

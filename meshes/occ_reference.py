@@ -1,15 +1,25 @@
-"""OpenCASCADE's own answers for the CAD tests and benchmarks: distances to faces and edges.
+"""OpenCASCADE's own closest points and normals: the reference for the CAD tests and benchmarks.
 
-The shape is read and healed as :func:`nagata_snap.cad.read.load_shape` does,
-so its faces and edges are numbered as in the :class:`~nagata_snap.cad.CadGeometry`
-of the same file; the distances come from OpenCASCADE alone, independent of
-the package's surfaces, loops and projections: ``BRepExtrema_DistShapeShape``
-between a vertex and the trimmed face (or edge), and, because that Extrema is
-off by up to ~1e-6 within ~1e-8 of a periodic surface's seam in its parameter,
-the surface's own projection ``GeomAPI_ProjectPointOnSurf`` when its foot point
-is on the face (``BRepClass_FaceClassifier``: in or on); the nearer of the
-two (both are points of the face).  For edges: ``GeomAPI_ProjectPointOnCurve``
-within the edge's range likewise.
+Everything here comes from OpenCASCADE alone (through OCP or through gmsh),
+independent of the package's surfaces, loops and projections.  Two entry
+points, by how the faces are numbered:
+
+* :class:`OccShape`, numbered as the package's
+  :class:`~nagata_snap.cad.CadGeometry` of the same file;
+* gmsh's current model (a file imported by gmsh, e.g. for a
+  :class:`nagata_snap.meshing.CadMesh`), numbered by gmsh's face tags:
+  :func:`gmsh_face_distance` (``gmsh.model.getClosestPoint``),
+  :func:`gmsh_curved_faces`, :class:`GmshFaceNormals` (``gmsh.model.getNormal``).
+
+:class:`OccShape` reads and heals the shape as
+:func:`nagata_snap.cad.read.load_shape` does.  Its distances are
+``BRepExtrema_DistShapeShape`` between a vertex and the trimmed face (or
+edge), and, because that Extrema is off by up to ~1e-6 within ~1e-8 of a
+periodic surface's seam in its parameter, the surface's own projection
+``GeomAPI_ProjectPointOnSurf`` when its foot point is on the face
+(``BRepClass_FaceClassifier``: in or on); the nearer of the two (both are
+points of the face).  For edges: ``GeomAPI_ProjectPointOnCurve`` within the
+edge's range likewise.
 """
 
 from __future__ import annotations
@@ -27,7 +37,7 @@ class OccShape:
 
         self.shape, info = load_shape(path, unit)
         self.size = info["size"]
-        fm, em, vm, _ = shape_maps(self.shape)
+        fm, em, _, _ = shape_maps(self.shape)
         self.faces = [TopoDS.Face(fm.FindKey(i)) for i in range(1, fm.Extent() + 1)]
         self.edges = [TopoDS.Edge(em.FindKey(i)) for i in range(1, em.Extent() + 1)]
 
@@ -54,15 +64,15 @@ class OccShape:
         from OCP.BRepAdaptor import BRepAdaptor_Surface
         from OCP.BRepClass import BRepClass_FaceClassifier
         from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
-        from OCP.gp import gp_Pnt, gp_Pnt2d
         from OCP.TopAbs import TopAbs_State
+        from OCP.gp import gp_Pnt, gp_Pnt2d
 
         faces, points = np.asarray(faces), np.asarray(points, dtype=float)
         d = np.full(len(points), np.inf)
         on = (TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_ON)
         if params is not None:
             adaptors = {}
-            for k, (i, p, uv) in enumerate(zip(faces, points, np.asarray(params, dtype=float))):
+            for k, (i, p, uv) in enumerate(zip(faces, points, np.asarray(params, dtype=float), strict=True)):
                 f = self.faces[int(i)]
                 a = adaptors.setdefault(int(i), BRepAdaptor_Surface(f))
                 uv = uv.copy()
@@ -75,7 +85,7 @@ class OccShape:
                         BRepClass_FaceClassifier(f, gp_Pnt2d(*uv), 1e-9).State() in on:
                     q = a.Value(*uv)
                     d[k] = np.linalg.norm(np.array([q.X(), q.Y(), q.Z()]) - p)
-        for k, (i, p) in enumerate(zip(faces, points)):
+        for k, (i, p) in enumerate(zip(faces, points, strict=True)):
             if d[k] <= accept:
                 continue
             f = self.faces[int(i)]
@@ -98,7 +108,7 @@ class OccShape:
 
         edges, points = np.asarray(edges), np.asarray(points, dtype=float)
         d = np.full(len(points), np.inf)
-        for k, (i, p) in enumerate(zip(edges, points)):
+        for k, (i, p) in enumerate(zip(edges, points, strict=True)):
             e = self.edges[int(i)]
             if not BRep_Tool.Degenerated_s(e):
                 a = BRepAdaptor_Curve(e)
@@ -109,3 +119,56 @@ class OccShape:
             if not d[k] <= accept:
                 d[k] = min(d[k], self._extrema(e, p))
         return d
+
+
+def gmsh_face_distance(face: int, points: np.ndarray) -> np.ndarray:
+    """``(k,)`` distance of ``points (k, 3)`` from gmsh face ``face`` (OpenCASCADE closest point)."""
+    import gmsh
+
+    p = np.asarray(gmsh.model.getClosestPoint(2, face, np.asarray(points, dtype=float).ravel())[0])
+    return np.linalg.norm(p.reshape(-1, 3) - points, axis=1)
+
+
+def gmsh_curved_faces() -> list[int]:
+    """Tags of the current gmsh model's faces that are not planes."""
+    import gmsh
+
+    return [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) != "Plane"]
+
+
+class GmshFaceNormals:
+    """The CAD's normals through gmsh, with the ``attach``/``vertex_normals`` of ``CadGeometry``.
+
+    Built from a :class:`nagata_snap.meshing.CadMesh`: every boundary facet's
+    gmsh face and its vertices' (u, v) on it; ``vertex_normals`` evaluates
+    ``gmsh.model.getNormal`` on the model imported from the same file
+    (current while it is used).
+    """
+
+    def __init__(self, cm):
+        gid = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
+        order = np.argsort(gid, axis=1)
+        self.keys = np.take_along_axis(gid, order, axis=1)
+        self.params = np.take_along_axis(cm.node_params, order[:, :, None], axis=1)
+        self.entity = np.asarray(cm.facet_entity)
+        self.lookup = {tuple(k): i for i, k in enumerate(self.keys)}  # coarse facets, built once
+
+    def attach(self, facet_points, nodes=None):
+        nodes = np.asarray(nodes, dtype=np.int64)
+        order = np.argsort(nodes, axis=1)
+        row = np.array([self.lookup[tuple(k)] for k in np.take_along_axis(nodes, order, axis=1)])
+        inv = np.argsort(order, axis=1)
+        from nagata_snap import Records
+
+        return Records(self.entity[row].astype(np.int64),
+                       np.take_along_axis(self.params[row], inv[:, :, None], axis=1))
+
+    def vertex_normals(self, records):
+        import gmsh
+
+        out = np.zeros((*records.params.shape[:2], 3))
+        for face in np.unique(records.root):  # loop over CAD faces (a few dozen)
+            sel = records.root == face
+            n = gmsh.model.getNormal(int(face), records.params[sel].ravel())
+            out[sel] = np.reshape(n, (-1, records.params.shape[1], 3))
+        return out

@@ -34,11 +34,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import gmsh
+
 HERE = Path(__file__).resolve().parent
 if str(HERE.parent) not in sys.path:  # the package, when run as a script
     sys.path.insert(0, str(HERE.parent))
-
-import gmsh
 
 __all__ = ["PARTS", "Part", "build_part", "write_part", "model_size", "part_model"]
 
@@ -186,7 +186,7 @@ def _plate_body(fillets: bool) -> None:
         pocket = _only_volume(occ.fillet([pocket], _vertical_edges(pocket, 10), [4.0]))
     tools = [(3, occ.addCylinder(x, y, -1, 0, 0, 14, 4)) for x, y in ((12, 12), (88, 12), (12, 48), (88, 48))]
     tools += [(3, occ.addCylinder(x, y, 7, 0, 0, 6, 8)) for x, y in ((12, 12), (88, 48))]
-    out, _ = occ.cut([(3, plate)], tools + [(3, pocket)])
+    out, _ = occ.cut([(3, plate)], [*tools, (3, pocket)])
     occ.synchronize()
     vol = _only_volume(out)
     if fillets:  # the pocket floor's edges (its boundary curves at z = 6)
@@ -229,7 +229,7 @@ def _extruded_bspline() -> None:
     occ = gmsh.model.occ
     radii = (30, 26, 22, 18, 19, 21, 24, 28)
     angles = [math.radians(20 + 40 * k) for k in range(8)]
-    pts = [occ.addPoint(r * math.cos(a), r * math.sin(a), 0) for r, a in zip(radii, angles)]
+    pts = [occ.addPoint(r * math.cos(a), r * math.sin(a), 0) for r, a in zip(radii, angles, strict=True)]
     spline = occ.addSpline(pts)  # first 8 points
     flat = occ.addLine(pts[-1], pts[0])
     face = occ.addPlaneSurface([occ.addCurveLoop([spline, flat])])
@@ -248,7 +248,7 @@ def _blade_section(z: float, chord: float, thick: float, twist: float) -> int:
         y = 0.5 * thick * math.sin(t) * (1.0 - 0.3 * math.cos(t))  # thicker at the leading edge
         c, s = math.cos(twist), math.sin(twist)
         pts.append(occ.addPoint(c * x - s * y, s * x + c * y, z))
-    curve = occ.addSpline(pts + [pts[0]])
+    curve = occ.addSpline([*pts, pts[0]])
     return occ.addWire([curve])
 
 

@@ -102,7 +102,7 @@ def closed_cylinder(n_around: int, radius: float = 1.0, height: float = 1.0):
     pts = np.concatenate([side, centres])
     bottom = np.c_[np.full(n, nside), (idx + 1) % n, idx]
     top = np.c_[np.full(n, nside + 1), rows * n + idx, rows * n + (idx + 1) % n]
-    tris = np.concatenate(tris + [bottom, top])
+    tris = np.concatenate([*tris, bottom, top])
     tags = np.r_[np.ones(2 * rows * n, int), np.full(2 * n, 2)]
 
     distance = _cylinder_distance(radius, height)
@@ -232,8 +232,9 @@ def gmsh_occ_surface(build, h: float, algorithm: int = 6):
         ``(points (nv, 3), triangles (F, 3) outward, tags (F,))``, ``tags``
         the gmsh surface (CAD face) of each triangle.
     """
-    import generate
     import gmsh
+
+    import generate
 
     with generate._gmsh_session("surface", False):
         build()
@@ -374,60 +375,3 @@ def ellipse_polygon(n: int, a: float = 1.0, b: float = 0.5, jitter: float = 0.3,
 
     segs = np.c_[np.arange(n), (np.arange(n) + 1) % n]
     return np.c_[a * np.cos(th), b * np.sin(th)], segs, SimpleNamespace(normal=normal, distance=distance)
-
-
-# --------------------------------------------------------------------------
-# CAD normals and distances through gmsh (OpenCASCADE), for a model gmsh has loaded
-
-
-def gmsh_face_distance(face: int, points: np.ndarray) -> np.ndarray:
-    """``(k,)`` distance of ``points (k, 3)`` from gmsh face ``face`` (OpenCASCADE closest point)."""
-    import gmsh
-
-    p = np.asarray(gmsh.model.getClosestPoint(2, face, np.asarray(points, dtype=float).ravel())[0])
-    return np.linalg.norm(p.reshape(-1, 3) - points, axis=1)
-
-
-def gmsh_curved_faces() -> list[int]:
-    """Tags of the current gmsh model's faces that are not planes."""
-    import gmsh
-
-    return [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) != "Plane"]
-
-
-class GmshFaceNormals:
-    """The CAD's normals through gmsh, with the ``attach``/``vertex_normals`` of ``CadGeometry``.
-
-    Built from a :class:`nagata_snap.meshing.CadMesh`: every boundary facet's
-    gmsh face and its vertices' (u, v) on it; ``vertex_normals`` evaluates
-    ``gmsh.model.getNormal`` on the model imported from the same file
-    (current while it is used).
-    """
-
-    def __init__(self, cm):
-        gid = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
-        order = np.argsort(gid, axis=1)
-        self.keys = np.take_along_axis(gid, order, axis=1)
-        self.params = np.take_along_axis(cm.node_params, order[:, :, None], axis=1)
-        self.entity = np.asarray(cm.facet_entity)
-        self.lookup = {tuple(k): i for i, k in enumerate(self.keys)}  # coarse facets, built once
-
-    def attach(self, facet_points, nodes=None):
-        nodes = np.asarray(nodes, dtype=np.int64)
-        order = np.argsort(nodes, axis=1)
-        row = np.array([self.lookup[tuple(k)] for k in np.take_along_axis(nodes, order, axis=1)])
-        inv = np.argsort(order, axis=1)
-        from nagata_snap import Records
-
-        return Records(self.entity[row].astype(np.int64),
-                       np.take_along_axis(self.params[row], inv[:, :, None], axis=1))
-
-    def vertex_normals(self, records):
-        import gmsh
-
-        out = np.zeros(records.params.shape[:2] + (3,))
-        for face in np.unique(records.root):  # loop over CAD faces (a few dozen)
-            sel = records.root == face
-            n = gmsh.model.getNormal(int(face), records.params[sel].ravel())
-            out[sel] = np.reshape(n, (-1, records.params.shape[1], 3))
-        return out

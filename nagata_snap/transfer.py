@@ -47,8 +47,10 @@ ghosts are filled by ``scatter_forward``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import basix
+import dolfinx.common
 import dolfinx.fem
 import dolfinx.mesh
 import numpy as np
@@ -100,7 +102,7 @@ class TransferInfo:
 class _Space:
     """A Lagrange function space as arrays: basix element, block size, dofmap."""
 
-    def __init__(self, V: dolfinx.fem.FunctionSpace, what: str):
+    def __init__(self, V: dolfinx.fem.FunctionSpace, what: str) -> None:
         if len(V.component()):
             raise ValueError(
                 f"{what} is a sub-space of a mixed space: collapse it first "
@@ -140,6 +142,16 @@ class _Space:
         self.mesh = mesh
 
 
+def _tabulate(element: basix.finite_element.FiniteElement, n: int, X: np.ndarray) -> np.ndarray:
+    """``(1 + derivatives, k, ndofs)`` basis values (and derivatives up to order ``n``) of a
+    scalar ``element`` at reference points ``X (k, tdim)``.
+
+    basix annotates ``tabulate`` as ``ArrayLike``; it returns an ndarray of shape
+    ``(derivatives, k, ndofs, value size)``, whose last axis (1 here) is dropped.
+    """
+    return np.asarray(element.tabulate(n, X))[:, :, :, 0]
+
+
 def _coordinate_element(mesh: dolfinx.mesh.Mesh) -> basix.finite_element.FiniteElement:
     """The basix element of ``mesh``'s (Lagrange) coordinate map."""
     cmap = mesh.geometry.cmaps[0]
@@ -158,7 +170,7 @@ def _cell_nodes(mesh: dolfinx.mesh.Mesh, cells: np.ndarray) -> np.ndarray:
 def _push_forward(mesh: dolfinx.mesh.Mesh, n_cells: int, X: np.ndarray) -> np.ndarray:
     """Physical points ``(gdim, n_cells, q)`` of reference points ``X (q, tdim)`` in the
     first ``n_cells`` cells (component-major: one BLAS product per coordinate)."""
-    phi = _coordinate_element(mesh).tabulate(0, X)[0, :, :, 0]  # (q, m)
+    phi = _tabulate(_coordinate_element(mesh), 0, X)[0]  # (q, m)
     nodes = _cell_nodes(mesh, np.arange(n_cells))  # (n, m, gdim)
     return np.stack([nodes[:, :, d] @ phi.T for d in range(mesh.geometry.dim)])
 
@@ -186,8 +198,9 @@ def _curved(nodes: np.ndarray, element: basix.finite_element.FiniteElement) -> n
     """``(n,)`` bool: cells whose higher-order nodes leave the affine map of their vertices."""
     if element.degree == 1:
         return np.zeros(len(nodes), dtype=bool)
-    v0, J = _vertex_maps(nodes, element.points.shape[1])
-    affine = v0[:, None, :] + np.einsum("ndt,mt->nmd", J, element.points)
+    points = np.asarray(element.points)  # (m, tdim) reference nodes
+    v0, J = _vertex_maps(nodes, points.shape[1])
+    affine = v0[:, None, :] + np.einsum("ndt,mt->nmd", J, points)
     h = np.max(np.linalg.norm(J, axis=1), axis=1)
     return np.max(np.linalg.norm(nodes - affine, axis=2), axis=1) > 1e-12 * h
 
@@ -228,7 +241,7 @@ def pull_back(
     size = np.abs(nodes).max(axis=(1, 2))  # coordinate magnitude: round-off scale of F
     active = np.arange(len(X))
     for it in range(1, max_iterations + 1):
-        tab = element.tabulate(1, X[active])[:, :, :, 0]  # (1 + tdim, na, m)
+        tab = _tabulate(element, 1, X[active])  # (1 + tdim, na, m)
         xn = nodes[active]
         F = np.einsum("nm,nmd->nd", tab[0], xn) - y[active]
         J = np.einsum("tnm,nmd->ndt", tab[1:], xn)
@@ -280,15 +293,15 @@ def _evaluate(u: dolfinx.fem.Function, space: _Space, cells: np.ndarray, X: np.n
     out = np.empty((len(cells), space.bs), dtype=u.x.array.dtype)
     for s in range(0, len(cells), CHUNK):
         sl = slice(s, s + CHUNK)
-        phi = space.element.tabulate(0, X[sl])[0, :, :, 0]  # (k, ndofs)
+        phi = _tabulate(space.element, 0, X[sl])[0]  # (k, ndofs)
         c = np.take(coeffs, np.take(space.dofs, cells[sl], axis=0), axis=0)  # (k, ndofs, bs)
         for b in range(space.bs):
             out[sl, b] = np.einsum("kd,kd->k", phi, c[:, :, b])
     return out
 
 
-def _owner_best(imap, score: np.ndarray, values: np.ndarray, comm: MPI.Comm
-                ) -> tuple[np.ndarray, np.ndarray]:
+def _owner_best(imap: dolfinx.common.IndexMap, score: np.ndarray, values: np.ndarray,
+                comm: MPI.Comm) -> tuple[np.ndarray, np.ndarray]:
     """Give each owned dof the best candidate over all processes.
 
     Args:
@@ -326,8 +339,18 @@ def _owner_best(imap, score: np.ndarray, values: np.ndarray, comm: MPI.Comm
     return out_s, out_v
 
 
-def _point_dofs(u, src: _Space, tgt: _Space, P: np.ndarray, X: np.ndarray, score: np.ndarray):
-    """Lagrange target: one point value per scalar dof, the best candidate across cells."""
+def _point_dofs(u: dolfinx.fem.Function, src: _Space, tgt: _Space, P: np.ndarray, X: np.ndarray,
+                score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lagrange target: one point value per scalar dof, the best candidate across cells.
+
+    Args:
+        P: ``(n1,)`` parent cell of each owned child cell.
+        X: ``(tdim, n1, q)`` reference coordinates of the interpolation points in the parents.
+        score: ``(n1, q)`` their smallest barycentric coordinates.
+
+    Returns:
+        ``(values (n_owned, bs), score (n_owned,))`` of the owned target dofs.
+    """
     n1, q = score.shape
     tdim = X.shape[0]
     comm = tgt.mesh.comm
@@ -362,6 +385,24 @@ def _check_parent_map(parent_cells: npt.ArrayLike, mesh0: dolfinx.mesh.Mesh,
             + (f", values {P.min()}..{P.max()}" if P.size else "")
         )
     return P
+
+
+@overload
+def transfer(u: dolfinx.fem.Function, V: dolfinx.fem.FunctionSpace,
+             parent_cells: npt.NDArray[np.integer], *,
+             return_info: Literal[False] = ...) -> dolfinx.fem.Function: ...
+
+
+@overload
+def transfer(u: dolfinx.fem.Function, V: dolfinx.fem.FunctionSpace,
+             parent_cells: npt.NDArray[np.integer], *,
+             return_info: Literal[True]) -> tuple[dolfinx.fem.Function, TransferInfo]: ...
+
+
+@overload
+def transfer(u: dolfinx.fem.Function, V: dolfinx.fem.FunctionSpace,
+             parent_cells: npt.NDArray[np.integer], *,
+             return_info: bool) -> dolfinx.fem.Function | tuple[dolfinx.fem.Function, TransferInfo]: ...
 
 
 def transfer(
@@ -408,7 +449,7 @@ def transfer(
         raise ValueError(f"u lives on a {mesh0.topology.dim}D mesh, V on a {tdim}D mesh")
     Xref = V.element.interpolation_points
 
-    def local():  # no MPI inside: an error on one process is raised on all
+    def local() -> tuple[np.ndarray, np.ndarray, int, int]:  # no MPI inside: raised on all
         P = _check_parent_map(parent_cells, mesh0, mesh1)
         y = _push_forward(mesh1, len(P), Xref)  # (gdim, n1, q)
         return (P, *_pull_back_into(mesh0, P, y))  # X: (tdim, n1, q)
@@ -424,7 +465,7 @@ def transfer(
         arr[: tgt.imap.size_local] = vals
     else:  # dofs are not point values: the element's interpolation matrix, cell by cell
         vals = _evaluate(u, src, np.repeat(P, len(Xref)), X.reshape(tdim, -1).T)
-        M = tgt.element.interpolation_matrix  # (ndofs, q) of the scalar element
+        M = np.asarray(tgt.element.interpolation_matrix)  # (ndofs, q) of the scalar element
         arr[tgt.dofs[:n1]] = np.einsum("dq,cqb->cdb", M, vals.reshape(n1, len(Xref), tgt.bs))
         sc = score.reshape(-1)
     w.x.scatter_forward()

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import math
 
-import generate
 import gmsh
 import numpy as np
+
+import generate
 
 #: Curvature sizing (elements per 2 pi) and largest size (fraction of the diagonal).
 CURVATURE_ELEMENTS = 12

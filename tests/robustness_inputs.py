@@ -1,7 +1,8 @@
 """Inputs shared by tests/test_robustness.py and tests/mpi/bad_input.py (serial and MPI)."""
 
-import dolfinx.mesh
 import numpy as np
+
+import dolfinx.mesh
 
 
 def exterior_tags(mesh, value=1):

@@ -19,12 +19,13 @@ from __future__ import annotations
 import math
 import os
 
-import dolfinx.mesh
-import generate
 import gmsh
 import numpy as np
 import pytest
 from mpi4py import MPI
+
+import dolfinx.mesh
+import generate
 
 from nagata_snap import Snapper
 from nagata_snap.cad import CadGeometry

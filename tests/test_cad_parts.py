@@ -27,8 +27,9 @@ import os
 import subprocess
 import sys
 
-import parts  # meshes/ is on sys.path (conftest.py)
 import pytest
+
+import parts  # meshes/ is on sys.path (conftest.py)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TOL = 1e-9

@@ -11,11 +11,12 @@ import os
 import subprocess
 import sys
 
-import generate
 import gmsh
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+
+import generate
 
 HERE = os.path.dirname(__file__)
 

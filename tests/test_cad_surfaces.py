@@ -11,6 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+from nagata_snap.cad.curves import Circle, Line
+from nagata_snap.cad.projection import project_newton
+from nagata_snap.cad.surfaces import Cone, Cylinder, Plane, Sphere, Torus
+
 from OCP.Geom import (  # noqa: E402
     Geom_Circle,
     Geom_ConicalSurface,
@@ -24,10 +29,6 @@ from OCP.Geom import (  # noqa: E402
 from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf  # noqa: E402
 from OCP.GeomLProp import GeomLProp_SLProps  # noqa: E402
 from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Lin, gp_Pnt  # noqa: E402
-
-from nagata_snap.cad.curves import Circle, Line
-from nagata_snap.cad.projection import project_newton
-from nagata_snap.cad.surfaces import Cone, Cylinder, Plane, Sphere, Torus
 
 RNG = np.random.default_rng(7)
 O = np.array([0.3, -0.2, 0.5])

@@ -16,18 +16,15 @@ from __future__ import annotations
 import gmsh
 import numpy as np
 import pytest
-from occ_reference import OccShape
-from OCP.BRepClass import BRepClass_FaceClassifier  # noqa: E402
-from OCP.gp import gp_Pnt2d  # noqa: E402
-from OCP.TopAbs import TopAbs_State  # noqa: E402
 
 from nagata_snap.cad import CadGeometry
-from nagata_snap.cad.projection import (
-    entity_limits,
-    entity_periods,
-    evaluate_params,
-    normalize_params,
-)
+from nagata_snap.cad.projection import entity_limits, entity_periods, evaluate_params, normalize_params
+
+from occ_reference import OccShape
+
+from OCP.BRepClass import BRepClass_FaceClassifier  # noqa: E402
+from OCP.TopAbs import TopAbs_State  # noqa: E402
+from OCP.gp import gp_Pnt2d  # noqa: E402
 
 RNG = np.random.default_rng(3)
 

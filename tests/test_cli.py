@@ -3,13 +3,14 @@
 import subprocess
 import sys
 
+import numpy as np
+import pytest
+from mpi4py import MPI
+
 import dolfinx.io
 import dolfinx.mesh
 import generate
 import make_iges
-import numpy as np
-import pytest
-from mpi4py import MPI
 
 CENTRE = np.array(generate.DFG_CENTER)
 R = generate.DFG_RADIUS

@@ -5,21 +5,22 @@ import subprocess
 import sys
 
 import basix
-import dolfinx.fem as fem
-import dolfinx.fem.petsc
-import dolfinx.mesh as dmesh
-import generate
-import make_iges
 import numpy as np
 import pytest
 import ufl
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
+import dolfinx.fem as fem
+import dolfinx.fem.petsc
+import dolfinx.mesh as dmesh
+import generate
+import make_iges
+
 from nagata_snap import NagataGeometry, Snapper
 from nagata_snap.cad import CadGeometry
-from nagata_snap.cad.nurbs import circle, sphere
 from nagata_snap.curved import jacobian_determinants
+from nagata_snap.cad.nurbs import circle, sphere
 
 HERE = os.path.dirname(__file__)
 

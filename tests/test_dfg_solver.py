@@ -21,11 +21,13 @@ import subprocess
 import sys
 import textwrap
 
-import dolfinx.mesh as dmesh
 import mpi4py.MPI as MPI
+
 import numpy as np
 import pytest
 import ufl
+
+import dolfinx.mesh as dmesh
 from dolfinx import fem
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

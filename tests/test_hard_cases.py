@@ -14,11 +14,12 @@ inverted, angles kept.
 
 import re
 
-import dolfinx.mesh
-import generate
 import numpy as np
 import pytest
 from mpi4py import MPI
+
+import dolfinx.mesh
+import generate
 from surfaces import nagata_surface_error
 
 from nagata_snap import InvertedCellsError, NagataGeometry, Snapper
@@ -165,7 +166,6 @@ def test_machined_part_cad_mode(name, tmp_path):
     import warnings
 
     import hard_parts
-
     from nagata_snap.cad import CadGeometry
 
     path = hard_parts.write_iges(name, str(tmp_path / f"{name}.igs"))

@@ -16,14 +16,15 @@ from __future__ import annotations
 import math
 
 import gmsh
-import make_iges  # meshes/ is on sys.path (conftest.py)
 import numpy as np
-import pytest
 
+import make_iges  # meshes/ is on sys.path (conftest.py)
 from nagata_snap.cad.iges import write_iges
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface, cylinder, torus
 from nagata_snap.cad.read import read_shape
 from nagata_snap.cad.topology import nurbs_curve, nurbs_surface
+
+import pytest
 
 # Start section of "IGES File 1": "Center = (0.2, 0.2, 0.0), Radius = 0.05"
 KC, KR = np.array([0.2, 0.2, 0.0]), 0.05

@@ -9,12 +9,13 @@ the barycentric weights must reproduce the child vertices from the parent's.
 A refined mesh that does not tile the previous level's boundary is refused.
 """
 
-import dolfinx.mesh
-import generate
 import mpi4py.MPI as MPI
 import numpy as np
 import pytest
 
+import dolfinx.mesh
+
+import generate
 from nagata_snap import LineageError, NagataGeometry, Snapper
 from nagata_snap.mesh.boundary import boundary_facets
 from nagata_snap.mesh.lineage import child_facets

@@ -18,10 +18,10 @@ import sys
 
 import gmsh
 import numpy as np
-import parts  # meshes/ is on sys.path (conftest.py)
 import pytest
 from mpi4py import MPI
 
+import parts  # meshes/ is on sys.path (conftest.py)
 from nagata_snap.meshing import CadMesh, gmsh_session, import_cad, mesh_cad_file
 
 HERE = os.path.dirname(os.path.abspath(__file__))

@@ -7,14 +7,12 @@ import sys
 import numpy as np
 import pytest
 from mpi4py import MPI
+from occ_reference import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance
 from surfaces import (
-    GmshFaceNormals,
     barycentric_grid,
     circle_polygon,
     ellipse_polygon,
     filleted_box,
-    gmsh_curved_faces,
-    gmsh_face_distance,
     gmsh_occ_surface,
     gmsh_surface,
     half_torus,

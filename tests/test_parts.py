@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 
 import gmsh
-import parts  # meshes/ is on sys.path (conftest.py)
 import pytest
 
+import parts  # meshes/ is on sys.path (conftest.py)
 from nagata_snap.meshing import gmsh_session, import_cad
 
 FORMATS = ("step", "iges", "brep", "iges_brep")

@@ -12,14 +12,7 @@ import numpy as np
 import pytest
 from nurbs_reference import herrero_71, occ_bspline
 
-from nagata_snap.cad.nurbs import (
-    NurbsCurve,
-    NurbsSurface,
-    circle,
-    cylinder,
-    sphere,
-    torus,
-)
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface, circle, cylinder, sphere, torus
 from nagata_snap.cad.projection import (
     GlobalSearcher,
     ProjectionResult,

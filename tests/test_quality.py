@@ -3,19 +3,15 @@
 import json
 import math
 
-import dolfinx
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
 import pytest
 
-from nagata_snap.smoothing.quality import (
-    QualityReport,
-    inverted_cells,
-    mean_ratio,
-    quality_stats,
-    signed_volumes,
-)
+import dolfinx
+import dolfinx.mesh
+
+from nagata_snap.mesh.simplex import signed_volumes
+from nagata_snap.smoothing.quality import QualityReport, inverted_cells, mean_ratio, quality_stats
 
 TRI = np.array([[0, 1, 2]])
 TET = np.array([[0, 1, 2, 3]])

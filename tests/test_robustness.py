@@ -74,12 +74,13 @@ import sys
 import warnings
 
 import basix.ufl
-import dolfinx.mesh
-import generate
-import make_iges
 import numpy as np
 import pytest
 from mpi4py import MPI
+
+import dolfinx.mesh
+import generate
+import make_iges
 from robustness_inputs import exterior_tags, flatten_one_cell, wall_tags, wavy
 from surfaces import circle_polygon, sphere_octahedron
 

@@ -81,7 +81,6 @@ def test_cad_project_keeps_vertices_on_their_feature(tmp_path):
     import warnings
 
     import hard_parts
-
     from nagata_snap import Snapper
     from nagata_snap.cad import CadGeometry
 

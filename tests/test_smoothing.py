@@ -6,11 +6,12 @@ import pathlib
 import subprocess
 import sys
 
-import dolfinx
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
 import pytest
+
+import dolfinx
+import dolfinx.mesh
 
 from nagata_snap.smoothing.quality import inverted_cells, mean_ratio
 from nagata_snap.smoothing.repair import InvertedCellsError, RepairResult, repair
@@ -114,8 +115,8 @@ def test_band_system_equals_ufl_assembly(dim, model, exponent):
     the same displacement as the same problem written in UFL and assembled
     and solved (LU) by DOLFINx on the whole mesh, with Dirichlet data on
     every node that is not an unknown of the band."""
-    import dolfinx.fem.petsc
     import ufl
+    import dolfinx.fem.petsc
 
     if dim == 2:
         msh = dolfinx.mesh.create_unit_square(COMM, 10, 10, dolfinx.mesh.CellType.triangle)
@@ -186,8 +187,9 @@ def test_unlisted_boundary_nodes_are_held(pushed):
 
 def circle_hole_mesh(n_refine=4, R=0.5, L=2.0):
     """Square minus a hole meshed as an inscribed 8-gon, uniformly refined."""
-    import dolfinx.io.gmsh
     import gmsh
+
+    import dolfinx.io.gmsh
 
     gmsh.initialize()
     try:
@@ -387,6 +389,13 @@ def test_bad_inputs():
     flat[v0] = 0.5 * (flat[w] + flat[v1])
     with pytest.raises(ValueError, match="zero area / volume"):
         smooth(msh, flat, left, fixed)
+    # NaN in the prescribed positions: the check of every entry point names it
+    msh, x_ref, left, fixed = square_push(0.05 * H)
+    msh.geometry.x[left[0], 0] = np.nan
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        smooth(msh, x_ref, left, fixed)
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        repair(msh, x_ref, msh.geometry.x.copy(), left, fixed)
 
 
 @pytest.mark.mpi

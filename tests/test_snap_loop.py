@@ -4,12 +4,13 @@ import os
 import subprocess
 import sys
 
-import dolfinx.mesh
-import generate
 import numpy as np
 import pytest
 from mpi4py import MPI
 from scipy.spatial import cKDTree
+
+import dolfinx.mesh
+import generate
 from surfaces import nagata_surface_error
 
 from nagata_snap import LineageError, NagataGeometry, Snapper

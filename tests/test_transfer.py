@@ -14,18 +14,19 @@ import sys
 
 import basix
 import basix.ufl
-import dolfinx.fem as fem
-import generate
 import numpy as np
 import pytest
 from mpi4py import MPI
 from scipy.spatial import cKDTree
 
+import dolfinx.fem as fem
+import generate
+
 from nagata_snap import NagataGeometry, Snapper
 from nagata_snap.cad import CadGeometry
 from nagata_snap.cad.iges import write_iges
-from nagata_snap.cad.nurbs import sphere as nurbs_sphere
 from nagata_snap.mesh.lineage import parent_cells
+from nagata_snap.cad.nurbs import sphere as nurbs_sphere
 from nagata_snap.transfer import pull_back, transfer
 
 HERE = os.path.dirname(__file__)
@@ -123,7 +124,7 @@ def max_abs(a):
 def test_polynomial_of_the_space_degree_is_transferred_exactly(level, key):
     """Parent interpolant of a degree-p polynomial -> transfer = child interpolant (1e-12),
     though snapping put child points well outside their parents."""
-    dim, snapper, mesh0, mesh1, *_ = level
+    _, snapper, mesh0, mesh1, *_ = level
     err, info = exactness_error(snapper, mesh0, mesh1, key)
     assert err <= 1e-12
     assert info.outside > 0 and info.max_outside > 1e-2  # boundary points left their parents
@@ -265,7 +266,7 @@ def test_two_levels_through_composed_maps():
     md = generate.unit_disk(COMM, n=8)
     mesh0, ft = md.mesh, md.facet_tags
     snapper = Snapper(mesh0, ft, NagataGeometry(mesh0, ft))
-    mesh1, ft1, *_ = snapper.refine(mesh0)
+    mesh1, *_ = snapper.refine(mesh0)
     P1 = snapper.parent_cells
     mesh2, *_ = snapper.refine(mesh1)
     P2 = snapper.parent_cells
@@ -327,7 +328,7 @@ def test_bad_input_errors(level):
         transfer(u0, V1, snapper.parent_cells[:-1])
     ft0 = level[-1]
     fresh = Snapper(mesh0, ft0, snapper.geometry)
-    with pytest.raises(ValueError, match="call Snapper.refine first"):
+    with pytest.raises(ValueError, match=r"call Snapper\.refine first"):
         fresh.transfer(u0, V1)
 
 

@@ -1,15 +1,17 @@
 """Tests of nagata_snap.smoothing.untangle (the regularised mean-ratio objective and its Newton minimiser)
 and of NagataGeometry.project (closest points on the coarse patches, used by sliding)."""
 
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from nagata_snap import NagataGeometry, untangle
-from nagata_snap.mesh.records import Records
+import dolfinx.mesh
+
+from nagata_snap import NagataGeometry
+from nagata_snap.smoothing import untangle
 from nagata_snap.smoothing.quality import inverted_cells
+from nagata_snap.mesh.records import Records
 
 RNG = np.random.default_rng(7)
 

@@ -6,7 +6,8 @@
   coarse facet or cell each new vertex came from, and where in it;
 * :mod:`~nagata_snap.mesh.records` -- the per-vertex record (coarse facet,
   parametric position) carried from level to level;
-* :mod:`~nagata_snap.mesh.simplex` -- batched kernels on simplices;
+* :mod:`~nagata_snap.mesh.simplex` -- kernels on simplices (edges, measures,
+  normals, P1 gradients, barycentric coordinates), vectorised over all of them;
 * :mod:`~nagata_snap.mesh.parallel` -- the MPI collectives the snapper uses.
 """
 

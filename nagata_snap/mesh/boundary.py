@@ -16,6 +16,8 @@ import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 
+from nagata_snap.mesh.simplex import facet_normal_vectors, local_facet_vertices
+
 __all__ = [
     "BoundaryFacets",
     "boundary_facets",
@@ -56,17 +58,6 @@ def check_p1_simplex(mesh: dolfinx.mesh.Mesh) -> None:
         raise ValueError(f"the mesh has {n_bad} nodes with NaN or infinite coordinates (first: {first})")
 
 
-def local_facet_vertices(tdim: int) -> np.ndarray:
-    """``(tdim + 1, tdim)`` local vertices of each local facet of a simplex.
-
-    DOLFINx (Basix) numbers the facets of triangles and tetrahedra so that
-    local facet ``j`` is the one opposite local vertex ``j``; its vertices are
-    the others in increasing order.
-    """
-    nv = tdim + 1
-    return np.array([[v for v in range(nv) if v != j] for j in range(nv)], dtype=np.int32)
-
-
 def cell_facet_nodes(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarray) -> np.ndarray:
     """``(n, nfv)`` geometry nodes of local facet ``local[i]`` of cell ``cells[i]`` (P1 geometry).
 
@@ -75,19 +66,6 @@ def cell_facet_nodes(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarr
     tdim = mesh.topology.dim
     g = mesh.geometry.dofmaps[0]
     return np.take_along_axis(g[cells], local_facet_vertices(tdim)[local], axis=1).astype(np.int32)
-
-
-def facet_normal_vectors(p: np.ndarray) -> np.ndarray:
-    """``(n, 3)`` unnormalised normals of segments / triangles ``p (n, nfv, 3)``.
-
-    In 2D ``(t_y, -t_x, 0)`` for the edge ``t``, in 3D the cross product of
-    two edges: the length is the segment's length or twice the triangle's
-    area. The orientation follows the vertex order.
-    """
-    t = p[:, 1] - p[:, 0]
-    if p.shape[1] == 2:
-        return np.stack([t[:, 1], -t[:, 0], np.zeros(len(t))], axis=1)
-    return np.cross(t, p[:, 2] - p[:, 0])
 
 
 def facets_of_cells(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarray) -> np.ndarray:

@@ -12,8 +12,8 @@ that the unrounded ones are within round-off of them.
 Facets are handled as (owned cell, local facet index) pairs: an exterior
 facet of the refined mesh lies in an exterior facet of the previous level, so
 only the local facets of the children of boundary cells are examined, and no
-facet entities of the refined mesh are created (on 1e6 tetrahedra that would
-cost about a sixth of the refinement).  Completeness is checked instead of
+facet entities of the refined mesh are created (that would cost a good part
+of the refinement itself).  Completeness is checked instead of
 assumed: the children of every parent facet must tile it (their areas or
 lengths add up to its own).
 
@@ -32,12 +32,8 @@ import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.mesh.boundary import (
-    BoundaryFacets,
-    cell_facet_nodes,
-    facet_normal_vectors,
-)
-from nagata_snap.mesh.simplex import inverse_small
+from nagata_snap.mesh.boundary import BoundaryFacets, cell_facet_nodes
+from nagata_snap.mesh.simplex import barycentric, edge_lengths, facet_measures, facet_normal_vectors
 
 __all__ = [
     "LineageError",
@@ -45,7 +41,6 @@ __all__ = [
     "parent_cells",
     "child_facets",
     "child_interior_facets",
-    "barycentric",
 ]
 
 #: Tolerance on barycentric coordinates (dimensionless) when recognising
@@ -78,43 +73,6 @@ class ChildFacets:
     parent: npt.NDArray[np.int64]
     weights: npt.NDArray[np.float64]
     parent_cells: npt.NDArray[np.int32]
-
-
-def barycentric(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Barycentric coordinates of points in segments/triangles/tetrahedra.
-
-    Args:
-        y: ``(n, k, 3)`` points.
-        X: ``(n, m, 3)`` simplex vertices, ``m = 2, 3`` or ``4``.
-
-    Returns:
-        ``(lam (n, k, m), dist (n, k))``: least-squares barycentric
-        coordinates and the distance of each point from the simplex's affine hull,
-        relative to the simplex's longest edge from vertex 0.
-    """
-    # Component-wise arithmetic on (n,) columns: for these tiny matrices it is
-    # several times faster than einsum / matmul / linalg.solve over the batch.
-    m, k = X.shape[1], y.shape[1]
-    E = [[X[:, a + 1, i] - X[:, 0, i] for i in range(3)] for a in range(m - 1)]
-    G = np.empty((len(X), m - 1, m - 1))
-    for a in range(m - 1):
-        for b in range(a, m - 1):
-            G[:, a, b] = G[:, b, a] = E[a][0] * E[b][0] + E[a][1] * E[b][1] + E[a][2] * E[b][2]
-    Gi, _ = inverse_small(G)
-    lam = np.empty((len(X), k, m))
-    dist2 = np.zeros((len(X), k))
-    for p in range(k):
-        d = [y[:, p, i] - X[:, 0, i] for i in range(3)]
-        r = [E[a][0] * d[0] + E[a][1] * d[1] + E[a][2] * d[2] for a in range(m - 1)]
-        mu = [sum(Gi[:, a, b] * r[b] for b in range(m - 1)) for a in range(m - 1)]
-        lam[:, p, 0] = 1.0 - sum(mu)
-        for a in range(m - 1):
-            lam[:, p, a + 1] = mu[a]
-        for i in range(3):  # residual of the projection onto the affine hull
-            res = d[i] - sum(mu[a] * E[a][i] for a in range(m - 1))
-            dist2[:, p] += res * res
-    h = np.sqrt(np.max(np.diagonal(G, axis1=1, axis2=2), axis=1))
-    return lam, np.sqrt(dist2) / h[:, None]
 
 
 def parent_cells(
@@ -198,17 +156,13 @@ def _pairs(P: np.ndarray, cells0: np.ndarray, ncell0: int) -> tuple[np.ndarray, 
 def _hyperplanes(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit normals ``(m, 3)`` and sizes ``(m,)`` of segments / triangles ``X (m, nfv, 3)``.
 
-    The size is the longest edge from vertex 0 (the scale of :func:`barycentric`).
+    The size is the longest edge from vertex 0 (the scale of
+    :func:`~nagata_snap.mesh.simplex.barycentric`; edges from vertex 0 come first).
     """
     n = facet_normal_vectors(X)
-    h = np.max(np.linalg.norm(X[:, 1:] - X[:, :1], axis=2), axis=1)
+    h = np.max(edge_lengths(X)[:, : X.shape[1] - 1], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return n / np.linalg.norm(n, axis=1, keepdims=True), h
-
-
-def _measure(p: np.ndarray) -> np.ndarray:
-    """``(n,)`` length (2 vertices) or area (3 vertices) of ``p (n, nfv, 3)``."""
-    return np.linalg.norm(facet_normal_vectors(p), axis=1) / (p.shape[1] - 1)
 
 
 def _children(
@@ -268,8 +222,8 @@ def _children(
         )
     cand = cand[sel]
     # every parent facet must be tiled by its children (area / length sum)
-    covered = np.bincount(cand, weights=_measure(x1[fn[sel]]), minlength=len(cells0))
-    whole = _measure(x0[nodes0])
+    covered = np.bincount(cand, weights=facet_measures(x1[fn[sel]]), minlength=len(cells0))
+    whole = facet_measures(x0[nodes0])
     gap = np.abs(covered - whole) > 1e-8 * np.maximum(whole, np.finfo(float).tiny)
     if np.any(gap):
         first = np.flatnonzero(gap)[0]

@@ -1,9 +1,12 @@
 """After the boundary moved: the interior follows, and no cell may invert.
 
-* :mod:`~nagata_snap.smoothing.quality` -- signed volumes, mean ratio,
-  angles and the per-level :class:`QualityReport`;
-* :mod:`~nagata_snap.smoothing.neighbourhood` -- the band of cells around the
-  moved vertices that the smoothers work on;
+* :mod:`~nagata_snap.smoothing.quality` -- inversion checks, mean ratio,
+  angles and the per-level :class:`QualityReport` (the simplex kernels
+  under them are in :mod:`nagata_snap.mesh.simplex`);
+* :mod:`~nagata_snap.smoothing.band` -- the band of cells around the moved
+  vertices that the smoothers work on, and ghost-consistent node masks;
+* :mod:`~nagata_snap.smoothing.neighbourhood` -- the few layers around bad
+  cells, gathered alike on every process;
 * :mod:`~nagata_snap.smoothing.smooth` -- the interior smoother;
 * :mod:`~nagata_snap.smoothing.untangle` -- Escobar's regularised mean-ratio
   optimisation that untangles inverted cells;

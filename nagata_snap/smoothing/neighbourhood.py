@@ -25,16 +25,18 @@ neighbourhood's nodes, so no scatter is needed.
 
 from __future__ import annotations
 
-import mpi4py.MPI  # noqa: F401  (must precede dolfinx imports)
+import dolfinx.mesh
 import numpy as np
+from mpi4py import MPI
 
-from nagata_snap.smoothing.quality import _columns, _touching, edge_length_range
-from nagata_snap.smoothing.smooth import _expand
+from nagata_snap.mesh.simplex import cell_columns, cells_touching, edge_length_range
+from nagata_snap.smoothing.band import NodeSync, expand
 
 __all__ = ["Neighbourhood", "layer_distance"]
 
 
-def _allgather(comm, a: np.ndarray) -> np.ndarray:
+def _allgather(comm: MPI.Comm, a: np.ndarray) -> np.ndarray:
+    """Concatenation of ``a`` of every process, in rank order (collective)."""
     if comm.size == 1:
         return np.asarray(a)
     return np.concatenate(comm.allgather(np.asarray(a)))
@@ -45,8 +47,8 @@ class Neighbourhood:
 
     Args:
         mesh: the mesh (topology and parallel layout).
-        sync: ``_NodeSync`` of its geometry nodes.
-        cols: column copies of the geometry dofmap (``quality._columns``).
+        sync: :class:`~nagata_snap.smoothing.band.NodeSync` of its geometry nodes.
+        cols: :func:`~nagata_snap.mesh.simplex.cell_columns` of the geometry dofmap.
         seeds: ``(nc,)`` bool over local cells (owned and ghost).
         layers: vertex layers around the seeds (>= 1).
         x_ref: ``(n, 3)`` reference coordinates of the local nodes.
@@ -64,7 +66,8 @@ class Neighbourhood:
         n_cells, n_nodes: sizes (global, equal on all processes).
     """
 
-    def __init__(self, mesh, sync, cols, seeds: np.ndarray, layers: int, x_ref: np.ndarray):
+    def __init__(self, mesh: dolfinx.mesh.Mesh, sync: NodeSync, cols: list[np.ndarray],
+                 seeds: np.ndarray, layers: int, x_ref: np.ndarray):
         comm = mesh.comm
         self.comm = comm
         d = mesh.geometry.dim
@@ -73,7 +76,7 @@ class Neighbourhood:
         mark = np.zeros(sync.n, dtype=bool)
         mark[dofmap[seeds].reshape(-1)] = True
         mark = sync.any(mark)
-        _, inner, cin = _expand(dofmap, mark, layers, sync, cols)
+        _, inner, cin = expand(dofmap, mark, layers, sync, cols)
         self.local_cells = np.flatnonzero(cin).astype(np.int32)
         in_nodes = np.zeros(sync.n, dtype=bool)
         in_nodes[dofmap[self.local_cells].reshape(-1)] = True
@@ -138,10 +141,10 @@ def layer_distance(cells: np.ndarray, seeds: np.ndarray, layers: int) -> np.ndar
     """
     mark = np.asarray(seeds, dtype=bool).copy()
     dist = np.where(mark, 0, layers + 1)
-    cols = _columns(cells)
+    cols = cell_columns(cells)
     for k in range(1, layers + 1):
         new = np.zeros_like(mark)
-        new[cells[_touching(mark, cols)].reshape(-1)] = True
+        new[cells[cells_touching(mark, cols)].reshape(-1)] = True
         dist[new & ~mark] = k
         mark |= new
     return dist

@@ -13,6 +13,10 @@ Conventions
   The topological dimension is taken from ``cells.shape[1] - 1`` and must
   equal ``gdim``.
 
+The geometric kernels (signed volumes, edge vectors, the local edge
+tables) are those of :mod:`nagata_snap.mesh.simplex`; this module builds
+the validity checks and shape measures on them.
+
 Quality measures (all dimensionless, 1 for the equilateral triangle /
 regular tetrahedron, tending to 0 for degenerate cells):
 
@@ -33,19 +37,33 @@ geometry nodes) only, so every rank holds and prints identical numbers.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import operator
 from typing import Any
 
+import dolfinx.mesh
 import mpi4py.MPI
 import numpy as np
 
 from nagata_snap.mesh.arrays import dot
+from nagata_snap.mesh.simplex import (
+    TET_EDGE_FACETS,
+    cell_columns,
+    cell_dim,
+    cells_touching,
+    cross,
+    edge_components,
+    edge_length_range,
+    signed_volumes,
+    signed_volumes_of,
+    vertex_components,
+)
 
 __all__ = [
     "degenerate_cells",
-    "edge_length_range",
-    "signed_volumes",
     "inverted_cells",
+    "inverted_mask",
     "quality_stats",
     "mean_ratio",
     "MetricSummary",
@@ -62,71 +80,12 @@ RATIO_BINS = np.array([0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8,
                        0.9, 1.0])
 
 
-def _check(cells: np.ndarray, gdim: int) -> int:
-    cells = np.asarray(cells)
-    if cells.ndim != 2:
-        raise ValueError(f"cells must be 2D (nc, tdim+1), got shape {cells.shape}")
-    tdim = cells.shape[1] - 1
-    if gdim not in (2, 3) or tdim != gdim:
-        raise ValueError(
-            f"only triangles in 2D and tetrahedra in 3D are supported "
-            f"(gdim={gdim}, cells with {cells.shape[1]} vertices)")
-    return tdim
+def inverted_mask(v_new: np.ndarray, v_ref: np.ndarray, rel_floor: float) -> np.ndarray:
+    """``(nc,)`` bool: cells inverted or collapsed, from signed volumes ``v_new``, ``v_ref`` ``(nc,)``.
 
-
-def _verts(x: np.ndarray, cells: np.ndarray, gdim: int) -> list[list[np.ndarray]]:
-    """Per-vertex, per-coordinate arrays: ``P[k][j]`` is coordinate ``j`` of
-    vertex ``k`` of every cell, shape ``(nc,)`` (float64).
-
-    Column-wise ``np.take`` on contiguous coordinate arrays is several times
-    faster than fancy indexing ``x[cells]`` (an (nc, d+1, d) gather) for
-    large meshes, and the formulas below then work on flat arrays.
+    The criterion of :func:`inverted_cells`:
+    ``v_new * sign(v_ref) <= rel_floor * |v_ref|``.
     """
-    x = np.asarray(x, dtype=np.float64)
-    cells = np.asarray(cells)
-    comps = [np.ascontiguousarray(x[:, j]) for j in range(gdim)]
-    out = []
-    for k in range(cells.shape[1]):
-        ck = np.ascontiguousarray(cells[:, k])
-        out.append([c.take(ck) for c in comps])
-    return out
-
-
-def _sub(a: list[np.ndarray], b: list[np.ndarray]) -> list[np.ndarray]:
-    return [ai - bi for ai, bi in zip(a, b)]
-
-
-def _cross3(a: list[np.ndarray], b: list[np.ndarray]) -> list[np.ndarray]:
-    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-
-
-def _signed_volumes_v(P: list[list[np.ndarray]], gdim: int) -> np.ndarray:
-    e1, e2 = _sub(P[1], P[0]), _sub(P[2], P[0])
-    if gdim == 2:
-        return 0.5 * (e1[0] * e2[1] - e1[1] * e2[0])
-    return dot(e1, _cross3(e2, _sub(P[3], P[0]))) / 6.0
-
-
-def signed_volumes(x: np.ndarray, cells: np.ndarray, gdim: int) -> np.ndarray:
-    """Signed measure of every cell.
-
-    Args:
-        x: (n, 3) float array of node coordinates (length unit L).
-        cells: (nc, gdim + 1) int array of node indices per cell.
-        gdim: 2 (triangles) or 3 (tetrahedra).
-
-    Returns:
-        (nc,) float64 array: signed area (L^2) in 2D, computed from the
-        2x2 determinant of the first two coordinates,
-        ``0.5 * det[x1 - x0, x2 - x0]``; signed volume (L^3) in 3D,
-        ``det[x1 - x0, x2 - x0, x3 - x0] / 6``. Positive for
-        counter-clockwise / right-handed vertex order.
-    """
-    _check(cells, gdim)
-    return _signed_volumes_v(_verts(x, cells, gdim), gdim)
-
-
-def _inverted_mask(v_new: np.ndarray, v_ref: np.ndarray, rel_floor: float) -> np.ndarray:
     return v_new * np.sign(v_ref) <= rel_floor * np.abs(v_ref)
 
 
@@ -147,13 +106,6 @@ def degenerate_cells(x: np.ndarray, cells: np.ndarray, gdim: int,
     _, hmax = edge_length_range(x, cells, gdim)
     vol = np.abs(signed_volumes(x, cells, gdim))
     return np.flatnonzero(vol <= rel_floor * hmax**gdim).astype(np.int32)
-
-
-def edge_length_range(x: np.ndarray, cells: np.ndarray, gdim: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(shortest, longest)`` edge length of every cell, two (nc,) arrays (length unit)."""
-    _check(cells, gdim)
-    l2 = [dot(e, e) for e in _edges_v(_verts(x, cells, gdim), gdim)]
-    return np.sqrt(np.minimum.reduce(l2)), np.sqrt(np.maximum.reduce(l2))
 
 
 def inverted_cells(x_new: np.ndarray, x_ref: np.ndarray, cells: np.ndarray,
@@ -179,15 +131,11 @@ def inverted_cells(x_new: np.ndarray, x_ref: np.ndarray, cells: np.ndarray,
     """
     v_new = signed_volumes(x_new, cells, gdim)
     v_ref = signed_volumes(x_ref, cells, gdim)
-    return np.flatnonzero(_inverted_mask(v_new, v_ref, rel_floor)).astype(np.int32)
+    return np.flatnonzero(inverted_mask(v_new, v_ref, rel_floor)).astype(np.int32)
 
 
-def _edges_v(P, gdim):
-    pairs = _TRI_EDGES if gdim == 2 else _TET_EDGES
-    return [_sub(P[j], P[i]) for i, j in pairs]
-
-
-def _mean_ratio_v(avol, l2sum, gdim):
+def _mean_ratio_of(avol: np.ndarray, l2sum: np.ndarray, gdim: int) -> np.ndarray:
+    """Mean ratio ``(nc,)`` from the unsigned measures and the sums of squared edge lengths."""
     with np.errstate(divide="ignore", invalid="ignore"):
         if gdim == 2:
             q = 4.0 * math.sqrt(3.0) * avol / l2sum
@@ -208,18 +156,76 @@ def mean_ratio(x: np.ndarray, cells: np.ndarray, gdim: int) -> np.ndarray:
         (nc,) float64 in [0, 1], 1 for the equilateral triangle / regular
         tetrahedron, 0 for degenerate cells (orientation is ignored).
     """
-    _check(cells, gdim)
-    P = _verts(x, cells, gdim)
-    ev = _edges_v(P, gdim)
-    l2sum = sum(dot(e, e) for e in ev)
-    return _mean_ratio_v(np.abs(_signed_volumes_v(P, gdim)), l2sum, gdim)
+    cell_dim(cells, gdim)
+    P = vertex_components(x, cells, gdim)
+    l2sum = functools.reduce(operator.add, [dot(e, e) for e in edge_components(P)])
+    return _mean_ratio_of(np.abs(signed_volumes_of(P)), l2sum, gdim)
 
 
-# vertex pairs of the six tetrahedron edges, and for each edge (a, b) the
-# two faces (identified by their opposite vertices c, d) that meet there.
-_TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
-_TET_EDGE_FACES = np.array([[2, 3], [1, 3], [1, 2], [0, 3], [0, 2], [0, 1]])
-_TRI_EDGES = np.array([[0, 1], [0, 2], [1, 2]])
+def _triangle_shapes(ev: list[list[np.ndarray]], l2: list[np.ndarray], avol: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(min angle, max angle, radius ratio)`` of triangles (radians; three ``(nc,)`` arrays).
+
+    ``ev``: the edge vectors (:func:`~nagata_snap.mesh.simplex.edge_components`),
+    ``l2`` their squared lengths, ``avol`` the unsigned areas.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # interior angles: |e_a x e_b| = 2|A| for any two edges, so
+        # angle_k = atan2(2|A|, dot of the two edges leaving vertex k)
+        e01, e02, e12 = ev
+        twoA = 2.0 * avol
+        ang = [np.arctan2(twoA, dot(e01, e02)),
+               np.arctan2(twoA, -dot(e01, e12)),
+               np.arctan2(twoA, dot(e02, e12))]
+        amin = np.minimum(np.minimum(ang[0], ang[1]), ang[2])
+        amax = np.maximum(np.maximum(ang[0], ang[1]), ang[2])
+        la, lb, lc = np.sqrt(l2[0]), np.sqrt(l2[1]), np.sqrt(l2[2])
+        # 2 r / R = 16 A^2 / (perimeter * a b c)
+        rr = 16.0 * avol * avol / ((la + lb + lc) * (la * lb * lc))
+        rr = np.where(np.isfinite(rr), rr, 0.0)
+    return amin, amax, rr
+
+
+def _tetrahedron_shapes(ev: list[list[np.ndarray]], l2: list[np.ndarray], vol: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(min dihedral angle, max dihedral angle, radius ratio)`` of tetrahedra (radians).
+
+    ``ev``: the six edge vectors (:data:`~nagata_snap.mesh.simplex.TET_EDGES`
+    order), ``l2`` their squared lengths, ``vol`` the signed volumes.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e1, e2, e3 = ev[0], ev[1], ev[2]  # edges 01, 02, 03
+        # cofactor vectors: det(J) * grad(lambda_k); all scaled by the
+        # same factor, so their mutual angles equal those between the
+        # inward face normals, also for inverted / flat cells.
+        c1, c2, c3 = cross(e2, e3), cross(e3, e1), cross(e1, e2)
+        c0 = [-(a + b + c) for a, b, c in zip(c1, c2, c3, strict=True)]
+        cof = [c0, c1, c2, c3]
+        nrm = [np.sqrt(dot(c, c)) for c in cof]  # 2 * face areas
+        # The dihedral angle at the edge shared by faces fa, fb is
+        # pi - angle(cof[fa], cof[fb]), an increasing function of the
+        # cosine of that angle: the min / max dihedral angles come from
+        # the min / max cosine over the six edges (two arccos per cell
+        # instead of six cross products and arctan2). A zero-area face
+        # counts as cosine 1 (dihedral angle pi).
+        cos = []
+        for fa, fb in TET_EDGE_FACETS:
+            den = nrm[fa] * nrm[fb]
+            cos.append(np.divide(dot(cof[fa], cof[fb]), den, out=np.ones_like(den), where=den > 0))
+        amin = np.pi - np.arccos(np.clip(np.minimum.reduce(cos), -1.0, 1.0))
+        amax = np.pi - np.arccos(np.clip(np.maximum.reduce(cos), -1.0, 1.0))
+        # 3 r / R = 216 V^2 / (S * sqrt(P)),  r = 3V/S,
+        # R = sqrt(P) / (24 V),  P from products of opposite edges
+        S = 0.5 * (nrm[0] + nrm[1] + nrm[2] + nrm[3])
+        le = [np.sqrt(v) for v in l2]
+        # opposite edge pairs: (01,23), (02,13), (03,12)
+        a = le[0] * le[5]
+        b = le[1] * le[4]
+        c = le[2] * le[3]
+        Pp = (a + b + c) * (a + b - c) * (a - b + c) * (-a + b + c)
+        rr = 216.0 * vol**2 / (S * np.sqrt(np.maximum(Pp, 0.0)))
+        rr = np.where(np.isfinite(rr), rr, 0.0)
+    return amin, amax, rr
 
 
 def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
@@ -246,72 +252,22 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
         * ``"radius_ratio"``: ``d r_in / R_circ`` in [0, 1],
         * ``"mean_ratio"``: normalised mean ratio in [0, 1].
     """
-    tdim = _check(cells, gdim)
-    P = _verts(x, cells, gdim)
-    vol = _signed_volumes_v(P, gdim)
+    tdim = cell_dim(cells, gdim)
+    P = vertex_components(x, cells, gdim)
+    vol = signed_volumes_of(P)
     avol = np.abs(vol)
-    ev = _edges_v(P, gdim)
+    ev = edge_components(P)
     l2 = [dot(e, e) for e in ev]  # squared edge lengths
-    mr = _mean_ratio_v(avol, sum(l2), gdim)
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if tdim == 2:
-            # interior angles: |e_a x e_b| = 2|A| for any two edges, so
-            # angle_k = atan2(2|A|, dot of the two edges leaving vertex k)
-            e01, e02, e12 = ev
-            twoA = 2.0 * avol
-            ang = [np.arctan2(twoA, dot(e01, e02)),
-                   np.arctan2(twoA, -dot(e01, e12)),
-                   np.arctan2(twoA, dot(e02, e12))]
-            amin = np.minimum(np.minimum(ang[0], ang[1]), ang[2])
-            amax = np.maximum(np.maximum(ang[0], ang[1]), ang[2])
-            la, lb, lc = np.sqrt(l2[0]), np.sqrt(l2[1]), np.sqrt(l2[2])
-            # 2 r / R = 16 A^2 / (perimeter * a b c)
-            rr = 16.0 * avol * avol / ((la + lb + lc) * (la * lb * lc))
-        else:
-            e1, e2, e3 = ev[0], ev[1], ev[2]  # edges 01, 02, 03
-            # cofactor vectors: det(J) * grad(lambda_k); all scaled by the
-            # same factor, so their mutual angles equal those between the
-            # inward face normals, also for inverted / flat cells.
-            c1 = _cross3(e2, e3)
-            c2 = _cross3(e3, e1)
-            c3 = _cross3(e1, e2)
-            c0 = [-(a + b + c) for a, b, c in zip(c1, c2, c3)]
-            cof = [c0, c1, c2, c3]
-            nrm = [np.sqrt(dot(c, c)) for c in cof]  # 2 * face areas
-            # The dihedral angle at the edge shared by faces fa, fb is
-            # pi - angle(cof[fa], cof[fb]), an increasing function of the
-            # cosine of that angle: the min / max dihedral angles come from
-            # the min / max cosine over the six edges (two arccos per cell
-            # instead of six cross products and arctan2). A zero-area face
-            # counts as cosine 1 (dihedral angle pi).
-            cmin = cmax = None
-            for fa, fb in _TET_EDGE_FACES:
-                den = nrm[fa] * nrm[fb]
-                c = np.divide(dot(cof[fa], cof[fb]), den, out=np.ones_like(den),
-                              where=den > 0)
-                cmin = c if cmin is None else np.minimum(cmin, c)
-                cmax = c if cmax is None else np.maximum(cmax, c)
-            amin = np.pi - np.arccos(np.clip(cmin, -1.0, 1.0))
-            amax = np.pi - np.arccos(np.clip(cmax, -1.0, 1.0))
-            # 3 r / R = 216 V^2 / (S * sqrt(P)),  r = 3V/S,
-            # R = sqrt(P) / (24 V),  P from products of opposite edges
-            S = 0.5 * (nrm[0] + nrm[1] + nrm[2] + nrm[3])
-            le = [np.sqrt(v) for v in l2]
-            # opposite edge pairs: (01,23), (02,13), (03,12)
-            a = le[0] * le[5]
-            b = le[1] * le[4]
-            c = le[2] * le[3]
-            Pp = (a + b + c) * (a + b - c) * (a - b + c) * (-a + b + c)
-            rr = 216.0 * vol**2 / (S * np.sqrt(np.maximum(Pp, 0.0)))
-        rr = np.where(np.isfinite(rr), rr, 0.0)
-    rr = np.minimum(rr, 1.0)  # round-off guard for (near-)regular cells
+    if tdim == 2:
+        amin, amax, rr = _triangle_shapes(ev, l2, avol)
+    else:
+        amin, amax, rr = _tetrahedron_shapes(ev, l2, vol)
     q = {
         "volume": vol,
         "min_angle": np.degrees(amin),
         "max_angle": np.degrees(amax),
-        "radius_ratio": rr,
-        "mean_ratio": mr,
+        "radius_ratio": np.minimum(rr, 1.0),  # round-off guard for (near-)regular cells
+        "mean_ratio": _mean_ratio_of(avol, functools.reduce(operator.add, l2), gdim),
     }
     if orientation is not None:
         _orient(q, orientation)
@@ -325,26 +281,70 @@ def _orient(q: dict[str, np.ndarray], orientation: np.ndarray) -> None:
         q[k] = np.where(good, q[k], -q[k])
 
 
-def _columns(cells: np.ndarray) -> list[np.ndarray]:
-    """Contiguous copies of the columns of a (nc, nv) cell array."""
-    return [np.ascontiguousarray(cells[:, k]) for k in range(cells.shape[1])]
-
-
-def _touching(mask: np.ndarray, cols: list[np.ndarray]) -> np.ndarray:
-    """(nc,) bool: cells with at least one node in ``mask`` (vectorised).
-
-    Column-wise ``take`` on a uint8 view: ~7x faster than ``mask[cells].any(1)``.
-    """
-    m8 = np.ascontiguousarray(mask, dtype=bool).view(np.uint8)
-    out = m8.take(cols[0])
-    for c in cols[1:]:
-        out |= m8.take(c)
-    return out.view(bool)
-
-
 # ---------------------------------------------------------------------------
 # Report
 # ---------------------------------------------------------------------------
+
+
+class _Reference:
+    """The reference coordinates of a report: which nodes moved, and the reference volumes.
+
+    Args:
+        x_new: ``(n, 3)`` coordinates assessed; x_ref: ``(n, 3)`` reference
+            coordinates; x_before: ``(n, 3)`` coordinates before smoothing, or None.
+
+    Attributes:
+        moved_new, moved_before: ``(n,)`` bool, nodes off ``x_ref`` in
+            ``x_new`` / ``x_before`` (``moved_before`` None without ``x_before``);
+        changed: ``(n,)`` bool, their union.
+        v_ref, v_before: ``(nc,)`` signed volumes of the report's cells in
+            ``x_ref`` / ``x_before``, after :meth:`volumes`.
+    """
+
+    def __init__(self, x_new: np.ndarray, x_ref: np.ndarray, x_before: np.ndarray | None):
+        # nodes moved off x_ref, once per coordinate array (O(nodes))
+        self.x_ref = np.asarray(x_ref, dtype=np.float64)
+        self.moved_new = np.any(x_new != self.x_ref, axis=1)
+        self.x_before = None if x_before is None else np.asarray(x_before, dtype=np.float64)
+        self.moved_before = None
+        self.changed = self.moved_new
+        if self.x_before is not None:
+            self.moved_before = np.any(self.x_before != self.x_ref, axis=1)
+            self.changed = self.moved_new | self.moved_before
+        self.v_ref: np.ndarray | None = None
+        self.v_before: np.ndarray | None = None
+
+    def volumes(self, cells: np.ndarray, v_new: np.ndarray, gdim: int) -> np.ndarray:
+        """Set (and return) ``v_ref``, and ``v_before``, of ``cells``, whose volumes in ``x_new`` are ``v_new``.
+
+        A cell whose nodes all kept their reference coordinates has exactly
+        the volume ``v_new``, so only the changed cells need the reference
+        geometry (bitwise identical).
+        """
+        cols = cell_columns(cells)
+        self.v_ref = v_new.copy()
+        ch = cells_touching(self.moved_new, cols)
+        self.v_ref[ch] = signed_volumes(self.x_ref, cells[ch], gdim)
+        if self.x_before is not None:
+            assert self.moved_before is not None
+            self.v_before = self.v_ref.copy()
+            ch = cells_touching(self.moved_before, cols)
+            self.v_before[ch] = signed_volumes(self.x_before, cells[ch], gdim)
+        return self.v_ref
+
+
+def _max_timings(comm: mpi4py.MPI.Comm, timings: dict[str, float]) -> dict[str, float]:
+    """Stage -> seconds, the largest over the processes (collective).
+
+    Stages missing on a process count 0 there; the caller's stage order is
+    kept, stages known only elsewhere follow in sorted order.
+    """
+    keys = sorted(timings)
+    allkeys = sorted(set().union(*comm.allgather(keys)))
+    out = {k: comm.allreduce(float(timings.get(k, 0.0)), op=mpi4py.MPI.MAX) for k in allkeys}
+    order = [k for k in timings if k in out]
+    order += [k for k in allkeys if k not in order]
+    return {k: out[k] for k in order}
 
 
 @dataclasses.dataclass
@@ -365,7 +365,7 @@ class MetricSummary:
     hist: np.ndarray
 
     @classmethod
-    def reduce(cls, comm, values: np.ndarray, bins: np.ndarray) -> MetricSummary:
+    def reduce(cls, comm: mpi4py.MPI.Comm, values: np.ndarray, bins: np.ndarray) -> MetricSummary:
         """Collective: summarise ``values`` (owned cells) over ``comm``."""
         values = np.asarray(values, dtype=np.float64)
         n = comm.allreduce(values.size)
@@ -377,7 +377,7 @@ class MetricSummary:
         # the clipped values, but without its sort)
         # (count of interior edges e with not v < e: as searchsorted(side="right")
         # with the clipping, NaN last; ~2.5x faster than searchsorted)
-        idx = np.zeros(values.size, dtype=np.uint8 if len(bins) <= 256 else np.intp)
+        idx: np.ndarray = np.zeros(values.size, dtype=np.uint8 if len(bins) <= 256 else np.intp)
         for e in np.asarray(bins, dtype=np.float64)[1:-1]:
             idx += ~(values < e)
         h = np.bincount(idx, minlength=len(bins) - 1)
@@ -443,7 +443,7 @@ class QualityReport:
 
     # -- construction --------------------------------------------------------
     @classmethod
-    def from_arrays(cls, comm, x_new: np.ndarray, cells: np.ndarray, gdim: int,
+    def from_arrays(cls, comm: mpi4py.MPI.Comm, x_new: np.ndarray, cells: np.ndarray, gdim: int,
                     num_owned_nodes: int | None = None, *,
                     x_ref: np.ndarray | None = None,
                     x_before: np.ndarray | None = None,
@@ -479,35 +479,21 @@ class QualityReport:
         """
         if scope not in ("all", "changed"):
             raise ValueError(f"scope must be 'all' or 'changed', not {scope!r}")
+        if scope == "changed" and x_ref is None:
+            raise ValueError("scope='changed' needs x_ref")
         x_new = np.asarray(x_new, dtype=np.float64)
         cells = np.asarray(cells)
         n_cells_mesh = comm.allreduce(int(cells.shape[0]))
-        if scope == "changed" and x_ref is None:
-            raise ValueError("scope='changed' needs x_ref")
+        ref = None
         if x_ref is not None:
-            # nodes moved off x_ref, once per coordinate array (O(nodes))
-            x_ref = np.asarray(x_ref, dtype=np.float64)
-            moved_new = np.any(x_new != x_ref, axis=1)
-            if x_before is not None:
-                x_before = np.asarray(x_before, dtype=np.float64)
-                moved_before = np.any(x_before != x_ref, axis=1)
-        if scope == "changed":
-            either = moved_new | moved_before if x_before is not None else moved_new
-            cells = cells[_touching(either, _columns(cells))]
+            ref = _Reference(x_new, x_ref, x_before)
+            if scope == "changed":
+                cells = cells[cells_touching(ref.changed, cell_columns(cells))]
         q = quality_stats(x_new, cells, gdim)
-        v_ref = None
-        if x_ref is not None:
-            # Reference volumes: a cell whose nodes all kept their reference
-            # coordinates has exactly the volume just computed, so only the
-            # changed cells need the reference geometry (bitwise identical).
-            cols = _columns(cells)
-            v_ref = q["volume"].copy()
-            ch = _touching(moved_new, cols)
-            v_ref[ch] = signed_volumes(x_ref, cells[ch], gdim)
-            _orient(q, v_ref)
-        n_cells = comm.allreduce(int(cells.shape[0]))
+        if ref is not None:
+            _orient(q, ref.volumes(cells, q["volume"], gdim))
         rep = cls(
-            n_cells=n_cells,
+            n_cells=comm.allreduce(int(cells.shape[0])),
             scope=scope,
             n_cells_mesh=n_cells_mesh,
             min_angle=MetricSummary.reduce(comm, q["min_angle"], ANGLE_BINS),
@@ -516,39 +502,41 @@ class QualityReport:
             mean_ratio=MetricSummary.reduce(comm, q["mean_ratio"], RATIO_BINS),
             gdim=gdim,
         )
-        nown = x_new.shape[0] if num_owned_nodes is None else int(num_owned_nodes)
-        if x_ref is not None:
-            rep.n_inverted_after = comm.allreduce(
-                int(np.count_nonzero(_inverted_mask(q["volume"], v_ref, rel_floor))))
-            if x_before is not None:
-                v_b = v_ref.copy()
-                ch = _touching(moved_before, cols)
-                v_b[ch] = signed_volumes(x_before, cells[ch], gdim)
-                rep.n_inverted_before = comm.allreduce(
-                    int(np.count_nonzero(_inverted_mask(v_b, v_ref, rel_floor))))
-            d = np.linalg.norm(x_new[:nown] - x_ref[:nown], axis=1)
-            rep.n_moved = comm.allreduce(int(np.count_nonzero(d > 0.0)))
-            rep.max_displacement = comm.allreduce(float(d.max()) if d.size else 0.0,
-                                                  op=mpi4py.MPI.MAX)
+        if ref is not None:
+            nown = x_new.shape[0] if num_owned_nodes is None else int(num_owned_nodes)
+            rep._count_inversions(comm, ref, q["volume"], rel_floor)
+            rep._displacements(comm, x_new[:nown] - ref.x_ref[:nown])
         if shortfall is not None:
-            sf = np.asarray(shortfall, dtype=np.float64)
-            sf = sf[sf > 0.0]
-            rep.n_shortfall = comm.allreduce(int(sf.size))
-            rep.max_shortfall = comm.allreduce(float(sf.max()) if sf.size else 0.0,
-                                               op=mpi4py.MPI.MAX)
+            rep._shortfalls(comm, np.asarray(shortfall, dtype=np.float64))
         if timings:
-            keys = sorted(timings)
-            allkeys = sorted(set().union(*comm.allgather(keys)))
-            rep.timings = {k: comm.allreduce(float(timings.get(k, 0.0)), op=mpi4py.MPI.MAX)
-                           for k in allkeys}
-            # keep the caller's stage order where possible
-            order = [k for k in timings if k in rep.timings]
-            order += [k for k in allkeys if k not in order]
-            rep.timings = {k: rep.timings[k] for k in order}
+            rep.timings = _max_timings(comm, timings)
         return rep
 
+    def _count_inversions(self, comm: mpi4py.MPI.Comm, ref: _Reference, v_new: np.ndarray, rel_floor: float) -> None:
+        """Set ``n_inverted_after`` (and ``n_inverted_before`` with ``x_before``) (collective)."""
+        assert ref.v_ref is not None  # set by ref.volumes
+        self.n_inverted_after = comm.allreduce(
+            int(np.count_nonzero(inverted_mask(v_new, ref.v_ref, rel_floor))))
+        if ref.v_before is not None:
+            self.n_inverted_before = comm.allreduce(
+                int(np.count_nonzero(inverted_mask(ref.v_before, ref.v_ref, rel_floor))))
+
+    def _displacements(self, comm: mpi4py.MPI.Comm, disp: np.ndarray) -> None:
+        """Set ``n_moved`` and ``max_displacement`` from the owned nodes' ``disp (k, 3)`` (collective)."""
+        d = np.linalg.norm(disp, axis=1)
+        self.n_moved = comm.allreduce(int(np.count_nonzero(d > 0.0)))
+        self.max_displacement = comm.allreduce(float(d.max()) if d.size else 0.0,
+                                               op=mpi4py.MPI.MAX)
+
+    def _shortfalls(self, comm: mpi4py.MPI.Comm, shortfall: np.ndarray) -> None:
+        """Set ``n_shortfall`` and ``max_shortfall`` from the owned ``shortfall (k,)`` (collective)."""
+        sf = shortfall[shortfall > 0.0]
+        self.n_shortfall = comm.allreduce(int(sf.size))
+        self.max_shortfall = comm.allreduce(float(sf.max()) if sf.size else 0.0,
+                                            op=mpi4py.MPI.MAX)
+
     @classmethod
-    def from_mesh(cls, mesh, x_new: np.ndarray | None = None, **kwargs) -> QualityReport:
+    def from_mesh(cls, mesh: dolfinx.mesh.Mesh, x_new: np.ndarray | None = None, **kwargs) -> QualityReport:
         """Collective: report for a DOLFINx P1 simplex mesh.
 
         Args:
@@ -600,7 +588,7 @@ class QualityReport:
             lines.append(f"    {name:<{w - 2}} " + "".join(f"{s:>{cw}}" for s in labels))
             lines.append(f"    {'':<{w - 2}} " + "".join(f"{c:>{cw}d}" for c in m.hist))
 
-        def kv(k, v):
+        def kv(k: str, v: object) -> None:
             lines.append(f"  {k:<{w}} {v}")
 
         kv("inverted before smooth", self.n_inverted_before if self.n_inverted_before >= 0 else "n/a")

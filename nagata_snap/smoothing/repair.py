@@ -59,31 +59,27 @@ round-off of the band solve.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
+from collections.abc import Callable
 from typing import Any
 
+import dolfinx.mesh
 import mpi4py.MPI
 import numpy as np
 
-from nagata_snap.mesh.boundary import facet_normal_vectors, local_facet_vertices
-from nagata_snap.smoothing.neighbourhood import Neighbourhood, layer_distance
-from nagata_snap.smoothing.quality import (
-    QualityReport,
-    _columns,
-    _inverted_mask,
-    _touching,
-    mean_ratio,
+from nagata_snap.mesh.simplex import (
+    cell_columns,
+    cells_touching,
+    facet_normal_vectors,
+    local_facet_vertices,
     signed_volumes,
 )
+from nagata_snap.smoothing.band import auto_layers, max_layers, prepare
+from nagata_snap.smoothing.neighbourhood import Neighbourhood, layer_distance
+from nagata_snap.smoothing.quality import QualityReport, inverted_mask, mean_ratio
 from nagata_snap.smoothing.slide import SlideFacets, SlidingBoundary
-from nagata_snap.smoothing.smooth import (
-    _acc,
-    _auto_layers,
-    _max_layers,
-    _options,
-    _prepare,
-    _Smoother,
-)
+from nagata_snap.smoothing.smooth import Smoother, add_time, smooth_options
 from nagata_snap.smoothing.untangle import optimise, targets, volume_ratio_min
 
 __all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "SLIDE_LAYERS",
@@ -171,10 +167,12 @@ class RepairResult:
 class _Guard:
     """What every stage shares: masks, targets, the bad-cell check, the attempt log."""
 
-    def __init__(self, mesh, x_ref, x_target, moved, fixed, rel_floor, min_quality, opts):
+    def __init__(self, mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray,
+                 moved: np.ndarray, fixed: np.ndarray, rel_floor: float, min_quality: float,
+                 opts: dict[str, Any]):
         self.mesh, self.comm = mesh, mesh.comm
         self.gdim = mesh.geometry.dim
-        self.sync, self.x_ref, self.moved_mask, self.fixed_mask = _prepare(
+        self.sync, self.x_ref, self.moved_mask, self.fixed_mask = prepare(
             mesh, x_ref, moved, fixed, bool(opts["fix_boundary"]))
         x_target = np.asarray(x_target, dtype=np.float64)
         if x_target.shape != self.x_ref.shape:
@@ -183,16 +181,16 @@ class _Guard:
         self.x_before = self.sync.forward(x_target)  # owner-consistent copy
         self.x_tgt = self.x_before.copy()  # targets (slid vertices: where they slid to)
         self.cells = mesh.geometry.dofmaps[0]
-        self.cols = _columns(self.cells)
+        self.cols = cell_columns(self.cells)
         self.n_own_cells = mesh.topology.index_map(mesh.topology.dim).size_local
         self.rel_floor, self.min_quality = rel_floor, min_quality
         # cells whose nodes may differ from x_ref: those touching a moved target,
         # plus every band / neighbourhood a stage worked on (see check)
-        self.pool = _touching(np.any(self.x_tgt != self.x_ref, axis=1), self.cols)
+        self.pool = cells_touching(np.any(self.x_tgt != self.x_ref, axis=1), self.cols)
         n = self.cells.shape[0]
         self._v_ref, self._q_floor, self._q_ref = np.empty(n), np.empty(n), np.empty(n)
         self._have_ref = np.zeros(n, dtype=bool)
-        self._pool_key = None
+        self._pool_key: np.ndarray | None = None
         self.timings: dict[str, float] = {}
         self.attempts: list[dict] = []
         self.slid = 0
@@ -226,14 +224,14 @@ class _Guard:
             self._pool_key = self.pool.copy()
             pool = np.flatnonzero(self.pool)
             pc = self.cells[pool]
-            self._pool = (pool, _columns(pc), np.unique(pc))
+            self._pool = (pool, cell_columns(pc), np.unique(pc))
         pool, pcols, nodes = self._pool
         changed = np.zeros(x.shape[0], dtype=bool)
         changed[nodes] = np.any(x[nodes] != self.x_ref[nodes], axis=1)
-        cand = pool[_touching(changed, pcols)]
+        cand = pool[cells_touching(changed, pcols)]
         self._ref_data(cand)
         sub = self.cells[cand]
-        badc = _inverted_mask(signed_volumes(x, sub, self.gdim), self._v_ref[cand], self.rel_floor)
+        badc = inverted_mask(signed_volumes(x, sub, self.gdim), self._v_ref[cand], self.rel_floor)
         q = mean_ratio(x, sub, self.gdim)
         if self.min_quality > 0:
             badc |= q < self._q_floor[cand]
@@ -247,7 +245,7 @@ class _Guard:
             np.array([np.count_nonzero(bad[own]), np.count_nonzero(self.poor[own])]))
         own_c = cand < self.n_own_cells
         self.worst = self.comm.allreduce(float(ratio[own_c].min(initial=1.0)), op=mpi4py.MPI.MIN)
-        _acc(self.timings, "check", time.perf_counter() - t0)
+        add_time(self.timings, "check", time.perf_counter() - t0)
         return bad, int(nbad)
 
     def log(self, stage: str, t0: float, n_bad: int, **info: Any) -> None:
@@ -268,8 +266,8 @@ class _Guard:
 # ---------------------------------------------------------------------------
 
 
-def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.ndarray, int,
-                                                                 _Smoother]:
+def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[float, int], ...]
+            ) -> tuple[np.ndarray, np.ndarray, int, Smoother]:
     """Stage ``smooth``: the band smoother (then the optional ``stiffen`` schedule)."""
     schedule = [(method, o)] + [("elastic", dict(o, exponent=o["exponent"] + dp,
                                                  layers=np.asarray(o["layers"]) * int(mult)))
@@ -279,17 +277,18 @@ def _linear(g: _Guard, method: str, o: dict, stiffen) -> tuple[np.ndarray, np.nd
         t0 = time.perf_counter()
         if sm is not None:
             sm.destroy()
-        sm = _Smoother(g.mesh, g.x_ref, g.moved_mask, g.fixed_mask, g.sync, meth, oo, g.timings,
+        sm = Smoother(g.mesh, g.x_ref, g.moved_mask, g.fixed_mask, g.sync, meth, oo, g.timings,
                        g.cols)
         x = sm.run(g.x_tgt)
         g.pool[sm.cells] = True
         bad, nbad = g.check(x)
         band = sm.band
         g.log("smooth" if k == 0 else "stiffen", t0, nbad, method=meth, exponent=oo["exponent"],
-              layers=_max_layers(oo["layers"], g.comm), cells=band.n_cells_global if band else 0,
+              layers=max_layers(oo["layers"], g.comm), cells=band.n_cells_global if band else 0,
               nodes=band.n_free_global if band else 0)
         if nbad == 0:
             break
+    assert sm is not None  # the schedule has at least the first smoother
     return x, bad, nbad, sm
 
 
@@ -352,7 +351,7 @@ def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
     keep = nb == 0 and g.worst > worst
     g.log("optimise", t0, nb, layers=UNTANGLE_LAYERS[0], cells=loc.cells_moving(free),
           nodes=int(free.sum()), worst=g.worst, kept=keep)
-    _acc(g.timings, "optimise", g.attempts[-1]["seconds"])
+    add_time(g.timings, "optimise", g.attempts[-1]["seconds"])
     return (xn, True) if keep else (x, False)
 
 
@@ -411,7 +410,8 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: b
             break
         if can_slide and not progress and loc.reach(g, bn, dist) < layers - 1:
             break  # pinned by the boundary: sliding is the next step
-    _acc(g.timings, "untangle", time.perf_counter() - t_stage)
+    add_time(g.timings, "untangle", time.perf_counter() - t_stage)
+    assert loc is not None  # the first attempt always gathers its neighbourhood
     return x, bad, nbad, loc
 
 
@@ -457,7 +457,7 @@ def _slide(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, loc: _Local,
     n_slid = int(np.count_nonzero(slid))
     g.log("slide", t0, nb, layers=loc.layers - 1, cells=loc.cells_moving(moving),
           nodes=int(moving.sum()), slid=n_slid)
-    _acc(g.timings, "slide", g.attempts[-1]["seconds"])
+    add_time(g.timings, "slide", g.attempts[-1]["seconds"])
     if nb > nbad:
         return x, bad, nbad
     facets.commit(slid)
@@ -477,7 +477,44 @@ def _blame(dist: np.ndarray, moved: np.ndarray, radius: int, taper: int) -> np.n
     return np.where(moved, w, 0.0)
 
 
-def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother,
+_TrialResult = tuple[np.ndarray, np.ndarray, np.ndarray, int]
+
+
+def _partial_trial(g: _Guard, loc: _Local, free: np.ndarray, alpha: np.ndarray, w_loc: np.ndarray,
+                   base_x: np.ndarray, fmin: float, rnd: int, t: float) -> _TrialResult:
+    """One trial of a partial round: blamed vertices (weights ``w_loc (n,)``) at ``t`` of the way (collective).
+
+    The fractions are ``alpha - (1 - t) w (alpha - fmin)``; the neighbourhood
+    ``loc`` is re-optimised (its ``free`` nodes) from ``base_x`` with the
+    moved nodes there.  Returns ``(x, alpha_t (n,), bad (nc,), nbad)``.
+    """
+    t0 = time.perf_counter()
+    a_t = alpha - (1.0 - t) * w_loc * (alpha - fmin)
+    xt = np.where(g.moved_mask[:, None], g.positions(a_t), base_x)
+    xn, _ = loc.run(g, xt, free)
+    bn, nb = g.check(xn)
+    g.log("partial", t0, nb, round=rnd, t=t, layers=loc.layers,
+          cells=loc.cells_moving(free), nodes=int(free.sum()))
+    return xn, a_t, bn, nb
+
+
+def _bisect(trial: Callable[[float], _TrialResult], steps: int) -> _TrialResult:
+    """The valid trial of the largest ``t`` found by ``steps`` bisection steps on ``(0, 1)``.
+
+    Without a valid trial, the trial at ``t = 0`` (which may still leave bad cells).
+    """
+    good, t_lo, t_hi = None, 0.0, 1.0  # good: (x, alpha, bad, nbad) of the best valid trial
+    for _ in range(steps):
+        t = 0.5 * (t_lo + t_hi)
+        out = trial(t)
+        if out[3] == 0:
+            t_lo, good = t, out
+        else:
+            t_hi = t
+    return trial(0.0) if good is None else good
+
+
+def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: Smoother,
              min_fraction: float, bisection_steps: int, implicate_layers: int,
              max_rounds: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Stage ``partial``: the blamed moved vertices only part of the way (see module docstring).
@@ -498,27 +535,8 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: _Smoother
         free = ~loc.constrained & (dist <= radius + TAPER_LAYERS + 2)
         w_loc = np.zeros(g.sync.n)
         w_loc[nbh.local_nodes] = w[nbh.local_pos]
-
-        def trial(t):
-            t0 = time.perf_counter()
-            a_t = alpha - (1.0 - t) * w_loc * (alpha - fmin)
-            xt = np.where(g.moved_mask[:, None], g.positions(a_t), base_x)
-            xn, _ = loc.run(g, xt, free)
-            bn, nb = g.check(xn)
-            g.log("partial", t0, nb, round=rnd, t=t, layers=loc.layers,
-                  cells=loc.cells_moving(free), nodes=int(free.sum()))
-            return xn, a_t, bn, nb
-
-        good, t_lo, t_hi = None, 0.0, 1.0  # good: (x, alpha, bad, nbad) of the best valid trial
-        for _ in range(int(bisection_steps)):
-            t = 0.5 * (t_lo + t_hi)
-            out = trial(t)
-            if out[3] == 0:
-                t_lo, good = t, out
-            else:
-                t_hi = t
-        if good is None:
-            good = trial(0.0)
+        good = _bisect(functools.partial(_partial_trial, g, loc, free, alpha, w_loc, base_x, fmin, rnd),
+                       int(bisection_steps))
         if good[3] == 0:
             return good[0], good[1], good[2], 0
         if good[3] >= nbad:
@@ -550,7 +568,7 @@ def _fail(g: _Guard, bad: np.ndarray, why: str) -> None:
 
 
 def _result(g: _Guard, x: np.ndarray, alpha: np.ndarray, stage: str, n_unsmoothed: int,
-            report, t_start: float) -> RepairResult:
+            report: bool | str, t_start: float) -> RepairResult:
     """The :class:`RepairResult` (and its quality report) of a valid ``x``."""
     disp = np.linalg.norm(g.disp, axis=1)
     short_all = np.where(g.moved_mask, (1.0 - alpha) * disp, 0.0)
@@ -579,7 +597,7 @@ def _result(g: _Guard, x: np.ndarray, alpha: np.ndarray, stage: str, n_unsmoothe
 # ---------------------------------------------------------------------------
 
 
-def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
+def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
            fixed: np.ndarray, method: str = "elastic", *,
            rel_floor: float = 1e-12, min_quality: float = 0.01,
            untangle: bool = True, slide: SlidingBoundary | None = None,
@@ -596,7 +614,7 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
 
     Args:
         mesh: P1 simplex ``dolfinx.mesh.Mesh`` (topology / parallel layout;
-            its coordinates are not read).
+            its coordinates are only checked to be finite).
         x_ref: (n, 3) straight reference coordinates (all local nodes).
         x_target: (n, 3) coordinates with the moved nodes at their targets;
             its other rows (fixed nodes, nodes outside the band) are kept.
@@ -632,10 +650,10 @@ def repair(mesh, x_ref: np.ndarray, x_target: np.ndarray, moved: np.ndarray,
         InvertedCellsError: no valid mesh within the constraints.
     """
     t_start = time.perf_counter()
-    o = _options(opts)
+    o = smooth_options(opts)
     g = _Guard(mesh, x_ref, x_target, moved, fixed, rel_floor, min_quality, o)
     if o["layers"] == "auto":
-        o["layers"] = _auto_layers(g.comm, g.x_ref, g.disp, g.cells, g.pool, g.sync)
+        o["layers"] = auto_layers(g.comm, g.x_ref, g.disp, g.cells, g.pool, g.sync)
     _, n_unsmoothed = g.check(g.x_tgt)
     x, bad, nbad, sm = _linear(g, method, o, stiffen)
     stage = "smooth" if len(g.attempts) == 1 else "stiffen"

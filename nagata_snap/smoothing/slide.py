@@ -34,6 +34,8 @@ from collections.abc import Callable
 import numpy as np
 
 from nagata_snap.mesh.records import Records
+from nagata_snap.smoothing.band import NodeSync
+from nagata_snap.smoothing.neighbourhood import Neighbourhood
 
 __all__ = ["SlidingBoundary", "SlideFacets"]
 
@@ -41,12 +43,18 @@ __all__ = ["SlidingBoundary", "SlideFacets"]
 TANGENT_STEP = 1e-4
 
 
-def _projector(geometry) -> Callable[[Records, np.ndarray], tuple[np.ndarray, Records]]:
-    """``project(records, points) -> (points, records)`` of a snapping geometry."""
-    if not hasattr(geometry, "project"):
+def _projector(geometry: object) -> Callable[[Records, np.ndarray], tuple[np.ndarray, Records]]:
+    """``project(records, points) -> (points, records)`` of a snapping geometry (checked at run time)."""
+    project = getattr(geometry, "project", None)
+    if project is None:
         raise TypeError(f"{type(geometry).__name__} has no project(records, points): its "
                         "boundary vertices cannot slide (pass repair options without sliding)")
-    return lambda rec, pts: tuple(geometry.project(rec, pts)[:2])
+    return lambda rec, pts: _first_two(project(rec, pts))
+
+
+def _first_two(result: tuple) -> tuple[np.ndarray, Records]:
+    """``(points, records)``: the first two items of a geometry's ``project`` result."""
+    return result[0], result[1]
 
 
 class SlidingBoundary:
@@ -65,14 +73,14 @@ class SlidingBoundary:
         n_slid: global number of vertices that slid.
     """
 
-    def __init__(self, nodes: np.ndarray, records: Records, geometry, blocked: np.ndarray):
+    def __init__(self, nodes: np.ndarray, records: Records, geometry: object, blocked: np.ndarray):
         self.nodes = np.asarray(nodes, dtype=np.int64)
         self.records = Records(np.array(records.root), np.array(records.params, dtype=float))
         self.project = _projector(geometry)
         self.blocked = np.asarray(blocked, dtype=np.int64).reshape(-1)
         self.n_slid = 0
 
-    def eligible(self, sync) -> np.ndarray:
+    def eligible(self, sync: NodeSync) -> np.ndarray:
         """``(n,)`` bool: nodes of snapped facets not blocked (ghost-consistent; collective)."""
         snap = np.zeros(sync.n, dtype=bool)
         snap[self.nodes.reshape(-1)] = True
@@ -97,7 +105,7 @@ class SlideFacets:
             on ``nfv`` or more distinct entities): they must not slide.
     """
 
-    def __init__(self, boundary: SlidingBoundary, nbh, slide: np.ndarray):
+    def __init__(self, boundary: SlidingBoundary, nbh: Neighbourhood, slide: np.ndarray):
         comm = nbh.comm
         self.boundary = boundary
         self.slide = np.asarray(slide, dtype=np.int64)

@@ -63,12 +63,13 @@ caller projects them back onto the geometry and calls again
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import mpi4py.MPI  # noqa: F401  (must precede petsc4py)
 import numpy as np
 from petsc4py import PETSc
 
-from nagata_snap.mesh.simplex import inverse_small
+from nagata_snap.mesh.simplex import cell_columns, edge_matrices, inverse_small
 
 __all__ = ["targets", "energy", "optimise", "OptimiseResult", "volume_ratio_min", "EPS",
            "DELTA_MIN", "SLIDE_STEP"]
@@ -104,9 +105,8 @@ def targets(x_ref: np.ndarray, cells: np.ndarray) -> np.ndarray:
 
 
 def _edges(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Edge matrices ``A`` ``(m, d, d)``, column ``j`` = ``x_{j+1} - x_0``."""
-    X = x[cells]
-    return np.swapaxes(X[:, 1:] - X[:, :1], 1, 2)
+    """Edge matrices ``A`` ``(m, d, d)``, column ``j`` = ``x_{j+1} - x_0`` (``x (n, d)``)."""
+    return np.swapaxes(edge_matrices(x, cells, x.shape[1]), 1, 2)
 
 
 class _Cells:
@@ -119,7 +119,7 @@ class _Cells:
 
     def __init__(self, cells: np.ndarray, winv: np.ndarray, n: int):
         self.n, self.d = n, winv.shape[1]
-        self.cols = [np.ascontiguousarray(cells[:, k]) for k in range(cells.shape[1])]
+        self.cols = cell_columns(cells)
         self.w = [[np.ascontiguousarray(winv[:, i, j]) for j in range(self.d)]
                   for i in range(self.d)]
         self.B = np.concatenate([-winv.sum(axis=1, keepdims=True), winv], axis=1)  # (m, d+1, d)
@@ -148,8 +148,8 @@ def _det_cof(S: list[list[np.ndarray]]) -> tuple[np.ndarray, list[list[np.ndarra
     return sum(S[c][0] * cof[c][0] for c in range(len(S))), cof
 
 
-def energy(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, delta: float,
-           grad: bool = True, prepared: _Cells | None = None, hessian: bool = False):
+def energy(x: np.ndarray, cells: np.ndarray | None, winv: np.ndarray | None, delta: float,
+           grad: bool = True, prepared: _Cells | None = None, hessian: bool = False) -> tuple[Any, ...]:
     """``F = sum eta_delta(S_K)``, its gradient, the volume ratios, and the cell Hessians.
 
     Args:
@@ -160,11 +160,15 @@ def energy(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, delta: float,
         hessian: also return the cell Hessians (module docstring).
 
     Returns:
-        ``(F, dF/dx (n, d) or None, sigma (m,))``, and with ``hessian`` a
+        ``(F (float), dF/dx (n, d) or None, sigma (m,))``, and with ``hessian`` a
         fourth item ``(m, d + 1, d, d + 1, d)``: second derivatives of each
         cell's ``eta`` with respect to its vertex coordinates.
     """
-    cc = prepared if prepared is not None else _Cells(cells, winv, x.shape[0])
+    if prepared is None:
+        if cells is None or winv is None:
+            raise ValueError("energy needs cells and winv, or prepared")
+        prepared = _Cells(cells, winv, x.shape[0])
+    cc = prepared
     d = cc.d
     S = cc.shape(x)
     sigma, cof = _det_cof(S)
@@ -211,7 +215,8 @@ def _cofactor_derivative(d: int) -> np.ndarray:
 _DCOF = {2: _cofactor_derivative(2), 3: _cofactor_derivative(3)}
 
 
-def _hessian_S(S, C, sigma, r, a, b) -> np.ndarray:
+def _hessian_S(S: np.ndarray, C: np.ndarray, sigma: np.ndarray, r: np.ndarray, a: np.ndarray,
+               b: np.ndarray) -> np.ndarray:
     """``d^2 eta / dS^2`` ``(m, d, d, d, d)`` (module docstring)."""
     m, d, _ = S.shape
     if d == 2:
@@ -272,7 +277,8 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
     if pb.size == 0:
         return OptimiseResult(x, pb.sigma_min(pb.z0), 0, 0)
     z, rounds, smin = pb.z0, 0, pb.sigma_min(pb.z0)
-    for rounds in range(1, max_rounds + 1):
+    while rounds < max_rounds:
+        rounds += 1
         delta = max(np.sqrt(EPS * (EPS - smin)) if smin < EPS else 0.0, DELTA_MIN)
         z = _newton(pb, z, delta, max_iterations if delta == DELTA_MIN else max_iterations // 2)
         prev, smin = smin, pb.sigma_min(z)
@@ -325,7 +331,8 @@ def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> n
     return z
 
 
-def _armijo(pb: _Problem, z, p, F, slope, delta):
+def _armijo(pb: _Problem, z: np.ndarray, p: np.ndarray, F: float, slope: float, delta: float
+            ) -> tuple[np.ndarray, float] | None:
     """``(z_new, F_new)`` of the first halving of the step that decreases ``F`` enough, or None."""
     t = 1.0
     for _ in range(20):
@@ -345,8 +352,9 @@ class _Problem:
     columns are zero, their variables stay 0).
     """
 
-    def __init__(self, x, cells, winv, free, scale, slide, basis):
-        n, d = x.shape
+    def __init__(self, x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarray,
+                 scale: np.ndarray, slide: np.ndarray | None, basis: np.ndarray | None):
+        d = x.shape[1]
         si = np.zeros(0, np.int64) if slide is None else np.asarray(slide, dtype=np.int64)
         moving = np.asarray(free, dtype=bool).copy()
         moving[si] = True
@@ -362,6 +370,8 @@ class _Problem:
         E[self.moving] = np.eye(d)
         self.lim = np.full((self.nodes.size, d), np.inf)
         if si.size:
+            if basis is None:
+                raise ValueError("sliding nodes need their tangent basis (basis=)")
             pos = np.searchsorted(self.nodes, si)
             T = np.zeros((si.size, d, d))
             T[:, :, : basis.shape[2]] = basis
@@ -395,11 +405,12 @@ class _Problem:
         self._ksp = None
         if self.size:  # COO pattern: cell blocks, then the diagonal (damping, dead variables)
             A = PETSc.Mat().create(PETSc.COMM_SELF)
-            A.setSizes([self.size, self.size])
+            A.setSizes((self.size, self.size))
             A.setType(PETSc.Mat.Type.AIJ)
             A.setPreallocationCOO(np.r_[ii[ok], diag].astype(PETSc.IntType),
                                   np.r_[jj[ok], diag].astype(PETSc.IntType))
-            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            # (petsc4py's stub types the option as Mat.Option, but its members are typed int)
+            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)  # type: ignore[arg-type]
             ksp = PETSc.KSP().create(PETSc.COMM_SELF)
             ksp.setOperators(A)
             ksp.setType("preonly")
@@ -407,7 +418,7 @@ class _Problem:
             pc.setType("cholesky")
             pc.setFactorSolverType("mumps")
             self._A, self._ksp = A, ksp
-            self._b, self._x = A.createVecs()
+            self._b, self._x = A.createVecRight(), A.createVecLeft()
 
     def coords(self, z: np.ndarray) -> np.ndarray:
         xx = self.x0.copy()
@@ -421,7 +432,7 @@ class _Problem:
         self.count += 1
         return energy(self.coords(z), None, None, delta, grad=False, prepared=self.cells)[0]
 
-    def evaluate(self, z: np.ndarray, delta: float):
+    def evaluate(self, z: np.ndarray, delta: float) -> tuple[float, np.ndarray, np.ndarray]:
         """``(F, gradient (size,), Hessian values)`` in the variables ``z`` (values for :meth:`solve`)."""
         self.count += 1
         F, g, _, Hx = energy(self.coords(z), None, None, delta, prepared=self.cells,
@@ -443,9 +454,11 @@ class _Problem:
         if held.any():
             hv = np.where(fixed[self._r] | fixed[self._c], 0.0, hv)
         extra = mu * np.maximum(diag, 1e-12) * ~fixed + fixed
-        self._A.setValuesCOO(np.r_[hv, extra], addv=PETSc.InsertMode.INSERT_VALUES)
+        assert self._ksp is not None  # solve is only called on a problem with variables
+        # (petsc4py's stub: addv typed InsertMode but its members int; arrays where it says Sequence)
+        self._A.setValuesCOO(np.r_[hv, extra], addv=PETSc.InsertMode.INSERT_VALUES)  # type: ignore[arg-type]
         self._A.assemble()
-        self._b.setArray(rhs)
+        self._b.setArray(rhs)  # type: ignore[arg-type]
         try:
             self._ksp.setOperators(self._A)
             self._ksp.solve(self._b, self._x)

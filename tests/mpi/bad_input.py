@@ -40,10 +40,11 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-import dolfinx.mesh  # noqa: E402
 import generate  # noqa: E402
 import make_iges  # noqa: E402
 from robustness_inputs import exterior_tags, flatten_one_cell, wall_tags, wavy  # noqa: E402
+
+import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402

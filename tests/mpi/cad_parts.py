@@ -38,9 +38,10 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [os.path.join(HERE, ".."), os.path.join(HERE, "..", "..", "meshes")]
-import dolfinx.mesh  # noqa: E402
 import parts  # noqa: E402
 from occ_reference import OccShape  # noqa: E402
+
+import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import mesh_cad  # noqa: E402

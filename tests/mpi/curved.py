@@ -17,8 +17,9 @@ import numpy as np
 import ufl
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import dolfinx.fem as fem  # noqa: E402
 import generate  # noqa: E402
+
+import dolfinx.fem as fem  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402

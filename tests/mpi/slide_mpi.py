@@ -30,8 +30,8 @@ from surfaces import nagata_surface_error  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.mesh.records import Records  # noqa: E402
 from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
+from nagata_snap.mesh.records import Records  # noqa: E402
 from nagata_snap.smoothing.repair import repair  # noqa: E402
 from nagata_snap.smoothing.slide import SlidingBoundary  # noqa: E402
 

@@ -12,10 +12,11 @@ import json
 import os
 import sys
 
-import dolfinx
-import dolfinx.mesh
 import mpi4py.MPI as MPI
 import numpy as np
+
+import dolfinx
+import dolfinx.mesh
 
 from nagata_snap.smoothing.quality import inverted_cells
 from nagata_snap.smoothing.repair import repair

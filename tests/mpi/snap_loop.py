@@ -12,9 +12,10 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import dolfinx.mesh  # noqa: E402
 import generate  # noqa: E402
 import make_iges  # noqa: E402
+
+import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry  # noqa: E402

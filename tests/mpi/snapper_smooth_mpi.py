@@ -45,11 +45,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "meshes"))
+import generate  # noqa: E402
+
 import basix.ufl  # noqa: E402
 import dolfinx  # noqa: E402
 import dolfinx.la  # noqa: E402
 import dolfinx.mesh  # noqa: E402
-import generate  # noqa: E402
 
 import nagata_snap.snapper as hook  # noqa: E402
 from nagata_snap import NagataGeometry, Snapper  # noqa: E402

@@ -24,8 +24,10 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))  # generate
-import dolfinx.fem as fem  # noqa: E402
 from test_transfer import coarse_snapper, exactness_error  # noqa: E402
+
+import dolfinx.fem as fem  # noqa: E402
+
 
 comm = MPI.COMM_WORLD
 dim, out = int(sys.argv[1]), sys.argv[2]
