@@ -10,11 +10,12 @@
    surface triangles are those gmsh's volume mesh of the solid keeps.  The
    default estimate (``"jet"``, :mod:`nagata_snap.nagata.jets`) next to exact
    normals, then every weighted mean Neto (2010) compares.
-   With ``--meshes K`` each surface is also meshed by K gmsh algorithms per
-   h (6 Frontal-Delaunay, 5 Delaunay, 1 MeshAdapt): gmsh meshes of
+   With ``--meshes K`` each surface is also meshed K ways per h (gmsh
+   algorithm 6 Frontal-Delaunay, 5 Delaunay, 6 at size 1.01 h, 1 MeshAdapt;
+   :data:`MESHES`): gmsh meshes of
    successive h are not nested and the largest distance is an extreme
    value, so the order of one pair scatters from mesh to mesh; the spread
-   of the finest-pair order over the algorithms is printed.
+   of the finest-pair order over the meshes is printed.
 3. Where the exact-normal error sits: the largest distance of the samples
    on the patch edges and of those inside, on the gmsh meshes and on nested
    structured meshes (a torus angle grid; the octahedron subdivisions
@@ -38,8 +39,8 @@ Usage: ``python benchmarks/nagata_convergence.py [--hmin 0.025] [--surfaces toru
 [--schemes jet,mwselr,...] [--meshes 1] [--nested 64]`` (the default runs every
 surface and estimate down to h = 0.025 on gmsh's default meshes, and the
 nested meshes down to a 160 x 64 torus grid; ``--hmin 0.0125 --surfaces
-torus,ellipsoid --schemes jet --meshes 2`` adds the next level on two meshes
-per h).
+torus,ellipsoid --schemes jet --meshes 3`` adds the next level on three
+meshes per h: about 4 minutes a torus mesh at h = 0.0125).
 """
 
 from __future__ import annotations
@@ -70,8 +71,9 @@ from nagata_snap import NagataGeometry
 from nagata_snap.nagata.normals import SCHEMES
 
 SURFACES = ("torus", "ellipsoid", "cylinder")
-#: gmsh ``Mesh.Algorithm`` of the i-th mesh per h (``--meshes``): Frontal-Delaunay, Delaunay, MeshAdapt.
-ALGORITHMS = (6, 5, 1)
+#: gmsh ``(Mesh.Algorithm, size / h)`` of the i-th mesh per h (``--meshes``): Frontal-Delaunay,
+#: Delaunay, Frontal-Delaunay at 1.01 h, MeshAdapt (slow: minutes at h = 0.025).
+MESHES = ((6, 1.0), (5, 1.0), (6, 1.01), (1, 1.0))
 
 
 def surface_errors(points, tris, exact, tags=None, snap=None, samples=16):
@@ -178,22 +180,22 @@ def normal_error_deg(geo, exact, side_only):
     return np.degrees(2 * np.arctan2(np.linalg.norm(n[sel] - e, axis=1), np.linalg.norm(n[sel] + e, axis=1))).max()
 
 
-def estimated_study(hs, schemes, surfaces=SURFACES, algorithms=ALGORITHMS[:1]):
+def estimated_study(hs, schemes, surfaces=SURFACES, meshes=MESHES[:1]):
     """``res[kind][name] = [(h, patch error, normal error deg, seconds), ...]`` per h (first algorithm).
 
     ``res[kind]["split"]``: ``(h, error, *error_split)`` with exact normals;
-    ``res[kind]["meshes"][alg]``: ``(h, jet error, exact error)`` per gmsh
-    algorithm.
+    ``res[kind]["meshes"][(algorithm, size factor)]``: ``(h, jet error,
+    exact error)`` per gmsh mesh of :data:`MESHES`.
     """
     res = {}
     for kind in surfaces:
         res[kind] = {name: [] for name in ("exact", "flat", "split", *schemes)}
-        res[kind]["meshes"] = {alg: [] for alg in algorithms}
+        res[kind]["meshes"] = {m: [] for m in meshes}
         for h in hs:
-            for alg in algorithms:
-                p, t, exact, _ = gmsh_surface(kind, h, alg)
+            for alg in meshes:
+                p, t, exact, _ = gmsh_surface(kind, h * alg[1], alg[0])
                 err = {}
-                for name in ("exact", *(schemes if alg == algorithms[0] else ("jet",))):
+                for name in ("exact", *(schemes if alg == meshes[0] else ("jet",))):
                     t0 = time.perf_counter()
                     with warnings.catch_warnings():  # the exact side normal is refused at disc corners
                         warnings.simplefilter("ignore")
@@ -202,29 +204,29 @@ def estimated_study(hs, schemes, surfaces=SURFACES, algorithms=ALGORITHMS[:1]):
                     dt = time.perf_counter() - t0
                     split = error_split(geo, exact.distance)
                     err[name] = split[:2].max()
-                    if alg == algorithms[0]:
+                    if alg == meshes[0]:
                         res[kind][name].append((h, err[name], normal_error_deg(geo, exact, kind == "cylinder"), dt))
                         if name == "exact":
                             res[kind]["split"].append((h, err[name], *split))
                 res[kind]["meshes"][alg].append((h, err["jet"], err["exact"]))
-                if alg == algorithms[0]:
+                if alg == meshes[0]:
                     g = barycentric_grid(3, 16)
                     flat = np.einsum("kv,fvi->fki", g, p[t])
                     res[kind]["flat"].append((h, float(exact.distance(flat).max()), np.nan, 0.0))
-                print(f"  {kind} h = {h} (gmsh algorithm {alg}): {len(t)} triangles", flush=True)
+                print(f"  {kind} h = {h} (gmsh algorithm {alg[0]}, size {alg[1]} h): {len(t)} triangles", flush=True)
     return res
 
 
 def print_spread(res):
-    """Finest-pair order per gmsh algorithm, and of the median error over the algorithms."""
-    print("\nSeveral gmsh meshes per h (Mesh.Algorithm): observed order of the finest pair, jet / exact normals,"
+    """Finest-pair order per gmsh mesh of :data:`MESHES`, and of the median error over them."""
+    print("\nSeveral gmsh meshes per h (Mesh.Algorithm, size): observed order of the finest pair, jet / exact normals,"
           " and jet / exact error at the finest h")
     for kind in res:
         meshes = res[kind]["meshes"]
         cells = []
         for alg, rows in meshes.items():
-            cells.append(f"alg {alg}: {orders([r[1] for r in rows])[-1]:.2f} / {orders([r[2] for r in rows])[-1]:.2f}"
-                         f" ({rows[-1][1] / rows[-1][2]:.3f}x)")
+            o_jet, o_exact = orders([r[1] for r in rows])[-1], orders([r[2] for r in rows])[-1]
+            cells.append(f"alg {alg[0]} at {alg[1]} h: {o_jet:.2f} / {o_exact:.2f} ({rows[-1][1] / rows[-1][2]:.3f}x)")
         med = [np.median([rows[i][1] for rows in meshes.values()]) for i in range(len(next(iter(meshes.values()))))]
         spread = max(r[-1][1] for r in meshes.values()) / min(r[-1][1] for r in meshes.values())
         print(f"{kind:>10}  " + "; ".join(cells) + f"; median error: {orders(med)[-1]:.2f};"
@@ -278,8 +280,8 @@ def main() -> None:
     ap.add_argument("--hmin", type=float, default=0.025, help="finest gmsh mesh size (from 0.2, halving)")
     ap.add_argument("--surfaces", default=",".join(SURFACES), help="comma-separated subset of " + ",".join(SURFACES))
     ap.add_argument("--schemes", default="all", help='"all" or a comma-separated list of normal estimates')
-    ap.add_argument("--meshes", type=int, default=1, choices=range(1, len(ALGORITHMS) + 1),
-                    help="gmsh meshes per h (algorithms 6, 5, 1)")
+    ap.add_argument("--meshes", type=int, default=1, choices=range(1, len(MESHES) + 1),
+                    help="gmsh meshes per h (algorithm, size: 6 h, 5 h, 6 1.01 h, 1 h)")
     ap.add_argument("--nested", type=int, default=64,
                     help="finest nested torus grid, (5n/2) x n cells, a power of 2 (the ellipsoid's as fine)")
     args = ap.parse_args()
@@ -297,7 +299,7 @@ def main() -> None:
         hs.append(hs[-1] / 2)
     schemes = ("jet", *(s for s in SCHEMES if s != "jet" and (args.schemes == "all" or s in args.schemes)))
     print("\nmeshing and fitting:")
-    res = estimated_study(hs, schemes, surfaces, ALGORITHMS[:args.meshes])
+    res = estimated_study(hs, schemes, surfaces, MESHES[:args.meshes])
     print_estimated(res, hs)
     print_schemes(res, hs, schemes)
     if args.meshes > 1:
