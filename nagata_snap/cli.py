@@ -39,9 +39,21 @@ import os
 import sys
 import time
 import xml.etree.ElementTree as ET
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import mpi4py.MPI as MPI
 import numpy as np
+
+if TYPE_CHECKING:
+    import dolfinx.mesh
+
+    from nagata_snap.cad import CadGeometry
+    from nagata_snap.geometry import SnapGeometry
+
+#: what the inputs give: the coarse mesh, its facet tags, a CAD geometry (None: Nagata
+#: patches) and the tags to snap (None: the geometry's or all)
+_Input = tuple["dolfinx.mesh.Mesh", "dolfinx.mesh.MeshTags", "CadGeometry | None", "Sequence[int] | None"]
 
 __all__ = ["main"]
 
@@ -67,7 +79,7 @@ class SnapFailure(Exception):
 # --------------------------------------------------------------------------
 # readers
 # --------------------------------------------------------------------------
-def _bcast_checked(comm, value, error):
+def _bcast_checked(comm, value: Any, error: str | None) -> Any:
     """Broadcast ``(value, error)`` from rank 0; raise UserError everywhere on error."""
     value, error = comm.bcast((value, error), root=0)
     if error:
@@ -195,8 +207,9 @@ def read_meshio(path: str, comm, tag_key: str | None):
             payload = _meshio_arrays(path, tag_key)
         except UserError as e:
             err = str(e)
-    tdim, gdim, nvert = _bcast_checked(comm, None if payload is None else payload[:3], err)
+    tdim, gdim, _ = _bcast_checked(comm, None if payload is None else payload[:3], err)
     if comm.rank == 0:
+        assert payload is not None  # else _bcast_checked raised rank 0's error
         _, _, _, x, cells, facets, values = payload
     else:
         x = np.zeros((0, gdim))
@@ -248,14 +261,14 @@ def _meshio_arrays(path: str, tag_key: str | None):
             )
         raise UserError(f"{path}: no cell data {key!r} (available cell data: {', '.join(keys) or 'none'})")
     cells = np.concatenate([np.asarray(b.data, dtype=np.int64) for b in m.cells if b.type == ctype])
-    fblocks = [(b, np.asarray(d)) for b, d in zip(m.cells, m.cell_data[key]) if b.type == ftype]
+    fblocks = [(b, np.asarray(d)) for b, d in zip(m.cells, m.cell_data[key], strict=True) if b.type == ftype]
     if not fblocks:
         raise UserError(f"{path}: no {ftype} facet cells carrying {key!r} tags")
     facets = np.concatenate([np.asarray(b.data, dtype=np.int64) for b, _ in fblocks])
     values = np.concatenate([d.reshape(-1) for _, d in fblocks])
-    if not np.issubdtype(values.dtype, np.integer):
-        if not np.all(np.isfinite(values)) or np.any(values != np.round(values)):
-            raise UserError(f"{path}: cell data {key!r} is not integer valued")
+    if not np.issubdtype(values.dtype, np.integer) and (
+            not np.all(np.isfinite(values)) or np.any(values != np.round(values))):
+        raise UserError(f"{path}: cell data {key!r} is not integer valued")
     values = values.astype(np.int32)
     pts = np.asarray(m.points, dtype=float)
     used, inv = np.unique(cells, return_inverse=True)
@@ -407,7 +420,7 @@ def _check_options(args) -> bool:
     return cad_input
 
 
-def _cad_input(args, comm, say):
+def _cad_input(args: argparse.Namespace, comm: MPI.Comm, say: Callable[..., None]) -> _Input:
     """Mesh the CAD input with gmsh; its geometry, facets matched to the faces."""
     from nagata_snap.cad import CadError, mesh_cad
 
@@ -426,22 +439,15 @@ def _cad_input(args, comm, say):
     return cm.mesh, cm.facet_tags, geometry, geometry.tags
 
 
-def _mesh_input(args, comm, say):
+def _mesh_input(args: argparse.Namespace, comm: MPI.Comm, say: Callable[..., None]) -> _Input:
     """Read the mesh input; the geometry (CAD file or None for Nagata patches)."""
     t0 = time.perf_counter()
     mesh, ft = read_mesh(args.input, comm, args)
+    from nagata_snap.mesh.boundary import present_tags
+
     tdim = mesh.topology.dim
-    if mesh.geometry.cmap.degree != 1 or tdim not in (2, 3):
-        raise UserError(f"{args.input}: only affine triangle and tetrahedron meshes can be snapped")
-    present = sorted(set(np.concatenate(comm.allgather(np.asarray(ft.values))).tolist()))
-    missing = [t for t in args.tags if t not in present]
-    if missing:
-        raise UserError(
-            f"facet tag{'s' if len(missing) > 1 else ''} {', '.join(map(str, missing))} not found in "
-            f"{args.input}; available facet tags: {', '.join(map(str, present)) or 'none'}"
-        )
     say(f"{PROG}: read {args.input}: {mesh.topology.index_map(tdim).size_global} cells ({tdim}D), "
-        f"facet tags {present} ({time.perf_counter() - t0:.2f} s)")
+        f"facet tags {present_tags(ft, comm)} ({time.perf_counter() - t0:.2f} s)")
     if args.cad is None:
         return mesh, ft, None, args.tags
     from nagata_snap.cad import CadError, CadGeometry
@@ -497,8 +503,13 @@ def _run(args, comm) -> None:
     say = (lambda *a: None) if args.quiet or comm.rank != 0 else (lambda *a: print(*a, flush=True))
     cad_input = _check_options(args)
     import nagata_snap
+    from nagata_snap.mesh.boundary import check_snap_input
 
     mesh, ft, geometry, tags = (_cad_input if cad_input else _mesh_input)(args, comm, say)
+    try:
+        tags = check_snap_input(mesh, ft, tags)
+    except ValueError as e:
+        raise UserError(f"{args.input}: {e}") from None
     t0 = time.perf_counter()
     if geometry is None:
         what = f"Nagata patches (crease angle {args.crease_angle} deg)"
@@ -507,14 +518,14 @@ def _run(args, comm) -> None:
         what = (f"{'faces' if geometry.param_dim == 2 else 'edge curves'} of "
                 f"{args.input if cad_input else args.cad} ({n} {'entity' if n == 1 else 'entities'})")
     try:
-        if geometry is None:
-            geometry = nagata_snap.NagataGeometry(mesh, ft, tags=tags, crease_angle=args.crease_angle)
-        snapper = nagata_snap.Snapper(mesh, ft, geometry, tags=tags)
+        snap_geometry: SnapGeometry = geometry if geometry is not None else \
+            nagata_snap.NagataGeometry(mesh, ft, tags=tags, crease_angle=args.crease_angle)
+        snapper = nagata_snap.Snapper(mesh, ft, snap_geometry, tags=tags)
     except Exception as e:
         raise SnapFailure(f"cannot set up snapping of tags {tags}: {type(e).__name__}: {e}") from None
     say(f"{PROG}: snapping tags {snapper.tags} onto {what} ({time.perf_counter() - t0:.2f} s)")
 
-    cad = isinstance(geometry, nagata_snap.CadGeometry)
+    cad = geometry is not None  # CAD: distances from the faces are reported
     history = []
     for level in range(1, args.levels + 1):
         t0 = time.perf_counter()
@@ -582,7 +593,7 @@ def plot_levels(path: str, history, geometry) -> None:
 
     cols = 3 if any(d is not None for _, _, d in history) else 2
     fig, axes = plt.subplots(len(history), cols, figsize=(4 * cols, 2.6 * len(history)), squeeze=False)
-    for row, (level, rep, dist) in zip(axes, history):
+    for row, (level, rep, dist) in zip(axes, history, strict=True):
         q = rep.quality
         for ax, name, title in ((row[0], "min_angle", "min angle (deg)"), (row[1], "mean_ratio", "mean ratio")):
             m = None if q is None else getattr(q, name)

@@ -58,6 +58,7 @@ import dolfinx.la
 import dolfinx.mesh
 import numpy as np
 
+from nagata_snap.geometry import SnapGeometry
 from nagata_snap.mesh.boundary import BoundaryFacets, local_facet_vertices, update_nodes
 from nagata_snap.mesh.parallel import collective_place
 from nagata_snap.mesh.records import Records
@@ -131,7 +132,7 @@ def _fit_extension(lam: np.ndarray, own: np.ndarray, basis) -> np.ndarray:
 def _reference(tdim: int, degree: int, variant: str) -> _Reference:
     ct = basix.CellType.triangle if tdim == 2 else basix.CellType.tetrahedron
     el = basix.create_element(basix.ElementFamily.P, ct, degree, basix.LagrangeVariant[variant])
-    pts = el.points
+    pts = np.asarray(el.points)
     lam = np.column_stack([1.0 - pts.sum(axis=1), pts])
     fdim = tdim - 1
     fv = local_facet_vertices(tdim)
@@ -164,7 +165,7 @@ def _reference(tdim: int, degree: int, variant: str) -> _Reference:
             face_ext.append(_fit_extension(lam, own, face_basis))
     q, _ = basix.make_quadrature(ct, 2 * degree)
     check = np.concatenate([q, basix.geometry(ct), pts])
-    dphi = el.tabulate(1, check)[1 : tdim + 1, :, :, 0]
+    dphi = np.asarray(el.tabulate(1, check))[1 : tdim + 1, :, :, 0]
     return _Reference(
         element=el, lam=lam, facet_closure=closure, facet_weights=weights,
         edge_dofs=np.concatenate(cols).astype(np.int64),
@@ -226,6 +227,7 @@ def blend(disp: np.ndarray, snapped_faces: np.ndarray | None, ref: _Reference) -
     for f, own in enumerate(ref.face_dofs):  # loop over the 4 faces (3D)
         if len(own) == 0:
             continue
+        assert snapped_faces is not None  # faces (with nodes) exist in 3D, where they are given
         res = (disp[:, own] - out[:, own]) * snapped_faces[:, f, None, None]
         out += np.einsum("nm,cmd->cnd", ref.face_extension[f], res)
     return out
@@ -237,6 +239,7 @@ def _blended_dofs(ref: _Reference, snapped_faces: np.ndarray | None, nc: int) ->
     out = np.zeros((nc, ndofs), dtype=bool)
     out[:, ref.interior_dofs] = True
     for f, own in enumerate(ref.face_dofs):
+        assert snapped_faces is not None  # faces exist in 3D, where they are given
         out[:, own] = ~snapped_faces[:, f, None]
     return out
 
@@ -246,7 +249,7 @@ def curved_mesh(
     boundary: BoundaryFacets,
     snapped: np.ndarray,
     records: Records,
-    geometry,
+    geometry: SnapGeometry,
     degree: int = 2,
     variant: str | None = None,
     min_ratio: float = 0.05,
@@ -401,7 +404,7 @@ def _bisect(cells: _CurvedCells, min_ratio: float, max_bisections: int):
 
 def _place_boundary_nodes(
     curved: dolfinx.mesh.Mesh, boundary: BoundaryFacets, snapped: np.ndarray, records: Records,
-    geometry, ref: _Reference,
+    geometry: SnapGeometry, ref: _Reference,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Place the non-vertex nodes of snapped facets on the geometry (collective).
 

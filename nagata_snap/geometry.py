@@ -1,18 +1,79 @@
 """What the snapper asks of a geometry, and what a geometry reports back.
 
-Two geometries implement it: :class:`~nagata_snap.nagata.geometry.NagataGeometry`
-(patches rebuilt from the coarse boundary) and
-:class:`~nagata_snap.cad.geometry.CadGeometry` (faces, edges and corners of a
-CAD model).  :meth:`place` of either returns a :class:`PlaceReport`.
+:class:`SnapGeometry` is the interface :class:`~nagata_snap.snapper.Snapper`,
+:func:`~nagata_snap.curved.curved_mesh` and the sliding repair
+(:mod:`nagata_snap.smoothing.slide`) use; nothing else of a geometry is
+called by them.  Two geometries implement it:
+:class:`~nagata_snap.nagata.geometry.NagataGeometry` (patches rebuilt from the
+coarse boundary) and :class:`~nagata_snap.cad.geometry.CadGeometry` (faces,
+edges and corners of a CAD model).  Their :meth:`~SnapGeometry.place` returns
+a :class:`PlaceReport`.
+
+The lineage records (:class:`~nagata_snap.mesh.records.Records`) are opaque
+to the snapper: a geometry makes them (``attach``), refinement combines
+their parameters barycentrically, and the geometry reads them back
+(``place``, ``project``, ``evaluate``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 
-__all__ = ["PlaceReport"]
+if TYPE_CHECKING:
+    from mpi4py import MPI
+
+    from nagata_snap.mesh.records import Records
+
+__all__ = ["SnapGeometry", "PlaceReport"]
+
+
+@runtime_checkable
+class SnapGeometry(Protocol):
+    """A geometry the snapper places boundary vertices on.
+
+    Shapes: ``nf`` facets of ``nfv`` vertices (2 in 2D, 3 in 3D), points in
+    3D (``z = 0`` for 2D meshes), lengths in mesh units.  ``attach`` is called
+    collectively (every process, its own facets); the others are local.
+    ``isinstance(g, SnapGeometry)`` checks that the members exist (mypy
+    checks their signatures).
+    """
+
+    @property
+    def tags(self) -> Sequence[int] | None:
+        """Facet tag values snapped by default (None: every tag of the mesh)."""
+        ...
+
+    def attach(
+        self, points: np.ndarray, /, nodes: np.ndarray | None = None, *, comm: MPI.Comm | None = None
+    ) -> Records:
+        """Records of the coarse mesh's snapped facets ``points (nf, nfv, 3)``.
+
+        ``nodes (nf, nfv)`` are the vertices' input-global indices, ``comm``
+        the mesh's communicator (collective).
+        """
+        ...
+
+    def place(self, records: Records, straight: np.ndarray, /) -> tuple[np.ndarray, Records, PlaceReport]:
+        """Positions ``(nf, nfv, 3)`` of the facet vertices described by ``records`` on the geometry.
+
+        ``straight (nf, nfv, 3)`` are their current (straight) positions; the
+        records returned replace the given ones (e.g. converged parameters).
+        """
+        ...
+
+    def project(self, records: Records, points: np.ndarray, /) -> tuple[np.ndarray, Records]:
+        """Closest points ``(nf, nfv, 3)`` of ``points (nf, nfv, 3)`` on each facet's own entity,
+        seeded by ``records``, sharp edges and corners kept on their feature; and the new records."""
+        ...
+
+    def evaluate(self, root: npt.ArrayLike, params: np.ndarray, /) -> np.ndarray:
+        """Points ``(P, k, 3)`` of entities ``root (P,)`` at record parameters ``params (P, k, .)``."""
+        ...
 
 
 @dataclasses.dataclass(frozen=True)

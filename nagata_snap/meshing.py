@@ -410,15 +410,15 @@ def _generate(tdim: int, order: int, path: Path, verbose: bool) -> None:
 # ----------------------------------------------------------------------
 def _classified_nodes(tdim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(input index, dim, tag) of the nodes on entities of dimension < tdim, sorted by index."""
-    idx, dims, tags = [], [], []
+    parts: tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]] = ([], [], [])
     for d, t in gmsh.model.getEntities():
         if d >= tdim:
             continue
         n = gmsh.model.mesh.getNodes(d, t, includeBoundary=False, returnParametricCoord=False)[0]
-        idx.append(n.astype(np.int64) - 1)
-        dims.append(np.full(len(n), d, dtype=np.int32))
-        tags.append(np.full(len(n), t, dtype=np.int32))
-    idx, dims, tags = (np.concatenate(a) for a in (idx, dims, tags))
+        parts[0].append(n.astype(np.int64) - 1)
+        parts[1].append(np.full(len(n), d, dtype=np.int32))
+        parts[2].append(np.full(len(n), t, dtype=np.int32))
+    idx, dims, tags = (np.concatenate(a) for a in parts)
     order = np.argsort(idx)
     return idx[order], dims[order], tags[order]
 
@@ -434,19 +434,19 @@ def _candidates(tdim: int, ent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """
     fdim = tdim - 1
     tags, x, uv = gmsh.model.mesh.getNodes(fdim, ent, includeBoundary=False, returnParametricCoord=True)
-    params = [np.reshape(uv, (-1, fdim))]
-    nodes, X = [tags.astype(np.int64) - 1], [np.reshape(x, (-1, 3))]
+    param_parts = [np.reshape(uv, (-1, fdim))]
+    node_parts, x_parts = [tags.astype(np.int64) - 1], [np.reshape(x, (-1, 3))]
     below = {(d, t) for d, t in gmsh.model.getBoundary([(fdim, ent)], combined=False, oriented=False)}
     if fdim == 2:
         below |= set(gmsh.model.getBoundary(list(below), combined=False, oriented=False))
     for d, t in sorted(below):  # the face's curves and points: a few each
         tags, x, tp = gmsh.model.mesh.getNodes(d, t, includeBoundary=False, returnParametricCoord=True)
         if len(tags):
-            nodes.append(tags.astype(np.int64) - 1)
-            X.append(np.reshape(x, (-1, 3)))
-            params.append(_reparametrize(fdim, ent, d, t, tp))
-    n_inner = len(params[0])
-    nodes, X, params = (np.concatenate(a) for a in (nodes, X, params))
+            node_parts.append(tags.astype(np.int64) - 1)
+            x_parts.append(np.reshape(x, (-1, 3)))
+            param_parts.append(_reparametrize(fdim, ent, d, t, tp))
+    n_inner = len(param_parts[0])
+    nodes, X, params = (np.concatenate(a) for a in (node_parts, x_parts, param_parts))
     inner = np.arange(len(nodes)) < n_inner
     free = np.zeros(params.shape, dtype=bool)
     if fdim == 2 and len(params) > n_inner:
@@ -714,6 +714,8 @@ def mesh_cad_file(
     t0 = time.perf_counter()
     facets, entity, params, ndim, ntag = collective(comm, _match, data.mesh, table, path)
     times["match"] = time.perf_counter() - t0
+    # _physical_groups always adds physical groups of the cells and of the facets
+    assert data.facet_tags is not None and data.cell_tags is not None
     return CadMesh(data.mesh, data.facet_tags, data.cell_tags, facets, entity, params, ndim, ntag,
                    table["entities"], table["unit"], table["size"], table["model_size"], path, times)
 

@@ -20,23 +20,26 @@ the mesh given to ``refine`` to the one it returned without a point search.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import dolfinx.fem
 import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
+from mpi4py import MPI
 
-from nagata_snap.cad import CadGeometry
 from nagata_snap.curved import CurvedInfo, curved_mesh
-from nagata_snap.geometry import PlaceReport
+from nagata_snap.geometry import PlaceReport, SnapGeometry
 from nagata_snap.mesh.boundary import (
     BoundaryFacets,
     boundary_facets,
     cell_facets_of,
-    check_p1_simplex,
+    check_snap_input,
     facets_of_cells,
     tag_values,
     update_nodes,
@@ -45,7 +48,7 @@ from nagata_snap.mesh.lineage import LineageError, child_facets, child_interior_
 from nagata_snap.mesh.parallel import collective, collective_place
 from nagata_snap.mesh.records import Records, refine_records
 from nagata_snap.smoothing.quality import QualityReport, degenerate_cells
-from nagata_snap.smoothing.repair import InvertedCellsError, repair
+from nagata_snap.smoothing.repair import InvertedCellsError, RepairResult, repair
 from nagata_snap.smoothing.slide import SlidingBoundary
 from nagata_snap.transfer import TransferInfo, transfer
 
@@ -126,8 +129,10 @@ class Refined(NamedTuple):
     report: SnapReport
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Level:
+    """One level of the hierarchy: its mesh, boundary facets, tags and records."""
+
     mesh: dolfinx.mesh.Mesh
     boundary: BoundaryFacets
     tag: np.ndarray  # (nf,) facet tag values (-1 untagged)
@@ -150,9 +155,11 @@ class Snapper:
     Args:
         mesh: the coarse mesh the geometry describes.
         facet_tags: its facet tags (transferred to every refined level).
-        geometry: a :class:`~nagata_snap.nagata.geometry.NagataGeometry` or
+        geometry: a :class:`~nagata_snap.geometry.SnapGeometry`:
+            :class:`~nagata_snap.nagata.geometry.NagataGeometry` or
             :class:`~nagata_snap.cad.CadGeometry`.
-        tags: facet tag values to snap; default ``geometry.tags`` (Nagata) or all tags.
+        tags: facet tag values to snap; default ``geometry.tags``, or all tags
+            if that is None.
         smoothing: interior smoothing after the boundary moved: ``'elastic'``
             (default; stiffened linear-elastic extension in a band of cells,
             PETSc CG + Jacobi), ``'laplace'`` (Jacobi averaging sweeps) or ``'none'``.
@@ -171,7 +178,7 @@ class Snapper:
         quality_report: build a :class:`~nagata_snap.smoothing.quality.QualityReport`
             each level: ``True`` / ``"changed"`` (default): angles and ratios
             of the cells that snapping and smoothing changed (O(band) work);
-            ``"all"``: of every cell (O(mesh), about 1 us per tetrahedron);
+            ``"all"``: of every cell (O(mesh) work);
             ``False``: none.
         verbose: print the per-level report on rank 0.
     """
@@ -180,7 +187,7 @@ class Snapper:
         self,
         mesh: dolfinx.mesh.Mesh,
         facet_tags: dolfinx.mesh.MeshTags,
-        geometry,
+        geometry: SnapGeometry,
         tags: Sequence[int] | None = None,
         *,
         smoothing: str = "elastic",
@@ -191,69 +198,42 @@ class Snapper:
         quality_report: bool | str = True,
         verbose: bool = False,
     ):
-        if smoothing not in ("elastic", "laplace", "none"):
-            raise ValueError(f"smoothing must be 'elastic', 'laplace' or 'none', got {smoothing!r}")
-        if not 0.0 <= min_fraction <= 1.0:
-            raise ValueError(f"min_fraction must be in [0, 1], got {min_fraction}")
-        if not 0.0 <= min_quality <= 1.0:
-            raise ValueError(f"min_quality must be in [0, 1], got {min_quality}")
-        check_p1_simplex(mesh)
+        _check_options(smoothing, min_fraction, min_quality, quality_report)
+        self.tags = check_snap_input(mesh, facet_tags, geometry.tags if tags is None else tags)
         _check_cells(mesh)
-        if facet_tags.topology is not mesh.topology._cpp_object:
-            raise ValueError(
-                "facet_tags belong to another mesh (MeshTags are bound to the mesh they were made on)"
-            )
-        if tags is None:
-            tags = getattr(geometry, "tags", None)
-        if tags is None:
-            tags = np.unique(np.concatenate(mesh.comm.allgather(np.asarray(facet_tags.values))))
-        self.tags = [int(t) for t in np.atleast_1d(tags)]
-        present = set(np.concatenate(mesh.comm.allgather(np.asarray(facet_tags.values))).tolist())
-        missing = sorted(set(self.tags) - present)
-        if missing:
-            raise ValueError(f"facet tags {missing} do not exist (present: {sorted(present)})")
         self.geometry = geometry
         self.smoothing = smoothing
         self.repair = bool(repair)
         self.min_fraction = float(min_fraction)
         self.min_quality = float(min_quality)
         self.smoothing_options = dict(smoothing_options or {})
-        if quality_report not in (True, False, "changed", "all"):
-            raise ValueError(
-                f"quality_report must be True, False, 'changed' or 'all', not {quality_report!r}")
         self.quality_report = quality_report
         self.verbose = verbose
         self.comm = mesh.comm
-        bf = boundary_facets(mesh)
-        tag = tag_values(facet_tags, bf.facets)
-        snapped = np.isin(tag, self.tags)
-        # tagged facets that are not on the exterior boundary (interfaces): kept through refine
-        ext = np.zeros(mesh.topology.index_map(mesh.topology.dim - 1).size_local
-                       + mesh.topology.index_map(mesh.topology.dim - 1).num_ghosts, dtype=bool)
-        ext[bf.facets] = True
-        ext_all = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-        ext[ext_all] = True
-        inner = ~ext[facet_tags.indices]
-        interior = np.asarray(facet_tags.indices[inner], dtype=np.int32)
-        int_cells, int_local, which = cell_facets_of(mesh, interior)
-        interior_tag = np.asarray(facet_tags.values[inner], dtype=np.int64)
-        n_bad = self.comm.allreduce(int(np.isin(interior_tag, self.tags).sum()))
-        if n_bad:
-            raise ValueError(
-                f"{n_bad} facets with snapped tags {self.tags} are interior facets; only exterior "
-                "boundary facets can be snapped"
-            )
-        x = mesh.geometry.x
-        gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)
-        sel = np.flatnonzero(snapped)
-        # CAD: facet edges on CAD edges are found over all processes (collective)
-        extra = {"comm": self.comm} if isinstance(geometry, CadGeometry) else {}
-        records = collective(self.comm, lambda: geometry.attach(x[bf.nodes[sel]],
-                                                                nodes=gids[bf.nodes[sel]], **extra))
-        self._level = _Level(mesh, bf, tag, snapped, records, int_cells, int_local,
-                             interior_tag[which])
+        self._level = self._coarse_level(mesh, facet_tags)
         self._last: _LastRefine | None = None
         self.level = 0
+
+    def _coarse_level(self, mesh: dolfinx.mesh.Mesh, facet_tags: dolfinx.mesh.MeshTags) -> _Level:
+        """The coarse mesh's boundary facets, their tags and records, and its tagged interfaces."""
+        bf = boundary_facets(mesh)
+        tag = tag_values(facet_tags, bf.facet_indices(mesh))
+        snapped = np.isin(tag, self.tags)
+        # tagged facets that are not on the exterior boundary (interfaces): kept through refine
+        fmap = mesh.topology.index_map(mesh.topology.dim - 1)
+        ext = np.zeros(fmap.size_local + fmap.num_ghosts, dtype=bool)
+        ext[bf.facet_indices(mesh)] = True
+        ext[dolfinx.mesh.exterior_facet_indices(mesh.topology)] = True
+        inner = ~ext[facet_tags.indices]
+        int_cells, int_local, which = cell_facets_of(mesh, np.asarray(facet_tags.indices[inner], dtype=np.int32))
+        interior_tag = np.asarray(facet_tags.values[inner], dtype=np.int64)[which]
+        x = mesh.geometry.x
+        gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)
+        nodes = bf.nodes[snapped]
+        # CAD: facet edges on CAD edges are found over all processes (collective)
+        records = collective(self.comm, lambda: self.geometry.attach(x[nodes], nodes=gids[nodes],
+                                                                     comm=self.comm))
+        return _Level(mesh, bf, tag, snapped, records, int_cells, int_local, interior_tag)
 
     @property
     def mesh(self) -> dolfinx.mesh.Mesh:
@@ -279,9 +259,15 @@ class Snapper:
                            degree=degree, **kwargs)
 
     def refine(
-        self, mesh: dolfinx.mesh.Mesh, edges: npt.NDArray[np.int32] | None = None
+        self, mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike | None = None
     ) -> Refined:
         """Refine ``mesh`` (all cells, or the given edges) and snap its new boundary vertices.
+
+        The stages, each a method: :meth:`_bisect` (``dolfinx.mesh.refine``),
+        :meth:`_lineage` (child facets and their records), :meth:`_place`
+        (new boundary vertices onto the geometry), :meth:`_guard` (smoothing,
+        check and repair of the cells), :meth:`_facet_tags` and
+        :meth:`_report`; ``report.times`` holds the seconds of each.
 
         Args:
             mesh: the mesh returned by the previous call (or the coarse mesh).
@@ -306,52 +292,90 @@ class Snapper:
                 "built on); got a different mesh object"
             )
         times: dict[str, float] = {}
-        t0 = time.perf_counter()
-        tdim = mesh.topology.dim
+        with _timed(times, "refine"):
+            mesh1, parent_cell, parent_facet = self._bisect(mesh, edges)
+        with _timed(times, "lineage"):
+            level, parent_cells = self._lineage(prev, mesh1, parent_cell)
+        with _timed(times, "place"):
+            x_ref, moved, records, placed = self._place(level)
+        level = dataclasses.replace(level, records=records)
+        with _timed(times, "smooth+check"):
+            res, records = self._guard(level, x_ref, moved)
+        level = dataclasses.replace(level, records=records)
+        with _timed(times, "tags"):
+            ft1 = self._facet_tags(level)
+        report = self._report(level, x_ref, moved, res, placed, times)
+        self._level = level
+        self._last = _LastRefine(mesh, parent_cells, mesh1)
+        self.level += 1
+        if self.verbose and self.comm.rank == 0:
+            print(report, flush=True)
+        return Refined(mesh1, ft1, parent_cell, parent_facet, report)
+
+    @staticmethod
+    def _bisect(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike | None
+                ) -> tuple[dolfinx.mesh.Mesh, npt.NDArray[np.int32], npt.NDArray[np.int8]]:
+        """``dolfinx.mesh.refine`` of ``mesh`` (marked ``edges`` checked first), with parent maps."""
         mesh.topology.create_entities(1)
-        if edges is not None:
-            edges = _check_edges(mesh, edges)
+        marked = None if edges is None else _check_edges(mesh, edges)
         mesh1, parent_cell, parent_facet = dolfinx.mesh.refine(
-            mesh, edges, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet
+            mesh, marked, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet
         )
-        times["refine"] = time.perf_counter() - t0
+        assert parent_cell is not None and parent_facet is not None  # asked for by the option
+        return mesh1, parent_cell, parent_facet
 
-        t0 = time.perf_counter()
-
+    def _lineage(self, prev: _Level, mesh1: dolfinx.mesh.Mesh, parent_cell: npt.NDArray[np.int32]
+                 ) -> tuple[_Level, np.ndarray]:
+        """The refined level: child facets of ``prev``'s facets, their tags and (refined) records,
+        and the parent cell of every owned cell of ``mesh1``, in its final order."""
         def lineage():  # no MPI inside: a LineageError on one process is raised on all
-            ch = child_facets(mesh, prev.boundary, mesh1, parent_cell)
-            return ch, child_interior_facets(mesh, prev.interior_cells, prev.interior_local,
+            ch = child_facets(prev.mesh, prev.boundary, mesh1, parent_cell)
+            return ch, child_interior_facets(prev.mesh, prev.interior_cells, prev.interior_local,
                                              mesh1, ch.parent_cells)
 
         ch, (c_int, l_int, i_int) = collective(self.comm, lineage)
-        tag_int = prev.interior_tag[i_int]
-        tag = prev.tag[ch.parent]
         snapped = prev.snapped[ch.parent]
         row = np.cumsum(prev.snapped) - 1  # boundary facet -> row of prev.records
         sel = np.flatnonzero(snapped)
         records = refine_records(prev.records, row[ch.parent[sel]], ch.weights[sel])
-        times["lineage"] = time.perf_counter() - t0
+        level = _Level(mesh1, ch.boundary, prev.tag[ch.parent], snapped, records, c_int, l_int,
+                       prev.interior_tag[i_int])
+        return level, ch.parent_cells
 
-        t0 = time.perf_counter()
-        x = mesh1.geometry.x
+    def _place(self, level: _Level) -> tuple[np.ndarray, np.ndarray, Records, PlaceReport]:
+        """Move the vertices of the snapped facets of ``level.mesh`` onto the geometry (in place).
+
+        Returns:
+            ``(x_ref (n, 3), moved (n,), records, report)``: the straight
+            coordinates of all local nodes, the nodes that received a
+            position, the snapped facets' records as the geometry returned
+            them, the geometry's report.
+        """
+        x = level.mesh.geometry.x
         x_ref = x.copy()
-        nodes = ch.boundary.nodes[sel]
-        pts, records, geo_report = collective_place(
-            self.comm, self.geometry, records, x[nodes],
+        nodes = level.boundary.nodes[level.snapped]
+        pts, records, placed = collective_place(
+            self.comm, self.geometry, level.records, x[nodes],
             f"new boundary vertices at level {self.level + 1}")
-        moved = update_nodes(mesh1, x, nodes.ravel(), pts.reshape(-1, 3))
-        times["place"] = time.perf_counter() - t0
+        moved = update_nodes(level.mesh, x, nodes.ravel(), pts.reshape(-1, 3))
+        return x_ref, moved, records, placed
 
-        t0 = time.perf_counter()
+    def _guard(self, level: _Level, x_ref: np.ndarray, moved: np.ndarray) -> tuple[RepairResult, Records]:
+        """Smooth the interior, check the cells and repair bad ones (:func:`~nagata_snap.smoothing.repair.repair`).
+
+        Writes the result into ``level.mesh``; returns it and the snapped
+        facets' records (changed where vertices slid on the geometry).
+        """
+        x = level.mesh.geometry.x
         # boundary nodes that do not move are held; listing them (from the
         # lineage) spares smoothing the O(mesh) search for exterior facets
         opts = dict(self.smoothing_options)
-        hold = ch.boundary.nodes.ravel() if opts.pop("fix_boundary", True) else np.zeros(0, np.int32)
+        hold = level.boundary.nodes.ravel() if opts.pop("fix_boundary", True) else np.zeros(0, np.int32)
         # snapped vertices may slide on the geometry (not those of unsnapped facets)
-        slide = SlidingBoundary(nodes, records, self.geometry, ch.boundary.nodes[~snapped]) \
-            if self.repair and hasattr(self.geometry, "project") else None
+        slide = SlidingBoundary(level.boundary.nodes[level.snapped], level.records, self.geometry,
+                                level.boundary.nodes[~level.snapped]) if self.repair else None
         res = repair(
-            mesh1,
+            level.mesh,
             x_ref,
             x,
             np.flatnonzero(moved).astype(np.int32),
@@ -367,43 +391,37 @@ class Snapper:
             **opts,
         )
         x[:] = res.x
-        records = slide.records if slide is not None else records
-        times["smooth+check"] = time.perf_counter() - t0
+        return res, (slide.records if slide is not None else level.records)
 
-        t0 = time.perf_counter()
-        ft1 = self._facet_tags(mesh1, ch.boundary, c_int, l_int, tag, tag_int)
-        times["tags"] = time.perf_counter() - t0
+    def _report(self, level: _Level, x_ref: np.ndarray, moved: np.ndarray, res: RepairResult,
+                placed: PlaceReport, times: dict[str, float]) -> SnapReport:
+        """The :class:`SnapReport` of the level just built (global numbers, collective)."""
+        mesh1 = level.mesh
+        x = mesh1.geometry.x
         imap = mesh1.geometry.index_map()
         n_own = imap.size_local
         disp = np.linalg.norm(x[:n_own] - x_ref[:n_own], axis=1)
         moved_owned = moved[:n_own] & (disp > 0)
-        mv = np.flatnonzero(moved)
         short = np.zeros(len(x))
-        short[mv] = res.shortfall
+        short[np.flatnonzero(moved)] = res.shortfall
         short = short[:n_own]
-        report = SnapReport(
+        return SnapReport(
             level=self.level + 1,
-            num_cells=mesh1.topology.index_map(tdim).size_global,
+            num_cells=mesh1.topology.index_map(mesh1.topology.dim).size_global,
             num_vertices=imap.size_global,
             boundary_vertices_moved=self.comm.allreduce(int(moved_owned.sum())),
-            max_displacement=self.comm.allreduce(float(disp.max(initial=0.0)), op=_max()),
+            max_displacement=self.comm.allreduce(float(disp.max(initial=0.0)), op=MPI.MAX),
             inverted_before_smoothing=res.n_inverted_unsmoothed,
             inverted_after_smoothing=0,
             repair_stage=res.stage,
             partially_moved=self.comm.allreduce(int(np.count_nonzero(short > 0))),
-            max_shortfall=self.comm.allreduce(float(short.max(initial=0.0)), op=_max()),
+            max_shortfall=self.comm.allreduce(float(short.max(initial=0.0)), op=MPI.MAX),
             times=times,
-            geometry=geo_report,
+            geometry=placed,
             quality=res.report,
             smoothing_attempts=list(res.attempts),
             slid_vertices=res.slid,
         )
-        self._level = _Level(mesh1, ch.boundary, tag, snapped, records, c_int, l_int, tag_int)
-        self._last = _LastRefine(mesh, ch.parent_cells, mesh1)
-        self.level += 1
-        if self.verbose and self.comm.rank == 0:
-            print(report, flush=True)
-        return Refined(mesh1, ft1, parent_cell, parent_facet, report)
 
     @property
     def parent_cells(self) -> npt.NDArray[np.int32]:
@@ -453,22 +471,45 @@ class Snapper:
         return transfer(u, V, last.parent_cells, **kwargs)
 
     @staticmethod
-    def _facet_tags(mesh1, boundary: BoundaryFacets, c_int: np.ndarray, l_int: np.ndarray,
-                    tag_ext: np.ndarray, tag_int: np.ndarray) -> dolfinx.mesh.MeshTags:
-        """Facet tags of the refined mesh.
+    def _facet_tags(level: _Level) -> dolfinx.mesh.MeshTags:
+        """Facet tags of the refined mesh ``level.mesh``.
 
         Creates its facets (as ``transfer_meshtag`` needs too) and the
         facet-to-cell connectivity, so the mesh is ready for
         ``locate_dofs_topological`` like a mesh read from gmsh.
         """
+        mesh1 = level.mesh
         tdim = mesh1.topology.dim
-        facets = np.concatenate([boundary.facet_indices(mesh1), facets_of_cells(mesh1, c_int, l_int)])
+        facets = np.concatenate([level.boundary.facet_indices(mesh1),
+                                 facets_of_cells(mesh1, level.interior_cells, level.interior_local)])
         mesh1.topology.create_connectivity(tdim - 1, tdim)
-        tag = np.concatenate([tag_ext, tag_int])
+        tag = np.concatenate([level.tag, level.interior_tag])
         keep = tag >= 0
         f, first = np.unique(facets[keep], return_index=True)
         v = tag[keep][first].astype(np.int32)
-        return dolfinx.mesh.meshtags(mesh1, mesh1.topology.dim - 1, f.astype(np.int32), v)
+        return dolfinx.mesh.meshtags(mesh1, tdim - 1, f.astype(np.int32), v)
+
+
+@contextlib.contextmanager
+def _timed(times: dict[str, float], stage: str) -> Iterator[None]:
+    """Record the seconds the ``with`` block takes as ``times[stage]``."""
+    t0 = time.perf_counter()
+    yield
+    times[stage] = time.perf_counter() - t0
+
+
+def _check_options(smoothing: str, min_fraction: float, min_quality: float,
+                   quality_report: bool | str) -> None:
+    """``ValueError`` naming the first bad :class:`Snapper` option."""
+    if smoothing not in ("elastic", "laplace", "none"):
+        raise ValueError(f"smoothing must be 'elastic', 'laplace' or 'none', got {smoothing!r}")
+    if not 0.0 <= min_fraction <= 1.0:
+        raise ValueError(f"min_fraction must be in [0, 1], got {min_fraction}")
+    if not 0.0 <= min_quality <= 1.0:
+        raise ValueError(f"min_quality must be in [0, 1], got {min_quality}")
+    if quality_report not in (True, False, "changed", "all"):
+        raise ValueError(
+            f"quality_report must be True, False, 'changed' or 'all', not {quality_report!r}")
 
 
 def _check_cells(mesh: dolfinx.mesh.Mesh) -> None:
@@ -507,9 +548,3 @@ def _check_edges(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike) -> np.ndarray:
             f"process), e.g. {e[bad][:3].tolist()}"
         )
     return e
-
-
-def _max():
-    from mpi4py import MPI
-
-    return MPI.MAX

@@ -117,8 +117,11 @@ def folded_patches(geo, samples: int = 11) -> int:
     e, z = np.meshgrid(g, g, indexing="ij")
     lam = np.stack([1 - e, e - z, z], axis=-1)[z <= e]
     sel = np.flatnonzero(geo.snap)
-    n = nagata.patch_normal(geo.x[sel], geo.coef[sel],
-                            np.broadcast_to(lam, (sel.size,) + lam.shape).copy())
+    shape = (sel.size, len(lam))
+    xe, xz = nagata.patch_tangents(nagata.patch_coefficients(geo.x[sel], geo.coef[sel]),
+                                   np.broadcast_to(1.0 - lam[:, 0], shape),
+                                   np.broadcast_to(lam[:, 2], shape))
+    n = np.cross(xe, xz)  # oriented like the flat facet's normal; only its sign is used
     fn = np.cross(geo.x[sel, 1] - geo.x[sel, 0], geo.x[sel, 2] - geo.x[sel, 0])
     return int(np.count_nonzero((np.einsum("pki,pi->pk", n, fn) <= 0).any(axis=1)))
 

@@ -188,7 +188,8 @@ def test_patch_reproduces_vertices_and_planes():
     np.testing.assert_allclose(nagata.evaluate(x, cc, g), np.einsum("pkv,pvi->pki", g, x), atol=1e-15)
 
 
-def test_patch_derivatives_match_finite_differences():
+def test_patch_tangents_match_finite_differences():
+    """The monomial tangents (eq. 37) that closest_on_patch's Newton uses are the patch's."""
     rng = np.random.default_rng(4)
     x = rng.normal(size=(5, 3, 3))
     c = 0.3 * rng.normal(size=(5, 3, 3))
@@ -200,9 +201,39 @@ def test_patch_derivatives_match_finite_differences():
         return nagata.evaluate(x, c, lam)
 
     h = 1e-6
-    xe, xz = nagata.patch_derivatives(x, c, eta, zeta)
+    xe, xz = nagata.patch_tangents(nagata.patch_coefficients(x, c), eta, zeta)
     np.testing.assert_allclose(xe, (pt(eta + h, zeta) - pt(eta - h, zeta)) / (2 * h), atol=1e-8)
     np.testing.assert_allclose(xz, (pt(eta, zeta + h) - pt(eta, zeta - h)) / (2 * h), atol=1e-8)
+
+
+def test_closest_on_patch_matches_dense_sampling():
+    """closest_on_patch on patches of a sphere (exact normals): the point it finds is as close
+    as the best of a dense barycentric grid, and its residual is normal to the patch."""
+    p, t, exact = sphere_octahedron(1)
+    geo = NagataGeometry.from_surface(p, t, normals=exact.normal)
+    P = geo.num_patches
+    rng = np.random.default_rng(7)
+    lam0 = rng.dirichlet(np.full(3, 4.0), size=P)  # well inside each triangle
+    on = geo.evaluate(np.arange(P), lam0[:, None])[:, 0]
+    target = on * (1.0 + 0.05 * rng.uniform(-1.0, 1.0, size=(P, 1)))  # off the surface radially
+    seed = np.full((P, 3), 1.0 / 3.0)
+    lam = nagata.closest_on_patch(geo.x, geo.coef, seed, target)
+    np.testing.assert_allclose(lam.sum(axis=1), 1.0, atol=1e-14)
+    found = geo.evaluate(np.arange(P), lam[:, None])[:, 0]
+    g = barycentric_grid(3, 200)
+    dense = geo.evaluate(np.arange(P), np.broadcast_to(g, (P, *g.shape)))
+    best = np.linalg.norm(dense - target[:, None], axis=2).min(axis=1)
+    dist = np.linalg.norm(found - target, axis=1)
+    assert np.all(dist <= best + 1e-12)
+    # a grid point within h (spacing) of the foot is at most sqrt(dist^2 + h^2) - dist away
+    h = np.linalg.norm(geo.x[:, 1] - geo.x[:, 0], axis=1).max() / 200
+    assert np.all(best - dist < h * h / (2 * dist))
+    xe, xz = nagata.patch_tangents(nagata.patch_coefficients(geo.x, geo.coef),
+                                   1.0 - lam[:, :1], lam[:, 2:])
+    r = found - target
+    for tangent in (xe[:, 0], xz[:, 0]):
+        cos = np.einsum("pi,pi->p", r, tangent) / (np.linalg.norm(r, axis=1) * np.linalg.norm(tangent, axis=1))
+        assert np.abs(cos).max() < 1e-8
 
 
 def test_sphere_mesh1_matches_neto_table2_and_appendix_d():

@@ -600,14 +600,21 @@ def test_inverted_cells_leave_everything_unchanged(channel, deg, crease, kw):
 
 
 class FailingOnce:
-    """A CAD geometry whose first ``place`` reports every point unresolved."""
+    """A CAD geometry (a ``SnapGeometry``) whose first ``place`` reports every point unresolved."""
 
     def __init__(self, geo):
         self.geo = geo
+        self.tags = geo.tags
         self.calls = 0
 
     def attach(self, *args, **kwargs):
         return self.geo.attach(*args, **kwargs)
+
+    def project(self, records, points):
+        return self.geo.project(records, points)
+
+    def evaluate(self, root, params):
+        return self.geo.evaluate(root, params)
 
     def place(self, records, straight):
         pts, rec, rep = self.geo.place(records, straight)

@@ -13,7 +13,9 @@ import dolfinx.mesh
 import generate
 from surfaces import nagata_surface_error
 
-from nagata_snap import LineageError, NagataGeometry, Snapper
+from nagata_snap import CadGeometry, LineageError, NagataGeometry, Snapper
+from nagata_snap.cad.nurbs import circle
+from nagata_snap.geometry import SnapGeometry
 
 HERE = os.path.dirname(__file__)
 CENTRE = np.array([0.2, 0.2, 0.0])
@@ -55,7 +57,7 @@ def test_dfg_cylinder_converges_to_circle(dfg, mode):
     plain = mesh
     exact_area = generate.DFG_LENGTH * generate.DFG_HEIGHT - np.pi * R**2
     area_err = []
-    for k in range(5 if mode == "uniform" else 4):
+    for _ in range(5 if mode == "uniform" else 4):
         edges = None
         if mode == "adaptive":
             mid = dolfinx.mesh.compute_midpoints(
@@ -64,7 +66,7 @@ def test_dfg_cylinder_converges_to_circle(dfg, mode):
             cells = np.flatnonzero(np.linalg.norm(mid - CENTRE, axis=1) < 0.1).astype(np.int32)
             mesh.topology.create_connectivity(2, 1)
             edges = dolfinx.mesh.compute_incident_entities(mesh.topology, cells, 2, 1)
-        mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
+        mesh, ft, _, _, rep = snapper.refine(mesh, edges)
         assert rep.inverted_after_smoothing == 0 and rep.partially_moved == 0
         cyl = facet_vertices(mesh, ft, generate.CYLINDER)
         assert circle_dist(cyl).max() <= e_nagata * (1 + 1e-9)
@@ -105,8 +107,8 @@ def test_sphere_in_box_converges_and_box_stays_flat():
     snapper = Snapper(mesh, ft, geo)
     exact = 8.0 - 4 / 3 * np.pi * 0.5**3
     errs = []
-    for k in range(2):
-        mesh, ft, pc, pf, rep = snapper.refine(mesh)
+    for _ in range(2):
+        mesh, ft, _, _, rep = snapper.refine(mesh)
         assert rep.inverted_after_smoothing == 0 and rep.partially_moved == 0
         assert dist(facet_vertices(mesh, ft, generate.SPHERE)).max() <= e_nagata * (1 + 1e-9)
         box = facet_vertices(mesh, ft, generate.BOX)
@@ -141,6 +143,30 @@ def test_unknown_and_interior_tags(dfg):
     bad = dolfinx.mesh.meshtags(mesh, 1, idx[o], val[o])
     with pytest.raises(ValueError, match="interior facets"):
         NagataGeometry(mesh, bad, tags=[generate.CYLINDER])
+    # the Snapper runs the same check (one check_snap_input for every entry point)
+    geo = NagataGeometry(mesh, ft, tags=[generate.CYLINDER])
+    with pytest.raises(ValueError, match=r"3 facets with snapped tags .* are interior facets"):
+        Snapper(mesh, bad, geo)
+    # tags on interior facets that are not snapped are fine (interfaces, kept by refine)
+    assert Snapper(mesh, bad, geo, tags=[generate.WALLS]).tags == [generate.WALLS]
+
+
+def test_both_geometries_are_snap_geometries(dfg):
+    """NagataGeometry and CadGeometry offer what the snapper uses (mypy checks the
+    signatures, in nagata_snap.cli); an object without ``project`` is not one."""
+    mesh, ft = dfg
+    cad = CadGeometry([circle((0.2, 0.2, 0.0), R)])
+    for geo in (NagataGeometry(mesh, ft, tags=[generate.CYLINDER]), cad):
+        assert isinstance(geo, SnapGeometry)
+
+    class NoProject:
+        tags = None
+
+        def attach(self, points, nodes=None, *, comm=None): ...
+        def place(self, records, straight): ...
+        def evaluate(self, root, params): ...
+
+    assert not isinstance(NoProject(), SnapGeometry)
 
 
 def _run_mpi(n, args, tmp_path):

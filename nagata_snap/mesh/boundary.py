@@ -15,6 +15,7 @@ import dolfinx.la
 import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
+from mpi4py import MPI
 
 from nagata_snap.mesh.simplex import facet_normal_vectors, local_facet_vertices
 
@@ -28,6 +29,8 @@ __all__ = [
     "tag_values",
     "update_nodes",
     "check_p1_simplex",
+    "check_snap_input",
+    "present_tags",
 ]
 
 
@@ -58,6 +61,75 @@ def check_p1_simplex(mesh: dolfinx.mesh.Mesh) -> None:
         raise ValueError(f"the mesh has {n_bad} nodes with NaN or infinite coordinates (first: {first})")
 
 
+def present_tags(facet_tags: dolfinx.mesh.MeshTags, comm: MPI.Comm) -> list[int]:
+    """Sorted tag values of ``facet_tags`` over all processes of ``comm`` (collective)."""
+    values = np.concatenate(comm.allgather(np.asarray(facet_tags.values, dtype=np.int64)))
+    return [int(t) for t in np.unique(values)]
+
+
+def check_snap_input(
+    mesh: dolfinx.mesh.Mesh, facet_tags: dolfinx.mesh.MeshTags, tags: npt.ArrayLike | None = None
+) -> list[int]:
+    """Validate a mesh, its facet tags and the tags to snap; the tags to snap (collective).
+
+    The one check of every entry point (:class:`~nagata_snap.snapper.Snapper`,
+    :class:`~nagata_snap.nagata.geometry.NagataGeometry`, the command line):
+    ``mesh`` is an affine simplex mesh with finite coordinates
+    (:func:`check_p1_simplex`), ``facet_tags`` are facet tags of ``mesh``, the
+    ``tags`` exist and none of them is on an interior facet.  Every process
+    raises the same error.
+
+    Args:
+        mesh: the coarse mesh.
+        facet_tags: its facet tags.
+        tags: tag values to snap; ``None``: every tag present.
+
+    Returns:
+        The tags to snap as a list of ints.
+
+    Raises:
+        ValueError: naming the problem (unsupported mesh, tags of another mesh
+            or of cells, missing tags, snapped tags on interior facets).
+    """
+    check_p1_simplex(mesh)
+    if facet_tags.topology is not mesh.topology._cpp_object:
+        raise ValueError(
+            "facet_tags belong to another mesh (MeshTags are bound to the mesh they were "
+            "created on); create them on this mesh"
+        )
+    _check_facet_dim(facet_tags)
+    present = present_tags(facet_tags, mesh.comm)
+    snap = present if tags is None else [int(t) for t in np.atleast_1d(np.asarray(tags))]
+    missing = sorted(set(snap) - set(present))
+    if missing:
+        raise ValueError(
+            f"facet tags {missing} do not exist in the mesh's facet tags; available facet tags: "
+            f"{', '.join(map(str, present)) or 'none'}"
+        )
+    # owned tagged facets that are not exterior (DOLFINx's exterior set is parallel-aware)
+    fmap = mesh.topology.index_map(mesh.topology.dim - 1)
+    tagged = np.asarray(facet_tags.indices)[np.isin(facet_tags.values, snap)]
+    interior = np.setdiff1d(tagged[tagged < fmap.size_local],
+                            dolfinx.mesh.exterior_facet_indices(mesh.topology))
+    n_interior = mesh.comm.allreduce(len(interior))
+    if n_interior:
+        raise ValueError(
+            f"{n_interior} facets with snapped tags {snap} are interior facets; only exterior "
+            "boundary facets can be snapped"
+        )
+    return snap
+
+
+def _check_facet_dim(facet_tags: dolfinx.mesh.MeshTags) -> None:
+    """``ValueError`` unless ``facet_tags`` tag entities of dimension ``tdim - 1``."""
+    if facet_tags.dim != facet_tags.topology.dim - 1:
+        raise ValueError(
+            f"facet_tags tag entities of dimension {facet_tags.dim}, but facets of this "
+            f"{facet_tags.topology.dim}D mesh have dimension {facet_tags.topology.dim - 1} "
+            "(cell tags passed as facet tags?)"
+        )
+
+
 def cell_facet_nodes(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, local: np.ndarray) -> np.ndarray:
     """``(n, nfv)`` geometry nodes of local facet ``local[i]`` of cell ``cells[i]`` (P1 geometry).
 
@@ -84,9 +156,9 @@ class BoundaryFacets:
     """Exterior facets whose cell is owned by this process.
 
     A facet is identified by its cell and its local index in that cell, so
-    refined levels need no facet entities (creating them costs about a
-    sixth of ``dolfinx.mesh.refine`` on tetrahedra); the facet indices are
-    computed on demand by :meth:`facet_indices`.
+    refined levels need no facet entities (creating them is O(mesh) work on
+    the order of the refinement itself); the facet indices are computed on
+    demand by :meth:`facet_indices`.
 
     Attributes:
         cells: ``(nf,)`` local index of the owned cell of each facet.
@@ -191,12 +263,7 @@ def tag_values(
     out = np.full(len(facets), default, dtype=np.int64)
     if facet_tags is None:
         return out
-    if facet_tags.dim != facet_tags.topology.dim - 1:
-        raise ValueError(
-            f"facet_tags tag entities of dimension {facet_tags.dim}, but facets of this "
-            f"{facet_tags.topology.dim}D mesh have dimension {facet_tags.topology.dim - 1} "
-            "(cell tags passed as facet tags?)"
-        )
+    _check_facet_dim(facet_tags)
     if len(facet_tags.indices) == 0:
         return out
     pos = np.searchsorted(facet_tags.indices, facets)

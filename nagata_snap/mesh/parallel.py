@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mpi4py.MPI as MPI
+import numpy as np
+
+if TYPE_CHECKING:
+    from nagata_snap.geometry import PlaceReport, SnapGeometry
+    from nagata_snap.mesh.records import Records
 
 
 def collective(comm: MPI.Comm, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
@@ -38,7 +43,9 @@ def collective(comm: MPI.Comm, fn: Callable[..., Any], *args: Any, **kwargs: Any
     return out
 
 
-def collective_place(comm: MPI.Comm, geometry, records, straight, what: str):
+def collective_place(
+    comm: MPI.Comm, geometry: SnapGeometry, records: Records, straight: np.ndarray, what: str
+) -> tuple[np.ndarray, Records, PlaceReport]:
     """``geometry.place(records, straight)`` on every process (see :func:`collective`).
 
     Raises:

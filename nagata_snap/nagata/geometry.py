@@ -5,14 +5,11 @@ It gathers the whole coarse boundary on every process in a canonical order
 (facets sorted by the input-global indices of their vertices), so patch data
 and therefore snapped coordinates are identical whatever the partition.
 
-A snapping geometry offers two methods used by :class:`nagata_snap.Snapper`:
-
-* ``attach(points, nodes) -> Records``: records of the coarse mesh's facets;
-* ``place(records, straight) -> (points, records, report)``: positions of the
-  facet vertices described by ``records``;
-* ``project(records, points) -> (points, records)``: closest points on each
-  facet's own patch, for boundary vertices that slide during the repair
-  (:mod:`nagata_snap.smoothing.slide`).
+It is a :class:`~nagata_snap.geometry.SnapGeometry`: ``attach`` gives each
+coarse facet its own patch as record (barycentric coordinates of its
+vertices), ``place`` evaluates a facet vertex on the patch of its record,
+``project`` finds closest points on a facet's own patch (for boundary
+vertices that slide during the repair, :mod:`nagata_snap.smoothing.slide`).
 """
 
 from __future__ import annotations
@@ -29,7 +26,7 @@ from scipy.spatial import cKDTree
 from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.boundary import (
     boundary_facets,
-    check_p1_simplex,
+    check_snap_input,
     facet_normal_vectors,
     tag_values,
 )
@@ -191,33 +188,17 @@ class NagataGeometry:
         split_tags: bool = True,
         eps: float = patches.EPS,
     ):
-        check_p1_simplex(mesh)
+        self.tags = check_snap_input(mesh, facet_tags, tags)
         comm = mesh.comm
         self.comm = comm
         self.tdim = mesh.topology.dim
         self.gdim = mesh.geometry.dim
-        if facet_tags.topology is not mesh.topology._cpp_object:
-            raise ValueError(
-                "facet_tags belong to another mesh (MeshTags are bound to the mesh they were "
-                "created on); create them on this mesh"
-            )
-        present = np.unique(np.concatenate(comm.allgather(np.asarray(facet_tags.values))))
-        if tags is None:
-            tags = present.tolist()
-        tags = [int(t) for t in np.atleast_1d(tags)]
-        missing = sorted(set(tags) - set(present.tolist()))
-        if missing:
-            raise ValueError(
-                f"facet tags {missing} do not exist in the mesh's facet tags "
-                f"(present: {present.tolist()})"
-            )
-        self.tags = tags
         self.crease_angle = float(crease_angle)
         bf = boundary_facets(mesh)
         x = mesh.geometry.x
         gids = np.asarray(mesh.geometry.input_global_indices, dtype=np.int64)[bf.nodes]
         coords = x[bf.nodes]
-        tag = tag_values(facet_tags, bf.facets)
+        tag = tag_values(facet_tags, bf.facet_indices(mesh))
         fnorm = bf.outward_normals(x)
         user = None
         if normals is not None and not callable(normals) and not isinstance(normals, str) \
@@ -236,21 +217,8 @@ class NagataGeometry:
             user = user[bf.nodes]
         else:
             user = np.zeros_like(coords)
-        # interior tagged facets are not boundary: snapping them makes no sense
-        interior = np.setdiff1d(
-            np.asarray(facet_tags.indices)[np.isin(facet_tags.values, tags)],
-            dolfinx.mesh.exterior_facet_indices(mesh.topology),
-        )
-        fmap = mesh.topology.index_map(self.tdim - 1)
-        interior = interior[interior < fmap.size_local]
-        n_int = comm.allreduce(len(interior))
-        if n_int:
-            raise ValueError(
-                f"{n_int} facets with snapped tags {tags} are interior facets; "
-                "only exterior boundary facets can be snapped"
-            )
         if _is_cad(normals):  # each process attaches its own facets to their CAD faces
-            user = collective(comm, _cad_vertex_normals, normals, coords, gids, np.isin(tag, tags))
+            user = collective(comm, _cad_vertex_normals, normals, coords, gids, np.isin(tag, self.tags))
         gids, coords, tag, fnorm, user = _gather(comm, gids, coords, tag, fnorm, user)
         # every process builds the same patches from the gathered data (no MPI
         # inside); a callable of normals may still fail on some processes only
@@ -342,7 +310,6 @@ class NagataGeometry:
     def _build(self, gids, coords, tag, fnorm, user, normals, crease_angle, split_tags, eps):
         """Canonical ordering, corner normals and edge coefficients from gathered arrays."""
         tags = self.tags
-        nfv = gids.shape[1]
         # canonical order: vertex ids sorted within facets, facets sorted lexicographically
         perm = np.argsort(gids, axis=1)
         gids = np.take_along_axis(gids, perm, axis=1)
@@ -416,7 +383,7 @@ class NagataGeometry:
     # ------------------------------------------------------------------
     def _edge_coefficients(self, cn, n: np.ndarray, crease: np.ndarray, eps: float) -> np.ndarray:
         x = self.x
-        F, nfv = self.ids.shape
+        nfv = self.ids.shape[1]
         if nfv == 2:
             cos = np.einsum("fi,fi->f", n[:, 0], n[:, 1])
             self._check_opposite(cos)
@@ -485,12 +452,19 @@ class NagataGeometry:
         inv = np.argsort(perm, axis=1)
         return patch, inv
 
-    def attach(self, points: np.ndarray, nodes: np.ndarray | None = None) -> Records:
+    def attach(
+        self, points: np.ndarray, nodes: np.ndarray | None = None, *, comm: MPI.Comm | None = None
+    ) -> Records:
         """Records of coarse-mesh facets: their own patch and vertex barycentrics.
+
+        Collective on the communicator of the mesh the geometry was built on.
 
         Args:
             points: ``(nf, nfv, 3)`` facet vertex coordinates (used to verify).
             nodes: ``(nf, nfv)`` input-global vertex indices of the facets.
+            comm: unused (for :class:`~nagata_snap.geometry.SnapGeometry`): the
+                patches are identical on every process, and the checks reduce
+                over the geometry's own communicator.
 
         Returns:
             :class:`Records` with ``params`` the permutation matrices that map

@@ -48,9 +48,8 @@ __all__ = [
     "curve_coefficient_multi",
     "curve",
     "evaluate",
-    "patch_derivatives",
-    "patch_normal",
     "patch_coefficients",
+    "patch_tangents",
     "closest_on_curve",
     "closest_on_patch",
     "LOCAL_EDGES",
@@ -225,46 +224,6 @@ def evaluate(x: np.ndarray, c: np.ndarray, lam: np.ndarray) -> np.ndarray:
     return lin - np.einsum("pke,pei->pki", quad, c)
 
 
-def patch_derivatives(
-    x: np.ndarray, c: np.ndarray, eta: np.ndarray, zeta: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Tangents ``x_eta``, ``x_zeta`` of triangular patches, eq. (45).
-
-    Args:
-        x: ``(P, 3, 3)`` vertices ``x00, x10, x11`` (eq. 35).
-        c: ``(P, 3, 3)`` edge coefficients ``c1, c2, c3`` (eq. 39).
-        eta, zeta: ``(P, k)`` parameters with ``0 <= zeta <= eta <= 1`` (eq. 34).
-
-    Returns:
-        ``x_eta``, ``x_zeta``, each ``(P, k, 3)``.
-    """
-    d1 = (x[:, 1] - x[:, 0])[:, None]
-    d2 = (x[:, 2] - x[:, 1])[:, None]
-    c1, c2, c3 = (c[:, i][:, None] for i in range(3))
-    eta = eta[..., None]
-    zeta = zeta[..., None]
-    x_eta = d1 + c1 * ((eta - zeta) - (1.0 - eta)) + (c3 - c2) * zeta  # (45a)
-    x_zeta = d2 + c2 * (zeta - (eta - zeta)) + (c1 - c3) * (1.0 - eta)  # (45b)
-    return x_eta, x_zeta
-
-
-def patch_normal(x: np.ndarray, c: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Unit normals ``x_eta x x_zeta / |.|`` of triangular patches at barycentric points.
-
-    Args:
-        x: ``(P, 3, 3)`` vertices; c: ``(P, 3, 3)`` edge coefficients.
-        lam: ``(P, k, 3)`` barycentric coordinates (``eta = 1 - l1``, ``zeta = l3``).
-
-    Returns:
-        ``(P, k, 3)`` unit normals, oriented like ``(x2 - x1) x (x3 - x1)``.
-    """
-    eta = 1.0 - lam[..., 0]
-    zeta = lam[..., 2]
-    xe, xz = patch_derivatives(x, c, eta, zeta)
-    n = np.cross(xe, xz)
-    return n / np.linalg.norm(n, axis=-1, keepdims=True)
-
-
 def patch_coefficients(x: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
     """Monomial coefficients ``c00 .. c02`` of eq. (37) from eq. (43).
 
@@ -285,6 +244,25 @@ def patch_coefficients(x: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
         "c20": c1.copy(),  # (43e)
         "c02": c2.copy(),  # (43f)
     }
+
+
+def patch_tangents(m: dict[str, np.ndarray], eta: np.ndarray, zeta: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Tangents ``x_eta``, ``x_zeta`` of triangular patches from their monomial form (eq. 37).
+
+    ``x_eta = c10 + c11 zeta + 2 c20 eta``, ``x_zeta = c01 + c11 eta + 2 c02 zeta``.
+
+    Args:
+        m: :func:`patch_coefficients` of ``P`` patches (``(P, 3)`` arrays).
+        eta, zeta: ``(P, k)`` parameters (eq. 34: ``eta = 1 - l1``, ``zeta = l3``).
+
+    Returns:
+        ``x_eta``, ``x_zeta``, each ``(P, k, 3)``; their cross product is
+        oriented like ``(x2 - x1) x (x3 - x1)``.
+    """
+    e, z = eta[..., None], zeta[..., None]
+    c10, c01, c11, c20, c02 = (m[k][:, None] for k in ("c10", "c01", "c11", "c20", "c02"))
+    return c10 + c11 * z + 2.0 * c20 * e, c01 + c11 * e + 2.0 * c02 * z
 
 
 #: Newton iterations of the closest-point kernels (quadratic convergence
@@ -356,8 +334,7 @@ def closest_on_patch(x: np.ndarray, c: np.ndarray, lam: np.ndarray, p: np.ndarra
         e, z = eta[:, None], zeta[:, None]
         r = m["c00"] + m["c10"] * e + m["c01"] * z + m["c11"] * e * z + m["c20"] * e * e \
             + m["c02"] * z * z - p
-        xe = m["c10"] + m["c11"] * z + 2.0 * m["c20"] * e
-        xz = m["c01"] + m["c11"] * e + 2.0 * m["c02"] * z
+        xe, xz = (t[:, 0] for t in patch_tangents(m, e, z))
         a, b, d = dot_last(xe, xe), dot_last(xe, xz), dot_last(xz, xz)  # J^T J
         ha = a + 2.0 * dot_last(r, m["c20"])
         hb = b + dot_last(r, m["c11"])
