@@ -433,6 +433,7 @@ def _cad_input(args: argparse.Namespace, comm: MPI.Comm, say: Callable[..., None
     except RuntimeError as e:
         raise SnapFailure(f"meshing {args.input}: {e}") from None
     tdim = cm.mesh.topology.dim
+    assert geometry.model is not None  # mesh_cad reads the file: the geometry has its model
     say(f"{PROG}: meshed {args.input} with gmsh (size {cm.size:.4g} {cm.unit or ''}): "
         f"{cm.mesh.topology.index_map(tdim).size_global} cells ({tdim}D); CAD "
         f"{geometry.model.summary()} ({time.perf_counter() - t0:.2f} s)")

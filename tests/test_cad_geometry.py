@@ -467,7 +467,7 @@ def test_edge_vertices_of_plate_and_hole_land_on_the_trimming_curve():
 
 def test_row_ids_by_lexsort_match_numpy_unique():
     """``_row_index`` (facet-edge and hint keys) numbers rows as ``np.unique(axis=0)`` does."""
-    from nagata_snap.cad.geometry import _row_index
+    from nagata_snap.cad.arrays import row_index as _row_index
 
     rng = np.random.default_rng(3)
     for shape in ((0, 2), (1, 3), (500, 2), (2000, 3)):
@@ -485,3 +485,53 @@ def test_three_distinct_points_check_of_trimming_wires():
     assert not _three_distinct(np.array([a, b, a, b, b]))
     assert not _three_distinct(np.array([a, a, a]))
     assert not _three_distinct(np.array([a, b]))
+
+
+def test_corner_rule_counts_distinct_faces_and_edges():
+    """``corner_vertices``: three faces, or two distinct CAD edges, make a corner; repeats do not."""
+    from nagata_snap.mesh.corners import corner_vertices
+
+    vertex = np.array([0, 0, 0, 1, 1, 1, 2, 2, 3, 3])
+    face = np.array([0, 1, 2, 0, 1, 1, 0, 1, 4, 4])
+    edge = np.array([-1, -1, -1, 5, 5, 5, 5, 6, -1, -1])  # vertex 2 on edges 5 and 6
+    np.testing.assert_array_equal(corner_vertices(vertex, face, 5, 3), [True, False, False, False, False])
+    np.testing.assert_array_equal(corner_vertices(vertex, face, 5, 3, edge=edge),
+                                  [True, False, True, False, False])
+    np.testing.assert_array_equal(corner_vertices(vertex, face, 5, 2), [True, True, True, False, False])
+    assert not corner_vertices(np.zeros(0, int), np.zeros(0, int), 2, 3).any()
+
+
+def test_mesh_hints_find_facets_by_their_node_sets():
+    """``MeshHints.lookup``: a facet is found whatever the order of its nodes, and its seeds follow
+    that order; a facet the mesher did not make gives None."""
+    from nagata_snap.cad.attach import MeshHints
+
+    nodes = np.array([[10, 20, 30], [30, 20, 40]])
+    params = np.arange(12.0).reshape(2, 3, 2)
+    hints = MeshHints.from_facets(nodes, [7, 8], params, 2)
+    faces, seeds = hints.lookup(np.array([[20, 40, 30], [30, 10, 20]]))
+    np.testing.assert_array_equal(faces, [8, 7])
+    np.testing.assert_array_equal(seeds, np.stack([params[1][[1, 2, 0]], params[0][[2, 0, 1]]]))
+    assert hints.lookup(np.array([[10, 20, 40]])) is None
+
+
+def test_place_stages_recover_from_a_bad_seed_on_the_root_entity():
+    """``place.on_root``: a seed that sends Newton to the far side of the sphere (farther than the
+    facet's edge) is retried from the facet's other vertices; every slot ends at ``x / |x|``."""
+    from nagata_snap.cad.place import merge, on_root, slots_of
+
+    geo = CadGeometry([sphere()])
+    facets = octahedron_sphere(2)
+    rec = geo.attach(facets)
+    x = facets[:, :, :] * 1.01  # off the sphere, radially
+    i = np.flatnonzero(np.abs(facets[:, 0, 2]) < 0.9)[0]  # a first vertex away from the poles
+    anti = geo.attach(-facets[i:i + 1]).params[0, 0]
+    rec.params[i, 0] = anti  # its seed: the antipode
+    s = slots_of(geo, rec, x, "x")
+    p = on_root(geo, s)
+    assert p.n_fallback >= 1 and p.valid.all()
+    truth = (x / np.linalg.norm(x, axis=2)[..., None]).reshape(-1, 3)
+    np.testing.assert_allclose(p.proj, truth, rtol=0, atol=1e-12)
+    m = merge(geo, s, p)  # one position per vertex: the same here
+    np.testing.assert_allclose(p.proj, truth, rtol=0, atol=1e-12)
+    assert m.n_edge == 0 and len(m.rep_of_group) == len(np.unique(facets.reshape(-1, 3).round(12), axis=0))

@@ -195,3 +195,34 @@ def test_fuzzed_files_give_a_geometry_or_cad_error(sources, tmp_path, fmt):
     if fmt == "step":  # OpenCASCADE does crash on some of them; this process is still here,
         assert outcome["crash"] > 0  # and the reader still works
     assert CadGeometry.from_file(sources[fmt]).num_entities >= 8
+
+
+def _outcome(path) -> str:
+    """What reading ``path`` gives: ``geometry <entities>`` or the error (without the path)."""
+    try:
+        return f"geometry {CadGeometry.from_file(path, timeout=FUZZ_TIMEOUT).num_entities}"
+    except CadError as e:
+        return str(e).replace(str(path), "<file>")
+
+
+def test_reads_do_not_depend_on_earlier_files(sources, tmp_path):
+    """Mutated IGES files read forwards, then backwards: each gives the same result both times.
+
+    OpenCASCADE keeps state across reads in one process (with one reader
+    process serving many files, a malformed file read twice gave a geometry,
+    then an empty shape); every file now gets a fresh reader.  Time-outs
+    depend on the machine's load and are not compared.
+    """
+    rng = random.Random(2)  # the IGES mutations of the fuzz test
+    src = open(sources["igs"], "rb").read()
+    paths = []
+    for k in range(140):
+        paths.append(tmp_path / f"m{k}.igs")
+        paths[-1].write_bytes(mutate(src, rng, "igs"))
+    forward = {p: _outcome(p) for p in paths}
+    backward = {p: _outcome(p) for p in reversed(paths)}
+    timeout = "did not finish"
+    differ = {p.name: (forward[p], backward[p]) for p in paths
+              if forward[p] != backward[p] and timeout not in forward[p] + backward[p]}
+    assert not differ, differ
+    assert len({o.split(" ")[0] for o in forward.values()}) > 1  # geometries and errors both

@@ -47,6 +47,15 @@ def herrero_72_mid() -> NurbsSurface:
     return NurbsSurface(2, 1, [0, 0, 0, 0.5, 0.5, 1, 1, 1], [0, 0, 1, 1], a[..., :3], a[..., 3])
 
 
+def herrero_71_equal_weights() -> NurbsSurface:
+    """The net of Herrero Adan's Example 7.1 with every weight 0.6: a polynomial B-spline,
+    evaluated without the weight channel (the weights cancel)."""
+    s = herrero_71()
+    surf = NurbsSurface(2, 2, s.knots_u, s.knots_v, s.control_points, np.full(s.weights.shape, 0.6))
+    assert not surf._rational and s._rational  # the two evaluation paths
+    return surf
+
+
 # ----------------------------------------------------------------------
 # independent scalar reference: Herrero Adan eqs. (5)-(6), Neto eq. (46)
 # ----------------------------------------------------------------------
@@ -290,7 +299,7 @@ def test_surface_corners_and_wrap():
 # ----------------------------------------------------------------------
 # Herrero Adan App. D surfaces against OpenCASCADE (gmsh) and finite differences
 # ----------------------------------------------------------------------
-@pytest.mark.parametrize("make", [herrero_71, herrero_72_mid])
+@pytest.mark.parametrize("make", [herrero_71, herrero_72_mid, herrero_71_equal_weights])
 def test_herrero_surfaces_vs_occ_and_fd(make):
     import gmsh
     surf = make()

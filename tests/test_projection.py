@@ -16,7 +16,6 @@ from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface, circle, cylinder, sp
 from nagata_snap.cad.projection import (
     GlobalSearcher,
     ProjectionResult,
-    closest_point,
     global_search,
     project_newton,
 )
@@ -114,7 +113,7 @@ def test_circle_far_points_global_search_exact():
     np.testing.assert_allclose(X, truth, rtol=0, atol=1e-12 * R)
     np.testing.assert_allclose(dist, np.linalg.norm(truth - P, axis=1), rtol=1e-12, atol=1e-17)
     # 2D input (z = 0) is accepted
-    e2, p2, d2 = closest_point(cur, P[:, :2])
+    e2, p2, d2 = global_search(cur, P[:, :2])
     np.testing.assert_allclose(cur.evaluate(p2[:, 0])[0], closest_on_circle(np.c_[P[:, :2], 0 * ang], c, R), atol=1e-12 * R)
 
 

@@ -18,6 +18,8 @@ import mpi4py.MPI as MPI
 import numpy as np
 import pytest
 
+from nagata_snap.mesh.corners import corner_vertices
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
 
@@ -109,9 +111,8 @@ def test_cad_project_keeps_vertices_on_their_feature(tmp_path):
     edge = before.sum(-1) == 2
     assert edge.any() and corner.any()
     # the slide stage's corner rule finds exactly the CAD vertices
-    roots = np.unique(np.stack([nodes.ravel(), np.repeat(level.records.root, 3)], 1), axis=0)
-    n_roots = np.bincount(roots[:, 0], minlength=int(nodes.max()) + 1)
-    np.testing.assert_array_equal(n_roots[nodes] >= 3, corner)
+    rule = corner_vertices(nodes.ravel(), np.repeat(level.records.root, 3), int(nodes.max()) + 1, 3)
+    np.testing.assert_array_equal(rule[nodes], corner)
     # still on every face it was on (an edge vertex on both faces of its edge)
     assert np.all(after[before])
     # an edge vertex gets the same point from all its facets

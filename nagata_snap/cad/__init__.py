@@ -12,7 +12,12 @@ Modules:
   the rest;
 * :mod:`~nagata_snap.cad.projection`: Newton projection, search grids;
 * :mod:`~nagata_snap.cad.trimming`: point-in-face;
-* :mod:`~nagata_snap.cad.geometry`: :class:`CadGeometry`, the snapping geometry;
+* :mod:`~nagata_snap.cad.geometry`: :class:`CadGeometry`, the snapping
+  geometry, whose stages are :mod:`~nagata_snap.cad.attach` (coarse facets
+  onto their faces), :mod:`~nagata_snap.cad.place` (snapping after a
+  refinement) and :mod:`~nagata_snap.cad.features` (CAD edges and corners),
+  over :mod:`~nagata_snap.cad.params` (seams, poles, normals) and
+  :mod:`~nagata_snap.cad.arrays`;
 * :mod:`~nagata_snap.cad.meshed`: a gmsh mesh of the file and its geometry,
   matched (:func:`mesh_cad`);
 * :mod:`~nagata_snap.cad.iges`: an IGES writer (tests).

@@ -44,11 +44,15 @@ class _Curve:
             raise ValueError(f"curve range must be finite with t0 < t1, got ({t0}, {t1})")
         self.bounds = np.array([[t0, t1]])
         self.limits = self.bounds
-        pts = self._points(np.linspace(t0, t1, 65))
-        pad = self._sagitta((t1 - t0) / 64)
-        lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+        lo, hi = self._box(t0, t1)
         self.bbox = (lo, hi)
         self.bbox_size = float(np.linalg.norm(hi - lo))
+
+    def _box(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)`` box of the curve on ``[t0, t1]``: 65 samples plus their sagitta."""
+        pts = self._points(np.linspace(t0, t1, 65))
+        pad = self._sagitta((t1 - t0) / 64)
+        return pts.min(axis=0) - pad, pts.max(axis=0) + pad
 
     closed = (False,)
 
@@ -63,6 +67,14 @@ class _Curve:
 
     def _pieces(self) -> int:
         return 1
+
+    def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
+        """``params (1, k)`` -> ``(nderiv + 1, 3, k)``: ``C, C', C''``."""
+        raise NotImplementedError  # pragma: no cover - abstract
+
+    def _closest_t(self, X: np.ndarray, seed: np.ndarray) -> np.ndarray:
+        """``(k,)`` parameters of the closest points of ``X (k, 3)`` (``seed`` where free)."""
+        raise NotImplementedError  # pragma: no cover - abstract
 
     def _points(self, t: np.ndarray) -> np.ndarray:
         return self._eval_soa(np.asarray(t, dtype=float)[None, :], 0)[0].T
@@ -116,6 +128,11 @@ class Line(_Curve):
 
     def _closest_t(self, X, seed):
         return np.clip((X - self.origin) @ self.direction, *self.bounds[0])
+
+    def _box(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """The box of the two end points (exact: the segment is linear in ``t``)."""
+        pts = self._points(np.array([t0, t1]))
+        return pts.min(axis=0), pts.max(axis=0)
 
 
 class Circle(_Curve):

@@ -114,7 +114,7 @@ def _curve_params(c: NurbsCurve) -> list[str]:
     toks += [_fmt_real(x) for x in U]
     toks += [_fmt_real(x) for x in W]
     toks += [_fmt_real(x) for x in P.ravel()]
-    toks += [_fmt_real(U[p]), _fmt_real(U[n])]
+    toks += [_fmt_real(float(U[p])), _fmt_real(float(U[n]))]
     toks += [_fmt_real(x) for x in (nrm if nrm is not None else np.zeros(3))]
     return toks
 
@@ -136,7 +136,7 @@ def _surface_params(s: NurbsSurface) -> list[str]:
     toks += [_fmt_real(x) for x in V]
     toks += [_fmt_real(x) for x in W.T.ravel()]  # W(i,j), i (u) fastest
     toks += [_fmt_real(x) for x in P.transpose(1, 0, 2).ravel()]
-    toks += [_fmt_real(U[p]), _fmt_real(U[nu]), _fmt_real(V[q]), _fmt_real(V[nv])]
+    toks += [_fmt_real(float(x)) for x in (U[p], U[nu], V[q], V[nv])]
     return toks
 
 
@@ -183,7 +183,8 @@ def format_iges(
     g_lines = _pack(["1H,", "1H;", *list(global_params)], 72)
     for k, s in enumerate(g_lines, 1):
         out.append(f"{s:<72s}G{k:07d}")
-    d_lines, p_lines = [], []
+    d_lines: list[str] = []
+    p_lines: list[str] = []
     for idx, ent in enumerate(entities):
         etype, form, toks = ent[0], ent[1], ent[2]
         trans = ent[3] if len(ent) > 3 else 0

@@ -21,10 +21,16 @@ the face's search samples.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
 from nagata_snap.cad.geometry import CadError, CadGeometry
 from nagata_snap.cad.projection import entity_periods
+
+if TYPE_CHECKING:
+    from nagata_snap.meshing import CadMesh
 
 __all__ = ["mesh_cad", "use_cad_mesh", "match_entities"]
 
@@ -54,7 +60,7 @@ def match_entities(geometry: CadGeometry, entities: dict) -> dict:
     P = np.concatenate([e.points for e in infos])
     owner = np.repeat(np.arange(len(infos)), [len(e.points) for e in infos])
     res = geometry.searcher.search(P, accept=geometry._accept)
-    ent, params, dist = res[:3]
+    ent, _, dist = res[:3]
     ok = dist <= tol if geometry._accept is None else (dist <= tol) & res[3]
     out = {}
     for k, info in enumerate(infos):  # loop over gmsh entities (a few samples each)
@@ -72,6 +78,7 @@ def match_entities(geometry: CadGeometry, entities: dict) -> dict:
                 f"{'face' if d == 2 else 'edge'} of {geometry.model.path if geometry.model else 'the CAD'}"
                 f" within {tol:.1e} (samples {np.round(info.points[:2], 6).tolist()}): the mesh and "
                 "the CAD do not match (another file, unit or healing?)")
+        assert best_p is not None  # set with best
         out[int(info.tag)] = (best, _same_params(geometry, best, info.params, best_p))
     return out
 
@@ -98,7 +105,7 @@ def _mapped(geometry: CadGeometry, e: int, uv: np.ndarray) -> np.ndarray:
     return np.c_[uv, np.ones(len(uv))] @ m.faces[e].uv_map
 
 
-def use_cad_mesh(geometry: CadGeometry, cad_mesh) -> None:
+def use_cad_mesh(geometry: CadGeometry, cad_mesh: CadMesh) -> None:
     """Record a :class:`~nagata_snap.meshing.CadMesh`'s facets as the geometry's mesh hints.
 
     After this, :meth:`CadGeometry.attach` of the mesh's boundary facets (by
@@ -128,14 +135,15 @@ def use_cad_mesh(geometry: CadGeometry, cad_mesh) -> None:
     geometry.set_mesh_hints(gids, faces, params)
 
 
-def _exterior_tags(cad_mesh) -> np.ndarray:
+def _exterior_tags(cad_mesh: CadMesh) -> np.ndarray:
     """Facet tag values on this process's exterior facets (not the faces two solids share)."""
     from nagata_snap.mesh.boundary import tag_values
 
     return np.unique(tag_values(cad_mesh.facet_tags, cad_mesh.facets.facet_indices(cad_mesh.mesh)))
 
 
-def mesh_cad(path, comm=None, *, unit: str = "MM", geometry_options: dict | None = None, **mesh_options):
+def mesh_cad(path: str | Path, comm: Any = None, *, unit: str = "MM", geometry_options: dict | None = None,
+             **mesh_options: Any) -> tuple[CadMesh, CadGeometry]:
     """Mesh a CAD file with gmsh and read it as a :class:`CadGeometry` that knows the mesh.
 
     Args:

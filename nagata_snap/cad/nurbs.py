@@ -45,7 +45,7 @@ The end of the knot range is evaluated with the last non-empty span, so
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -168,9 +168,11 @@ def find_span(
 
 
 def _basis_soa(
-    knots: np.ndarray, p: int, span: np.ndarray, u: np.ndarray, nderiv: int
+    knots: np.ndarray, p: int, span: np.ndarray, u: np.ndarray, nderiv: int,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Non-zero basis functions and derivatives as ``(nderiv+1, p+1, k)`` (points last).
+    """Non-zero basis functions and derivatives as ``(nderiv+1, p+1, k)`` (points last),
+    into ``out`` if given (a work array reused over chunks).
 
     Eq. (A.3)/(6) and eq. (46) evaluated on ``(k,)`` vectors, looping only
     over the degree.  With ``i = s - r + a`` (``s`` the span, ``a = 0..r``)
@@ -188,49 +190,42 @@ def _basis_soa(
         N^{(d)}_{i,r} = r ( N^{(d-1)}_{i,r-1} / D_r[a-1] - N^{(d-1)}_{i+1,r-1} / D_r[a] ).
     """
     k = u.shape[0]
-    left: list = [None] * (p + 1)
-    right: list = [None] * (p + 1)
-    for j in range(1, p + 1):
-        left[j] = u - knots[span + 1 - j]
-        right[j] = knots[span + j] - u
-    N: list[list[np.ndarray]] = [[np.ones(k)]]
-    inv: list[list[np.ndarray]] = [[]]
+    j = np.arange(1, p + 1)[:, None]
+    left = np.empty((p + 1, k))  # rows 1..p: u - u_{s+1-j}
+    right = np.empty((p + 1, k))  # rows 1..p: u_{s+j} - u
+    np.subtract(u, knots[span + 1 - j], out=left[1:])
+    np.subtract(knots[span + j], u, out=right[1:])
+    N = np.ones((1, k))  # the r + 1 non-zero functions of degree r, rows a = 0..r
+    levels, inv = [N], [N]  # inv[r] (r, k): 1 / D_r[a], a = 0..r-1
     for r in range(1, p + 1):
-        prev = N[r - 1]
-        cur: list[np.ndarray] = []
-        inv_r: list[np.ndarray] = []
-        saved = None
-        for a in range(r):
-            ia = 1.0 / (right[a + 1] + left[r - a])
-            inv_r.append(ia)
-            temp = prev[a] * ia
-            term = right[a + 1] * temp
-            cur.append(term if saved is None else saved + term)
-            saved = left[r - a] * temp
-        cur.append(saved)
-        N.append(cur)
-        inv.append(inv_r)
-    out = np.zeros((nderiv + 1, p + 1, k))
-    out[0] = N[p]
+        ia = np.add(right[1 : r + 1], left[r:0:-1])
+        np.divide(1.0, ia, out=ia)
+        temp = N * ia
+        N = np.empty((r + 1, k))
+        np.multiply(right[1 : r + 1], temp, out=N[:r])
+        N[r] = 0.0
+        temp *= left[r:0:-1]
+        N[1:] += temp
+        levels.append(N)
+        inv.append(ia)
+    if out is None:
+        out = np.empty((nderiv + 1, p + 1, k))
+    out[0] = N
+    out[p + 1 :] = 0.0  # derivatives of order > p
     # D[r]: (d-1)-th derivatives of the r+1 non-zero degree-r functions
-    D: list = N
+    D: list = levels
     for d in range(1, min(nderiv, p) + 1):
         newD: list = [None] * (p + 1)
-        for r in range(p - nderiv + d if p - nderiv + d > d else d, p + 1):
-            prev = D[r - 1]
-            cur = []
-            for a in range(r + 1):
-                val = None
-                if a >= 1:
-                    val = prev[a - 1] * inv[r][a - 1]
-                if a <= r - 1:
-                    t = prev[a] * inv[r][a]
-                    val = -t if val is None else val - t
-                cur.append(r * val)
+        for r in range(max(p - nderiv + d, d), p + 1):
+            t = D[r - 1] * inv[r]  # (r, k)
+            cur = np.zeros((r + 1, k))
+            cur[1:] += t
+            cur[:-1] -= t
+            cur *= r
             newD[r] = cur
         D = newD
         out[d] = D[p]
-    return out  # derivatives of order > p stay zero
+    return out
 
 
 def basis_functions(
@@ -343,6 +338,42 @@ def _weights(a: npt.ArrayLike, shape: tuple, what: str) -> np.ndarray:
     return w
 
 
+class _Work:
+    """Work arrays of an evaluation, allocated once for its first (largest) chunk and
+    reused (as contiguous views of the same memory) for the following ones."""
+
+    def __init__(self, chunk: int) -> None:
+        self.chunk = chunk
+        self._bufs: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
+        """Contiguous ``shape`` array (its last axis at most :attr:`chunk` long)."""
+        size = int(np.prod(shape))
+        buf = self._bufs.get(name)
+        if buf is None:
+            full = (*shape[:-1], self.chunk)
+            buf = self._bufs[name] = np.empty(int(np.prod(full)), dtype=dtype)
+        return buf[:size].reshape(shape)
+
+
+def _quotient(H: np.ndarray, o: np.ndarray) -> None:
+    """Rational surface derivatives from the homogeneous sums, Neto (2010) eqs. (42)-(44).
+
+    ``H (1|3|6, 4, k)``: ``A_ab`` (rows 0-2) and ``B_ab`` (row 3) for the orders
+    ``S, Su, Sv, Suu, Suv, Svv``; writes ``S_ab`` into ``o (1|3|6, 3, k)``.
+    """
+    A, B = H[:, :3], H[:, 3]
+    iB = 1.0 / B[0]
+    o[0] = A[0] * iB
+    if len(H) >= 3:
+        o[1] = (A[1] - B[1] * o[0]) * iB  # S_u
+        o[2] = (A[2] - B[2] * o[0]) * iB  # S_v
+    if len(H) >= 6:
+        o[3] = (A[3] - 2.0 * B[1] * o[1] - B[3] * o[0]) * iB  # S_uu
+        o[4] = (A[4] - B[1] * o[2] - B[2] * o[1] - B[4] * o[0]) * iB  # S_uv
+        o[5] = (A[5] - 2.0 * B[2] * o[2] - B[5] * o[0]) * iB  # S_vv
+
+
 # ----------------------------------------------------------------------
 # curves
 # ----------------------------------------------------------------------
@@ -370,6 +401,11 @@ class NurbsCurve:
     knots: np.ndarray
     control_points: np.ndarray
     weights: np.ndarray
+    # derived in __post_init__ (homogeneous control points (4, n), span table, bbox size, closedness)
+    _pwT: np.ndarray = field(init=False, repr=False)
+    _spans: np.ndarray = field(init=False, repr=False)
+    _size: float = field(init=False, repr=False)
+    _closed: bool = field(init=False, repr=False)
 
     #: number of parameters of the entity (1 for curves)
     param_dim = 1
@@ -537,6 +573,15 @@ class NurbsSurface:
     knots_v: np.ndarray
     control_points: np.ndarray
     weights: np.ndarray
+    # derived in __post_init__: control net (channels, nu nv) and whether it is rational,
+    # span tables, bbox size, closedness
+    _pwT: np.ndarray = field(init=False, repr=False)
+    _rational: bool = field(init=False, repr=False)
+    _spans_u: np.ndarray = field(init=False, repr=False)
+    _spans_v: np.ndarray = field(init=False, repr=False)
+    _size: float = field(init=False, repr=False)
+    _closed_u: bool = field(init=False, repr=False)
+    _closed_v: bool = field(init=False, repr=False)
 
     #: number of parameters of the entity (2 for surfaces)
     param_dim = 2
@@ -564,10 +609,12 @@ class NurbsSurface:
         _freeze(self, "knots_v", kv)
         _freeze(self, "control_points", cp)
         _freeze(self, "weights", w)
-        # homogeneous control net (w P, w) as (4, nu * nv), row-major over (i, j)
-        _freeze(
-            self, "_pwT", np.concatenate([cp * w[..., None], w[..., None]], axis=-1).reshape(-1, 4).T
-        )
+        # control net as (channels, nu * nv), row-major over (i, j): homogeneous (w P, w),
+        # or the points alone where every weight is the same (the weights cancel in A / B)
+        rational = bool(np.any(w != w.flat[0]))
+        object.__setattr__(self, "_rational", rational)
+        net = np.concatenate([cp * w[..., None], w[..., None]], axis=-1) if rational else cp
+        _freeze(self, "_pwT", net.reshape(nu * nv, -1).T)
         _freeze(self, "_spans_u", _span_table(ku, self.degree_u, nu))
         _freeze(self, "_spans_v", _span_table(kv, self.degree_v, nv))
         object.__setattr__(self, "_size", _bbox_size(cp))
@@ -700,54 +747,53 @@ class NurbsSurface:
         Homogeneous sums ``A_ab = sum_ij N^{(a)}_i(u) N^{(b)}_j(v) w_ij P_ij``
         and ``B_ab`` (Neto 2010, eqs. (40)-(41), (45)) contracted first along
         ``v`` then along ``u``; quotient rule eqs. (42)-(44) (see module docs).
+        With equal weights ``B`` is constant and ``S_ab = sum_ij N^{(a)}_i N^{(b)}_j P_ij``
+        directly (no quotient).  The chunks share one set of work arrays.
         """
         u, v = params[0], params[1]
         k = u.shape[0]
-        p, q = self.degree_u, self.degree_v
-        nu, nv = self.n_ctrl
-        orders = _ORDERS[nderiv]
-        out = np.empty((len(orders), 3, k))
-        offu = np.arange(p + 1)[:, None, None]
-        offv = np.arange(q + 1)[None, :, None]
+        n_ord = len(_ORDERS[nderiv])
+        out = np.empty((n_ord, 3, k))
+        work = _Work(min(k, CHUNK))
         for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
             sl = slice(c0, min(k, c0 + CHUNK))
-            uc, vc = u[sl], v[sl]
-            kc = uc.shape[0]
-            su = find_span(self.knots_u, p, nu, uc, self._spans_u)
-            sv = find_span(self.knots_v, q, nv, vc, self._spans_v)
-            Nu = _basis_soa(self.knots_u, p, su, uc, nderiv)  # (nd+1, p+1, kc)
-            Nv = _basis_soa(self.knots_v, q, sv, vc, nderiv)  # (nd+1, q+1, kc)
-            flat = (su - p)[None, None, :] * nv + (offu * nv) + (sv - q)[None, None, :] + offv
-            L = np.take(self._pwT, flat, axis=1)  # (4, p+1, q+1, kc)
-            # along v: T[b] = sum_j N^{(b)}_j(v) Pw_ij  -> (nd+1, 4, p+1, kc)
-            T = np.empty((nderiv + 1, 4, p + 1, kc))
-            tmp = np.empty((4, p + 1, kc))
-            for b in range(nderiv + 1):
-                np.multiply(Nv[b, 0], L[:, :, 0], out=T[b])
-                for j in range(1, q + 1):
-                    np.multiply(Nv[b, j], L[:, :, j], out=tmp)
-                    T[b] += tmp
-            # along u: H_ab = sum_i N^{(a)}_i(u) T[b]_i -> (4, kc) per order
-            H = np.empty((len(orders), 4, kc))
-            tmp2 = np.empty((4, kc))
-            for n, (a, b) in enumerate(orders):
-                np.multiply(Nu[a, 0], T[b][:, 0], out=H[n])
-                for i in range(1, p + 1):
-                    np.multiply(Nu[a, i], T[b][:, i], out=tmp2)
-                    H[n] += tmp2
-            A, B = H[:, :3], H[:, 3]
-            o = out[:, :, sl]
-            iB = 1.0 / B[0]
-            o[0] = A[0] * iB
-            if nderiv >= 1:
-                o[1] = (A[1] - B[1] * o[0]) * iB  # S_u
-                o[2] = (A[2] - B[2] * o[0]) * iB  # S_v
-            if nderiv >= 2:
-                o[3] = (A[3] - 2.0 * B[1] * o[1] - B[3] * o[0]) * iB  # S_uu
-                o[4] = (A[4] - B[1] * o[2] - B[2] * o[1] - B[4] * o[0]) * iB  # S_uv
-                o[5] = (A[5] - 2.0 * B[2] * o[2] - B[5] * o[0]) * iB  # S_vv
+            kc = sl.stop - c0
+            if self._rational:
+                H = self._sums(u[sl], v[sl], nderiv, work.get("H", (n_ord, 4, kc)), work)
+                _quotient(H, out[:, :, sl])
+            else:
+                self._sums(u[sl], v[sl], nderiv, out[:, :, sl], work)
         return out
 
+    def _sums(self, u: np.ndarray, v: np.ndarray, nderiv: int, H: np.ndarray, work: _Work) -> np.ndarray:
+        """``H[n] = sum_ij N^{(a)}_i(u) N^{(b)}_j(v) Pw_ij`` for the orders ``(a, b)`` of
+        ``nderiv``, into ``H (orders, channels, k)`` (``channels`` rows of :attr:`_pwT`)."""
+        p, q = self.degree_u, self.degree_v
+        nu, nv = self.n_ctrl
+        kc = u.shape[0]
+        ch = self._pwT.shape[0]
+        su = find_span(self.knots_u, p, nu, u, self._spans_u)
+        sv = find_span(self.knots_v, q, nv, v, self._spans_v)
+        Nu = _basis_soa(self.knots_u, p, su, u, nderiv, work.get("Nu", (nderiv + 1, p + 1, kc)))
+        Nv = _basis_soa(self.knots_v, q, sv, v, nderiv, work.get("Nv", (nderiv + 1, q + 1, kc)))
+        su -= p
+        su *= nv
+        sv -= q
+        su += sv  # flat index of the first control point of each point's (p+1) x (q+1) block
+        flat = work.get("flat", (p + 1, q + 1, kc), np.int64)
+        np.add(self._block_offsets(), su, out=flat)
+        L = np.take(self._pwT, flat, axis=1, out=work.get("L", (ch, p + 1, q + 1, kc)), mode="clip")
+        # along v: T[b] = sum_j N^{(b)}_j(v) Pw_ij -> (nd+1, channels, p+1, kc)
+        T = np.einsum("bjk,cijk->bcik", Nv, L, out=work.get("T", (nderiv + 1, ch, p + 1, kc)))
+        # along u: H_ab = sum_i N^{(a)}_i(u) T[b]_i
+        for n, (a, b) in enumerate(_ORDERS[nderiv]):
+            np.einsum("ik,cik->ck", Nu[a], T[b], out=H[n])
+        return H
+
+    def _block_offsets(self) -> np.ndarray:
+        """``(p+1, q+1, 1)`` flat offsets ``i nv + j`` of a control block from its first point."""
+        nv = self.n_ctrl[1]
+        return (np.arange(self.degree_u + 1)[:, None] * nv + np.arange(self.degree_v + 1))[:, :, None]
 
     def __repr__(self) -> str:
         return (
@@ -820,7 +866,7 @@ def cylinder(
     ring = radius * (_CIRCLE_NET[:, :1] * x + _CIRCLE_NET[:, 1:] * y)
     P = np.stack([c + ring, c + ring + height * z], axis=1)  # (9, 2, 3)
     W = np.stack([CIRCLE_WEIGHTS, CIRCLE_WEIGHTS], axis=1)
-    return NurbsSurface(2, 1, CIRCLE_KNOTS, [0.0, 0.0, 1.0, 1.0], P, W)
+    return NurbsSurface(2, 1, CIRCLE_KNOTS, np.array([0.0, 0.0, 1.0, 1.0]), P, W)
 
 
 def sphere(

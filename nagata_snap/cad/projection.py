@@ -35,7 +35,7 @@ Two refinements of criterion 2 (not in the seed):
 An iteration is one Newton update; the final first-order update counts as
 one (as in Kadir's counting, the step that meets criterion 2 is an
 iteration).  With neighbour seeds (parametric midpoints of the parent edge)
-most points converge in 2 iterations, cf. Kadir Table 4.2.
+Kadir's Table 4.2 reports mostly 2 iterations.
 
 Parameters leaving the domain are clamped in open directions and wrapped
 modulo the period in closed ones (Kadir, App. B.1, last paragraph).
@@ -60,12 +60,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal, Protocol, TypeGuard, overload
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
 from nagata_snap.mesh.arrays import best_per_group, dot
 
 __all__ = [
@@ -73,7 +73,6 @@ __all__ = [
     "project_newton",
     "GlobalSearcher",
     "global_search",
-    "closest_point",
     "sample_entity",
     "normalize_params",
     "evaluate_params",
@@ -82,7 +81,43 @@ __all__ = [
     "is_analytic",
 ]
 
-Entity = NurbsCurve | NurbsSurface
+
+
+class Entity(Protocol):
+    """What the projection needs of a curve (``param_dim`` 1) or surface (2): a
+    :class:`~nagata_snap.cad.nurbs.NurbsCurve`, :class:`~nagata_snap.cad.nurbs.NurbsSurface` or an analytic entity of
+    :mod:`~nagata_snap.cad.surfaces` / :mod:`~nagata_snap.cad.curves`."""
+
+    param_dim: int
+
+    @property
+    def bounds(self) -> np.ndarray: ...  # (d, 2) parameter box
+
+    @property
+    def closed(self) -> tuple[bool, ...]: ...  # per direction
+
+    @property
+    def bbox(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @property
+    def bbox_size(self) -> float: ...
+
+    def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray: ...  # (d, k) -> (n, 3, k)
+
+
+class AnalyticEntity(Entity, Protocol):
+    """An entity with a closed-form projection (:func:`is_analytic`)."""
+
+    def closest(self, points: npt.ArrayLike, seeds: npt.ArrayLike | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+def _distinct_knots(entity: Entity, a: int) -> np.ndarray:
+    """Span boundaries of parameter direction ``a`` (``distinct_knots`` of a curve,
+    ``distinct_knots_u`` / ``_v`` of a surface)."""
+    name = "distinct_knots" if entity.param_dim == 1 else ("distinct_knots_u", "distinct_knots_v")[a]
+    return np.asarray(getattr(entity, name))
+
 
 #: default step-length tolerance (criterion 2), relative to the entity's bbox size
 STEP_RTOL = 1e-9
@@ -174,24 +209,29 @@ def normalize_params(entity: Entity, params: npt.ArrayLike) -> np.ndarray:
     return p
 
 
-def evaluate_params(entity: Entity, params: np.ndarray, nderiv: int = 0):
+@overload
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: Literal[0] = 0) -> np.ndarray: ...
+@overload
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: Literal[1]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: Literal[2]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+def evaluate_params(entity: Entity, params: np.ndarray, nderiv: int = 0
+                    ) -> np.ndarray | tuple[np.ndarray, ...]:
     """Evaluate at ``(k, d)`` parameters already inside the domain.
 
     Returns ``S (k, 3)`` for ``nderiv=0``, else ``(S, T, H)`` with tangents
     ``T (k, d, 3)`` (``T[:, a] = dS/dp_a``) and, for ``nderiv=2``, second
     derivatives ``H (k, d, d, 3)`` (``H[:, a, b] = d2S/dp_a dp_b``).
     """
+    D = entity._eval_soa(np.ascontiguousarray(params.T), nderiv).transpose(0, 2, 1)  # (n, k, 3)
+    if nderiv == 0:
+        return D[0]
     if entity.param_dim == 1:
-        D = entity._evaluate_inside(params[:, 0], nderiv)
-        if nderiv == 0:
-            return D[0]
         T = D[1][:, None, :]
         if nderiv == 1:
             return D[0], T
         return D[0], T, D[2][:, None, None, :]
-    D = entity._evaluate_inside(params[:, 0], params[:, 1], nderiv)
-    if nderiv == 0:
-        return D[0]
     T = np.stack([D[1], D[2]], axis=1)
     if nderiv == 1:
         return D[0], T
@@ -255,11 +295,15 @@ def _solve_step(g: np.ndarray, J: tuple, G: tuple) -> tuple[np.ndarray, np.ndarr
     return np.stack([-(c * g[0] - b * g[1]) / det, -(a * g[1] - b * g[0]) / det]), pd, psd
 
 
-def _cosine(E: np.ndarray, g: np.ndarray, dist: np.ndarray, d: int) -> np.ndarray:
-    """Criterion 3: largest ``|S_a . r| / (|S_a| |r|)``; 0 for a zero tangent."""
+def _cosine(G: tuple, g: np.ndarray, dist: np.ndarray, d: int) -> np.ndarray:
+    """Criterion 3: largest ``|S_a . r| / (|S_a| |r|)``; 0 for a zero tangent.
+
+    ``G`` the Gauss-Newton matrix of :func:`_newton_system` (``|S_a|^2`` on its
+    diagonal), ``g (d, k)`` the gradient ``S_a . r``.
+    """
     cos = np.zeros_like(dist)
     for a in range(d):
-        den = np.sqrt(dot(E[1 + a], E[1 + a])) * dist
+        den = np.sqrt(G[0] if a == 0 else G[2]) * dist
         c = np.divide(np.abs(g[a]), den, out=np.zeros_like(den), where=den > 0)
         np.maximum(cos, c, out=cos)
     return cos
@@ -296,18 +340,7 @@ def _step_length(E: np.ndarray, actual: np.ndarray, d: int) -> np.ndarray:
 
 
 def _escape_collapsed_edges(
-    entity: NurbsSurface,
-    X: np.ndarray,
-    out_P: np.ndarray,
-    out_S: np.ndarray,
-    out_dist: np.ndarray,
-    iters: np.ndarray,
-    conv: np.ndarray,
-    max_iter: int,
-    tol: float,
-    zero_tol: float,
-    cos_tol: float,
-    acc_tol: float,
+    entity: Entity, X: np.ndarray, out: _Output, max_iter: int, tols: _Tolerances
 ) -> None:
     """Restart points stuck on a collapsed boundary (a pole) with the wrong free parameter.
 
@@ -317,8 +350,8 @@ def _escape_collapsed_edges(
     points away from ``P`` the clamped iteration stops at the pole although
     interior points are closer.  For such points ``v`` is chosen with the
     steepest inward descent, ``min_v s r.S_u(u_b, v)`` (``s`` the inward
-    sign) over a sample of ``v``, and Newton is restarted there.  Updates the
-    output arrays in place (``d = 2`` only).
+    sign) over a sample of ``v``, and Newton is restarted there.  Updates
+    ``out`` in place (``d = 2`` only).
     """
     bnd = entity.bounds
     size = entity.bbox_size
@@ -326,13 +359,13 @@ def _escape_collapsed_edges(
         if entity.closed[a]:
             continue
         o = 1 - a
-        knots_o = entity.distinct_knots_v if o == 1 else entity.distinct_knots_u
+        knots_o = _distinct_knots(entity, o)
         olen = bnd[o, 1] - bnd[o, 0]
         for bound, s in ((bnd[a, 0], 1.0), (bnd[a, 1], -1.0)):
-            cand = np.flatnonzero((out_P[a] == bound) & (out_dist > zero_tol))
+            cand = np.flatnonzero((out.P[a] == bound) & (out.dist > tols.zero))
             if cand.size == 0:
                 continue
-            E = _eval_soa(entity, out_P[:, cand], 1)
+            E = _eval_soa(entity, out.P[:, cand], 1)
             r = E[0] - X[cand].T
             Ta, To = E[1 + a], E[1 + o]
             degen = np.sqrt(dot(To, To)) <= 1e-9 * size / olen
@@ -357,21 +390,171 @@ def _escape_collapsed_edges(
             seeds[:, a] = bound
             seeds[:, o] = vs[best[go]]
             res = project_newton(
-                entity, X[cand], seeds, max_iter, tol, zero_tol=zero_tol, cos_tol=cos_tol,
-                acc_tol=acc_tol, _escape=False,
+                entity, X[cand], seeds, max_iter, tols.step, zero_tol=tols.zero, cos_tol=tols.cos,
+                acc_tol=tols.acc, _escape=False,
             )
-            better = res.distance < out_dist[cand]
-            c = cand[better]
-            out_P[:, c] = res.params[better].T
-            out_S[:, c] = res.points[better].T
-            out_dist[c] = res.distance[better]
-            conv[c] = res.converged[better]
-            iters[cand] += res.iterations
+            better = res.distance < out.dist[cand]
+            out.store(cand[better], res.params[better].T, res.points[better].T, res.distance[better],
+                      res.converged[better])
+            out.iters[cand] += res.iterations
 
 
 # ----------------------------------------------------------------------
 # Newton projection
 # ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Tolerances:
+    """Convergence tolerances of :func:`project_newton` (length units, but ``cos``)."""
+
+    step: float  # criterion 2: physical length of the last step
+    zero: float  # criterion 1: |S - P|
+    cos: float  # criterion 3: zero cosine
+    acc: float  # error predicted after the last step that criterion 2 accepts
+    slack: float  # growth of |S - P| tolerated as rounding (no backtracking)
+
+    @classmethod
+    def of(cls, entity: Entity, tol: float | None, zero_tol: float | None, cos_tol: float,
+           acc_tol: float | None) -> _Tolerances:
+        """Defaults relative to the entity's bbox size (module constants)."""
+        size = max(entity.bbox_size, np.finfo(float).tiny)
+        return cls(
+            STEP_RTOL * size if tol is None else float(tol),
+            ZERO_RTOL * size if zero_tol is None else float(zero_tol),
+            float(cos_tol),
+            ACC_RTOL * size if acc_tol is None else float(acc_tol),
+            4.0 * np.finfo(float).eps * size,
+        )
+
+
+@dataclass
+class _Output:
+    """Results of :func:`project_newton`, ``(d, k)`` / ``(3, k)`` / ``(k,)``, filled as points finish."""
+
+    P: np.ndarray
+    S: np.ndarray
+    dist: np.ndarray
+    iters: np.ndarray
+    conv: np.ndarray
+
+    def store(self, ii: np.ndarray, P: np.ndarray, S: np.ndarray, dist: np.ndarray,
+              converged: bool | np.ndarray) -> None:
+        """Final state of points ``ii`` (columns of ``P (d, m)``, ``S (3, m)``, ``dist (m,)``)."""
+        self.P[:, ii], self.S[:, ii], self.dist[ii], self.conv[ii] = P, S, dist, converged
+
+    def result(self, d: int) -> ProjectionResult:
+        params = self.P[0].copy() if d == 1 else np.ascontiguousarray(self.P.T)
+        return ProjectionResult(params, np.ascontiguousarray(self.S.T), self.dist, self.iters, self.conv)
+
+
+@dataclass
+class _Active:
+    """State of the points still iterating (columns), compacted as points finish.
+
+    ``idx (m,)`` their rows in the output, ``X (3, m)`` the points, ``P (d, m)``
+    parameters, ``E`` the evaluation there (:func:`_eval_soa` with second
+    derivatives), ``r = S - X``, ``dist = |r|``, ``sprev`` the previous step length.
+    """
+
+    idx: np.ndarray
+    X: np.ndarray
+    P: np.ndarray
+    E: np.ndarray
+    r: np.ndarray
+    dist: np.ndarray
+    sprev: np.ndarray
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Drop the columns where ``mask`` is False."""
+        self.idx, self.X, self.P, self.E = self.idx[mask], self.X[:, mask], self.P[:, mask], self.E[:, :, mask]
+        self.r, self.dist, self.sprev = self.r[:, mask], self.dist[mask], self.sprev[mask]
+
+
+@dataclass
+class _Step:
+    """A Newton update of the active points (columns) and Kadir's criteria for it."""
+
+    step: np.ndarray  # (d, m) the (capped) Newton or Gauss-Newton step
+    new: np.ndarray  # (d, m) parameters after it (clamped / wrapped)
+    actual: np.ndarray  # (d, m) the step as taken (after clamping)
+    length: np.ndarray  # (m,) |sum_a actual_a S_a|
+    small: np.ndarray  # (m,) criterion 2 met by this step
+    done: np.ndarray  # (m,) some criterion met
+
+    def keep(self, mask: np.ndarray) -> None:
+        self.step, self.new, self.actual = self.step[:, mask], self.new[:, mask], self.actual[:, mask]
+        self.length, self.small, self.done = self.length[mask], self.small[mask], self.done[mask]
+
+
+def _newton_step(entity: Entity, a: _Active, tols: _Tolerances) -> _Step:
+    """Newton step of every active point (eq. B.1 / B.2, capped to a quarter of the
+    domain, clamped or wrapped) and the convergence criteria it meets."""
+    d = entity.param_dim
+    g, J, G = _newton_system(a.E, a.r, d)
+    step, pd, psd = _solve_step(g, J, G)
+    step[:, ~np.all(np.isfinite(step), axis=0)] = 0.0
+    # cap to a quarter of the domain per direction (uniform scaling)
+    max_step = 0.25 * np.diff(entity.bounds, axis=1)  # (d, 1)
+    scale = np.min(np.minimum(1.0, max_step / np.maximum(np.abs(step), 1e-300)), axis=0)
+    step *= scale
+    new, actual = _apply_step(entity, a.P, step)
+    length = _step_length(a.E, actual, d)
+    # Kadir's criteria: 2 (insignificant change) for the Newton step just computed,
+    # with the error predicted after it, C s^2, C ~ s / s_prev^2 (quadratic
+    # convergence; without a previous step: s itself); 1 (coincidence) and 3 (zero
+    # cosine, only where J >= 0: not at a maximum of the distance) at the iterate
+    with np.errstate(invalid="ignore"):  # inf / inf where there was no previous step
+        pred = np.where(np.isfinite(a.sprev), length * length * length / np.maximum(a.sprev * a.sprev, 1e-300),
+                        length)
+    small = pd & (length <= tols.step) & (pred <= tols.acc)
+    done = small | (a.dist <= tols.zero) | (psd & (_cosine(G, g, a.dist, d) <= tols.cos))
+    return _Step(step, new, actual, length, small, done)
+
+
+def _retire(a: _Active, s: _Step, stop: np.ndarray, out: _Output, zero_tol: float) -> None:
+    """Store the points ``stop`` (converged where ``s.done``) and drop them from ``a``, ``s``.
+
+    A converged point takes its last (tiny) Newton step to first order,
+    ``S(p + delta) = S + S_a delta_a + O(|delta|^2)``: no re-evaluation.
+    """
+    d = a.P.shape[0]
+    lin = stop & s.small
+    Pf = np.where(lin[None, :], s.new, a.P)
+    Sf = a.E[0] + np.where(lin[None, :], np.einsum("ak,ack->ck", s.actual, a.E[1 : 1 + d]), 0.0)
+    rf = Sf - a.X
+    out.iters[a.idx[lin & (s.length > zero_tol)]] += 1
+    out.store(a.idx[stop], Pf[:, stop], Sf[:, stop], np.sqrt(dot(rf, rf))[stop], s.done[stop])
+    keep = ~stop
+    a.keep(keep)
+    s.keep(keep)
+
+
+def _backtrack(entity: Entity, a: _Active, s: _Step, tols: _Tolerances, max_halvings: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Evaluate at the new parameters, halving the step where ``|S - P|`` grew
+    (inactive for well-seeded points).  Returns ``(E, r, dist, stalled)`` at
+    ``s.new`` (updated in place, as ``s.length``); ``stalled (m,)``: no halving
+    decreased the distance."""
+    E = _eval_soa(entity, s.new, 2)
+    r = E[0] - a.X
+    dist = np.sqrt(dot(r, r))
+    worse = np.flatnonzero(dist > a.dist + tols.slack)
+    alpha = 1.0
+    for _h in range(max_halvings):
+        if worse.size == 0:
+            break
+        alpha *= 0.5
+        nw, aw = _apply_step(entity, a.P[:, worse], alpha * s.step[:, worse])
+        Ew = _eval_soa(entity, nw, 2)
+        rw = Ew[0] - a.X[:, worse]
+        dw = np.sqrt(dot(rw, rw))
+        s.new[:, worse], E[:, :, worse], r[:, worse], dist[worse] = nw, Ew, rw, dw
+        s.length[worse] = _step_length(a.E[:, :, worse], aw, entity.param_dim)
+        worse = worse[dw > a.dist[worse] + tols.slack]
+    stalled = np.zeros(a.idx.size, dtype=bool)
+    stalled[worse] = True
+    return E, r, dist, stalled
+
+
 def project_newton(
     entity: Entity,
     points: npt.ArrayLike,
@@ -389,10 +572,13 @@ def project_newton(
 
     Kadir (2010) App. B, eq. (B.1) for curves and (B.2) for surfaces; all
     points iterate together, converged points are frozen (removed from the
-    active set, which is compacted every iteration).
+    active set, which is compacted every iteration).  Stages:
+    :func:`_newton_step` (step and criteria), :func:`_retire` (finished
+    points), :func:`_backtrack` (evaluation at the new iterate, step
+    halving), :func:`_escape_collapsed_edges` (restarts at poles).
 
     Args:
-        entity: :class:`NurbsCurve` or :class:`NurbsSurface`.
+        entity: :class:`~nagata_snap.cad.nurbs.NurbsCurve` or :class:`~nagata_snap.cad.nurbs.NurbsSurface`.
         points: ``(k, 3)`` points to project (``(k, 2)`` accepted, z = 0).
         seeds: ``(k,)`` (curves) or ``(k, 2)`` (surfaces) start parameters;
             wrapped/clamped into the domain first.
@@ -417,125 +603,40 @@ def project_newton(
         ValueError: points that are NaN, infinite or beyond :data:`MAX_COORD`
             (non-finite seeds are allowed: the point is returned unconverged).
     """
-    X = np.asarray(points, dtype=float)
-    if X.ndim != 2 or X.shape[1] not in (2, 3):
-        raise ValueError(f"points must have shape (k, 3), got {X.shape}")
-    if X.shape[1] == 2:
-        X = np.c_[X, np.zeros(len(X))]
-    _check_finite(X, "points")
-    k = X.shape[0]
-    d = entity.param_dim
-    size = max(entity.bbox_size, np.finfo(float).tiny)
-    tol = STEP_RTOL * size if tol is None else float(tol)
-    zero_tol = ZERO_RTOL * size if zero_tol is None else float(zero_tol)
-    acc_tol = ACC_RTOL * size if acc_tol is None else float(acc_tol)
-    P0 = normalize_params(entity, _params_2d(entity, seeds, k))
-    max_step = 0.25 * np.diff(entity.bounds, axis=1)  # (d, 1)
-    slack = 4.0 * np.finfo(float).eps * size
-
-    # final results (filled as points finish)
-    out_P = np.ascontiguousarray(P0.T)  # (d, k)
-    out_S = np.empty((3, k))
-    out_dist = np.empty(k)
-    iters = np.zeros(k, dtype=np.int64)
-    conv = np.zeros(k, dtype=bool)
-
-    # active state, compacted as points finish
-    idx = np.arange(k)
+    X = _points3(points, single=False)
+    k, d = X.shape[0], entity.param_dim
+    tols = _Tolerances.of(entity, tol, zero_tol, cos_tol, acc_tol)
+    P0 = np.ascontiguousarray(normalize_params(entity, _params_2d(entity, seeds, k)).T)  # (d, k)
+    out = _Output(P0, np.empty((3, k)), np.empty(k), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=bool))
     Xa = np.ascontiguousarray(X.T)  # (3, k)
-    Pa = out_P.copy()
-    E = _eval_soa(entity, Pa, 2)
+    E = _eval_soa(entity, P0, 2)
     r = E[0] - Xa
-    dist = np.sqrt(dot(r, r))
-    sprev = np.full(k, np.inf)  # length of the previous step (quadratic-rate estimate)
-
-    def finish(mask: np.ndarray, converged: bool | np.ndarray, P_, S_, d_) -> None:
-        ii = idx[mask]
-        out_P[:, ii] = P_[:, mask]
-        out_S[:, ii] = S_[:, mask]
-        out_dist[ii] = d_[mask]
-        conv[ii] = converged if np.ndim(converged) == 0 else converged[mask]
-
+    a = _Active(np.arange(k), Xa, P0.copy(), E, r, np.sqrt(dot(r, r)), np.full(k, np.inf))
     for it in range(max_iter + 1):
-        if idx.size == 0:
+        if a.idx.size == 0:
             break
-        g, J, G = _newton_system(E, r, d)
-        step, pd, psd = _solve_step(g, J, G)
-        step[:, ~np.all(np.isfinite(step), axis=0)] = 0.0
-        # cap to a quarter of the domain per direction (uniform scaling)
-        scale = np.min(np.minimum(1.0, max_step / np.maximum(np.abs(step), 1e-300)), axis=0)
-        step *= scale
-        new, actual = _apply_step(entity, Pa, step)
-        steplen = _step_length(E, actual, d)
-        # Kadir's criteria: 2 (insignificant change) for the Newton step just
-        # computed, with the error predicted after it, C s^2, C ~ s / s_prev^2
-        # (quadratic convergence; without a previous step: s itself); 1
-        # (coincidence) and 3 (zero cosine, only where J >= 0: not at a
-        # maximum of the distance) at the current iterate
-        pred = np.where(np.isfinite(sprev), steplen**3 / np.maximum(sprev * sprev, 1e-300), steplen)
-        small = pd & (steplen <= tol) & (pred <= acc_tol)
-        done = small | (dist <= zero_tol) | (psd & (_cosine(E, g, dist, d) <= cos_tol))
-        if it == max_iter:
-            done_all = np.ones(idx.size, dtype=bool)
-        else:
-            # a zero step that meets no criterion (a maximum, or clamped against
-            # a bound) cannot progress: stop, not converged
-            done_all = done | (steplen == 0.0)
-        if done_all.any():
-            # a converged point takes its last (tiny) Newton step to first order,
-            # S(p + delta) = S + S_a delta_a + O(|delta|^2): no re-evaluation
-            lin = done_all & small
-            Pf = np.where(lin[None, :], new, Pa)
-            Sf = E[0] + np.where(lin[None, :], np.einsum("ak,ack->ck", actual, E[1 : 1 + d]), 0.0)
-            rf = Sf - Xa
-            df = np.sqrt(dot(rf, rf))
-            iters[idx[lin & (steplen > zero_tol)]] += 1
-            finish(done_all, done, Pf, Sf, df)
-            keep = ~done_all
-            if not keep.any():
-                idx = idx[:0]
+        s = _newton_step(entity, a, tols)
+        # at the last iteration every point stops; before, also a zero step that meets no
+        # criterion (a maximum, or clamped against a bound): it cannot progress
+        stop = np.ones(a.idx.size, dtype=bool) if it == max_iter else s.done | (s.length == 0.0)
+        if stop.any():
+            _retire(a, s, stop, out, tols.zero)
+            if a.idx.size == 0:
                 break
-            idx, Xa, Pa, E, r, dist = idx[keep], Xa[:, keep], Pa[:, keep], E[:, :, keep], r[:, keep], dist[keep]
-            step, new, actual, steplen = step[:, keep], new[:, keep], actual[:, keep], steplen[keep]
-            sprev = sprev[keep]
-        En = _eval_soa(entity, new, 2)
-        rn = En[0] - Xa
-        dn = np.sqrt(dot(rn, rn))
-        # backtracking where the distance grew (inactive for well-seeded points)
-        worse = np.flatnonzero(dn > dist + slack)
-        alpha = 1.0
-        for _h in range(max_halvings):
-            if worse.size == 0:
-                break
-            alpha *= 0.5
-            nw, aw = _apply_step(entity, Pa[:, worse], alpha * step[:, worse])
-            Ew = _eval_soa(entity, nw, 2)
-            rw = Ew[0] - Xa[:, worse]
-            dw = np.sqrt(dot(rw, rw))
-            new[:, worse], En[:, :, worse], rn[:, worse], dn[worse] = nw, Ew, rw, dw
-            steplen[worse] = _step_length(E[:, :, worse], aw, d)
-            worse = worse[dw > dist[worse] + slack]
-        stalled = np.zeros(idx.size, dtype=bool)
-        stalled[worse] = True
+        E, r, dist, stalled = _backtrack(entity, a, s, tols, max_halvings)
         if stalled.any():  # could not decrease: keep the old iterate, not converged
-            finish(stalled, False, Pa, E[0], dist)
+            out.store(a.idx[stalled], a.P[:, stalled], a.E[0][:, stalled], a.dist[stalled], False)
         ok = ~stalled
-        iters[idx[ok]] += 1
-        Pa, E, r, dist, sprev = new, En, rn, dn, steplen
+        out.iters[a.idx[ok]] += 1
+        a.P, a.E, a.r, a.dist, a.sprev = s.new, E, r, dist, s.length
         if not ok.all():
-            idx, Xa, Pa, E, r, dist = idx[ok], Xa[:, ok], Pa[:, ok], E[:, :, ok], r[:, ok], dist[ok]
-            sprev = sprev[ok]
-
+            a.keep(ok)
     if d == 2 and _escape:
-        _escape_collapsed_edges(
-            entity, X, out_P, out_S, out_dist, iters, conv, max_iter, tol, zero_tol, cos_tol, acc_tol
-        )
-
-    params = out_P[0].copy() if d == 1 else np.ascontiguousarray(out_P.T)
-    return ProjectionResult(params, np.ascontiguousarray(out_S.T), out_dist, iters, conv)
+        _escape_collapsed_edges(entity, X, out, max_iter, tols)
+    return out.result(d)
 
 
-def is_analytic(entity) -> bool:
+def is_analytic(entity: object) -> TypeGuard[AnalyticEntity]:
     """The entity projects in closed form (:mod:`~nagata_snap.cad.surfaces`, :mod:`~nagata_snap.cad.curves`)."""
     return hasattr(entity, "closest")
 
@@ -583,12 +684,12 @@ def sample_entity(
     """
     if entity.param_dim == 1:
         per_span = 8 if per_span is None else per_span
-        u = _direction_samples(entity.distinct_knots, per_span, min_per_direction)
+        u = _direction_samples(_distinct_knots(entity, 0), per_span, min_per_direction)
         P = u[:, None]
     else:
         per_span = 6 if per_span is None else per_span
-        u = _direction_samples(entity.distinct_knots_u, per_span, min_per_direction)
-        v = _direction_samples(entity.distinct_knots_v, per_span, min_per_direction)
+        u = _direction_samples(_distinct_knots(entity, 0), per_span, min_per_direction)
+        v = _direction_samples(_distinct_knots(entity, 1), per_span, min_per_direction)
         uu, vv = np.meshgrid(u, v, indexing="ij")
         P = np.stack([uu.ravel(), vv.ravel()], axis=1)
     return P, evaluate_params(entity, P, 0)
@@ -644,7 +745,7 @@ class GlobalSearcher:
         #: per entity ``(params (s, d), points (s, 3))``, built on first use
         self._samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._trees: dict[int, cKDTree] = {}
-        self._all = None
+        self._all: tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree] | None = None
         lo = np.array([e.bbox[0] for e in entities])
         hi = np.array([e.bbox[1] for e in entities])
         self.bbox_lo, self.bbox_hi = lo, hi
@@ -841,9 +942,11 @@ def _pick(n: int, pt, ent, params, dist, columns: tuple, accept) -> tuple:
     return (*tuple(c[best] for c in columns), dist[best], ok[best])
 
 
-def _points3(points: npt.ArrayLike) -> np.ndarray:
+def _points3(points: npt.ArrayLike, single: bool = True) -> np.ndarray:
+    """``(k, 3)`` float points (``(k, 2)``: z = 0; with ``single`` one ``(3,)`` point too),
+    checked finite."""
     X = np.asarray(points, dtype=float)
-    if X.ndim == 1 and X.shape[0] in (2, 3):
+    if single and X.ndim == 1 and X.shape[0] in (2, 3):
         X = X[None, :]
     if X.ndim != 2 or X.shape[1] not in (2, 3):
         raise ValueError(f"points must have shape (k, 3), got {X.shape}")
@@ -860,7 +963,13 @@ MAX_COORD = 1e100
 
 def _check_finite(a: np.ndarray, what: str) -> None:
     """``ValueError`` for NaN/infinite entries, or coordinates beyond :data:`MAX_COORD`."""
-    if a.size == 0 or (a.max() <= MAX_COORD and a.min() >= -MAX_COORD):  # no temporary; False for NaN
+    if a.size == 0:
+        return
+    flat = a.reshape(-1)
+    # one pass, no temporary: every |a_i| <= sqrt(sum a_i^2) (a rounded sum of non-negative
+    # terms is not below its largest term, itself rounded: the 1e-15 margin); NaN, inf and
+    # overflow fail it and go to the exact test
+    if flat @ flat <= MAX_COORD * MAX_COORD * (1.0 - 1e-15):
         return
     ok = np.isfinite(a) & (np.abs(a) <= MAX_COORD)
     if not ok.all():
@@ -890,7 +999,7 @@ def global_search(
     the closest" (App. B.1), without the per-point scan of the whole grid.
 
     Args:
-        entities: list of :class:`NurbsCurve` or of :class:`NurbsSurface`
+        entities: list of :class:`~nagata_snap.cad.nurbs.NurbsCurve` or of :class:`~nagata_snap.cad.nurbs.NurbsSurface`
             (a single entity is accepted).
         points: ``(k, 3)`` points.
 
@@ -898,13 +1007,7 @@ def global_search(
         ``(entity_index (k,) int64, params (k, d), distance (k,))`` with
         ``d = 1`` for curves and ``2`` for surfaces.
     """
-    if isinstance(entities, (NurbsCurve, NurbsSurface)):
+    if not isinstance(entities, Sequence):
         entities = [entities]
-    return GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds, max_iter=max_iter).search(points)
-
-
-def closest_point(
-    entities: Sequence[Entity] | Entity, points: npt.ArrayLike, **kwargs
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Alias of :func:`global_search`."""
-    return global_search(entities, points, **kwargs)
+    ent, params, dist = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds, max_iter=max_iter).search(points)
+    return ent, params, dist

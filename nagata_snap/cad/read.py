@@ -41,9 +41,11 @@ carry no unit: their coordinates are taken as they are.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -68,6 +70,25 @@ def preload() -> None:
 
     STEPControl_Reader()  # registers the static parameters (xstep.cascade.unit, ...)
     IGESControl_Reader()
+    _occ()
+
+
+@functools.cache
+def _occ() -> SimpleNamespace:
+    """The OpenCASCADE classes used once per edge or edge use, imported once (lazily: importing
+    this module does not load OpenCASCADE)."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d
+    from OCP.Geom import Geom_TrimmedCurve
+    from OCP.Geom2d import Geom2d_TrimmedCurve
+    from OCP.Geom2dConvert import Geom2dConvert
+    from OCP.GeomAbs import GeomAbs_CurveType
+    from OCP.GeomConvert import GeomConvert
+
+    return SimpleNamespace(BRep_Tool=BRep_Tool, BRepAdaptor_Curve=BRepAdaptor_Curve,
+                           BRepAdaptor_Curve2d=BRepAdaptor_Curve2d, Geom_TrimmedCurve=Geom_TrimmedCurve,
+                           Geom2d_TrimmedCurve=Geom2d_TrimmedCurve, Geom2dConvert=Geom2dConvert,
+                           CurveType=GeomAbs_CurveType, GeomConvert=GeomConvert)
 
 
 def _xyz(p) -> list[float]:
@@ -372,8 +393,7 @@ def _described(a, pt, dim: int, other) -> dict:
     Lines and circles in closed form, B-splines as they are, anything else
     as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).
     """
-    from OCP.GeomAbs import GeomAbs_CurveType as T
-
+    T = _occ().CurveType
     t0, t1 = a.FirstParameter(), a.LastParameter()
     t = a.GetType()
     if t == T.GeomAbs_Line:
@@ -396,33 +416,26 @@ def _described(a, pt, dim: int, other) -> dict:
 
 def _curve3d(edge) -> dict | None:
     """Description of an edge's 3D curve (None for degenerate edges)."""
-    from OCP.BRep import BRep_Tool
-    from OCP.BRepAdaptor import BRepAdaptor_Curve
-    from OCP.Geom import Geom_TrimmedCurve
-    from OCP.GeomConvert import GeomConvert
-
-    if BRep_Tool.Degenerated_s(edge) or not BRep_Tool.IsGeometric_s(edge):
+    o = _occ()
+    if o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge):
         return None
 
     def other(t0, t1):  # with the edge's location applied
-        geo = BRep_Tool.Curve_s(edge, t0, t1)
-        return GeomConvert.CurveToBSplineCurve_s(Geom_TrimmedCurve(geo, t0, t1))
+        geo = o.BRep_Tool.Curve_s(edge, t0, t1)
+        return o.GeomConvert.CurveToBSplineCurve_s(o.Geom_TrimmedCurve(geo, t0, t1))
 
-    return _described(BRepAdaptor_Curve(edge), _xyz, 3, other)
+    return _described(o.BRepAdaptor_Curve(edge), _xyz, 3, other)
 
 
 def _curve2d(edge, face) -> dict:
     """Description of the p-curve of an (oriented) edge on a face, with its range."""
-    from OCP.BRep import BRep_Tool
-    from OCP.BRepAdaptor import BRepAdaptor_Curve2d
-    from OCP.Geom2d import Geom2d_TrimmedCurve
-    from OCP.Geom2dConvert import Geom2dConvert
+    o = _occ()
 
     def other(t0, t1):
-        geo = BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
-        return Geom2dConvert.CurveToBSplineCurve_s(Geom2d_TrimmedCurve(geo, t0, t1))
+        geo = o.BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
+        return o.Geom2dConvert.CurveToBSplineCurve_s(o.Geom2d_TrimmedCurve(geo, t0, t1))
 
-    return _described(BRepAdaptor_Curve2d(edge, face), _xy, 2, other)
+    return _described(o.BRepAdaptor_Curve2d(edge, face), _xy, 2, other)
 
 
 # ----------------------------------------------------------------------
@@ -502,7 +515,7 @@ def _ancestors(kind, maps_child, maps_parent) -> list[list[int]]:
     """
     from OCP.TopExp import TopExp_Explorer
 
-    out = [set() for _ in range(maps_child.Extent())]
+    out: list[set[int]] = [set() for _ in range(maps_child.Extent())]
     for j in range(1, maps_parent.Extent() + 1):
         ex = TopExp_Explorer(maps_parent.FindKey(j), kind)
         while ex.More():
@@ -618,7 +631,7 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     except ReadError as err:
         raise ReadError(f"{path}: {err}") from None
     solids = _ancestors(TopAbs_FACE, fmap, smap)
-    for f, s in zip(faces, solids):
+    for f, s in zip(faces, solids, strict=True):
         f["solids"] = s
     times["convert"] = time.perf_counter() - t0
     return {"path": path, "format": info["format"], "unit": info["unit"],

@@ -36,6 +36,8 @@ taken); evaluation is not clamped to it: the surface extends beyond its face.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import numpy.typing as npt
 
@@ -88,6 +90,25 @@ def _wrap(t: np.ndarray, lo: float, top: float = np.pi) -> np.ndarray:
     return t
 
 
+#: rows per block of :func:`_add_rows`
+_ROW_BLOCK = 256
+
+
+def _add_rows(a: np.ndarray, c: np.ndarray) -> None:
+    """``a += c`` in place for a C-contiguous ``(k, m)`` array and a ``(m,)`` vector.
+
+    Done on blocks of :data:`_ROW_BLOCK` rows viewed as one long row against ``c``
+    tiled, because a broadcast over rows runs numpy's inner loop over only ``m``
+    (2 or 3) elements at a time, several times slower.
+    """
+    k, m = a.shape
+    q = k - k % _ROW_BLOCK
+    if q:
+        body = a[:q].reshape(-1, _ROW_BLOCK * m)
+        body += np.tile(c, _ROW_BLOCK)
+    a[q:] += c
+
+
 class AnalyticSurface:
     """Common part of the analytic surfaces: frame, bounds, periods, evaluation.
 
@@ -110,7 +131,9 @@ class AnalyticSurface:
         if not np.all(np.isfinite(self.origin)):
             raise ValueError(f"origin must be finite, got {self.origin.tolist()}")
         #: +1 for a right-handed frame, -1 for a left-handed one
-        self.hand = 1.0 if np.dot(np.cross(self.X, self.Y), self.Z) > 0 else -1.0
+        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = self.X.tolist(), self.Y.tolist(), self.Z.tolist()
+        triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
+        self.hand = 1.0 if triple > 0 else -1.0
         b = np.asarray(bounds, dtype=float).reshape(2, 2)
         if not np.all(np.isfinite(b)) or np.any(b[:, 1] < b[:, 0]):
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
@@ -165,8 +188,9 @@ class AnalyticSurface:
 
     def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box of the face's parameter box (grid samples plus their sagitta)."""
-        u = np.linspace(*self.bounds[0], 17)
-        v = np.linspace(*self.bounds[1], 17)
+        (u0, u1), (v0, v1) = self.bounds
+        u = np.linspace(u0, u1, 17)
+        v = np.linspace(v0, v1, 17)
         uu, vv = np.meshgrid(u, v, indexing="ij")
         S = self._points(uu.ravel(), vv.ravel())
         pad = self._sagitta(u[1] - u[0], v[1] - v[0])
@@ -202,6 +226,12 @@ class AnalyticSurface:
 
     def _local(self, u, v, c, s, nderiv):  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def _closest(self, L: np.ndarray, seed: Callable[[np.ndarray, int], np.ndarray]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(u, v, foot (k, 3), distance)`` from local coordinates ``L`` (:meth:`_coords`);
+        ``seed(rows, a)`` gives parameter ``a`` where the point leaves it free."""
+        raise NotImplementedError  # pragma: no cover - abstract
 
     def _coords(self, points: np.ndarray) -> np.ndarray:
         """``(4, k)``: local coordinates ``x, y, z`` (contiguous rows) of ``points (k, 3)`` in the
@@ -309,11 +339,32 @@ class Plane(AnalyticSurface):
             out[2] = self.Y[:, None]
         return out
 
-    def _closest(self, L, seed):
-        x, y = L[0], L[1]
-        dist = np.abs(L[2])
-        L[2], L[3] = 0.0, 1.0  # rows x, y, 0, 1: the foot
-        return x, y, L.T @ self._frame4, dist
+    def closest(self, points: npt.ArrayLike, seeds: npt.ArrayLike | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest points ``O + u X + v Y`` of ``points (k, 3)``, ``u, v = (P - O).X, (P - O).Y``
+        (seeds are not needed).  Only the returned arrays are allocated, in three passes
+        over ``points``.  Returns ``(params (k, 2), foot points (k, 3), distances (k,))``."""
+        X = np.asarray(points, dtype=float).reshape(-1, 3)
+        uv = X @ self._uv_cols  # (k, 2)
+        _add_rows(uv, -self._uv_origin)
+        dist = X @ self.Z  # (k,): signed height over the plane
+        dist -= self._z_origin
+        S = uv @ self._uv_axes  # the foot O + u X + v Y
+        _add_rows(S, self.origin)
+        return uv, S, np.abs(dist, out=dist)
+
+    def __init__(self, origin, x, y, z, bounds):
+        super().__init__(origin, x, y, z, bounds)
+        self._uv_axes = np.stack([self.X, self.Y])  # (2, 3)
+        self._uv_cols = np.ascontiguousarray(self._uv_axes.T)  # (3, 2): contiguous for BLAS
+        self._uv_origin = self._uv_axes @ self.origin
+        self._z_origin = float(self.Z @ self.origin)
+
+    def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box of the parameter box's four corners (exact: the plane is linear in ``u, v``)."""
+        (u0, u1), (v0, v1) = self.bounds
+        S = self._points(np.array([u0, u0, u1, u1]), np.array([v0, v1, v0, v1]))
+        return S.min(axis=0), S.max(axis=0)
 
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)

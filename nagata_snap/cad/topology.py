@@ -25,6 +25,8 @@
 
 from __future__ import annotations
 
+import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -32,7 +34,7 @@ import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
-from nagata_snap.cad.surfaces import AnalyticSurface, analytic_surface
+from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "sample_pcurve", "sample_pcurves", "nurbs_curve", "nurbs_surface"]
 
@@ -131,25 +133,197 @@ def nurbs_surface(desc: dict) -> NurbsSurface:
                         np.ones(poles.shape[:2]) if w is None else np.asarray(w, dtype=float))
 
 
-def pcurve_evaluator(desc: dict):
-    """``f(t (k,)) -> (k, 2)`` points of a p-curve description, and its initial samples."""
-    t0, t1 = desc["range"]
-    kind = desc["type"]
-    if kind == "line":
-        o, d = np.asarray(desc["origin"], float), np.asarray(desc["direction"], float)
-        return (lambda t: o + np.asarray(t)[:, None] * d), np.array([t0, t1])
-    if kind == "circle":
-        c, X, Y, R = (np.asarray(desc["center"], float), np.asarray(desc["x"], float),
-                      np.asarray(desc["y"], float), float(desc["radius"]))
-        n = max(2, int(np.ceil(abs(t1 - t0) / CIRCLE_STEP)))
-        return (lambda t: c + R * (np.cos(t)[:, None] * X + np.sin(t)[:, None] * Y)), \
-            np.linspace(t0, t1, n + 1)
-    curve = nurbs_curve(desc)
-    k = np.unique(curve.knots)
-    k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
-    s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
-    t = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
-    return (lambda t: curve.evaluate(t)[0][:, :2]), t
+class _FaceError(ValueError):
+    """A face's geometry cannot be used: ``face`` its index (the message names the rest)."""
+
+    def __init__(self, face: int, message: str):
+        super().__init__(message)
+        self.face = face
+
+
+class _PCurves:
+    """The p-curves of many edge uses (of many faces), evaluated together.
+
+    Lines and circles are evaluated for all uses at once from per-use
+    coefficient arrays; B-spline p-curves one by one (each its own knots).
+    Points are mapped by their face's ``uv_map`` (identity where None).
+
+    Args:
+        descs: per use its p-curve description (``read_shape``'s ``"pcurve"``).
+        face: ``(n,)`` face of each use (uses sorted by face).
+        uv_maps: per face its ``(3, 2)`` map or None.
+    """
+
+    def __init__(self, descs: Sequence[dict], face: np.ndarray, uv_maps: Sequence[np.ndarray | None]):
+        n = len(descs)
+        self.kind = np.array([_KINDS.get(d["type"], 2) for d in descs], dtype=np.int64)
+        self.A, self.B, self.C = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2))
+        self.R = np.zeros(n)
+        self.splines: dict[int, NurbsCurve] = {}
+        self.face = np.asarray(face, dtype=np.int64)
+        for j, d in enumerate(descs):  # loop over edge uses (coefficients)
+            if self.kind[j] == 0:
+                self.A[j], self.B[j] = d["origin"], d["direction"]
+            elif self.kind[j] == 1:
+                self.A[j], self.B[j], self.C[j], self.R[j] = d["center"], d["x"], d["y"], d["radius"]
+            else:
+                try:
+                    self.splines[j] = nurbs_curve(d)
+                except (ValueError, NurbsError) as err:
+                    raise _FaceError(int(self.face[j]), str(err)) from None
+        maps = [np.eye(3)[:, :2] if m is None else np.asarray(m, dtype=float) for m in uv_maps]
+        self.M = np.array(maps).reshape(-1, 3, 2)
+        self.mapped = np.array([m is not None for m in uv_maps] + [False], dtype=bool)[self.face]
+
+    def initial(self, descs: Sequence[dict]) -> list[np.ndarray]:
+        """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
+        :data:`SPLINE_SAMPLES` per knot span (B-spline)."""
+        out = []
+        for j, d in enumerate(descs):  # loop over edge uses (first samples)
+            t0, t1 = d["range"]
+            if self.kind[j] == 0:
+                out.append(np.array([t0, t1], dtype=float))
+            elif self.kind[j] == 1:
+                out.append(np.linspace(t0, t1, max(2, int(np.ceil(abs(t1 - t0) / CIRCLE_STEP))) + 1))
+            else:
+                k = np.unique(self.splines[j].knots)
+                k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
+                s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+                out.append(np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]]))
+        return out
+
+    def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
+        """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
+        kind = self.kind[use]
+        P = self.A[use] + t[:, None] * self.B[use]  # lines
+        c = np.flatnonzero(kind == 1)
+        if c.size:
+            uc, tc = use[c], t[c]
+            P[c] = self.A[uc] + self.R[uc, None] * (np.cos(tc)[:, None] * self.B[uc] +
+                                                    np.sin(tc)[:, None] * self.C[uc])
+        for j, curve in self.splines.items():  # loop over B-spline p-curves
+            lo, hi = np.searchsorted(use, [j, j + 1])
+            if hi > lo:
+                P[lo:hi] = curve.evaluate(t[lo:hi])[0][:, :2]
+        m = np.flatnonzero(self.mapped[use])
+        if m.size:
+            M = self.M[self.face[use[m]]]
+            P[m] = np.einsum("ki,kij->kj", P[m], M[:, :2]) + M[:, 2]
+        return P
+
+
+#: p-curve types evaluated in closed form (the rest: B-splines)
+_KINDS = {"line": 0, "circle": 1}
+
+
+class _Metric:
+    """Lengths of parametric offsets on the faces' surfaces (``|S_u du + S_v dv|``).
+
+    Plane tangents are constant: all plane faces are measured at once; other
+    surfaces are evaluated per face; where the surface is None, the length
+    is parametric.
+    """
+
+    def __init__(self, surfaces: Sequence):
+        self.surfaces = surfaces
+        self.plane = np.array([isinstance(s, Plane) for s in surfaces] + [False], dtype=bool)
+        self.X = np.array([s.X if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3)
+        self.Y = np.array([s.Y if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3)
+
+    def __call__(self, off: np.ndarray, mid: np.ndarray, face: np.ndarray) -> np.ndarray:
+        """``(k,)`` lengths of ``off (k, 2)`` at ``mid (k, 2)`` on ``face (k,)`` (sorted)."""
+        dev = np.empty(len(off))
+        on_plane = self.plane[face]
+        p = np.flatnonzero(on_plane)
+        if p.size:
+            fp = face[p]
+            dev[p] = np.linalg.norm(off[p, 0, None] * self.X[fp] + off[p, 1, None] * self.Y[fp], axis=1)
+        for f in np.unique(face[~on_plane]):  # loop over curved faces with curved p-curves
+            lo, hi = np.searchsorted(face, [f, f + 1])
+            if self.surfaces[f] is None:
+                dev[lo:hi] = np.linalg.norm(off[lo:hi], axis=1)
+            else:
+                T = _tangents(self.surfaces[f], mid[lo:hi])
+                dev[lo:hi] = np.linalg.norm(off[lo:hi, 0, None] * T[:, 0] + off[lo:hi, 1, None] * T[:, 1],
+                                            axis=1)
+        return dev
+
+
+def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols: np.ndarray
+                       ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Circular p-curves on (unmapped) planes sampled at once to their final step.
+
+    On a plane the metric is the identity (orthonormal ``X``, ``Y``) and every
+    chord of a uniformly sampled circle deviates by its sagitta
+    ``R (1 - cos(dt / 2))``: the refinement of :func:`_refine` would halve
+    every step ``h`` times, ``h`` the least number (at most
+    :data:`MAX_REFINE`) that brings the sagitta within the face's tolerance.
+
+    Returns:
+        ``(ts, dev (n_uses,))``: the samples (those circles' replaced) and their
+        chords' deviation (NaN for the uses still to refine).
+    """
+    done = np.full(len(ts), np.nan)
+    sel = np.flatnonzero((f.kind == 1) & metric.plane[f.face] & ~f.mapped)
+    if sel.size == 0:
+        return ts, done
+    n0 = np.array([len(ts[j]) - 1 for j in sel])
+    t0, t1 = np.array([ts[j][0] for j in sel]), np.array([ts[j][-1] for j in sel])
+    dt0 = np.abs(t1 - t0) / n0
+    R, tol = np.abs(f.R[sel]), tols[f.face[sel]]
+    h = np.zeros(sel.size, dtype=np.int64)
+    for _ in range(MAX_REFINE):  # at most MAX_REFINE halvings (vectorised over the circles)
+        more = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h)) > tol
+        if not more.any():
+            break
+        h += more
+    ts = list(ts)
+    for j, a, b, n in zip(sel, t0, t1, n0 * 2 ** h, strict=True):  # loop over those circles
+        ts[j] = np.linspace(a, b, n + 1)
+    done[sel] = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h))
+    return ts, done
+
+
+def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: Sequence,
+            tols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample every use's p-curve and refine its chords until within its face's tolerance.
+
+    Segments whose mid-parameter point is farther than ``tols[face]`` from the
+    chord's midpoint (:class:`_Metric`) are split, up to :data:`MAX_REFINE`
+    times; all uses of all faces are refined together.
+
+    Returns:
+        ``(P (N, 2), use (N,), dev (N,))``: the samples of every use in
+        traversal order (reversed for uses with ``reverses``), grouped by use;
+        ``dev[k]`` the deviation of the segment from ``P[k]`` to ``P[k + 1]``
+        (0 for lines; meaningless at a use's last point).
+    """
+    metric = _Metric(surfaces)
+    ts, done = _circles_on_planes(f, ts, metric, tols)
+    ts = [t[::-1] if r else t for t, r in zip(ts, reverses, strict=True)]  # traversal order
+    use = np.repeat(np.arange(len(ts)), [len(t) for t in ts])
+    t = np.concatenate(ts) if ts else np.zeros(0)
+    P = f(t, use)
+    dev = np.nan_to_num(done, nan=0.0)[use]
+    active = (f.kind != 0) & np.isnan(done)  # lines: the chord is the curve
+    for it in range(MAX_REFINE + 1):
+        k = np.flatnonzero((use[:-1] == use[1:]) & active[use[:-1]])
+        if k.size == 0:
+            break
+        tm, um = 0.5 * (t[k] + t[k + 1]), use[k]
+        mid = 0.5 * (P[k] + P[k + 1])
+        Pm = f(tm, um)
+        d = metric(Pm - mid, mid, f.face[um])
+        dev[k] = d
+        split = d > tols[f.face[um]]
+        if it == MAX_REFINE or not split.any():
+            break
+        active = np.zeros(len(active), dtype=bool)
+        active[um[split]] = True
+        at = k[split] + 1  # the midpoints go between their segment's ends
+        t, use = np.insert(t, at, tm[split]), np.insert(use, at, um[split])
+        P, dev = np.insert(P, at, Pm[split], axis=0), np.insert(dev, at, 0.0)
+    return P, use, dev
 
 
 def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_map=None
@@ -159,58 +333,25 @@ def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_
 
 
 def sample_pcurves(descs: Sequence[dict], reverses: Sequence[bool], surface=None, tol: float = 0.0,
-                   uv_map=None) -> list[tuple[np.ndarray, np.ndarray]]:
+                   uv_map: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
     """Polygons of p-curves on one surface, refined until their chords are within ``tol``.
 
     Segments whose mid-parameter point is farther than ``tol`` from the chord's
     midpoint (in length units through the ``surface``'s first derivatives;
     parametric distance without a surface) are split, up to
-    :data:`MAX_REFINE` times.  All curves are refined together: one surface
-    derivative evaluation per refinement pass for every segment of every curve.
+    :data:`MAX_REFINE` times (:func:`_refine`, which samples the p-curves of
+    all faces of a model together).
 
     Returns:
         per curve ``(points (m, 2), dev (m - 1,))``: samples in traversal order
         (reversed if the edge is used reversed), mapped by ``uv_map``
         ``(3, 2)`` if given, and each segment's deviation.
     """
-    n = len(descs)
-    fs, ts, Ps, devs = [], [], [], [None] * n
-    for i, desc in enumerate(descs):
-        f, t = pcurve_evaluator(desc)
-        if uv_map is not None:
-            f = _mapped(f, uv_map)
-        fs.append(f)
-        ts.append(t)
-        Ps.append(f(t))
-        if desc["type"] == "line":  # linear in t: the chord is the curve (deviation 0)
-            devs[i] = np.zeros(len(Ps[i]) - 1)
-    active = [i for i in range(n) if devs[i] is None]
-    for it in range(MAX_REFINE + 1):
-        if not active:
-            break
-        tms = [0.5 * (ts[i][1:] + ts[i][:-1]) for i in active]
-        mids = [0.5 * (Ps[i][1:] + Ps[i][:-1]) for i in active]
-        off = np.concatenate([fs[i](tm) - m for i, tm, m in zip(active, tms, mids)])  # (s, 2)
-        if surface is None:
-            dev = np.linalg.norm(off, axis=1)
-        else:
-            T = _tangents(surface, np.concatenate(mids))
-            dev = np.linalg.norm(off[:, 0, None] * T[:, 0] + off[:, 1, None] * T[:, 1], axis=1)
-        refine = []
-        for i, tm, d in zip(active, tms, np.split(dev, np.cumsum([len(m) for m in mids])[:-1])):
-            devs[i] = d
-            split = d > tol
-            if split.any() and it < MAX_REFINE:
-                ts[i] = np.sort(np.concatenate([ts[i], tm[split]]))
-                Ps[i] = fs[i](ts[i])
-                refine.append(i)
-        active = refine
-    return [(P[::-1], d[::-1]) if rev else (P, d) for P, d, rev in zip(Ps, devs, reverses)]
-
-
-def _mapped(f, uv_map: np.ndarray):
-    """``f`` followed by the affine map ``[u, v, 1] uv_map`` ``(3, 2)``."""
-    return lambda t: np.c_[f(t), np.ones(len(t))] @ uv_map
+    f = _PCurves(descs, np.zeros(len(descs), dtype=np.int64), [uv_map])
+    P, use, dev = _refine(f, f.initial(descs), np.asarray(reverses, dtype=bool), [surface],
+                          np.array([tol], dtype=float))
+    ends = np.searchsorted(use, np.arange(len(descs) + 1))
+    return [(P[a:b], dev[a:b - 1]) for a, b in itertools.pairwise(ends)]
 
 
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
@@ -240,7 +381,7 @@ def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
         ValueError: no affine map fits (the caller converts to NURBS instead).
     """
     uv, xyz = (np.asarray(a, dtype=float) for a in desc["samples"])
-    n = int(round(np.sqrt(len(uv))))
+    n = math.isqrt(len(uv))
     size = float(np.linalg.norm(xyz.max(axis=0) - xyz.min(axis=0)))
     probe = analytic_surface(desc, [[0.0, 2 * np.pi], [-1.0, 1.0]])
     P = probe.closest(xyz)[0]
@@ -248,9 +389,9 @@ def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
         if np.isfinite(per):
             g = np.unwrap(P[:, a].reshape(n, n), period=per, axis=1)
             P[:, a] = np.unwrap(g, period=per, axis=0).ravel()
-    inner = np.zeros((n, n), dtype=bool)
-    inner[1:-1, 1:-1] = True
-    inner = inner.ravel() if n > 2 else np.ones(len(uv), dtype=bool)
+    grid = np.zeros((n, n), dtype=bool)
+    grid[1:-1, 1:-1] = True
+    inner = grid.ravel() if n > 2 else np.ones(len(uv), dtype=bool)
     A = np.c_[uv, np.ones(len(uv))]
     M = np.linalg.lstsq(A[inner], P[inner], rcond=None)[0]  # (3, 2)
     err = np.linalg.norm(probe._points(*(A @ M).T) - xyz, axis=1).max()
@@ -260,46 +401,102 @@ def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
     return analytic_surface(desc, np.stack([corners.min(axis=0), corners.max(axis=0)], axis=1)), M
 
 
-def _loops(face_surface, wires: Sequence[dict], tolerances: np.ndarray, uv_map=None) -> list[Loop]:
-    """Closed polygons of a face's wires: their edge uses' p-curve samples, joined.
+def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.ndarray | None],
+               tolerances: np.ndarray) -> list[list[Loop]]:
+    """Closed polygons of every face's wires: their edge uses' p-curve samples, joined.
 
-    Each segment's band is twice its deviation from the p-curve (length
-    units, see :func:`sample_pcurves`, all the face's p-curves sampled
-    together) plus the edge's tolerance.  ``uv_map`` ``(3, 2)`` maps the
-    file's parameters to the surface's.
+    All p-curves of all faces are sampled together (:func:`_refine`, to
+    :data:`SAMPLE_RTOL` of each face's size).  Each segment's band is twice
+    its deviation from the p-curve (length units) plus the edge's tolerance
+    (``tolerances (n_edges,)``).  ``uv_maps``: per face ``(3, 2)`` map of the
+    file's parameters to the surface's, or None.
+
+    Raises:
+        _FaceError: a p-curve that is not a valid B-spline, or a wire with
+            fewer than 3 distinct finite points.
     """
-    wires = [w for w in wires if w["uses"]]
-    uses = [u for w in wires for u in w["uses"]]
-    samples = iter(sample_pcurves([u["pcurve"] for u in uses], [u["reversed"] for u in uses],
-                                  face_surface, SAMPLE_RTOL * face_surface.bbox_size, uv_map))
-    loops = []
-    for wire in wires:
-        pts, dev, edge, sense = [], [], [], []
-        for use in wire["uses"]:
-            p, d = next(samples)
-            pts.append(p[:-1])  # the next use starts where this one ends
-            dev.append(d)
-            edge.append(np.full(len(d), use["edge"], dtype=np.int64))
-            sense.append(np.full(len(d), -1.0 if use["reversed"] else 1.0))
-        E = np.concatenate(edge)
-        P = np.concatenate(pts)
-        if not np.all(np.isfinite(P)) or not _three_distinct(np.round(P / max(np.ptp(P), 1e-300), 12)):
-            raise ValueError("a trimming wire has fewer than 3 distinct (finite) points in the "
-                             "parameter plane")
-        band = 2.0 * np.concatenate(dev) + tolerances[E]
-        loops.append(Loop(P, E, band, np.concatenate(sense), bool(wire["outer"])))
+    descs: list[dict] = []
+    face, wire, edge = [], [], []
+    rev: list[bool] = []
+    wires: list[tuple[int, bool]] = []
+    for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
+        for w in fd["wires"]:
+            if not w["uses"]:
+                continue
+            for u in w["uses"]:
+                descs.append(u["pcurve"])
+                face.append(i)
+                wire.append(len(wires))
+                edge.append(u["edge"])
+                rev.append(bool(u["reversed"]))
+            wires.append((i, bool(w["outer"])))
+    face_a = np.array(face, dtype=np.int64)
+    f = _PCurves(descs, face_a, uv_maps)
+    tols = SAMPLE_RTOL * np.array([s.bbox_size for s in surfaces])
+    P, use, dev = _refine(f, f.initial(descs), np.array(rev, dtype=bool), surfaces, tols)
+    keep = np.zeros(len(use), dtype=bool)  # a use's last point starts the next use
+    keep[:-1] = use[1:] == use[:-1]
+    P, use, dev = P[keep], use[keep], dev[keep]
+    E = np.array(edge, dtype=np.int64)[use]
+    S = np.where(np.array(rev, dtype=bool)[use], -1.0, 1.0)
+    ends = np.searchsorted(np.array(wire, dtype=np.int64)[use], np.arange(len(wires) + 1))
+    _check_wires(P, ends, [i for i, _ in wires])
+    band = 2.0 * dev + tolerances[E]
+    loops: list[list[Loop]] = [[] for _ in faces]
+    for w, (i, outer) in enumerate(wires):  # loop over wires (Loop objects)
+        sl = slice(ends[w], ends[w + 1])
+        loops[i].append(Loop(P[sl], E[sl], band[sl], S[sl], outer))
     return loops
 
 
+def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
+    """Every wire (rows ``ends[w]:ends[w + 1]`` of ``P (m, 2)``) has 3 distinct finite points.
+
+    Points are compared rounded to 1e-12 of the wire's extent.
+
+    Raises:
+        _FaceError: naming the face (``face[w]``) of the first wire that has not.
+    """
+    if len(ends) < 2:
+        return
+    start = ends[:-1]
+    finite = np.isfinite(P).all(axis=1)
+    ok = np.bincount(np.repeat(np.arange(len(start)), np.diff(ends))[~finite], minlength=len(start)) == 0
+    if len(P):
+        lo = np.minimum.reduceat(np.where(finite, P.min(axis=1), np.inf), start)
+        hi = np.maximum.reduceat(np.where(finite, P.max(axis=1), -np.inf), start)
+        scale = np.maximum(hi - lo, 1e-300)
+        grp = np.repeat(np.arange(len(start)), np.diff(ends))
+        with np.errstate(invalid="ignore"):
+            ok &= _three_distinct_groups(np.round(P / scale[grp, None], 12), ends)
+    if not ok.all():
+        raise _FaceError(face[int(np.argmin(ok))], "a trimming wire has fewer than 3 distinct (finite) "
+                                                   "points in the parameter plane")
+
+
 def _three_distinct(R: np.ndarray) -> bool:
-    """Rows of ``R (m, 2)`` take at least three distinct values (no sort: two passes)."""
-    if len(R) < 3:
-        return False
-    off_a = np.any(R[0] != R, axis=1)
-    if not off_a.any():
-        return False
-    b = R[np.argmax(off_a)]
-    return bool(np.any(off_a & np.any(b != R, axis=1)))
+    """Rows of ``R (m, 2)`` take at least three distinct values (:func:`_three_distinct_groups`)."""
+    return bool(_three_distinct_groups(np.asarray(R).reshape(-1, 2), np.array([0, len(R)]))[0])
+
+
+def _three_distinct_groups(R: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """``(g,)``: the rows ``ends[i]:ends[i + 1]`` of ``R (m, 2)`` take at least three distinct values.
+
+    No sort, two passes over all groups at once: the rows differing from
+    the group's first row ``a``; the first of them ``b``; a third value is a
+    row differing from both.
+    """
+    start, size = ends[:-1], np.diff(ends)
+    ok = size >= 3
+    if not ok.any():
+        return ok
+    grp = np.repeat(np.arange(len(size)), size)
+    off_a = np.any(R[start[grp]] != R, axis=1)
+    first_b = np.minimum.reduceat(np.where(off_a, np.arange(len(R)), len(R)), np.minimum(start, len(R) - 1))
+    ok &= first_b < np.minimum(ends[1:], len(R))
+    b = np.minimum(first_b, len(R) - 1)
+    third = off_a & np.any(R[b[grp]] != R, axis=1)
+    return ok & (np.bincount(grp[third], minlength=len(size)) > 0)
 
 
 def _tangents(surface, params: np.ndarray) -> np.ndarray:
@@ -357,31 +554,44 @@ class CadModel:
                     analytic_curve(c) if c["type"] in ("line", "circle") else nurbs_curve(c))
             except (ValueError, NurbsError) as err:
                 raise ValueError(f"{path}: edge {i} ({c['type']} curve): {err}") from None
-            edges.append(Edge(curve, tuple(int(v) for v in e["vertices"]), (),
+            v0, v1 = e["vertices"]
+            edges.append(Edge(curve, (int(v0), int(v1)), (),
                               float(e.get("tolerance", 0.0))))
         tol = np.array([e.tolerance for e in edges] + [0.0])
+        fdata = data["faces"]
+        surfaces, maps = [], []
+        bad = None
+        for i, f in enumerate(fdata):  # loop over faces (surfaces)
+            try:
+                surface, uv_map = _surface(f["surface"], f["uv"])
+            except (ValueError, NurbsError) as err:
+                bad = _FaceError(i, str(err))
+                break
+            surfaces.append(surface)
+            maps.append(uv_map)
+        try:  # the loops of the faces before a bad surface: their errors come first
+            loops = _all_loops(fdata[:len(surfaces)], surfaces, maps, tol)
+            if bad is not None:
+                raise bad
+        except _FaceError as err:
+            raise ValueError(f"{path}: face {err.face} ({fdata[err.face]['surface']['type']} surface): "
+                             f"{err}") from None
         faces = []
         face_edges: list[set] = []
-        for i, f in enumerate(data["faces"]):
-            desc = f["surface"]
-            try:
-                surface, uv_map = _surface(desc, f["uv"])
-                loops = _loops(surface, f["wires"], tol, uv_map)
-            except (ValueError, NurbsError) as err:
-                raise ValueError(f"{path}: face {i} ({desc['type']} surface): {err}") from None
+        for f, surface, uv_map, lp in zip(fdata, surfaces, maps, loops, strict=True):
             # a map that flips the parameter plane flips S_u x S_v
             flip = uv_map is not None and np.linalg.det(uv_map[:2]) < 0
             own = {u["edge"] for w in f["wires"] for u in w["uses"]
                    if not u["seam"] and edges[u["edge"]].curve is not None}
             face_edges.append(own)
-            faces.append(Face(surface, loops, bool(f["reversed"]) != flip, bool(f["converted"]),
+            faces.append(Face(surface, lp, bool(f["reversed"]) != flip, bool(f["converted"]),
                               np.array(sorted(own), dtype=np.int64), tuple(f.get("solids", ())),
                               uv_map))
         users: list[list[int]] = [[] for _ in edges]
         for i, own in enumerate(face_edges):
             for e in own:
                 users[e].append(i)
-        for e, u in zip(edges, users):
+        for e, u in zip(edges, users, strict=True):
             e.faces = tuple(sorted(u))
         times = dict(data.get("times", {}))
         times["build"] = time.perf_counter() - t0

@@ -86,22 +86,54 @@ class _Slabs:
 
     A query point's ray ``+x`` can only cross edges whose ``y`` range holds the
     point's ``y``: those listed for its slab (``k / 2`` slabs for ``k`` edges).
+
+    Attributes:
+        y0, dy, n: the slabs ``[y0 + i dy, y0 + (i + 1) dy)``, ``i < n``.
+        seg, ptr: CSR lists of the edges spanning each slab.
     """
 
+    y0: float
+    dy: float
+    n: int
+    seg: np.ndarray
+    ptr: np.ndarray
+
     def __init__(self, P: np.ndarray):
-        a, b = P, np.roll(P, -1, axis=0)
-        lo, hi = np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 1], b[:, 1])
-        self.y0, y1 = float(lo.min()), float(hi.max())
-        self.n = int(np.clip(len(P) // 2, 1, 4096))
-        self.dy = max((y1 - self.y0) / self.n, 1e-300)
-        s0 = np.clip(((lo - self.y0) / self.dy).astype(np.int64), 0, self.n - 1)
-        s1 = np.clip(((hi - self.y0) / self.dy).astype(np.int64), 0, self.n - 1)
+        built = _Slabs.many([P])[0]
+        self.y0, self.n, self.dy, self.seg, self.ptr = built.y0, built.n, built.dy, built.seg, built.ptr
+
+    @classmethod
+    def many(cls, polys: Sequence[np.ndarray]) -> list[_Slabs]:
+        """The slabs of every polygon ``(k_i, 2)`` of ``polys``, built together (no loop per polygon
+        but the slicing of the result)."""
+        if not polys:
+            return []
+        m = np.array([len(P) for P in polys])
+        off = np.concatenate([[0], np.cumsum(m)])
+        P = np.concatenate(polys)
+        lid = np.repeat(np.arange(len(polys)), m)
+        nxt = np.arange(len(P)) + 1
+        nxt[off[1:] - 1] = off[:-1]  # each polygon closes on its first vertex
+        lo, hi = np.minimum(P[:, 1], P[nxt, 1]), np.maximum(P[:, 1], P[nxt, 1])
+        y0, y1 = np.minimum.reduceat(lo, off[:-1]), np.maximum.reduceat(hi, off[:-1])
+        n = np.clip(m // 2, 1, 4096)
+        dy = np.maximum((y1 - y0) / n, 1e-300)
+        s0 = np.clip(((lo - y0[lid]) / dy[lid]).astype(np.int64), 0, n[lid] - 1)
+        s1 = np.clip(((hi - y0[lid]) / dy[lid]).astype(np.int64), 0, n[lid] - 1)
         cnt = s1 - s0 + 1
-        seg = np.repeat(np.arange(len(P)), cnt)
-        slab = np.repeat(s0, cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-        order = np.argsort(slab, kind="stable")
-        self.seg = seg[order]
-        self.ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=self.n))])
+        first = np.concatenate([[0], np.cumsum(n)])  # global number of each polygon's first slab
+        seg = np.repeat(np.arange(len(P)) - off[lid], cnt)
+        slab = np.repeat(s0 + first[lid], cnt) + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+        seg = seg[np.argsort(slab, kind="stable")]
+        ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=int(first[-1])))])
+        out = []
+        for i in range(len(polys)):  # loop over polygons (slicing the shared arrays)
+            sl = cls.__new__(cls)
+            sl.y0, sl.n, sl.dy = float(y0[i]), int(n[i]), float(dy[i])
+            p = ptr[first[i]:first[i + 1] + 1]
+            sl.seg, sl.ptr = seg[p[0]:p[-1]], p - p[0]
+            out.append(sl)
+        return out
 
     def candidates(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(point, edge)`` pairs to test for query ordinates ``y``."""
@@ -154,9 +186,8 @@ class TrimLoops:
             raise ValueError(f"{len(loops)} loop lists for {n} entities")
         self.entities = list(entities)
         self.rtol = float(rtol)
-        self._loops: list[list[tuple]] = []
-        for e in range(n):  # loop over entities
-            prepared = []
+        checked: list[tuple[int, np.ndarray, np.ndarray]] = []
+        for e in range(n):  # loop over entities (checks and bands)
             for k, poly in enumerate(loops[e] or []):
                 P = np.asarray(poly, dtype=float)
                 if P.ndim != 2 or P.shape[1] != 2 or not np.all(np.isfinite(P)):
@@ -169,9 +200,11 @@ class TrimLoops:
                     band = self._param_band(e, P)
                 else:
                     band = np.asarray(bands[e][k], dtype=float).reshape(len(P))
-                band = band + self.rtol * self.entities[e].bbox_size
-                prepared.append((P, np.roll(P, -1, axis=0) - P, band, _Slabs(P)))
-            self._loops.append(prepared)
+                checked.append((e, P, band + self.rtol * self.entities[e].bbox_size))
+        slabs = _Slabs.many([P for _, P, _ in checked])
+        self._loops: list[list[tuple]] = [[] for _ in range(n)]
+        for (e, P, band), sl in zip(checked, slabs, strict=True):  # loop over loops (their records)
+            self._loops[e].append((P, np.roll(P, -1, axis=0) - P, band, sl))
         self.trimmed = np.array([bool(lp) for lp in self._loops])
         self._period = np.array([entity_periods(ent) for ent in self.entities])
 

@@ -5,12 +5,17 @@ and IGES files; inside the user's (possibly MPI) process that would be fatal.
 :func:`read_cad` therefore sends the request to a reader server: a plain
 Python process started once per session (``python worker.py``, without the
 package, so it never initialises MPI) that has imported OCP and forks a
-reader child.  The child runs :func:`nagata_snap.cad.read.read_shape` and
-sends back its plain-data result; if it crashes or does not answer within
-the time-out, the server kills it, reports :class:`~nagata_snap.cad.CadError`
-naming the file, and a spare child forked in advance takes over (a fork of
-the server, with OpenCASCADE loaded, costs tens of milliseconds; a reader
-serves requests until it fails).  ``isolate=False`` reads in this process.
+fresh reader child for every file.  The child runs
+:func:`nagata_snap.cad.read.read_shape` on that one file and sends back its
+plain-data result; if it crashes or does not answer within the time-out,
+the server kills it and reports :class:`~nagata_snap.cad.CadError` naming
+the file.  One file per child makes every read independent of the files
+read before it: OpenCASCADE keeps state across reads inside a process (a
+malformed IGES file read twice in one process can give a geometry, then an
+empty shape).  The child for the next file is forked after each reply, so
+the fork is not paid in the request's time.  ``isolate=False`` reads in
+this process (faster to start, but neither protected nor independent of
+earlier reads).
 
 Protocol on the server's stdin/stdout: length-prefixed pickles, request
 ``(path, kwargs, timeout)``, reply ``(status, payload)`` with status
@@ -21,10 +26,12 @@ printing goes to ``/dev/null``.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
 import pickle
 import select
 import signal
+import socket
 import struct
 import subprocess
 import sys
@@ -83,103 +90,153 @@ def _load_reader():
 
 
 def _child(reader, r: int, w: int) -> None:
-    """A forked reader: serve requests on ``r``, replies on ``w``, until ``r`` closes."""
-    out = os.fdopen(w, "wb")
-    while True:
-        msg = _recv(r)
-        if msg is None:
-            return
-        path, kwargs, _ = msg
-        try:
-            res = ("ok", reader.read_shape(path, **kwargs))
-        except reader.ReadError as e:
-            res = ("error", str(e))
-        except BaseException as e:  # OpenCASCADE's exceptions arrive as Python exceptions
-            res = ("error", f"{path}: OpenCASCADE failed: {type(e).__name__}: {e}")
+    """A forked reader: answer one request on ``r`` with a reply on ``w``, then return."""
+    msg = _recv(r)
+    if msg is None:
+        return
+    path, kwargs, _ = msg
+    try:
+        res = ("ok", reader.read_shape(path, **kwargs))
+    except reader.ReadError as e:
+        res = ("error", str(e))
+    except BaseException as e:  # OpenCASCADE's exceptions arrive as Python exceptions
+        res = ("error", f"{path}: OpenCASCADE failed: {type(e).__name__}: {e}")
+    with os.fdopen(w, "wb") as out:
         _send(out, res)
 
 
-def _spare(reader) -> tuple[int, int, int]:
-    """Fork a reader that waits for requests: ``(pid, request fd, reply fd)``.
+_PID = struct.Struct("<q")
 
-    Forking the server costs tens of milliseconds (its OpenCASCADE libraries
-    are large), so a reader serves requests until it crashes or times out,
-    and a spare one is forked in advance to take over at once.
+
+def _zygote(reader, ctl: socket.socket) -> None:
+    """Fork readers on request, from a state that reading never changes.
+
+    OpenCASCADE's result on some malformed files depends on the memory of the
+    process reading them (not only on files read before in the same process:
+    also on what the process did with earlier replies), so readers are forked
+    from this process, which only forks and reaps.  Commands on ``ctl``:
+    ``b"f"``: fork a reader, answer its pid with its request and reply pipe
+    ends (``SCM_RIGHTS``); ``b"w" + pid``: reap the reader, answer its wait status.
     """
-    req_r, req_w = os.pipe()
-    res_r, res_w = os.pipe()
+    while True:
+        cmd = ctl.recv(1)
+        if cmd == b"f":
+            req_r, req_w = os.pipe()
+            res_r, res_w = os.pipe()
+            pid = os.fork()
+            if pid == 0:  # the reader: serve one request, exit without cleanup
+                try:
+                    ctl.close()
+                    os.close(req_w)
+                    os.close(res_r)
+                    _child(reader, req_r, res_w)
+                finally:
+                    os._exit(0)
+            for fd in (req_r, res_w):
+                os.close(fd)
+            socket.send_fds(ctl, [_PID.pack(pid)], [req_w, res_r])
+            for fd in (req_w, res_r):
+                os.close(fd)
+        elif cmd == b"w":
+            (pid,) = _PID.unpack(ctl.recv(_PID.size, socket.MSG_WAITALL))
+            try:
+                status = os.waitpid(pid, 0)[1]
+            except ChildProcessError:
+                status = 0
+            ctl.sendall(_PID.pack(status))
+        else:  # the server closed its end
+            return
+
+
+def _start_zygote(reader, keep: tuple[int, ...]) -> tuple[int, socket.socket]:
+    """Fork the :func:`_zygote`: ``(pid, control socket)``; it closes the fds ``keep``."""
+    ours, theirs = socket.socketpair()
     pid = os.fork()
-    if pid == 0:  # the child: serve, exit without cleanup
-        os.close(req_w)
-        os.close(res_r)
+    if pid == 0:
         try:
-            _child(reader, req_r, res_w)
+            ours.close()
+            for fd in keep:
+                os.close(fd)
+            _zygote(reader, theirs)
         finally:
             os._exit(0)
-    os.close(req_r)
-    os.close(res_w)
-    return pid, req_w, res_r
+    theirs.close()
+    return pid, ours
 
 
-def _kill(child) -> None:
+def _spare(ctl: socket.socket) -> tuple[int, int, int]:
+    """A fresh reader forked by the zygote: ``(pid, request fd, reply fd)``."""
+    ctl.sendall(b"f")
+    data, fds, _, _ = socket.recv_fds(ctl, _PID.size, 2)
+    return _PID.unpack(data)[0], fds[0], fds[1]
+
+
+def _kill(ctl: socket.socket, child) -> int:
+    """Close a reader's pipes, kill it (if still running) and reap it: its wait status."""
     pid, req_w, res_r = child
     for fd in (req_w, res_r):
-        try:
+        with contextlib.suppress(OSError):
             os.close(fd)
-        except OSError:
-            pass
-    try:
+    with contextlib.suppress(ProcessLookupError):
         os.kill(pid, signal.SIGKILL)
-        os.waitpid(pid, 0)
-    except (ProcessLookupError, ChildProcessError):  # already reaped
-        pass
+    ctl.sendall(b"w" + _PID.pack(pid))
+    return _PID.unpack(ctl.recv(_PID.size, socket.MSG_WAITALL))[0]
 
 
 def _ask(child, msg) -> tuple:
     """A reader's reply to ``msg``; ``("crash" | "timeout", ...)`` if it died or hung."""
-    pid, req_w, res_r = child
-    try:
+    _, req_w, res_r = child
+    with contextlib.suppress(OSError):  # a dead reader: its reply pipe tells
         os.write(req_w, _frame(msg))
-    except OSError:
-        pass
     deadline = time.monotonic() + msg[2]
     reply = _recv(res_r, deadline)
     if reply is not None:
         return reply
     if time.monotonic() >= deadline:  # still running: hung
         return ("timeout", msg[2])
-    _, status = os.waitpid(pid, 0)  # it closed the pipe: it died
-    os.close(req_w)
-    os.close(res_r)
+    return ("crash", None)  # it closed the pipe: it died (the status comes from the zygote)
+
+
+def _crash_reason(status: int) -> str:
     if os.WIFSIGNALED(status):
-        return ("crash", f"signal {os.WTERMSIG(status)} ({signal.Signals(os.WTERMSIG(status)).name})")
-    return ("crash", f"exit status {os.WEXITSTATUS(status)} without a result")
+        return f"signal {os.WTERMSIG(status)} ({signal.Signals(os.WTERMSIG(status)).name})"
+    return f"exit status {os.WEXITSTATUS(status)} without a result"
 
 
 def serve() -> None:
-    """Server main loop: requests on stdin, replies on (the original) stdout."""
+    """Server main loop: requests on stdin, replies on (the original) stdout.
+
+    Every request is answered by a fresh reader forked by the zygote; the
+    next reader is forked after each reply, so that the fork is not paid in
+    the request's time.
+    """
     out = os.fdopen(os.dup(1), "wb")
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, 1)
     os.dup2(devnull, 2)
     reader = _load_reader()
     reader.preload()
-    child, spare = _spare(reader), _spare(reader)
-    _send(out, ("ready", None))
     fd = sys.stdin.fileno()
+    zpid, ctl = _start_zygote(reader, (out.fileno(), fd))
+    child = _spare(ctl)
+    _send(out, ("ready", None))
     try:
         while True:
             msg = _recv(fd)
             if msg is None:
                 break
             reply = _ask(child, msg)
-            if reply[0] in ("crash", "timeout"):  # the spare takes over; fork a new spare
-                _kill(child)
-                child, spare = spare, _spare(reader)
-            _send(out, reply)
+            if reply[0] == "crash":  # the reason is the reader's wait status
+                reply = ("crash", _crash_reason(_kill(ctl, child)))
+                _send(out, reply)
+            else:
+                _send(out, reply)
+                _kill(ctl, child)
+            child = _spare(ctl)
     finally:
-        _kill(child)
-        _kill(spare)
+        _kill(ctl, child)
+        ctl.close()
+        os.waitpid(zpid, 0)
 
 
 # ----------------------------------------------------------------------
@@ -210,7 +267,7 @@ class _Client:
             self.proc = None
 
     def request(self, path: str, kwargs: dict, timeout: float) -> tuple:
-        for attempt in range(2):  # a dead server is restarted once
+        for _ in range(2):  # a dead server is restarted once
             if self.proc is None or self.proc.poll() is not None:
                 self.start()
             try:
@@ -253,12 +310,11 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise CadError(f"CAD file {path} does not exist")
-    kwargs = {"unit": unit, "heal": heal}
     if not isolate:
         from nagata_snap.cad import read
 
         try:
-            return read.read_shape(path, **kwargs)
+            return read.read_shape(path, unit=unit, heal=heal)
         except read.ReadError as e:
             raise CadError(str(e)) from None
         except Exception as e:  # OpenCASCADE's exceptions arrive as Python exceptions
@@ -266,7 +322,8 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
     if timeout is None:
         timeout = 60.0 + 30.0 * os.path.getsize(path) / 1e6
     try:
-        status, payload = _CLIENT.request(os.path.abspath(path), kwargs, float(timeout))
+        status, payload = _CLIENT.request(os.path.abspath(path), {"unit": unit, "heal": heal},
+                                          float(timeout))
     except RuntimeError as e:
         raise CadError(f"{path}: {e}") from None
     if status == "ok":

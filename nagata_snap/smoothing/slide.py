@@ -33,6 +33,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from nagata_snap.mesh.corners import corner_vertices
 from nagata_snap.mesh.records import Records
 from nagata_snap.smoothing.band import NodeSync
 from nagata_snap.smoothing.neighbourhood import Neighbourhood
@@ -140,11 +141,8 @@ class SlideFacets:
         sel = where[self.slide]
         self.first = np.stack([f[sel], v[sel]], axis=1)
         self._params = self.records.params
-        # corners: vertices whose facets lie on gdim or more distinct entities (3D:
-        # where three CAD faces / coarse facets meet; 2D: two curves / segments)
-        pairs = np.unique(np.stack([node, self.records.root[f]], axis=1), axis=0)
-        n_roots = np.bincount(pairs[:, 0], minlength=nbh.n_nodes)
-        self.corner = n_roots[self.slide] >= self.facets.shape[1]
+        # corners never slide (the rule of nagata_snap.mesh.corners)
+        self.corner = corner_vertices(node, self.records.root[f], nbh.n_nodes, self.facets.shape[1])[self.slide]
 
     def project(self, x: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Closest points ``(k, d)`` on the geometry of the sliding vertices moved to ``points``.

@@ -1,0 +1,368 @@
+"""Attach: the records of the coarse mesh's boundary facets on the CAD entities (Kadir 2.3.1).
+
+Each boundary facet gets ONE entity (face in 3D, edge curve in 2D) on which
+all its vertices lie (Kadir 2.3.4) and the parameters of its vertices there,
+stored per facet in :class:`nagata_snap.mesh.records.Records`:
+
+* the entity is known when the mesh came from the CAD (``faces``, or the
+  mesher's classification recorded as :class:`MeshHints`): one projection
+  per vertex (:func:`on_faces`);
+* otherwise a global search finds it (:func:`search_faces`): every entity
+  whose bounding box holds the vertex (within the tolerance) is a candidate,
+  analytic faces project in closed form, NURBS faces by Newton from their
+  own search samples, trimmed faces only count within their loops, and each
+  facet takes the entity nearest to all its vertices.
+
+With topology (3D models) :func:`attach` then adds the CAD-edge channels
+(:func:`edge_channels`, over all MPI processes): a facet edge is on a CAD
+edge if a facet sharing it lies on another face (see
+:mod:`nagata_snap.cad.geometry`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from nagata_snap.cad.arrays import (
+    MERGE_RTOL,
+    box_pairs,
+    facet_array,
+    longest_edge,
+    ramp,
+    row_index,
+    vertex_groups,
+)
+from nagata_snap.cad.errors import CadError
+from nagata_snap.cad.params import contiguous
+from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.mesh.records import Records
+
+if TYPE_CHECKING:
+    from nagata_snap.cad.geometry import CadGeometry
+
+__all__ = ["MeshHints", "attach", "attach_local", "search_faces", "on_faces", "edge_channels"]
+
+@dataclass(frozen=True)
+class MeshHints:
+    """Where the mesh generator put the coarse boundary facets.
+
+    Attributes:
+        nodes: ``(nf, nfv)`` global node ids of each facet, sorted per facet.
+        faces: ``(nf,)`` entity of each facet.
+        params: ``(nf, nfv, d)`` parameters of the vertices (in the order of
+            :attr:`nodes`; NaN where unknown).
+    """
+
+    nodes: np.ndarray
+    faces: np.ndarray
+    params: np.ndarray
+
+    @classmethod
+    def from_facets(cls, facet_nodes: npt.ArrayLike, faces: npt.ArrayLike, params: npt.ArrayLike | None,
+                    d: int) -> MeshHints:
+        """Hints from ``facet_nodes (nf, nfv)``, ``faces (nf,)`` and ``params (nf, nfv, d)`` (or None)."""
+        fn = np.asarray(facet_nodes, dtype=np.int64)
+        nf = len(fn)
+        faces = np.asarray(faces, dtype=np.int64).reshape(nf)
+        par = np.full((nf, fn.shape[1], d), np.nan) if params is None else \
+            np.asarray(params, dtype=float).reshape(nf, fn.shape[1], d)
+        order = np.argsort(fn, axis=1)
+        return cls(np.take_along_axis(fn, order, axis=1), faces,
+                   np.take_along_axis(par, order[:, :, None], axis=1))
+
+    def lookup(self, gid: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(faces (nf,), seeds (nf, nfv, d))`` of facets ``gid (nf, nfv)`` (global node ids),
+        or None if some facet is not among the hints."""
+        order = np.argsort(gid, axis=1)
+        srt = np.take_along_axis(gid, order, axis=1)
+        row = row_index(np.concatenate([self.nodes, srt]))
+        where = np.full(int(row.max()) + 1, -1, dtype=np.int64)
+        where[row[: len(self.nodes)]] = np.arange(len(self.nodes))
+        hit = where[row[len(self.nodes):]]
+        if np.any(hit < 0):
+            return None
+        rank = np.argsort(order, axis=1)  # position of each facet vertex among its sorted ids
+        seeds = np.take_along_axis(self.params[hit], rank[:, :, None], axis=1)
+        return self.faces[hit], seeds
+
+
+def attach(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
+           faces: npt.ArrayLike | None, seeds: npt.ArrayLike | None, comm: Any = None) -> Records:
+    """Records of the coarse mesh's boundary facets (collective with topology and ``comm``).
+
+    See :meth:`nagata_snap.cad.geometry.CadGeometry.attach`.  An error on one
+    process is raised on every process (after the exchange of facet-edge keys).
+    """
+    err: Exception | None = None
+    out = None
+    try:
+        out = attach_local(geo, facet_points, nodes, faces, seeds)
+    except Exception as e:  # raised after the collective exchange below
+        err = e
+    if geo.topology is None:
+        if err is not None:
+            raise err
+        assert out is not None
+        return out[0]
+    keys = None if out is None else out[1]
+    allkeys: np.ndarray | None
+    if comm is not None and comm.size > 1:
+        every = comm.allgather(keys)
+        if err is not None:
+            raise err
+        if any(k is None for k in every):
+            raise CadError("attach failed on another process")
+        allkeys = np.concatenate(list(every))
+    else:
+        if err is not None:
+            raise err
+        allkeys = keys
+    assert out is not None and keys is not None and allkeys is not None
+    records = out[0]
+    channels = edge_channels(keys, allkeys, records.params.shape[1])
+    records.params = np.concatenate([records.params, channels], axis=2)
+    return records
+
+
+def _check_kind(geo: CadGeometry, nfv: int) -> None:
+    """Facets of ``nfv`` vertices need entities of dimension ``nfv - 1``."""
+    d = geo.param_dim
+    if nfv - 1 != d:
+        have = "curves" if d == 1 else "surfaces"
+        need = "curves (2D mesh, segment facets)" if nfv == 2 else "surfaces (3D mesh, triangle facets)"
+        raise CadError(
+            f"facets with {nfv} vertices need {need}; this CadGeometry has {have} "
+            "(CadGeometry.from_file(path, dim=...) picks the kind)"
+        )
+
+
+def facet_edge_keys(ids: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """``(3 nf, 3)`` ``(node a, node b, face)`` of the edges of triangles ``ids (nf, 3)`` on faces ``root (nf,)``.
+
+    Facet edge ``m`` is the one opposite vertex ``m``; ``a < b``.
+    """
+    loc = np.array([[1, 2], [2, 0], [0, 1]])
+    a, b = ids[:, loc[:, 0]], ids[:, loc[:, 1]]
+    return np.stack([np.minimum(a, b).ravel(), np.maximum(a, b).ravel(), np.repeat(root, 3)], axis=1)
+
+
+def attach_local(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
+                 faces: npt.ArrayLike | None, seeds: npt.ArrayLike | None
+                 ) -> tuple[Records, np.ndarray | None]:
+    """Records without CAD-edge channels, and (with topology) the facet-edge keys ``(3 nf, 3)``."""
+    fp = facet_array(facet_points, "facet_points")
+    nf, nfv, _ = fp.shape
+    _check_kind(geo, nfv)
+    flat = fp.reshape(-1, 3)
+    gid_input = None if nodes is None else np.asarray(nodes, dtype=np.int64).reshape(nf, nfv)
+    gid = vertex_groups(flat, MERGE_RTOL * geo.size, gid_input).reshape(nf, nfv) if nf else \
+        np.zeros((0, nfv), dtype=np.int64)
+    h = longest_edge(fp)
+    tol = geo.tol_factor * h
+    if nf == 0:
+        root, params = np.zeros(0, dtype=np.int64), np.zeros((0, nfv, geo.param_dim))
+    else:
+        if faces is None and geo._hints is not None and gid_input is not None:
+            hinted = geo._hints.lookup(gid_input)
+            if hinted is not None:
+                faces, seeds = hinted
+        if faces is None:
+            root, params, score = search_faces(geo, fp, gid, tol)
+        else:
+            root, params, score = on_faces(geo, fp, gid, faces, seeds)
+        check_attached(geo, fp, root, score, tol, h, given=faces is not None)
+        params = contiguous(geo.entities, geo._period, root, params)
+    keys = None
+    if geo.topology is not None:
+        keys = facet_edge_keys(gid_input if gid_input is not None else gid, root)
+    return Records(root, params), keys
+
+
+def check_attached(geo: CadGeometry, fp: np.ndarray, root: np.ndarray, score: np.ndarray, tol: np.ndarray,
+                   h: np.ndarray, given: bool) -> None:
+    """Raise :class:`CadError` naming the worst facet if a facet's ``score`` exceeds its ``tol``.
+
+    ``fp (nf, nfv, 3)`` facets, ``root (nf,)`` their entities, ``score (nf,)``
+    the largest vertex distance to it, ``tol``, ``h (nf,)`` tolerance and
+    longest edge; ``given``: the entities were given (not searched).
+    """
+    bad = np.flatnonzero(~(score <= tol))
+    if not bad.size:
+        return
+    nf = len(fp)
+    flat = fp.reshape(-1, 3)
+    worst = bad[np.argmax(np.where(np.isfinite(score[bad]), score[bad], np.inf) / np.maximum(h[bad], 1e-300))]
+    what = (
+        f"is {score[worst]:.3e} from {'its' if given else 'the nearest'} entity "
+        f"({root[worst]}), more than the tolerance {tol[worst]:.3e} = tol_factor "
+        f"{geo.tol_factor:g} x facet size {h[worst]:.3e}"
+        if np.isfinite(score[worst])
+        else "has no projection inside the trimming loops of any single face"
+    )
+    raise CadError(
+        f"{bad.size} of {nf} boundary facets do not lie on the CAD geometry; e.g. "
+        f"facet {worst} (vertices {fp[worst].round(6).tolist()}) {what}"
+        + (
+            f"; no facet lies on it: mesh boundary box {flat.min(axis=0).round(6).tolist()}"
+            f" .. {flat.max(axis=0).round(6).tolist()}, CAD box "
+            f"{geo.searcher.bbox_lo.min(axis=0).round(6).tolist()} .. "
+            f"{geo.searcher.bbox_hi.max(axis=0).round(6).tolist()} (wrong file, units "
+            "or placement?)"
+            if bad.size == nf
+            else ""
+        )
+    )
+
+
+def vertex_candidates(geo: CadGeometry, V: np.ndarray, tv: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Projections of distinct vertices ``V (nv, 3)`` onto their candidate entities.
+
+    Candidates: every entity whose bounding box holds the vertex within its
+    tolerance ``tv (nv,)``; a vertex off every candidate also gets the
+    nearest entity anywhere (for the error message).  Results outside a
+    trimmed face count as infinitely far.
+
+    Returns:
+        ``(vertex (k,), entity (k,), params (k, d), dist (k,))``, one row per
+        (vertex, entity) pair.
+    """
+    ne = geo.num_entities
+    pv, pe = box_pairs(V, tv + 1e-12 * geo.size, geo.searcher.bbox_lo, geo.searcher.bbox_hi)
+    res = geo.searcher.search_on(V[pv], pe, accept=geo._accept)
+    par, dist = res[0], res[2]
+    if geo._accept is not None:
+        dist = np.where(res[3], dist, np.inf)
+    near = np.zeros(len(V), dtype=bool)
+    near[pv[dist <= tv[pv]]] = True
+    lost = np.flatnonzero(~near)
+    if lost.size:  # off every candidate: the nearest entity anywhere (for the message)
+        g = geo.searcher.search(V[lost], accept=geo._accept)
+        gd = g[2] if geo._accept is None else np.where(g[3], g[2], np.inf)
+        pv, pe = np.concatenate([pv, lost]), np.concatenate([pe, g[0]])
+        par, dist = np.concatenate([par, g[1]]), np.concatenate([dist, gd])
+        k = pv * ne + pe
+        o = np.lexsort((dist, k))  # the nearest result per (vertex, entity)
+        o = o[np.concatenate([[True], k[o][1:] != k[o][:-1]])]
+        pv, pe, par, dist = pv[o], pe[o], par[o], dist[o]
+    return pv, pe, par, dist
+
+
+def search_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, tol: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Global search: per facet the entity nearest to all its vertices.
+
+    ``fp (nf, nfv, 3)`` facets, ``gid (nf, nfv)`` vertex ids, ``tol (nf,)``.
+    The candidate entities of a facet are those within tolerance of one of
+    its vertices, and each vertex's nearest entity (:func:`vertex_candidates`).
+
+    Returns:
+        ``(root (nf,), params (nf, nfv, d), score (nf,))``, ``score`` the
+        largest vertex distance to the chosen entity.
+    """
+    nf, nfv, _ = fp.shape
+    d, ne = geo.param_dim, geo.num_entities
+    vid = gid.reshape(-1)
+    nv = int(vid.max()) + 1
+    V = fp.reshape(-1, 3)[np.unique(vid, return_index=True)[1]]
+    tv = np.zeros(nv)
+    np.maximum.at(tv, vid, np.repeat(tol, nfv))
+    pv, pe, par, dist = vertex_candidates(geo, V, tv)
+    key = pv * ne + pe
+    order = np.argsort(key)
+    key, par, dist, pv, pe = key[order], par[order], dist[order], pv[order], pe[order]
+    # candidate (facet, entity): entities within tolerance of a facet vertex
+    cnt_v = np.bincount(pv, minlength=nv)
+    start_v = np.concatenate([[0], np.cumsum(cnt_v)])[:-1]
+    cnt = cnt_v[vid]
+    rows = np.repeat(start_v[vid], cnt) + ramp(cnt)
+    fac = np.repeat(np.repeat(np.arange(nf), nfv), cnt)
+    near = dist[rows] <= tol[fac]
+    # ... and each vertex's nearest entity (the facet's distance for the error message)
+    best = best_per_group(pv, dist, nv)[vid]
+    bf = np.repeat(np.arange(nf), nfv)[best >= 0]
+    pair = np.unique(np.concatenate([fac[near] * ne + key[rows[near]] % ne,
+                                     bf * ne + pe[best[best >= 0]]]))
+    cf, ce = pair // ne, pair % ne  # every facet has one (its vertices' nearest entities)
+    need = gid[cf].reshape(-1) * ne + np.repeat(ce, nfv)
+    pos = np.minimum(np.searchsorted(key, need), len(key) - 1)
+    dmax = np.where(key[pos] == need, dist[pos], np.inf).reshape(-1, nfv).max(axis=1)
+    # choose per facet: smallest largest distance, ties to the lowest entity index
+    order = np.lexsort((ce, dmax, cf))
+    choice = order[np.searchsorted(cf[order], np.arange(nf))]
+    params = par[pos].reshape(-1, nfv, d)[choice]
+    return ce[choice].astype(np.int64), params, dmax[choice]
+
+
+def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.ArrayLike,
+             seeds: npt.ArrayLike | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Parameters of every facet vertex on a given entity (known faces, optional seeds).
+
+    ``fp (nf, nfv, 3)`` facets, ``gid (nf, nfv)`` vertex ids, ``faces (nf,)``,
+    ``seeds (nf, nfv, d)`` (NaN: unknown).  Newton from the seeds (closed
+    form on analytic faces), else from the entity's own search samples.
+
+    Returns:
+        ``(root (nf,), params (nf, nfv, d), score (nf,))`` as :func:`search_faces`.
+    """
+    nf, nfv, _ = fp.shape
+    d = geo.param_dim
+    root = np.asarray(faces, dtype=np.int64).reshape(-1)
+    if root.shape != (nf,):
+        raise ValueError(f"faces must have shape ({nf},), got {root.shape}")
+    if nf and (root.min() < 0 or root.max() >= geo.num_entities):
+        raise ValueError(f"faces refer to entities outside 0..{geo.num_entities - 1}")
+    X = fp.reshape(-1, 3)
+    ent = np.repeat(root, nfv)
+    tol = np.repeat(geo.tol_factor * longest_edge(fp), nfv)
+    sd = np.full((nf * nfv, d), np.nan) if seeds is None else \
+        np.asarray(seeds, dtype=float).reshape(nf * nfv, d)
+    # one projection per (vertex, entity): the slots of a vertex on one face share it
+    key = gid.reshape(-1) * geo.num_entities + ent
+    _, first, inv = np.unique(key, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    t = np.zeros(len(first))
+    np.maximum.at(t, inv, tol)
+    par = np.zeros((len(first), d))
+    dist = np.full(len(first), np.inf)
+    seeded = np.all(np.isfinite(sd[first]), axis=1) | geo._analytic[ent[first]]
+    if seeded.any():  # Newton from the given seeds (closed form on analytic faces)
+        s = first[seeded]
+        p, _, dd, _, conv = geo.searcher.refine(s, ent[s], np.nan_to_num(sd[s]), X, geo.max_iter)
+        par[seeded], dist[seeded] = p, np.where(conv, dd, np.inf)
+    todo = np.flatnonzero(~(dist <= t))
+    if todo.size:  # the entity's own search samples
+        s = first[todo]
+        res = geo.searcher.search_on(X[s], ent[s])
+        better = res[2] < dist[todo]
+        par[todo[better]], dist[todo[better]] = res[0][better], res[2][better]
+    params = par[inv].reshape(nf, nfv, d)
+    return root, params, dist[inv].reshape(nf, nfv).max(axis=1)
+
+
+def edge_channels(keys: np.ndarray, allkeys: np.ndarray, nfv: int) -> np.ndarray:
+    """CAD-edge channels ``(nf, nfv, 3)`` from the facet-edge keys of all processes.
+
+    ``keys (3 nf, 3)``: ``(node a, node b, face)`` of this process's facet
+    edges (:func:`facet_edge_keys`); ``allkeys`` those of every process.  A
+    facet edge is on a CAD edge if a facet sharing it (on any process) lies
+    on another face.  Channel ``m`` of facet vertex ``i`` is ``f_m (1 - delta_im)``.
+    """
+    nf = len(keys) // 3
+    if nf == 0:
+        return np.zeros((0, nfv, 3))
+    row = row_index(np.concatenate([keys[:, :2], allkeys[:, :2]]))
+    n = int(row.max()) + 1
+    lo = np.full(n, np.iinfo(np.int64).max)
+    hi = np.full(n, np.iinfo(np.int64).min)
+    np.minimum.at(lo, row[len(keys):], allkeys[:, 2])
+    np.maximum.at(hi, row[len(keys):], allkeys[:, 2])
+    mine = row[: len(keys)]
+    flag = (lo[mine] != hi[mine]).reshape(nf, 3).astype(float)  # (nf, m)
+    ch = np.repeat(flag[:, None, :], nfv, axis=1)  # (nf, i, m)
+    ch[:, np.arange(nfv), np.arange(nfv)] = 0.0
+    return ch

@@ -1,0 +1,308 @@
+"""CAD edges and corners: the topology arrays and the moves of feature vertices onto them.
+
+A 3D model's edges and vertices (:class:`CadTopology`) are gathered as
+arrays over the geometry's faces, so that the feature vertices of all
+facets are found at once (:class:`~nagata_snap.cad.arrays.Ragged` lists:
+the edge curves and CAD vertices of each face, the faces of each feature).
+Placement (:mod:`nagata_snap.cad.place`) then moves them:
+
+* :func:`nearest_features`: an edge slot to the nearest edge curve of its
+  face, a corner slot to the nearest CAD vertex of its face;
+* :func:`onto_feature`: from there onto the intersection of the faces of
+  that edge (vertex): the edge curves of a file are only within their
+  tolerance of the faces;
+* :func:`shared_entity_vertices`: geometries without topology put a vertex
+  shared by facets of several entities onto all of them.
+
+Both of the last use :func:`intersect`, Gauss-Newton steps onto the
+intersection of several entities: project ``x`` onto every entity, move it
+to the nearest point of the intersection of the tangent planes there
+(``n_i . (y - p_i) = 0``, minimum-norm least squares), repeat.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from nagata_snap.cad.arrays import Ragged
+from nagata_snap.cad.params import unit_normals, unwrap
+from nagata_snap.cad.projection import GlobalSearcher
+from nagata_snap.mesh.arrays import best_per_group
+
+if TYPE_CHECKING:
+    from nagata_snap.cad.geometry import CadGeometry
+    from nagata_snap.cad.topology import CadModel
+
+__all__ = ["CadTopology", "nearest_features", "onto_feature", "intersect", "shared_entity_vertices"]
+
+#: an edge vertex (on facets of several entities) counts as on all of them within
+#: this fraction of the model size
+EDGE_RTOL = 1e-14
+#: Gauss-Newton steps that bring an edge vertex onto all its entities
+EDGE_SWEEPS = 8
+#: singular values of the stacked face normals below this fraction of the largest are
+#: dropped in the intersection steps (faces meeting at less than ~1 degree)
+TANGENT_RCOND = 2e-2
+
+
+class CadTopology:
+    """Edges and vertices of a 3D model, as arrays over the geometry's faces.
+
+    Attributes:
+        curves: 3D curves of the non-degenerate edges (their order = curve index).
+        curve_of_edge: ``(ne,)`` curve index of each model edge (-1 if degenerate).
+        face_curves: per face: curve indices of its edges (:class:`Ragged`).
+        face_vertices: per face: indices into :attr:`points` of its CAD vertices (:class:`Ragged`).
+        points: ``(nv, 3)`` CAD vertices.
+        feature_faces: the faces of each curve's edge (rows ``0..nc-1``), then
+            the faces around each CAD vertex (rows ``nc + v``) (:class:`Ragged`).
+        searcher: closest points on given edges (closed form / Newton); None without curves.
+        lo, hi: ``(nc, 3)`` bounding boxes of the curves.
+    """
+
+    def __init__(self, model: CadModel):
+        edges = model.edges
+        self.curve_of_edge = np.full(len(edges), -1, dtype=np.int64)
+        self.curves: list[Any] = []
+        for i, e in enumerate(edges):
+            if e.curve is not None:
+                self.curve_of_edge[i] = len(self.curves)
+                self.curves.append(e.curve)
+        self.points = model.vertices
+        face_curves, face_vertices = [], []
+        for f in model.faces:  # loop over CAD faces (set-up)
+            c = self.curve_of_edge[f.edges]
+            face_curves.append(c[c >= 0])
+            face_vertices.append(sorted({v for e in f.edges for v in edges[e].vertices if v >= 0}))
+        curve_faces = [edges[i].faces for i in np.flatnonzero(self.curve_of_edge >= 0)]
+        around: list[set[int]] = [set() for _ in range(len(self.points))]
+        for f, vs in enumerate(face_vertices):
+            for v in vs:
+                around[v].add(f)
+        self.face_curves, self.face_vertices = Ragged(face_curves), Ragged(face_vertices)
+        self.feature_faces = Ragged(curve_faces + [sorted(a) for a in around])
+        self.searcher = GlobalSearcher(self.curves) if self.curves else None
+        self.lo = np.array([c.bbox[0] for c in self.curves]).reshape(-1, 3)
+        self.hi = np.array([c.bbox[1] for c in self.curves]).reshape(-1, 3)
+
+    def feature_rows(self, fid: np.ndarray) -> np.ndarray:
+        """Rows of :attr:`feature_faces` of features ``fid`` (``c + 1``: curve ``c``, ``-(v + 1)``: vertex ``v``)."""
+        return np.where(fid > 0, fid - 1, len(self.curves) - fid - 1)
+
+
+def nearest_features(geo: CadGeometry, ent: np.ndarray, X: np.ndarray, hs: np.ndarray,
+                     cls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions of edge and corner slots: nearest edge curve / CAD vertex of their face.
+
+    Args:
+        geo: the geometry (with topology).
+        ent: ``(k,)`` face of each slot.
+        X: ``(k, 3)`` positions.
+        hs: ``(k,)`` longest edge of the slot's facet (search radius).
+        cls: ``(k,)`` 1 for an edge slot, 2 or more for a corner slot.
+
+    Returns:
+        ``(points (k, 3), feature (k,))``: ``c + 1`` for edge curve ``c``,
+        ``-(v + 1)`` for CAD vertex ``v``, 0 where none was found.
+    """
+    top = geo.topology
+    assert top is not None
+    k = len(ent)
+    out = np.zeros((k, 3))
+    fid = np.zeros(k, dtype=np.int64)
+    # corners: the nearest CAD vertex of the face within the facet's tolerance
+    corner = np.flatnonzero(cls >= 2)
+    if corner.size:
+        cnt, vert = top.face_vertices.take(ent[corner])
+        slot = np.repeat(corner, cnt)
+        dv = np.linalg.norm(top.points[vert] - X[slot], axis=1)
+        best = best_per_group(np.repeat(np.arange(corner.size), cnt), dv, corner.size,
+                              dv <= geo.tol_factor * hs[slot])
+        hit = best >= 0
+        out[corner[hit]] = top.points[vert[best[hit]]]
+        fid[corner[hit]] = -(vert[best[hit]] + 1)
+    # edges (and corners without a vertex nearby): the nearest edge curve of the face
+    todo = np.flatnonzero(fid == 0)
+    if todo.size and top.searcher is not None:
+        cnt, crv = top.face_curves.take(ent[todo])
+        slot = np.repeat(todo, cnt)
+        t = hs[slot][:, None]
+        inbox = np.all((X[slot] >= top.lo[crv] - t) & (X[slot] <= top.hi[crv] + t), axis=1)
+        slot, crv = slot[inbox], crv[inbox]
+        grp = np.searchsorted(todo, slot)
+        res = top.searcher.search_on(X[slot], crv)
+        best = best_per_group(grp, res[2], todo.size, res[2] <= hs[slot])
+        hit = best >= 0
+        out[todo[hit]] = res[1][best[hit]]
+        fid[todo[hit]] = crv[best[hit]] + 1
+    return out, fid
+
+
+def onto_feature(geo: CadGeometry, reps: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,
+                 fid: np.ndarray, hs: np.ndarray) -> float:
+    """Move feature vertices onto the intersection of their edge's (vertex's) faces.
+
+    ``reps (g,)``: one representative slot per vertex; per slot ``ent (ns,)``
+    face, ``proj (ns, 3)`` position, ``par (ns, d)`` parameters, ``fid (ns,)``
+    feature (``c + 1`` for edge curve ``c``, ``-(v + 1)`` for CAD vertex
+    ``v``, 0: none), ``hs (ns,)`` step cap.  Updates ``proj`` of the
+    representative slots in place; returns the largest remaining distance to
+    one of the faces.
+    """
+    top = geo.topology
+    assert top is not None
+    reps = reps[fid[reps] != 0]
+    rows = top.feature_rows(fid[reps])
+    multi = top.feature_faces.counts[rows] > 1  # on the intersection of several faces
+    reps, rows = reps[multi], rows[multi]
+    if reps.size == 0:
+        return 0.0
+    cnt, pe = top.feature_faces.take(rows)
+    gpos = np.repeat(np.arange(reps.size), cnt)
+    # seeds: the representative's own parameters on its own face
+    seeds = np.full((len(pe), geo.param_dim), np.nan)
+    own = pe == ent[reps][gpos]
+    seeds[own] = par[reps][gpos[own]]
+    x, _, g = intersect(geo, proj[reps], gpos, pe, seeds, hs[reps], proj[reps])
+    proj[reps] = x
+    return float(g.max(initial=0.0))
+
+
+def truncated_lstsq(N: np.ndarray, res: np.ndarray, rcond: float = TANGENT_RCOND) -> np.ndarray:
+    """Minimum-norm ``y (G, 3)`` with ``N y ~ res`` per group, small singular values dropped.
+
+    ``N (G, m, 3)`` stacked unit normals (zero rows ignored), ``res (G, m)``.
+    """
+    U, sv, Vt = np.linalg.svd(N, full_matrices=False)  # (G, m, k), (G, k), (G, k, 3)
+    keep = sv > rcond * sv[:, :1]
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0), 0.0)
+    coef = np.einsum("gmk,gm->gk", U, res) * inv
+    return np.einsum("gk,gkj->gj", coef, Vt)
+
+
+def _on_entities(geo: CadGeometry, x: np.ndarray, gpos: np.ndarray, pe: np.ndarray, seeds: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projections of points ``x (G, 3)`` onto their entities (pairs ``(gpos, pe)``, ``(m,)``).
+
+    Newton from ``seeds (m, d)`` (NaN: from the entity's search samples).
+    Returns ``(params (m, d), points (m, 3), score (G,))``, ``score`` the
+    largest distance of each point to one of its entities.
+    """
+    m = len(gpos)
+    pp, px, pd = np.zeros((m, geo.param_dim)), np.zeros((m, 3)), np.zeros(m)
+    known = np.all(np.isfinite(seeds), axis=1)
+    if known.any():
+        k = np.flatnonzero(known)
+        pp[k], px[k], pd[k], _, _ = geo.searcher.refine(gpos[k], pe[k], seeds[k], x, geo.max_iter)
+    if not known.all():
+        k = np.flatnonzero(~known)
+        pp[k], px[k], pd[k] = geo.searcher.search_on(x[gpos[k]], pe[k])
+    score = np.zeros(len(x))
+    np.maximum.at(score, gpos, pd)
+    return pp, px, score
+
+
+def intersect(geo: CadGeometry, x0: np.ndarray, gpos: np.ndarray, pe: np.ndarray, seeds: np.ndarray,
+              hg: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton onto the intersection of several entities per point.
+
+    Points ``x0 (G, 3)``; pairs ``(gpos (m,), pe (m,))`` (point, entity),
+    sorted by point, with Newton seeds ``(m, d)`` (NaN: from the entity's
+    search samples).  Each step projects ``x`` onto every entity of the
+    point and moves it to the nearest point of the intersection of the
+    tangent planes there (``n_i . (y - p_i) = 0``, minimum-norm least
+    squares, step capped to ``hg (G,)``).  Directions in which the normals
+    are (nearly) dependent -- faces meeting tangentially, as a fillet or a
+    chamfer cone meets its plane -- get no step (:func:`truncated_lstsq`):
+    along a tangent contact the intersection is ill-posed and the start (the
+    edge curve's point) is kept there.  The best point over
+    :data:`EDGE_SWEEPS` steps is kept if it is nearer all the entities than
+    the start and within ``hg`` of ``anchor (G, 3)``.
+
+    Returns ``(x (G, 3), params (m, d), gap (G,))``: ``gap`` the largest
+    distance of the final point to one of its entities.
+    """
+    G, m = len(x0), len(gpos)
+    start = np.searchsorted(gpos, np.arange(G))
+    rank = np.arange(m) - start[gpos]
+    etol = EDGE_RTOL * geo.size
+    x = x0.copy()
+    pp, px, score = _on_entities(geo, x, gpos, pe, seeds)
+    pp0, score0 = pp.copy(), score.copy()
+    best_x, best_pp, best = x.copy(), pp.copy(), score.copy()
+    todo = best > etol
+    mr = int(rank.max()) + 1
+    for _sweep in range(EDGE_SWEEPS):
+        if not todo.any():
+            break
+        nrm = unit_normals(geo.entities, pe, pp)  # (m, 3), zero where degenerate (pole)
+        N = np.zeros((G, mr, 3))
+        N[gpos, rank] = nrm
+        res = np.zeros((G, mr))
+        res[gpos, rank] = np.einsum("ij,ij->i", nrm, x[gpos] - px)
+        step = truncated_lstsq(N, res)
+        sl_ = np.linalg.norm(step, axis=1)
+        step *= np.minimum(1.0, hg / np.maximum(sl_, 1e-300))[:, None]
+        x = np.where(todo[:, None], x - step, x)
+        pp, px, score = _on_entities(geo, x, gpos, pe, pp)
+        better = todo & (score < best)
+        best_x[better], best[better] = x[better], score[better]
+        best_pp[better[gpos]] = pp[better[gpos]]
+        todo &= best > etol
+    keep = (best < score0) & (np.linalg.norm(best_x - anchor, axis=1) <= hg)
+    x_fin = np.where(keep[:, None], best_x, x0)
+    pp_fin = np.where(keep[gpos][:, None], best_pp, pp0)
+    return x_fin, pp_fin, np.where(keep, best, score0)
+
+
+def shared_entity_vertices(
+    geo: CadGeometry, gid: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,
+    X: np.ndarray, hs: np.ndarray,
+) -> tuple[int, float]:
+    """Geometries without topology: put vertices shared by facets of several entities onto all of them.
+
+    A mesh vertex on facets of entities ``A`` and ``B`` lies on the CAD edge
+    the two faces share: :func:`intersect` moves it there (step capped to
+    the local edge length, within it of the straight vertex ``X``).  Every
+    slot then takes the parameters of that point on its own entity.  Only
+    the facets on this process are seen: geometries with topology use the
+    CAD edges instead.
+
+    Per slot: ``gid (ns,)`` vertex, ``ent (ns,)`` entity, ``X (ns, 3)``
+    straight position, ``hs (ns,)`` longest edge of its facet.  Updates
+    ``proj (ns, 3)`` (one position per vertex already) and ``par (ns, d)``
+    in place; returns ``(number of edge vertices, largest distance of an
+    edge vertex to one of its entities)``.
+    """
+    ne = geo.num_entities
+    if len(gid) == 0:
+        return 0, 0.0
+    key = gid * ne + ent
+    ukey, first_slot, inv = np.unique(key, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    ug = ukey // ne
+    cnt = np.bincount(ug)
+    pidx = np.flatnonzero(cnt[ug] > 1)  # (group, entity) pairs of edge vertices
+    if pidx.size == 0:
+        return 0, 0.0
+    m = pidx.size
+    pe = ukey[pidx] % ne
+    groups, gpos = np.unique(ug[pidx], return_inverse=True)
+    gpos = gpos.reshape(-1)
+    G = groups.size
+    start = np.searchsorted(gpos, np.arange(G))  # pairs are sorted by group
+    gslot = first_slot[pidx][start]  # one slot per edge vertex
+    x = proj[gslot].copy()
+    hg = np.zeros(G)
+    sl = np.flatnonzero(np.isin(gid, groups))
+    np.maximum.at(hg, np.searchsorted(groups, gid[sl]), hs[sl])
+    x_fin, pp_fin, gap = intersect(geo, x, gpos, pe, par[first_slot[pidx]], hg, X[gslot])
+    pos = np.full(len(ukey), -1, dtype=np.int64)
+    pos[pidx] = np.arange(m)
+    ps = pos[inv]
+    s = np.flatnonzero(ps >= 0)
+    proj[s] = x_fin[gpos[ps[s]]]
+    par[s] = unwrap(geo._period, ent[s], pp_fin[ps[s]], par[s])
+    return int(G), float(gap.max())
