@@ -163,6 +163,13 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))
 
 
+def _ring_spread(vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings: int,
+                 facet_normal: np.ndarray, n0: np.ndarray) -> np.ndarray:
+    """Largest angle (radians, ``(S,)``) between ``n0`` and the facet normals within ``rings`` rings of each sector."""
+    ring, ring_mask = sector_stencils(vid, label, region, rings, facets=True)
+    return np.where(ring_mask, _angle(facet_normal[ring], n0[:, None, :]), 0.0).max(axis=1)
+
+
 def _frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit tangents ``(t1, t2)`` completing unit normals ``n (S, 3)`` (``t2 = n x t1``)."""
     a = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
@@ -179,7 +186,6 @@ def _basis(u: np.ndarray, v: np.ndarray, w: np.ndarray, degree: int, planar: boo
     ``u^3 .. u^degree`` (penalised), ``u``.  The last ``gdim - 1`` columns
     are the linear terms.
     """
-    S, m = u.shape
     if planar:
         cols = [u * u + w * w] + [u**k for k in range(3, degree + 1)] + [u]
         high = np.arange(len(cols)) > 0
@@ -209,7 +215,7 @@ def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarr
     Solved by a batched QR of the augmented design (no squared condition
     number).  Stencils whose linear terms are not determined give NaN.
     """
-    S, m, q = P.shape
+    S, _, q = P.shape
     A = np.sqrt(wt)[..., None] * P
     norm = np.linalg.norm(A, axis=1)
     scale = 1.0 / np.where(norm > 0, norm, 1.0)  # (S, q)
@@ -322,18 +328,15 @@ def fit_sector_normals(
     Returns:
         ``(S, 3)`` unit normals.
     """
-    F, nfv = vid.shape
+    nfv = vid.shape[1]
     S = len(n0)
     nv = int(vid.max()) + 1
     coords = np.zeros((nv, 3))
     coords[vid.ravel()] = x.reshape(-1, 3)
     centre = np.zeros(S, dtype=np.int64)
     centre[label.ravel()] = vid.ravel()
-    spread, own = [], []  # over the facets within two rings, and of the sector itself
-    for rings in (2, 1):
-        ring, ring_mask = sector_stencils(vid, label, region, rings, facets=True)
-        spread.append(np.where(ring_mask, _angle(facet_normal[ring], n0[:, None, :]), 0.0).max(axis=1))
-    spread, own = spread
+    # largest facet-normal angle over the facets within two rings, and of the sector itself
+    spread, own = (_ring_spread(vid, label, region, rings, facet_normal, n0) for rings in (2, 1))
     # 2D: without an inflection the normal at a vertex lies between its two
     # segments' normals (each is the curve's normal somewhere on its segment)
     cone = spread if nfv == 3 else own
