@@ -377,8 +377,31 @@ def _quotient(H: np.ndarray, o: np.ndarray) -> None:
 # ----------------------------------------------------------------------
 # curves
 # ----------------------------------------------------------------------
+def _domain(knots: np.ndarray, p: int) -> tuple[float, float]:
+    """Parameter domain ``(knots[p], knots[-p-1])`` of a clamped knot vector of degree ``p``."""
+    return float(knots[p]), float(knots[-p - 1])
+
+
+class _ControlNet:
+    """The bounding box of a curve's or surface's control points, which contains it."""
+
+    control_points: np.ndarray
+    _size: float
+
+    @property
+    def bbox_size(self) -> float:
+        """Diagonal of the control points' bounding box (length units)."""
+        return self._size
+
+    @property
+    def bbox(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo (3,), hi (3,))`` corners of the control points' bounding box."""
+        cp = self.control_points.reshape(-1, 3)
+        return cp.min(axis=0), cp.max(axis=0)
+
+
 @dataclass(frozen=True, eq=False)
-class NurbsCurve:
+class NurbsCurve(_ControlNet):
     """Rational B-spline (NURBS) curve in 3-D (planar curves have z = 0).
 
     ``C(u) = sum_i N_{i,p}(u) w_i P_i / sum_i N_{i,p}(u) w_i`` (Kadir, A.5.1).
@@ -444,23 +467,12 @@ class NurbsCurve:
     @property
     def domain(self) -> tuple[float, float]:
         """Parameter domain ``(u0, u1) = (knots[p], knots[-p-1])``."""
-        p = self.degree
-        return float(self.knots[p]), float(self.knots[-p - 1])
+        return _domain(self.knots, self.degree)
 
     @property
     def is_closed(self) -> bool:
         """True if ``C(u0)`` and ``C(u1)`` coincide within 1e-9 x bounding-box size."""
         return self._closed
-
-    @property
-    def bbox_size(self) -> float:
-        """Diagonal of the control points' bounding box (bounds the curve; length units)."""
-        return self._size
-
-    @property
-    def bbox(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(lo (3,), hi (3,))`` corners of the control points' bounding box (contains the curve)."""
-        return self.control_points.min(axis=0), self.control_points.max(axis=0)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -551,7 +563,7 @@ class NurbsCurve:
 # surfaces
 # ----------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
-class NurbsSurface:
+class NurbsSurface(_ControlNet):
     """Tensor-product NURBS surface (Kadir, A.5.2; Herrero Adan eqs. (2), (4)).
 
     ``S(u,v) = sum_ij N_{i,p}(u) N_{j,q}(v) w_ij P_ij / sum_ij N_{i,p}(u) N_{j,q}(v) w_ij``.
@@ -652,14 +664,12 @@ class NurbsSurface:
     @property
     def domain_u(self) -> tuple[float, float]:
         """``(u0, u1) = (knots_u[p], knots_u[-p-1])``."""
-        p = self.degree_u
-        return float(self.knots_u[p]), float(self.knots_u[-p - 1])
+        return _domain(self.knots_u, self.degree_u)
 
     @property
     def domain_v(self) -> tuple[float, float]:
         """``(v0, v1) = (knots_v[q], knots_v[-q-1])``."""
-        q = self.degree_v
-        return float(self.knots_v[q]), float(self.knots_v[-q - 1])
+        return _domain(self.knots_v, self.degree_v)
 
     @property
     def closed_u(self) -> bool:
@@ -671,16 +681,6 @@ class NurbsSurface:
         """True if the boundary curves ``v = v0`` and ``v = v1`` coincide (1e-9 x bbox)."""
         return self._closed_v
 
-    @property
-    def bbox_size(self) -> float:
-        """Diagonal of the control net's bounding box (bounds the surface; length units)."""
-        return self._size
-
-    @property
-    def bbox(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(lo (3,), hi (3,))`` corners of the control net's bounding box (contains the surface)."""
-        cp = self.control_points.reshape(-1, 3)
-        return cp.min(axis=0), cp.max(axis=0)
 
     @property
     def bounds(self) -> np.ndarray:

@@ -293,6 +293,23 @@ def _bspline_curve(c, dim: int) -> dict:
             "knots": np.array(knots)}
 
 
+#: analytic surfaces kept as such: their parameters, by the OCC accessor of each
+#: (the same names on the gp primitives and on their Geom_ surfaces)
+_ANALYTIC_FIELDS: dict[str, dict[str, str]] = {
+    "plane": {},
+    "cylinder": {"radius": "Radius"},
+    "cone": {"radius": "RefRadius", "semi_angle": "SemiAngle"},
+    "sphere": {"radius": "Radius"},
+    "torus": {"major": "MajorRadius", "minor": "MinorRadius"},
+}
+_ANALYTIC_TYPES = {f"GeomAbs_{kind.capitalize()}": kind for kind in _ANALYTIC_FIELDS}
+
+
+def _analytic(kind: str, s) -> dict:
+    """Description of the analytic surface ``s`` of type ``kind`` (a gp primitive or a Geom_ surface)."""
+    return {"type": kind, **_ax3(s.Position()), **{k: getattr(s, m)() for k, m in _ANALYTIC_FIELDS[kind].items()}}
+
+
 def _elementary(s) -> dict | None:
     """Description of an OpenCASCADE elementary surface (``Geom_Plane``, ...), else None."""
     from OCP.Geom import (
@@ -303,18 +320,11 @@ def _elementary(s) -> dict | None:
         Geom_ToroidalSurface,
     )
 
-    if isinstance(s, Geom_Plane):
-        return {"type": "plane", **_ax3(s.Position())}
-    if isinstance(s, Geom_CylindricalSurface):
-        return {"type": "cylinder", **_ax3(s.Position()), "radius": s.Radius()}
-    if isinstance(s, Geom_ConicalSurface):
-        return {"type": "cone", **_ax3(s.Position()), "radius": s.RefRadius(),
-                "semi_angle": s.SemiAngle()}
-    if isinstance(s, Geom_SphericalSurface):
-        return {"type": "sphere", **_ax3(s.Position()), "radius": s.Radius()}
-    if isinstance(s, Geom_ToroidalSurface):
-        return {"type": "torus", **_ax3(s.Position()), "major": s.MajorRadius(),
-                "minor": s.MinorRadius()}
+    classes = {"plane": Geom_Plane, "cylinder": Geom_CylindricalSurface, "cone": Geom_ConicalSurface,
+               "sphere": Geom_SphericalSurface, "torus": Geom_ToroidalSurface}
+    for kind, cls in classes.items():
+        if isinstance(s, cls):
+            return _analytic(kind, s)
     return None
 
 
@@ -360,22 +370,9 @@ def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
 
     a = BRepAdaptor_Surface(face, False)
     t = a.GetType()
-    if t == T.GeomAbs_Plane:
-        return {"type": "plane", **_ax3(a.Plane().Position())}, False
-    if t == T.GeomAbs_Cylinder:
-        c = a.Cylinder()
-        return {"type": "cylinder", **_ax3(c.Position()), "radius": c.Radius()}, False
-    if t == T.GeomAbs_Cone:
-        c = a.Cone()
-        return {"type": "cone", **_ax3(c.Position()), "radius": c.RefRadius(),
-                "semi_angle": c.SemiAngle()}, False
-    if t == T.GeomAbs_Sphere:
-        c = a.Sphere()
-        return {"type": "sphere", **_ax3(c.Position()), "radius": c.Radius()}, False
-    if t == T.GeomAbs_Torus:
-        c = a.Torus()
-        return {"type": "torus", **_ax3(c.Position()), "major": c.MajorRadius(),
-                "minor": c.MinorRadius()}, False
+    kind = _ANALYTIC_TYPES.get(t.name)
+    if kind is not None:  # a.Plane(), a.Cylinder(), ...: the gp primitive
+        return _analytic(kind, getattr(a, kind.capitalize())()), False
     if t == T.GeomAbs_BSplineSurface:
         return _bspline_surface(a.BSpline()), False
     if t == T.GeomAbs_BezierSurface:
