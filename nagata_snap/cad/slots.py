@@ -17,7 +17,6 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from nagata_snap.mesh.arrays import unique_rows
-from nagata_snap.mesh.simplex import edge_lengths
 
 __all__ = ["MERGE_RTOL", "facet_array", "longest_edge", "vertex_groups", "box_pairs"]
 
@@ -42,10 +41,15 @@ def facet_array(a: npt.ArrayLike, what: str) -> np.ndarray:
 
 
 def longest_edge(x: np.ndarray) -> np.ndarray:
-    """Largest edge (vertex-pair distance) of each facet ``(nf, nfv, 3)`` -> ``(nf,)`` (0 for single points)."""
+    """Largest vertex-pair distance of each facet ``(nf, nfv, 3)`` -> ``(nf,)`` (0 for single points).
+
+    Any ``nfv``: the points of a facet of a higher-degree mesh (``curved_mesh``)
+    are placed as one facet too.
+    """
     if x.shape[1] < 2:
         return np.zeros(x.shape[0])
-    return edge_lengths(x).max(axis=1)
+    i, j = np.triu_indices(x.shape[1], 1)
+    return np.linalg.norm(x[:, i] - x[:, j], axis=2).max(axis=1)
 
 
 def vertex_groups(points: np.ndarray, radius: float, nodes: np.ndarray | None = None) -> np.ndarray:
