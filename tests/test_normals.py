@@ -595,3 +595,23 @@ def test_normals_identical_under_mpi(tmp_path, case):
     for key in ("ids", "normals", "coef"):
         np.testing.assert_array_equal(out[1][key], out[2][key])
     assert out[2]["ranks_agree"]
+
+
+@pytest.mark.parametrize("n", [255, 256, 512])
+def test_stencils_of_a_fan_keep_its_apex(n):
+    """A vertex shared by 256 facets (a cone apex, a pole) stays in its neighbours' stencils.
+
+    Fan of ``n`` triangles around vertex 0, one sector per vertex: the two-ring
+    of a rim vertex holds every facet at the apex, so the apex is in its
+    stencil (the sparse sums once counted in int8 and dropped a sum of 256).
+    """
+    from nagata_snap.nagata.jets import sector_stencils
+
+    rim = np.arange(1, n + 1)
+    vid = np.c_[np.zeros(n, dtype=np.int64), rim, np.roll(rim, -1)]
+    label = vid.copy()  # sector = vertex
+    idx, mask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2)
+    for v in (1, n // 2, n):
+        assert 0 in idx[v][mask[v]]
+    fidx, fmask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2, facets=True)
+    assert fmask[1].sum() == n  # every facet of the fan touches the apex

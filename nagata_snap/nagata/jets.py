@@ -115,14 +115,14 @@ def _sector_rings(vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings:
     nv = int(vid.max()) + 1
     ns = int(label.max()) + 1
     fac = np.repeat(np.arange(F), nfv)
-    ones = np.ones(F * nfv, dtype=np.int8)
+    ones = np.ones(F * nfv, dtype=np.int32)  # int32: products count paths, and int8 sums of 256 wrap to 0 and are dropped
     vf = scipy.sparse.csr_matrix((ones, (vid.ravel(), fac)), shape=(nv, F))
     ring = scipy.sparse.csr_matrix((ones, (label.ravel(), fac)), shape=(ns, F))
     if rings > 1:
         ff = (vf.T @ vf).tocoo()
         keep = region[ff.row] == region[ff.col]
         ff = scipy.sparse.csr_matrix(
-            (np.ones(int(keep.sum()), dtype=np.int8), (ff.row[keep], ff.col[keep])), shape=(F, F)
+            (np.ones(int(keep.sum()), dtype=np.int32), (ff.row[keep], ff.col[keep])), shape=(F, F)
         )
         for _ in range(rings - 1):
             ring = ring @ ff
