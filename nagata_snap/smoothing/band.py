@@ -105,7 +105,7 @@ AUTO_LAYERS = ((0.1, 2), (0.3, 3))
 AUTO_LAYERS_MAX = 4
 
 
-def auto_layers(comm: MPI.Comm, x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
+def auto_layers(x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
                 touched: np.ndarray, sync: NodeSync) -> np.ndarray:
     """Band width of every node for the prescribed displacement ``disp`` (n, 3) (collective).
 
@@ -163,9 +163,8 @@ def expand(cells: np.ndarray, mark: np.ndarray, layers: Layers, sync: NodeSync,
     """
     cols = cell_columns(cells) if cols is None else cols
     per_node = np.ndim(layers) > 0
-    total = int(np.max(layers, initial=0)) if per_node else int(layers)
+    total = max_layers(layers, sync.comm)
     if per_node:
-        total = int(sync.comm.allreduce(total, op=MPI.MAX))
         need = np.where(mark, layers, 0)
         mark = need >= total
     prev = mark

@@ -653,7 +653,7 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
     o = smooth_options(opts)
     g = _Guard(mesh, x_ref, x_target, moved, fixed, rel_floor, min_quality, o)
     if o["layers"] == "auto":
-        o["layers"] = auto_layers(g.comm, g.x_ref, g.disp, g.cells, g.pool, g.sync)
+        o["layers"] = auto_layers(g.x_ref, g.disp, g.cells, g.pool, g.sync)
     _, n_unsmoothed = g.check(g.x_tgt)
     x, bad, nbad, sm = _linear(g, method, o, stiffen)
     stage = "smooth" if len(g.attempts) == 1 else "stiffen"

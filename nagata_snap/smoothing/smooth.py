@@ -1,4 +1,4 @@
-"""Interior smoothing after boundary snapping, and the inverted-cell guard.
+"""Interior smoothing after boundary snapping: the band problem and its two smoothers.
 
 After ``dolfinx.mesh.refine`` the snapper moves new boundary nodes onto the
 true geometry. The interior must then follow, otherwise the first layer of
@@ -538,7 +538,7 @@ def smooth(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, moved: np.ndarray, fixed:
     if o["layers"] == "auto":
         cells = mesh.geometry.dofmaps[0]
         disp = np.where(moved_mask[:, None], x_cur - x_ref, 0.0)
-        o["layers"] = auto_layers(mesh.comm, x_ref, disp, cells,
+        o["layers"] = auto_layers(x_ref, disp, cells,
                                    cells_touching(np.any(disp != 0.0, axis=1), cell_columns(cells)), sync)
     sm = Smoother(mesh, x_ref, moved_mask, fixed_mask, sync, method, o, timings)
     try:
