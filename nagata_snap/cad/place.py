@@ -363,13 +363,7 @@ def feature_slots(geo: CadGeometry, s: Slots, p: Projection, gid: np.ndarray
 def representatives(gid: np.ndarray, cls: np.ndarray, p: Projection) -> np.ndarray:
     """``(n_vertices,)`` the best slot of each vertex ``gid (ns,)``: an edge or corner slot
     (``cls``) first, then valid, on its own entity, nearest."""
-    order = np.lexsort((p.dist, ~p.on_root, ~p.valid, -np.minimum(cls, 2), gid))
-    g_sorted = gid[order]
-    first = np.ones(len(gid), dtype=bool)
-    first[1:] = g_sorted[1:] != g_sorted[:-1]
-    rep_of_group = np.empty(int(gid.max()) + 1, dtype=np.int64)
-    rep_of_group[g_sorted[first]] = order[first]
-    return rep_of_group
+    return best_per_group(gid, (-np.minimum(cls, 2), ~p.valid, ~p.on_root, p.dist), int(gid.max()) + 1)
 
 
 def reparametrise(geo: CadGeometry, s: Slots, par: np.ndarray, proj: np.ndarray, idx: np.ndarray
@@ -409,7 +403,7 @@ def merge(geo: CadGeometry, s: Slots, p: Projection) -> Merged:
     rep = m.rep_of_group[gid]
     feat_slot = cls[rep] > 0
     if feat_slot.any():  # onto the intersection of the feature's faces
-        m.gap = onto_feature(geo, m.rep_of_group[np.unique(gid)], s.ent, p.proj, p.par, fid, s.hs)
+        m.gap = onto_feature(geo, m.rep_of_group, s.ent, p.proj, p.par, fid, s.hs)
         m.n_edge = int(np.unique(gid[feat_slot]).size)
     moved = np.linalg.norm(p.proj - p.proj[rep], axis=1) > SAME_RTOL * geo.size
     redo = feat_slot | moved

@@ -793,11 +793,6 @@ class GlobalSearcher:
         """``(s,)`` entity of each grid sample."""
         return self._all_samples()[2]
 
-    @property
-    def tree(self) -> cKDTree:
-        """KD-tree of :attr:`sample_points`."""
-        return self._all_samples()[3]
-
     def _entity_tree(self, e: int) -> cKDTree:
         if e not in self._trees:
             self._trees[e] = cKDTree(self.entity_samples(e)[1])

@@ -53,7 +53,10 @@ def longest_edge(x: np.ndarray) -> np.ndarray:
 
 
 def vertex_groups(points: np.ndarray, radius: float, nodes: np.ndarray | None = None) -> np.ndarray:
-    """``(n,)`` vertex id of each of ``points (n, 3)``: equal ``nodes`` ids, else points closer than ``radius``."""
+    """``(n,)`` vertex id ``0..m-1`` (no gaps) of each of ``points (n, 3)``.
+
+    Slots with equal ``nodes`` ids are one vertex; without ``nodes``, points closer than ``radius``.
+    """
     if nodes is not None:
         return np.unique(np.asarray(nodes).reshape(-1), return_inverse=True)[1].reshape(-1)
     n = len(points)

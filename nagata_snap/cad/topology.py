@@ -25,7 +25,6 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,7 +35,7 @@ from nagata_snap.cad.curves import Circle, Line, analytic_curve
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface
 
-__all__ = ["CadModel", "Face", "Edge", "Loop", "sample_pcurve", "sample_pcurves", "nurbs_curve", "nurbs_surface"]
+__all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 
 #: samples of a circular p-curve per radian (``pi / 16`` steps)
 CIRCLE_STEP = np.pi / 16
@@ -326,34 +325,6 @@ def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: S
     return P, use, dev
 
 
-def sample_pcurve(desc: dict, reverse: bool, surface=None, tol: float = 0.0, uv_map=None
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Polygon of one p-curve: :func:`sample_pcurves` of one edge use."""
-    return sample_pcurves([desc], [reverse], surface, tol, uv_map)[0]
-
-
-def sample_pcurves(descs: Sequence[dict], reverses: Sequence[bool], surface=None, tol: float = 0.0,
-                   uv_map: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Polygons of p-curves on one surface, refined until their chords are within ``tol``.
-
-    Segments whose mid-parameter point is farther than ``tol`` from the chord's
-    midpoint (in length units through the ``surface``'s first derivatives;
-    parametric distance without a surface) are split, up to
-    :data:`MAX_REFINE` times (:func:`_refine`, which samples the p-curves of
-    all faces of a model together).
-
-    Returns:
-        per curve ``(points (m, 2), dev (m - 1,))``: samples in traversal order
-        (reversed if the edge is used reversed), mapped by ``uv_map``
-        ``(3, 2)`` if given, and each segment's deviation.
-    """
-    f = _PCurves(descs, np.zeros(len(descs), dtype=np.int64), [uv_map])
-    P, use, dev = _refine(f, f.initial(descs), np.asarray(reverses, dtype=bool), [surface],
-                          np.array([tol], dtype=float))
-    ends = np.searchsorted(use, np.arange(len(descs) + 1))
-    return [(P[a:b], dev[a:b - 1]) for a, b in itertools.pairwise(ends)]
-
-
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
     """The face's surface, and the map of the file's ``(u, v)`` to its parameters (or None)."""
     bounds = [[uv[0], uv[1]], [uv[2], uv[3]]]
@@ -599,10 +570,6 @@ class CadModel:
                    unit=data.get("unit", ""), file_units=data.get("file_units", ()),
                    size=data.get("size", 0.0), times=times,
                    num_solids=data.get("num_solids", 0), healed=data.get("healed"))
-
-    @property
-    def num_faces(self) -> int:
-        return len(self.faces)
 
     def curve_edges(self) -> np.ndarray:
         """Indices of the edges with a 3D curve (not degenerate)."""

@@ -32,7 +32,7 @@ import numpy.typing as npt
 
 from nagata_snap.mesh.arrays import ramp
 
-__all__ = ["TrimLoops", "points_in_polygon"]
+__all__ = ["TrimLoops"]
 
 #: default absolute trimming tolerance, relative to the size of the face's surface
 TRIM_RTOL = 1e-6
@@ -41,19 +41,6 @@ TRIM_RTOL = 1e-6
 CORNER_ANGLE = 0.35
 #: work-array budget (entries) of the vectorised loop tests
 CHUNK = 400_000
-
-
-def points_in_polygon(polygon: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Even-odd point-in-polygon test, vectorised over points.
-
-    Args:
-        polygon: ``(k, 2)`` vertices (implicitly closed).
-        pts: ``(m, 2)`` query points.
-
-    Returns:
-        ``(m,)`` bool, True inside.
-    """
-    return _crossings(np.asarray(polygon, dtype=float), np.atleast_2d(np.asarray(pts, dtype=float))) % 2 == 1
 
 
 def _crossings(poly: np.ndarray, pts: np.ndarray, slabs: _Slabs | None = None) -> np.ndarray:
