@@ -706,6 +706,16 @@ def check_bad_input_result(res: dict, cases: dict, n: int):
         assert all(m for _, m in res[case]), (case, res[case])
 
 
+@pytest.mark.mpi
+def test_cad_attach_over_processes_needs_input_global_ids():
+    """Without ``nodes`` the vertex ids of different processes would be compared as if global."""
+    res = run_bad_input(2, {"cad_attach_without_nodes": "ValueError"})["cad_attach_without_nodes"]
+    assert [c for c, _ in res] == ["ValueError"] * 2, res
+    assert all("needs nodes" in m for _, m in res), res
+    serial = run_bad_input(1, {"cad_attach_without_nodes": "OK"})["cad_attach_without_nodes"]
+    assert serial == [["OK", ""]], serial  # one process: local ids are the ids
+
+
 def test_bad_input_script_serial():
     check_bad_input_result(run_bad_input(1, MPI_CASES), MPI_CASES, 1)
 

@@ -92,6 +92,11 @@ def attach(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike |
     err: Exception | None = None
     out = None
     try:
+        if nodes is None and geo.topology is not None and comm is not None and comm.size > 1:
+            # without them vertex ids are process-local, and facet edges of different
+            # processes would be matched by coincidence
+            raise ValueError("attach over several processes needs nodes (input-global vertex indices "
+                             "of the facets, mesh.geometry.input_global_indices)")
         out = attach_local(geo, facet_points, nodes, faces, seeds)
     except Exception as e:  # raised after the collective exchange below
         err = e
@@ -165,7 +170,7 @@ def attach_local(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.Array
         if faces is None:
             root, params, score = search_faces(geo, fp, gid, tol)
         else:
-            root, params, score = on_faces(geo, fp, gid, faces, seeds)
+            root, params, score = on_faces(geo, fp, gid, faces, seeds, tol)
         check_attached(geo, fp, root, score, tol, h, given=faces is not None)
         params = contiguous(geo.entities, geo._period, root, params)
     keys = None
@@ -291,11 +296,11 @@ def search_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, tol: np.ndar
 
 
 def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.ArrayLike,
-             seeds: npt.ArrayLike | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             seeds: npt.ArrayLike | None, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every facet vertex on a given entity (known faces, optional seeds).
 
     ``fp (nf, nfv, 3)`` facets, ``gid (nf, nfv)`` vertex ids, ``faces (nf,)``,
-    ``seeds (nf, nfv, d)`` (NaN: unknown).  Newton from the seeds (closed
+    ``seeds (nf, nfv, d)`` (NaN: unknown), ``tol (nf,)`` per facet.  Newton from the seeds (closed
     form on analytic faces), else from the entity's own search samples.
 
     Returns:
@@ -310,7 +315,7 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
         raise ValueError(f"faces refer to entities outside 0..{geo.num_entities - 1}")
     X = fp.reshape(-1, 3)
     ent = np.repeat(root, nfv)
-    tol = np.repeat(geo.tol_factor * longest_edge(fp), nfv)
+    tol = np.repeat(tol, nfv)
     sd = np.full((nf * nfv, d), np.nan) if seeds is None else \
         np.asarray(seeds, dtype=float).reshape(nf * nfv, d)
     # one projection per (vertex, entity): the slots of a vertex on one face share it

@@ -28,6 +28,7 @@ Cases:
   bad_option                Snapper(smoothing="spring")            ValueError
   inverted                  wall normals tilted +-50 deg, no smoothing, no repair InvertedCellsError
   degenerate_cell_one_rank  a zero-area cell on the last rank only  ValueError
+  cad_attach_without_nodes  CadGeometry.attach(comm=...) of a solid without nodes ValueError (n > 1 only)
 """
 
 import json
@@ -212,6 +213,19 @@ def degenerate_cell_one_rank():
     if comm.rank == comm.size - 1:
         flatten_one_cell(mesh)  # an owned cell of zero area, on this process only
     Snapper(mesh, ft, geo)
+
+
+def cad_attach_without_nodes():
+    import parts
+
+    d = comm.bcast(tempfile.mkdtemp() if comm.rank == 0 else None)
+    if comm.rank == 0:
+        parts.write_part("box_fillet_chamfer", d, ("step",))
+    comm.barrier()
+    geo = CadGeometry.from_file(os.path.join(d, "box_fillet_chamfer.step"))
+    lo, hi = np.array([0.0, 0.0, 30.0]), np.array([60.0, 40.0, 30.0])  # the top face (z = 30)
+    facets = (lo + (hi - lo) * np.array([[[0.4, 0.4, 0], [0.6, 0.4, 0], [0.5, 0.6, 0]]]))
+    geo.attach(facets, comm=comm)
 
 
 result = {}
