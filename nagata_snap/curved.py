@@ -57,6 +57,7 @@ import dolfinx.fem
 import dolfinx.la
 import dolfinx.mesh
 import numpy as np
+from mpi4py import MPI
 
 from nagata_snap.geometry import SnapGeometry
 from nagata_snap.mesh.boundary import BoundaryFacets, local_facet_vertices, update_nodes
@@ -311,8 +312,8 @@ def curved_mesh(
         boundary_nodes=comm.allreduce(int(np.count_nonzero(own_mv))),
         blended_nodes=comm.allreduce(int(np.count_nonzero(cells.blended[: imap.size_local]))),
         reduced_nodes=comm.allreduce(int(np.count_nonzero(own_mv & (alpha < 1.0)))),
-        max_shortfall=comm.allreduce(float(short.max(initial=0.0)), op=_mpi_op("MAX")),
-        min_jacobian_ratio=comm.allreduce(float(ratio.min(initial=np.inf)), op=_mpi_op("MIN")),
+        max_shortfall=comm.allreduce(float(short.max(initial=0.0)), op=MPI.MAX),
+        min_jacobian_ratio=comm.allreduce(float(ratio.min(initial=np.inf)), op=MPI.MIN),
     )
     return curved, info
 
@@ -349,7 +350,7 @@ class _CurvedCells:
         where[mv] = np.arange(len(mv))
         self.row = where[self.dofs]  # (nc, ndofs) row of each cell node in mv, or -1
         self.bmask = _blended_dofs(ref, self.faces, len(cand))
-        has_blend = curved.comm.allreduce(bool(self.bmask.any()), op=_mpi_op("LOR"))
+        has_blend = curved.comm.allreduce(bool(self.bmask.any()), op=MPI.LOR)
         self.scratch = np.zeros((n_nodes, 3)) if has_blend else None
         self.blended = np.zeros(n_nodes, dtype=bool)
 
@@ -444,9 +445,3 @@ def _sync_max(mesh, imap, flag: np.ndarray) -> np.ndarray:
     v.array[: imap.size_local] = v.array[: imap.size_local] > 0
     v.scatter_forward()
     return (v.array > 0).astype(float)
-
-
-def _mpi_op(name: str):
-    from mpi4py import MPI
-
-    return getattr(MPI, name)

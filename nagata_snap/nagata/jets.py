@@ -73,8 +73,7 @@ JET_LEVELS = {
 #: Sectors whose own facets' normals spread by at least this many degrees from
 #: the initial normal are coarse: the surface turns so much over three rings
 #: that the quartic's stencil is mostly weighted away, and the cubic on two
-#: rings is more accurate (measured on torus meshes with 30-45 degrees
-#: between neighbouring facets: 2.4 instead of 5.4 times the exact-normal error).
+#: rings is more accurate there.
 COARSE_DEG = 20.0
 
 #: Ridge penalty of the terms of degree 3 and more (columns scaled to unit norm).
@@ -115,7 +114,8 @@ def _sector_rings(vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings:
     nv = int(vid.max()) + 1
     ns = int(label.max()) + 1
     fac = np.repeat(np.arange(F), nfv)
-    ones = np.ones(F * nfv, dtype=np.int32)  # int32: products count paths, and int8 sums of 256 wrap to 0 and are dropped
+    # int32: the products count paths, and in int8 a sum of 256 wraps to 0 and is dropped
+    ones = np.ones(F * nfv, dtype=np.int32)
     vf = scipy.sparse.csr_matrix((ones, (vid.ravel(), fac)), shape=(nv, F))
     ring = scipy.sparse.csr_matrix((ones, (label.ravel(), fac)), shape=(ns, F))
     if rings > 1:
