@@ -155,8 +155,8 @@ def test_dfg_cylinder_patches_unchanged():
 def test_estimated_normals_converge_like_exact_ones(kind):
     """gmsh meshes, h = 0.2 and 0.1: order >= 3 and within 1.15x of exact normals at h = 0.1.
 
-    Max's MWSELR weighting, the previous default, is first order there: the
-    same meshes give it 3-80 times the exact-normal error.
+    Max's MWSELR weighting, the previous default, is first order there (its
+    errors are computed alongside; benchmarks/nagata_convergence.py prints them).
     """
     err = {}
     for h in (0.2, 0.1):
@@ -164,7 +164,7 @@ def test_estimated_normals_converge_like_exact_ones(kind):
         for name, normals in [("jet", None), ("mwselr", "mwselr"), ("exact", exact.normal)]:
             geo = NagataGeometry.from_surface(p, t, crease_angle=80, normals=normals)
             err[name, h] = nagata_surface_error(geo, exact.distance, per_edge=12)
-        assert edge_gap(geo) == 0.0
+            assert edge_gap(geo) == 0.0, (kind, h, name)  # neighbouring patches share their edge curves
     order = np.log2(err["jet", 0.2] / err["jet", 0.1])
     assert order >= 3.0, (kind, order, err)
     assert err["jet", 0.1] <= 1.15 * err["exact", 0.1], (kind, err)
@@ -546,10 +546,10 @@ def test_plate_estimated_normals_as_close_as_cad_normals(tmp_path):
 
     ``CadGeometry``'s normals, each facet's on its own face, are
     OpenCASCADE's (gmsh's ``getNormal`` at gmsh's (u, v)) and give the same
-    patches; the estimated normals put the vertices of two levels within 2x
-    of the CAD-normal distance and far closer than plain refine.  Measured
-    (``benchmarks/plate_normals.py --levels 2``): jet / CAD 1.00, MWSELR /
-    CAD 4.8, plain refine / jet 56 on the curved faces.
+    patches; the estimated normals put the vertices of two levels within the
+    bounds asserted below of the CAD-normal distance (the issue asks 2x) and
+    far closer than plain refine (``benchmarks/plate_normals.py --levels 2``
+    prints the figures).
     """
     import parts
 
@@ -580,6 +580,7 @@ def test_plate_estimated_normals_as_close_as_cad_normals(tmp_path):
 # ---------------------------------------------------------------------------
 # MPI: the same normals on every process, whatever the partition
 # ---------------------------------------------------------------------------
+@pytest.mark.mpi
 @pytest.mark.parametrize("case", ["estimated", "cad"])
 def test_normals_identical_under_mpi(tmp_path, case):
     """Estimated normals of a box with a hole; a STEP plate's CadGeometry normals (mesh_cad)."""
