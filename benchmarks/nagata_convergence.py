@@ -297,7 +297,10 @@ def main() -> None:
     hs = [0.2]
     while hs[-1] / 2 >= args.hmin * (1 - 1e-9):
         hs.append(hs[-1] / 2)
-    schemes = ("jet", *(s for s in SCHEMES if s != "jet" and (args.schemes == "all" or s in args.schemes)))
+    wanted = set(SCHEMES) if args.schemes == "all" else set(args.schemes.split(","))
+    if wanted - set(SCHEMES):
+        raise SystemExit(f"--schemes: unknown {sorted(wanted - set(SCHEMES))}; known: {', '.join(SCHEMES)}")
+    schemes = ("jet", *(s for s in SCHEMES if s != "jet" and s in wanted))
     print("\nmeshing and fitting:")
     res = estimated_study(hs, schemes, surfaces, MESHES[:args.meshes])
     print_estimated(res, hs)

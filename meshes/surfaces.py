@@ -236,12 +236,12 @@ def gmsh_occ_surface(build, h: float, algorithm: int = 6):
 
     import generate
 
-    with generate._gmsh_session("surface", False):
+    from nagata_snap.meshing import gmsh_session
+
+    sizes = {"Mesh.MeshSizeMax": h, "Mesh.MeshSizeMin": h, "Mesh.Algorithm": algorithm}
+    with gmsh_session("surface", {**generate._fixed_options(False), **sizes}):  # restored afterwards
         build()
         gmsh.model.occ.synchronize()
-        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
-        gmsh.option.setNumber("Mesh.Algorithm", algorithm)
         gmsh.model.mesh.generate(2)
         node_tags, xyz, _ = gmsh.model.mesh.getNodes()
         tris, ent = [], []
