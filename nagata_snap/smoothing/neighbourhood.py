@@ -76,11 +76,11 @@ class Neighbourhood:
         mark = np.zeros(sync.n, dtype=bool)
         mark[dofmap[seeds].reshape(-1)] = True
         mark = sync.any(mark)
-        _, inner, cin = expand(dofmap, mark, layers, sync, cols)
+        if layers < 1:
+            raise ValueError(f"a neighbourhood has at least one layer, got {layers}")
+        # the last layer's nodes are the nodes of the cells touching the layer before
+        in_nodes, inner, cin = expand(dofmap, mark, layers, sync, cols)
         self.local_cells = np.flatnonzero(cin).astype(np.int32)
-        in_nodes = np.zeros(sync.n, dtype=bool)
-        in_nodes[dofmap[self.local_cells].reshape(-1)] = True
-        in_nodes = sync.any(in_nodes)
         l2g = mesh.geometry.index_map().local_to_global(np.arange(sync.n, dtype=np.int32))
         l2g = np.asarray(l2g, dtype=np.int64)
         own = np.flatnonzero(in_nodes[: sync.n_owned])
