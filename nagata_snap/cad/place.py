@@ -36,7 +36,6 @@ import numpy.typing as npt
 
 from nagata_snap.cad.features import nearest_features, onto_feature, shared_entity_vertices
 from nagata_snap.cad.params import unwrap
-from nagata_snap.cad.projection import evaluate_params, normalize_params
 from nagata_snap.cad.slots import MERGE_RTOL, box_pairs, facet_array, longest_edge, vertex_groups
 from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.arrays import best_per_group, unique_rows
@@ -278,10 +277,7 @@ def any_entity(geo: CadGeometry, s: Slots, p: Projection) -> None:
     res = geo.searcher.search(s.X[bad], accept=acc)
     ge, gp, gd = res[:3]
     gin = res[3] if acc is not None else np.ones(bad.size, dtype=bool)
-    gx = np.empty((bad.size, 3))
-    for e in np.unique(ge):  # loop over entities
-        sel = ge == e
-        gx[sel] = evaluate_params(geo.entities[e], normalize_params(geo.entities[e], gp[sel]), 0)
+    gx = geo.evaluate(ge, gp[:, None]).reshape(-1, 3)
     groot = ge == s.ent[bad]
     gok = gin & (gd <= s.hs[bad])
     take = gok | (gd < p.dist[bad])
