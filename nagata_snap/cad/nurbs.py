@@ -428,7 +428,8 @@ class NurbsCurve(_ControlNet):
     _pwT: np.ndarray = field(init=False, repr=False)
     _spans: np.ndarray = field(init=False, repr=False)
     _size: float = field(init=False, repr=False)
-    _closed: bool = field(init=False, repr=False)
+    #: True if ``C(u0)`` and ``C(u1)`` coincide within 1e-9 x bounding-box size
+    is_closed: bool = field(init=False, repr=False)
 
     #: number of parameters of the entity (1 for curves)
     param_dim = 1
@@ -456,7 +457,7 @@ class NurbsCurve(_ControlNet):
         u0, u1 = self.domain
         ends = self._evaluate_inside(np.array([u0, u1]), 0)[0]
         closed = bool(np.linalg.norm(ends[0] - ends[1]) <= CLOSED_RTOL * max(self._size, 1e-300))
-        object.__setattr__(self, "_closed", closed)
+        object.__setattr__(self, "is_closed", closed)
 
     # -- properties ----------------------------------------------------
     @property
@@ -470,11 +471,6 @@ class NurbsCurve(_ControlNet):
         return _domain(self.knots, self.degree)
 
     @property
-    def is_closed(self) -> bool:
-        """True if ``C(u0)`` and ``C(u1)`` coincide within 1e-9 x bounding-box size."""
-        return self._closed
-
-    @property
     def bounds(self) -> np.ndarray:
         """``(1, 2)`` parameter bounds, the generic form of :attr:`domain`."""
         return np.array([self.domain])
@@ -482,13 +478,13 @@ class NurbsCurve(_ControlNet):
     @property
     def closed(self) -> tuple[bool]:
         """``(is_closed,)``, the generic per-direction form."""
-        return (self._closed,)
+        return (self.is_closed,)
 
     @property
     def period(self) -> float | None:
         """``u1 - u0`` if closed, else ``None``."""
         u0, u1 = self.domain
-        return (u1 - u0) if self._closed else None
+        return (u1 - u0) if self.is_closed else None
 
     @property
     def distinct_knots(self) -> np.ndarray:
@@ -502,7 +498,7 @@ class NurbsCurve(_ControlNet):
         """Parameters brought into the domain: modulo the period if closed, else clamped."""
         u = np.atleast_1d(np.asarray(u, dtype=float))
         u0, u1 = self.domain
-        return _wrap_or_clamp(u, u0, u1, self._closed)
+        return _wrap_or_clamp(u, u0, u1, self.is_closed)
 
     def evaluate(self, u: npt.ArrayLike, nderiv: int = 0) -> np.ndarray:
         """Points and derivatives of the curve, vectorised over ``u``.
@@ -592,8 +588,10 @@ class NurbsSurface(_ControlNet):
     _spans_u: np.ndarray = field(init=False, repr=False)
     _spans_v: np.ndarray = field(init=False, repr=False)
     _size: float = field(init=False, repr=False)
-    _closed_u: bool = field(init=False, repr=False)
-    _closed_v: bool = field(init=False, repr=False)
+    #: True if the boundary curves ``u = u0`` and ``u = u1`` (``v = v0``, ``v = v1``)
+    #: coincide within 1e-9 x bounding-box size
+    closed_u: bool = field(init=False, repr=False)
+    closed_v: bool = field(init=False, repr=False)
 
     #: number of parameters of the entity (2 for surfaces)
     param_dim = 2
@@ -630,8 +628,8 @@ class NurbsSurface(_ControlNet):
         _freeze(self, "_spans_u", _span_table(ku, self.degree_u, nu))
         _freeze(self, "_spans_v", _span_table(kv, self.degree_v, nv))
         object.__setattr__(self, "_size", _bbox_size(cp))
-        object.__setattr__(self, "_closed_u", self._boundaries_coincide(0))
-        object.__setattr__(self, "_closed_v", self._boundaries_coincide(1))
+        object.__setattr__(self, "closed_u", self._boundaries_coincide(0))
+        object.__setattr__(self, "closed_v", self._boundaries_coincide(1))
 
     def _boundaries_coincide(self, direction: int) -> bool:
         """Do the boundary curves at both ends of ``direction`` coincide?
@@ -671,16 +669,6 @@ class NurbsSurface(_ControlNet):
         """``(v0, v1) = (knots_v[q], knots_v[-q-1])``."""
         return _domain(self.knots_v, self.degree_v)
 
-    @property
-    def closed_u(self) -> bool:
-        """True if the boundary curves ``u = u0`` and ``u = u1`` coincide (1e-9 x bbox)."""
-        return self._closed_u
-
-    @property
-    def closed_v(self) -> bool:
-        """True if the boundary curves ``v = v0`` and ``v = v1`` coincide (1e-9 x bbox)."""
-        return self._closed_v
-
 
     @property
     def bounds(self) -> np.ndarray:
@@ -690,7 +678,7 @@ class NurbsSurface(_ControlNet):
     @property
     def closed(self) -> tuple[bool, bool]:
         """``(closed_u, closed_v)``."""
-        return (self._closed_u, self._closed_v)
+        return (self.closed_u, self.closed_v)
 
     @property
     def distinct_knots_u(self) -> np.ndarray:
@@ -713,8 +701,8 @@ class NurbsSurface(_ControlNet):
         v = np.atleast_1d(np.asarray(v, dtype=float))
         (u0, u1), (v0, v1) = self.domain_u, self.domain_v
         return (
-            _wrap_or_clamp(u, u0, u1, self._closed_u),
-            _wrap_or_clamp(v, v0, v1, self._closed_v),
+            _wrap_or_clamp(u, u0, u1, self.closed_u),
+            _wrap_or_clamp(v, v0, v1, self.closed_v),
         )
 
     def evaluate(self, u: npt.ArrayLike, v: npt.ArrayLike, nderiv: int = 0) -> np.ndarray:
