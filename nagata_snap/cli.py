@@ -377,14 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", action="store_true",
                    help="print the snapper's full report of every level (timings, geometry "
                         "statistics)")
-    p.add_argument("--tag-key", metavar="KEY",
-                   help="meshio formats: cell data holding the facet tags (default: gmsh:physical)")
-    p.add_argument("--mesh-name", metavar="NAME",
-                   help="XDMF input: name of the mesh grid (default: 'mesh', else the grid of "
-                        "highest dimension)")
-    p.add_argument("--tag-name", metavar="NAME",
-                   help="XDMF input: name of the facet tags grid (default: the first grid of "
-                        "facet dimension)")
+    inp = p.add_argument_group("mesh file input", "where a meshio or XDMF file keeps the facet tags")
+    inp.add_argument("--tag-key", metavar="KEY", help="meshio: the cell data of the tags (default: gmsh:physical)")
+    inp.add_argument("--mesh-name", metavar="NAME", help="XDMF: the mesh grid (default: 'mesh', else the highest dim.)")
+    inp.add_argument("--tag-name", metavar="NAME", help="XDMF: the facet tags grid (default: the first of facet dim.)")
     p.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
     return p
 
