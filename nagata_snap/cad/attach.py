@@ -326,8 +326,15 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
     np.maximum.at(t, inv, tol)
     par = np.zeros((len(first), d))
     dist = np.full(len(first), np.inf)
-    seeded = np.all(np.isfinite(sd[first]), axis=1) | geo._analytic[ent[first]]
-    if seeded.any():  # Newton from the given seeds (closed form on analytic faces)
+    finite = np.all(np.isfinite(sd[first]), axis=1)
+    analytic = geo._analytic[ent[first]]
+    on = np.flatnonzero(finite & ~analytic)
+    if on.size:  # NURBS seeds that are the vertex itself (a mesh made from the CAD) need no Newton
+        s = first[on]
+        ok = seed_is_point(geo, X[s], ent[s], sd[s])
+        par[on[ok]], dist[on[ok]] = sd[s[ok]], 0.0
+    seeded = np.flatnonzero((finite | analytic) & ~(dist <= t))
+    if seeded.size:  # Newton from the given seeds (closed form on analytic faces)
         s = first[seeded]
         p, _, dd, _, conv = geo.searcher.refine(s, ent[s], np.nan_to_num(sd[s]), X, geo.max_iter)
         par[seeded], dist[seeded] = p, np.where(conv, dd, np.inf)
@@ -339,6 +346,22 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
         par[todo[better]], dist[todo[better]] = res[0][better], res[2][better]
     params = par[inv].reshape(nf, nfv, d)
     return root, params, dist[inv].reshape(nf, nfv).max(axis=1)
+
+
+#: a seed is its vertex if they are this close (relative to the entity's size)
+SEED_RTOL = 1e-13
+
+
+def seed_is_point(geo: CadGeometry, X: np.ndarray, ent: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: entity ``ent`` at ``seeds (n, d)`` is the point ``X (n, 3)`` (within
+    :data:`SEED_RTOL` of the entity's size), so the seed is the vertex's closest point.
+
+    One evaluation per point instead of a Newton projection: the parameters a
+    mesher gives with its nodes are exact (gmsh evaluates the CAD at them).
+    """
+    size = np.array([e.bbox_size for e in geo.entities])[ent]
+    S = geo.evaluate(ent, seeds[:, None, :])[:, 0]
+    return np.linalg.norm(S - X, axis=1) <= SEED_RTOL * size
 
 
 def edge_channels(keys: np.ndarray, allkeys: np.ndarray, nfv: int) -> np.ndarray:

@@ -37,6 +37,8 @@ def _vec(a, n: int, what: str) -> np.ndarray:
 class _Curve:
     param_dim = 1
     kind = "curve"
+    #: the tangent of a line or circle never vanishes
+    can_degenerate = False
 
     def __init__(self, t0: float, t1: float):
         t0, t1 = float(t0), float(t1)

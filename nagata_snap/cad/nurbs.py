@@ -46,6 +46,7 @@ The end of the knot range is evaluated with the last non-empty span, so
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -433,6 +434,9 @@ class NurbsCurve(_ControlNet):
 
     #: number of parameters of the entity (1 for curves)
     param_dim = 1
+    #: a curve's parameter is fixed by its point even where ``C' = 0`` (only a
+    #: surface has iso-lines that collapse to a point, see :attr:`NurbsSurface.can_degenerate`)
+    can_degenerate = False
 
     def __post_init__(self) -> None:
         what = "NurbsCurve"
@@ -654,6 +658,25 @@ class NurbsSurface(_ControlNet):
         return bool(gap <= CLOSED_RTOL * max(self._size, 1e-300))
 
     # -- properties ----------------------------------------------------
+    @cached_property
+    def can_degenerate(self) -> bool:
+        """Can a parameter be arbitrary at a point (a pole, a collapsed edge)?
+
+        That needs an iso-line collapsed to a point.  At a clamped end, and
+        where a knot of full multiplicity makes the surface interpolate a row
+        of the net, the iso-line is the B-spline of that row, which is a point
+        only if the row's control points coincide.  True if some row or column
+        of the net does (within 1e-9 x bounding-box size); then
+        :func:`nagata_snap.cad.params.degenerate` evaluates the tangents.  (An
+        iso-line between rows collapses only if the blended rows coincide by
+        construction, which CAD surfaces do not do.)
+        """
+        cp = self.control_points
+        tol = CLOSED_RTOL * max(self._size, 1e-300)
+        along_u = np.ptp(cp, axis=0).max(axis=-1)  # (nv,): extent of each row of fixed j
+        along_v = np.ptp(cp, axis=1).max(axis=-1)  # (nu,)
+        return bool(along_u.min() <= tol or along_v.min() <= tol)
+
     @property
     def n_ctrl(self) -> tuple[int, int]:
         """``(nu, nv)`` control net size."""
