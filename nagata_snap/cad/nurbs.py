@@ -45,6 +45,7 @@ The end of the knot range is evaluated with the last non-empty span, so
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -349,11 +350,11 @@ class _Work:
 
     def get(self, name: str, shape: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
         """Contiguous ``shape`` array (its last axis at most :attr:`chunk` long)."""
-        size = int(np.prod(shape))
+        size = math.prod(shape)
         buf = self._bufs.get(name)
         if buf is None:
             full = (*shape[:-1], self.chunk)
-            buf = self._bufs[name] = np.empty(int(np.prod(full)), dtype=dtype)
+            buf = self._bufs[name] = np.empty(math.prod(full), dtype=dtype)
         return buf[:size].reshape(shape)
 
 
@@ -785,14 +786,20 @@ class NurbsSurface(_ControlNet):
         ch = self._pwT.shape[0]
         su = find_span(self.knots_u, p, nu, u, self._spans_u)
         sv = find_span(self.knots_v, q, nv, v, self._spans_v)
-        Nu = _basis_soa(self.knots_u, p, su, u, nderiv, work.get("Nu", (nderiv + 1, p + 1, kc)))
-        Nv = _basis_soa(self.knots_v, q, sv, v, nderiv, work.get("Nv", (nderiv + 1, q + 1, kc)))
+        if p == q:  # both directions in one pass over the degree: v on the knots after knots_u
+            nku = len(self.knots_u)
+            B = _basis_soa(self._knots_uv, p, np.concatenate([su, sv + nku]), np.concatenate([u, v]),
+                           nderiv, work.get("Nuv", (nderiv + 1, p + 1, 2, kc)).reshape(nderiv + 1, p + 1, 2 * kc))
+            Nu, Nv = B[:, :, :kc], B[:, :, kc:]
+        else:
+            Nu = _basis_soa(self.knots_u, p, su, u, nderiv, work.get("Nu", (nderiv + 1, p + 1, kc)))
+            Nv = _basis_soa(self.knots_v, q, sv, v, nderiv, work.get("Nv", (nderiv + 1, q + 1, kc)))
         su -= p
         su *= nv
         sv -= q
         su += sv  # flat index of the first control point of each point's (p+1) x (q+1) block
         flat = work.get("flat", (p + 1, q + 1, kc), np.int64)
-        np.add(self._block_offsets(), su, out=flat)
+        np.add(self._block_offsets, su, out=flat)
         L = np.take(self._pwT, flat, axis=1, out=work.get("L", (ch, p + 1, q + 1, kc)), mode="clip")
         # along v: T[b] = sum_j N^{(b)}_j(v) Pw_ij -> (nd+1, channels, p+1, kc)
         T = np.einsum("bjk,cijk->bcik", Nv, L, out=work.get("T", (nderiv + 1, ch, p + 1, kc)))
@@ -801,6 +808,12 @@ class NurbsSurface(_ControlNet):
             np.einsum("ik,cik->ck", Nu[a], T[b], out=H[n])
         return H
 
+    @cached_property
+    def _knots_uv(self) -> np.ndarray:
+        """``knots_u`` then ``knots_v``, one array (basis functions of both directions in one call)."""
+        return np.concatenate([self.knots_u, self.knots_v])
+
+    @cached_property
     def _block_offsets(self) -> np.ndarray:
         """``(p+1, q+1, 1)`` flat offsets ``i nv + j`` of a control block from its first point."""
         nv = self.n_ctrl[1]
