@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nagata_snap.mesh.arrays import best_per_group, dot, dot_last
+from nagata_snap.mesh.arrays import best_per_group, dot, dot_last, row_index
 
 
 def _best_by_loop(group, keys, n, mask):
@@ -43,3 +43,17 @@ def test_dot_products_match_sums():
     assert np.allclose(dot(a, b), expected)
     assert np.allclose(dot(list(a), list(b)), expected)
     assert np.allclose(dot_last(a.T, b.T), expected)
+
+
+@pytest.mark.parametrize("high", [3, 2**20, 2**21, 2**40])
+@pytest.mark.parametrize("dtype", [np.int64, np.int32, np.float64])
+def test_row_index_numbers_rows_in_lexicographic_order(high, dtype):
+    """Packed integer keys (narrow ids) and the generic path (wide ids, floats) agree with
+    sorting the distinct rows as tuples."""
+    rng = np.random.default_rng(high % 97)
+    rows = rng.integers(0, high, (300, 3))
+    rows[100:200] = rows[:100]  # repeated rows
+    rows[0, :] = high - 1  # the widest id present
+    rows = rows.astype(dtype)
+    ranked = {r: i for i, r in enumerate(sorted({tuple(r) for r in rows.tolist()}))}
+    assert np.array_equal(row_index(rows), [ranked[tuple(r)] for r in rows.tolist()])

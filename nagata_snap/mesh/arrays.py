@@ -86,10 +86,42 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def row_index(rows: np.ndarray) -> np.ndarray:
-    """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1``)."""
+    """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1`` in
+    the lexicographic order of the rows).
+
+    Rows of non-negative integers that fit are packed into one int64 key each
+    (the first column most significant, so the order is the same) and sorted
+    once; other rows go through :func:`unique_rows`.
+    """
     if len(rows) == 0:
         return np.zeros(0, dtype=np.int64)
-    return unique_rows(rows)[1].astype(np.int64, copy=False)
+    key = _packed(rows)
+    if key is None:
+        return unique_rows(rows)[1].astype(np.int64, copy=False)
+    order = np.argsort(key, kind="stable")
+    srt = key[order]
+    new = np.empty(len(srt), dtype=bool)
+    new[0] = True
+    np.not_equal(srt[1:], srt[:-1], out=new[1:])
+    ids = np.empty(len(srt), dtype=np.int64)
+    ids[order] = np.cumsum(new) - 1
+    return ids
+
+
+def _packed(rows: np.ndarray) -> np.ndarray | None:
+    """``(n,)`` int64 keys of integer ``rows (n, k)`` with ``k`` fields of equal width, or None
+    (not integers, negative, or too wide for 63 bits)."""
+    if rows.dtype.kind not in "iu" or rows.ndim != 2:
+        return None
+    lo, hi = int(rows.min()), int(rows.max())
+    bits = hi.bit_length()
+    if lo < 0 or bits * rows.shape[1] > 63:
+        return None
+    key = rows[:, 0].astype(np.int64)
+    for c in range(1, rows.shape[1]):  # loop over the columns
+        key <<= bits
+        key |= rows[:, c]
+    return key
 
 
 def ramp(counts: np.ndarray) -> np.ndarray:
