@@ -359,9 +359,8 @@ def seed_is_point(geo: CadGeometry, X: np.ndarray, ent: np.ndarray, seeds: np.nd
     One evaluation per point instead of a Newton projection: the parameters a
     mesher gives with its nodes are exact (gmsh evaluates the CAD at them).
     """
-    size = np.array([e.bbox_size for e in geo.entities])[ent]
     S = geo.evaluate(ent, seeds[:, None, :])[:, 0]
-    return np.linalg.norm(S - X, axis=1) <= SEED_RTOL * size
+    return np.linalg.norm(S - X, axis=1) <= SEED_RTOL * geo._sizes[ent]
 
 
 def edge_channels(keys: np.ndarray, allkeys: np.ndarray, nfv: int) -> np.ndarray:

@@ -118,6 +118,8 @@ class Line(_Curve):
         if n == 0:
             raise ValueError("line direction must be non-zero")
         self.direction = d / n
+        #: ``C = origin + t direction``: as :attr:`nagata_snap.cad.surfaces.Plane.affine`
+        self.affine = (self.origin, self.direction[None, :])
         super().__init__(t0, t1)
 
     def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:

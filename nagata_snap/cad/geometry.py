@@ -101,6 +101,7 @@ from nagata_snap.cad.projection import (
 )
 from nagata_snap.cad.trimming import TRIM_RTOL, TrimLoops
 from nagata_snap.geometry import PlaceReport
+from nagata_snap.mesh.arrays import Groups
 from nagata_snap.mesh.records import Records
 
 if TYPE_CHECKING:
@@ -208,6 +209,8 @@ class CadGeometry:
         self._period = np.array([entity_periods(e) for e in entities])
         #: ``(n_entities,)`` bool: closed-form projection (no seeds needed)
         self._analytic = np.array([is_analytic(e) for e in entities], dtype=bool)
+        #: ``(n_entities,)`` bounding-box diagonal of each entity (length units)
+        self._sizes = np.linalg.norm(self.searcher.bbox_hi - self.searcher.bbox_lo, axis=1)
         self.topology = CadTopology(model) if model is not None and self.param_dim == 2 else None
         #: channels per facet vertex in the records: the parameters, plus in 3D with
         #: topology the three CAD-edge channels
@@ -369,12 +372,13 @@ class CadGeometry:
         params = np.asarray(params, dtype=float)
         nf, nfv, _ = params.shape
         d = self.param_dim
+        g = Groups(root)
+        P = params[g.order][:, :, :d]
         out = np.empty((nf, nfv, 3))
-        for e in np.unique(root):  # loop over entities
-            sel = root == e
-            p = normalize_params(self.entities[e], params[sel][:, :, :d].reshape(-1, d))
-            out[sel] = evaluate_params(self.entities[e], p, 0).reshape(-1, nfv, 3)
-        return out
+        for e, sl in g:  # loop over entities
+            p = normalize_params(self.entities[e], P[sl].reshape(-1, d))
+            out[sl] = evaluate_params(self.entities[e], p, 0).reshape(-1, nfv, 3)
+        return g.unsort(out)
 
     def closest_point(self, points: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest point of each point on the (trimmed) faces: global search.

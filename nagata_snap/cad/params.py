@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from nagata_snap.cad.projection import evaluate_params, normalize_params
+from nagata_snap.mesh.arrays import Groups
 
 __all__ = ["DEGENERATE_RTOL", "unwrap", "degenerate", "contiguous", "unit_normals"]
 
@@ -42,16 +43,20 @@ def degenerate(entities: Sequence[Any], root: np.ndarray, params: np.ndarray) ->
     """``(n, d)`` bool: tangent ``dS/dp_a`` at ``params (n, d)`` of ``root (n,)`` vanishes (e.g. a pole)."""
     n, d = params.shape
     out = np.zeros((n, d), dtype=bool)
-    for e in np.unique(root):  # loop over entities
+    can = np.array([getattr(e, "can_degenerate", True) for e in entities])  # pole, apex, collapsed edge
+    rows = np.flatnonzero(can[root])
+    if not rows.size:
+        return out
+    g = Groups(root[rows])
+    P = params[rows[g.order]]
+    found = np.zeros((len(rows), d), dtype=bool)
+    for e, sl in g:  # loop over entities that have degenerate points
         ent = entities[e]
-        if not getattr(ent, "can_degenerate", True):  # no pole, apex or collapsed edge
-            continue
-        sel = np.flatnonzero(root == e)
-        p = normalize_params(ent, params[sel])
-        _, T = evaluate_params(ent, p, 1)
+        _, T = evaluate_params(ent, normalize_params(ent, P[sl]), 1)
         lengths = np.diff(ent.bounds, axis=1)[:, 0]  # (d,)
         thr = DEGENERATE_RTOL * ent.bbox_size / np.maximum(lengths, 1e-300)
-        out[sel] = np.linalg.norm(T, axis=2) <= thr[None, :]
+        found[sl] = np.linalg.norm(T, axis=2) <= thr[None, :]
+    out[rows] = g.unsort(found)
     return out
 
 
@@ -68,6 +73,8 @@ def contiguous(entities: Sequence[Any], periods: np.ndarray, root: np.ndarray, p
     if nf == 0:
         return params
     degen = degenerate(entities, np.repeat(root, nfv), params.reshape(-1, d)).reshape(nf, nfv, d)
+    if not (degen.any() or np.isfinite(periods[root]).any()):
+        return params.copy()  # no seam, no pole
     out = params.copy()
     rows = np.arange(nf)
     for a in range(d):  # loop over parameter directions

@@ -66,7 +66,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from nagata_snap.mesh.arrays import best_per_group, dot
+from nagata_snap.mesh.arrays import Groups, best_per_group, dot
 
 __all__ = [
     "ProjectionResult",
@@ -658,6 +658,47 @@ def project_points(
     return project_newton(entity, points, seeds, max_iter)
 
 
+class AffineBatch:
+    """Closest points on many affine entities at once (planes, line segments).
+
+    An entity with ``affine = (origin (3,), axes (d, 3))`` (orthonormal axes)
+    is ``S(p) = origin + p @ axes``; its closest point to ``X`` has ``p =
+    (X - origin) @ axes.T`` clamped to the entity's limits (a segment's ends).
+    The frames of all such entities are stacked once, so one projection call
+    serves the points of every plane (or line) of a part: no loop over them.
+
+    Args:
+        entities: all entities of a geometry (those without ``affine`` are not used).
+    """
+
+    def __init__(self, entities: Sequence[Entity]):
+        aff = [getattr(e, "affine", None) for e in entities]
+        self.has = np.array([a is not None for a in aff], dtype=bool)
+        d = entities[0].param_dim if entities else 1
+        self.origin = np.zeros((len(aff), 3))
+        self.axes = np.zeros((len(aff), d, 3))
+        self.limits = np.zeros((len(aff), d, 2))
+        for i, (e, a) in enumerate(zip(entities, aff, strict=True)):  # loop over entities, once
+            if a is not None:
+                self.origin[i], self.axes[i] = a
+                self.limits[i] = entity_limits(e)
+        self.clamped = bool(np.isfinite(self.limits[self.has]).any())
+
+    def closest(self, ent: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(params (n, d), foot points (n, 3), distances (n,))`` of ``X (n, 3)`` on the
+        affine entities ``ent (n,)``."""
+        ax = self.axes[ent]
+        q = X - self.origin[ent]
+        P = np.einsum("nc,ndc->nd", q, ax)
+        if self.clamped:
+            lim = self.limits[ent]
+            np.clip(P, lim[:, :, 0], lim[:, :, 1], out=P)
+        r = np.einsum("nd,ndc->nc", P, ax)
+        r -= q  # foot minus point
+        S = r + X
+        return P, S, np.sqrt(np.einsum("nc,nc->n", r, r))
+
+
 # ----------------------------------------------------------------------
 # sampling and global search
 # ----------------------------------------------------------------------
@@ -750,6 +791,7 @@ class GlobalSearcher:
         hi = np.array([e.bbox[1] for e in entities])
         self.bbox_lo, self.bbox_hi = lo, hi
         self.size = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
+        self.affine = AffineBatch(entities)
 
     def entity_samples(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """``(params (s, d), points (s, 3))``: the search grid of entity ``i`` (built once)."""
@@ -819,20 +861,28 @@ class GlobalSearcher:
             ``(params (n, d), proj (n, 3), dist (n,), iterations (n,), converged (n,))``.
         """
         max_iter = self.max_iter if max_iter is None else int(max_iter)
-        seeds = np.asarray(seeds, dtype=float).reshape(len(pt), self.param_dim)
         n = len(pt)
         d = self.param_dim
+        g = Groups(ent)
+        X = points[pt[g.order]]
+        S = np.asarray(seeds, dtype=float).reshape(n, d)[g.order]
         params = np.zeros((n, d))
         proj = np.zeros((n, 3))
         dist = np.full(n, np.inf)
         its = np.zeros(n, dtype=np.int64)
         conv = np.zeros(n, dtype=bool)
-        for e in np.unique(ent):  # loop over entities, vectorised inside
-            sel = np.flatnonzero(ent == e)
-            res = project_points(self.entities[e], points[pt[sel]], seeds[sel], max_iter)
-            params[sel] = res.params.reshape(len(sel), d)
-            proj[sel], dist[sel], its[sel], conv[sel] = res.points, res.distance, res.iterations, res.converged
-        return params, proj, dist, its, conv
+        aff = self.affine.has[ent[g.order]]
+        if aff.any():  # planes and segments: all at once
+            _check_finite(X[aff], "points")
+            params[aff], proj[aff], dist[aff] = self.affine.closest(ent[g.order][aff], X[aff])
+            conv[aff] = True
+        for e, sl in g:  # loop over the other entities, vectorised inside
+            if self.affine.has[e]:
+                continue
+            res = project_points(self.entities[e], X[sl], S[sl], max_iter)
+            params[sl] = res.params.reshape(-1, d)
+            proj[sl], dist[sl], its[sl], conv[sl] = res.points, res.distance, res.iterations, res.converged
+        return g.unsort(params), g.unsort(proj), g.unsort(dist), g.unsort(its), g.unsort(conv)
 
     def search(
         self,

@@ -10,6 +10,8 @@ Generic idioms (distinct rows, ramps, ragged lists) are in
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import numpy.typing as npt
 from scipy.sparse import coo_matrix
@@ -48,8 +50,15 @@ def longest_edge(x: np.ndarray) -> np.ndarray:
     """
     if x.shape[1] < 2:
         return np.zeros(x.shape[0])
-    i, j = np.triu_indices(x.shape[1], 1)
-    return np.linalg.norm(x[:, i] - x[:, j], axis=2).max(axis=1)
+    i, j = _pairs(x.shape[1])
+    e = x[:, i] - x[:, j]
+    return np.sqrt(np.einsum("fpc,fpc->fp", e, e).max(axis=1))
+
+
+@lru_cache(maxsize=8)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(i, j)`` of the vertex pairs ``i < j`` of ``n`` vertices."""
+    return np.triu_indices(n, 1)
 
 
 def vertex_groups(points: np.ndarray, radius: float, nodes: np.ndarray | None = None) -> np.ndarray:

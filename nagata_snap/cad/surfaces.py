@@ -356,6 +356,9 @@ class Plane(AnalyticSurface):
     def __init__(self, origin, x, y, z, bounds):
         super().__init__(origin, x, y, z, bounds)
         self._uv_axes = np.stack([self.X, self.Y])  # (2, 3)
+        #: ``S = origin + params @ axes`` with orthonormal ``axes (2, 3)``: projections
+        #: onto many planes at once (:class:`nagata_snap.cad.projection.AffineBatch`)
+        self.affine = (self.origin, self._uv_axes)
         self._uv_cols = np.ascontiguousarray(self._uv_axes.T)  # (3, 2): contiguous for BLAS
         self._uv_origin = self._uv_axes @ self.origin
         self._z_origin = float(self.Z @ self.origin)

@@ -11,6 +11,9 @@ array([1, 0, 1])
 array([0, 1, 0, 1, 2])
 >>> Ragged([[4, 5], [], [6]]).take(np.array([2, 0]))
 (array([1, 2]), array([6, 4, 5]))
+>>> g = Groups(np.array([7, 3, 7, 3, 3]))
+>>> [(key, g.order[rows].tolist()) for key, rows in g]
+[(3, [1, 3, 4]), (7, [0, 2])]
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["best_per_group", "dot", "dot_last", "unique_rows", "row_index", "ramp", "Ragged"]
+__all__ = ["best_per_group", "dot", "dot_last", "unique_rows", "row_index", "ramp", "Ragged", "Groups"]
 
 
 def best_per_group(
@@ -148,3 +151,35 @@ class Ragged:
         """``(counts (k,), values (counts.sum(),))``: the rows ``rows (k,)``, concatenated in order."""
         cnt = self.counts[rows]
         return cnt, self.flat[np.repeat(self.ptr[rows], cnt) + ramp(cnt)]
+
+
+class Groups:
+    """Rows with equal keys (e.g. the CAD entity of each point), contiguous after one sort.
+
+    ``order`` sorts the rows by key (stably); iterating gives each distinct key
+    with the ``slice`` of ``order`` that holds its rows.  A loop over the
+    groups then works on slices of arrays gathered once (``a[order]``)
+    instead of a mask and a gather per group, and :meth:`unsort` puts
+    results back in the input order.
+    """
+
+    def __init__(self, keys: np.ndarray):
+        keys = np.asarray(keys).reshape(-1)
+        self.order = np.argsort(keys, kind="stable")
+        srt = keys[self.order]
+        cut = np.flatnonzero(srt[1:] != srt[:-1]) + 1
+        self.keys = srt[np.concatenate([[0], cut])] if len(srt) else srt
+        self.bounds = np.concatenate([[0], cut, [len(srt)]]).tolist() if len(srt) else [0]
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def __iter__(self):
+        for i, key in enumerate(self.keys.tolist()):
+            yield key, slice(self.bounds[i], self.bounds[i + 1])
+
+    def unsort(self, a: np.ndarray) -> np.ndarray:
+        """Rows ``a (n, ...)`` in sorted order -> in the input order."""
+        out = np.empty_like(a)
+        out[self.order] = a
+        return out
