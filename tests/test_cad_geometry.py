@@ -535,3 +535,36 @@ def test_place_stages_recover_from_a_bad_seed_on_the_root_entity():
     m = merge(geo, s, p)  # one position per vertex: the same here
     np.testing.assert_allclose(p.proj, truth, rtol=0, atol=1e-12)
     assert m.n_edge == 0 and len(m.rep_of_group) == len(np.unique(facets.reshape(-1, 3).round(12), axis=0))
+
+
+def test_attach_keeps_exact_seeds_and_projects_inexact_ones():
+    """Seeds that are their vertex (a mesher's node parameters) are the vertex's parameters;
+    seeds a little off are projected by Newton to the same parameters; vertices moved off
+    the face (beyond its end) still fail the attach check, whatever their seeds."""
+    R, H = 0.7, 1.3
+    geo = CadGeometry([cylinder(np.zeros(3), R, H)])
+    rng = np.random.default_rng(5)
+    P = np.stack([rng.uniform(0.05, 0.45, (40, 3)), rng.uniform(0.1, 0.9, (40, 3))], axis=2)  # (nf, 3, 2)
+    facets = geo.evaluate(np.zeros(40, dtype=np.int64), P)
+    faces = np.zeros(40, dtype=np.int64)
+    exact = geo.attach(facets, faces=faces, seeds=P)
+    np.testing.assert_array_equal(exact.params[:, :, :2], P)
+    near = geo.attach(facets, faces=faces, seeds=P + rng.uniform(-1e-3, 1e-3, P.shape))
+    np.testing.assert_allclose(near.params[:, :, :2], P, rtol=0, atol=1e-12)
+    assert np.allclose(np.hypot(facets[..., 0], facets[..., 1]), R, rtol=1e-14)
+    with pytest.raises(CadError, match="do not lie on the CAD geometry"):
+        geo.attach(facets + [0.0, 0.0, 0.3 * H], faces=faces, seeds=P)
+
+
+def test_collapsed_rows_of_a_net_mark_surfaces_that_can_degenerate():
+    """A sphere's net collapses at the poles; a cylinder's and a torus' never do."""
+    from nagata_snap.cad.nurbs import torus
+    from nagata_snap.cad.params import degenerate
+
+    assert sphere().can_degenerate
+    assert not cylinder().can_degenerate and not torus().can_degenerate
+    s = sphere()
+    (u0, u1), (v0, v1) = s.domain_u, s.domain_v
+    at = np.array([[u0, 0.3 * v1], [0.5 * (u0 + u1), 0.3 * v1], [u1, 0.7 * v1]])
+    np.testing.assert_array_equal(degenerate([s], np.zeros(3, dtype=np.int64), at),
+                                  [[False, True], [False, False], [False, True]])

@@ -228,3 +228,38 @@ def test_closest_wraps_angles_into_the_face_box_and_matches_evaluation():
             assert np.all((P[:, 0] >= u0) & (P[:, 0] < u0 + 2 * np.pi + 1e-15))
             np.testing.assert_allclose(s._points(P[:, 0], P[:, 1]), S, rtol=0, atol=1e-14)
             np.testing.assert_allclose(np.linalg.norm(S - Xq, axis=1), d, rtol=0, atol=1e-14)
+
+
+def test_planes_and_segments_project_at_once_as_each_alone():
+    """``AffineBatch`` (all planes, or all segments, of a part in one call) gives OCC's
+    distances and the single-entity closed forms, with segment ends clamped."""
+    from nagata_snap.cad.projection import AffineBatch
+
+    rng = np.random.default_rng(4)
+    for kind, make, occ in (
+        ("plane", lambda o, e: Plane(o, e[0], e[1], e[2], [[-1, 1], [-1, 1]]),
+         lambda o, e: Geom_Plane(gp_Ax3(gp_Pnt(*o), gp_Dir(*e[2]), gp_Dir(*e[0])))),
+        ("line", lambda o, e: Line(o, e[2], -0.5, 1.5), None),
+    ):
+        frames = [np.linalg.qr(rng.normal(size=(3, 3)))[0].T for _ in range(4)]
+        origins = rng.normal(size=(4, 3))
+        ents = [make(o, f) for o, f in zip(origins, frames)]
+        batch = AffineBatch(ents)
+        which = rng.integers(0, 4, 400)
+        Xq = origins[which] + rng.normal(scale=2.0, size=(400, 3))
+        P, S, d = batch.closest(which, Xq)
+        for i, e in enumerate(ents):
+            sel = which == i
+            Pi, Si, di = e.closest(Xq[sel])
+            np.testing.assert_allclose(P[sel], Pi.reshape(P[sel].shape), rtol=0, atol=1e-14)
+            np.testing.assert_allclose(S[sel], Si, rtol=0, atol=1e-14)
+            np.testing.assert_allclose(d[sel], di, rtol=0, atol=1e-14)
+            if occ is not None:
+                np.testing.assert_allclose(d[sel], occ_project(occ(origins[i], frames[i]), Xq[sel])[1],
+                                           rtol=0, atol=1e-13)
+            else:
+                np.testing.assert_allclose(d[sel], occ_curve_project(
+                    Geom_Line(gp_Lin(gp_Pnt(*origins[i]), gp_Dir(*frames[i][2]))), -0.5, 1.5, Xq[sel]),
+                    rtol=0, atol=1e-13)
+        if kind == "line":
+            assert np.all((P >= -0.5) & (P <= 1.5)) and np.any(P == 1.5) and np.any(P == -0.5)
