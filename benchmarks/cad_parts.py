@@ -9,9 +9,10 @@ B-rep IGES) the script measures, side by side in one process:
   ``ReadFile`` + ``TransferRoots``); the ratio (target <= 2);
 * attach: ``CadGeometry.attach`` of the coarse gmsh mesh's boundary facets, per
   distinct boundary vertex, with gmsh's classification (``mesh_cad``: known
-  faces and (u, v) seeds; target < 20 us) and without (global search); best
-  of 3 calls each (the first call of a process also warms numpy's and the
-  CPU's caches: on the smallest parts it takes up to 2x longer);
+  faces and (u, v) seeds; target < 20 us; best of 3 calls: the first call
+  in a process also warms numpy's and the CPU's caches, and on the smallest
+  parts takes up to 2x longer) and without (global search; one call, which
+  includes building the search grid and its KD-tree);
 * place: the ``place`` stage of ``Snapper.refine`` per snapped point, two
   uniform levels;
 * snapping: after the two levels, every snapped vertex's distance from OCC's
@@ -103,22 +104,23 @@ def ours_read_seconds(path: str) -> float:
 
 
 def attach_timing(cm, geo) -> tuple[float, float, int]:
-    """us per distinct boundary vertex: attach with the mesh hints, and by global search."""
+    """us per distinct boundary vertex: attach with the mesh hints (best of 3), and by global
+    search (the first call)."""
     gids = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
     x = cm.mesh.geometry.x[cm.facets.nodes]
     nv = len(np.unique(gids))
 
-    def best_of_3() -> float:
+    def seconds(calls: int) -> float:
         best = np.inf
-        for _ in range(3):
+        for _ in range(calls):
             t0 = time.perf_counter()
             geo.attach(x, nodes=gids)
             best = min(best, time.perf_counter() - t0)
         return best
 
-    hinted = best_of_3()
+    hinted = seconds(3)
     hints, geo._hints = geo._hints, None
-    search = best_of_3()
+    search = seconds(1)
     geo._hints = hints
     return 1e6 * hinted / nv, 1e6 * search / nv, nv
 
