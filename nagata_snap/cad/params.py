@@ -75,23 +75,16 @@ def contiguous(entities: Sequence[Any], periods: np.ndarray, root: np.ndarray, p
     degen = degenerate(entities, np.repeat(root, nfv), params.reshape(-1, d)).reshape(nf, nfv, d)
     if not (degen.any() or np.isfinite(periods[root]).any()):
         return params.copy()  # no seam, no pole
-    out = params.copy()
-    rows = np.arange(nf)
-    for a in range(d):  # loop over parameter directions
-        good = ~degen[:, :, a]
-        refslot = np.argmax(good, axis=1)  # first non-degenerate slot (0 if none)
-        ref = out[rows, refslot, a]
-        per = periods[root, a]
-        closed = np.isfinite(per)
-        if closed.any():
-            pc = per[closed][:, None]
-            col = out[closed, :, a]
-            out[closed, :, a] = col + pc * np.round((ref[closed][:, None] - col) / pc)
-        cnt = good.sum(axis=1)
-        fix = degen[:, :, a] & (cnt > 0)[:, None]
-        if fix.any():
-            mean = np.where(good, out[:, :, a], 0.0).sum(axis=1) / np.maximum(cnt, 1)
-            out[:, :, a] = np.where(fix, mean[:, None], out[:, :, a])
+    good = ~degen
+    refslot = np.argmax(good, axis=1)  # (nf, d): first non-degenerate slot per direction (0 if none)
+    ref = np.take_along_axis(params, refslot[:, None, :], axis=1)[:, 0]
+    out = unwrap(periods, np.repeat(root, nfv), params.reshape(-1, d),
+                 np.repeat(ref, nfv, axis=0)).reshape(nf, nfv, d)
+    cnt = good.sum(axis=1)  # (nf, d)
+    fix = degen & (cnt > 0)[:, None, :]
+    if fix.any():
+        mean = np.where(good, out, 0.0).sum(axis=1) / np.maximum(cnt, 1)
+        out = np.where(fix, mean[:, None, :], out)
     return out
 
 
