@@ -118,9 +118,13 @@ class Line(_Curve):
         if n == 0:
             raise ValueError("line direction must be non-zero")
         self.direction = d / n
-        #: ``C = origin + t direction``: as :attr:`nagata_snap.cad.surfaces.Plane.affine`
-        self.affine = (self.origin, self.direction[None, :])
         super().__init__(t0, t1)
+
+    @property
+    def affine(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(origin (3,), axes (1, 3))``: ``C = origin + t direction``, as
+        :attr:`nagata_snap.cad.surfaces.Plane.affine`."""
+        return self.origin, self.direction[None, :]
 
     def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
         t = params[0]

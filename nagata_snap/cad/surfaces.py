@@ -356,12 +356,15 @@ class Plane(AnalyticSurface):
     def __init__(self, origin, x, y, z, bounds):
         super().__init__(origin, x, y, z, bounds)
         self._uv_axes = np.stack([self.X, self.Y])  # (2, 3)
-        #: ``S = origin + params @ axes`` with orthonormal ``axes (2, 3)``: projections
-        #: onto many planes at once (:class:`nagata_snap.cad.projection.AffineBatch`)
-        self.affine = (self.origin, self._uv_axes)
         self._uv_cols = np.ascontiguousarray(self._uv_axes.T)  # (3, 2): contiguous for BLAS
         self._uv_origin = self._uv_axes @ self.origin
         self._z_origin = float(self.Z @ self.origin)
+
+    @property
+    def affine(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(origin (3,), axes (2, 3))``: ``S = origin + params @ axes``, orthonormal axes
+        (projections onto many planes at once: :class:`nagata_snap.cad.projection.AffineBatch`)."""
+        return self.origin, np.stack([self.X, self.Y])
 
     def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The box of the parameter box's four corners (exact: the plane is linear in ``u, v``)."""
