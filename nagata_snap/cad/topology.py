@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nagata_snap.cad.curves import Circle, Line, analytic_curve
+from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface
 
@@ -325,6 +325,32 @@ def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: S
     return P, use, dev
 
 
+def _edge_curves(edges: Sequence[dict], path: str) -> list:
+    """The 3D curve of every edge description (None for degenerate edges): lines and circles
+    built together (:func:`~nagata_snap.cad.curves.analytic_curves`), B-splines one by one.
+
+    Raises:
+        ValueError: naming the first edge (in edge order) whose curve is invalid.
+    """
+    descs = [e["curve"] for e in edges]
+    ana = [i for i, c in enumerate(descs) if c is not None and c["type"] in ("line", "circle")]
+    out: list = [None] * len(descs)
+    try:
+        for i, c in zip(ana, analytic_curves([descs[i] for i in ana]), strict=True):
+            out[i] = c
+        for i, c in enumerate(descs):  # loop over B-spline edges
+            if c is not None and out[i] is None:
+                out[i] = nurbs_curve(c)
+    except (ValueError, NurbsError):  # the first invalid edge, built alone, names the error
+        for i, c in enumerate(descs):  # loop over edges (error path)
+            try:
+                None if c is None else (analytic_curve(c) if i in ana else nurbs_curve(c))
+            except (ValueError, NurbsError) as err:
+                raise ValueError(f"{path}: edge {i} ({c['type']} curve): {err}") from None
+        raise  # pragma: no cover - the batch failed, so one of them does
+    return out
+
+
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
     """The face's surface, and the map of the file's ``(u, v)`` to its parameters (or None)."""
     bounds = [[uv[0], uv[1]], [uv[2], uv[3]]]
@@ -517,17 +543,8 @@ class CadModel:
 
         t0 = time.perf_counter()
         path = data.get("path", "")
-        edges = []
-        for i, e in enumerate(data["edges"]):
-            c = e["curve"]
-            try:
-                curve = None if c is None else (
-                    analytic_curve(c) if c["type"] in ("line", "circle") else nurbs_curve(c))
-            except (ValueError, NurbsError) as err:
-                raise ValueError(f"{path}: edge {i} ({c['type']} curve): {err}") from None
-            v0, v1 = e["vertices"]
-            edges.append(Edge(curve, (int(v0), int(v1)), (),
-                              float(e.get("tolerance", 0.0))))
+        edges = [Edge(curve, (int(e["vertices"][0]), int(e["vertices"][1])), (), float(e.get("tolerance", 0.0)))
+                 for e, curve in zip(data["edges"], _edge_curves(data["edges"], path), strict=True)]
         tol = np.array([e.tolerance for e in edges] + [0.0])
         fdata = data["faces"]
         surfaces, maps = [], []
