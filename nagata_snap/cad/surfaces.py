@@ -36,14 +36,17 @@ taken); evaluation is not clamped to it: the surface extends beyond its face.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface"]
+__all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface",
+           "fill_boxes"]
 
 TWO_PI = 2.0 * np.pi
+#: samples per direction of the grid whose box (plus its sagitta) is a curved face's bounding box
+BOX_GRID = 17
 
 
 def _positive(value, what: str) -> float:
@@ -146,20 +149,24 @@ class AnalyticSurface:
         self._frame = np.stack([c * self.X + sn * self.Y, c * self.Y - sn * self.X, self.Z])
         self._o_local = self._frame @ self.origin
         self._frame4 = np.vstack([self._frame, self.origin])  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
-        self._box = None
+        #: ``(lo, hi, diagonal)`` of :attr:`bbox`, computed on first use (:func:`fill_boxes`)
+        self._box: tuple[np.ndarray, np.ndarray, float] | None = None
 
     @property
     def bbox(self) -> tuple[np.ndarray, np.ndarray]:
         """``(lo, hi)`` box of the face's parameter box (grid samples plus their sagitta)."""
         if self._box is None:
-            self._box = self._sample_box()
-        return self._box
+            fill_boxes([self])
+        assert self._box is not None
+        return self._box[0], self._box[1]
 
     @property
     def bbox_size(self) -> float:
         """Diagonal of :attr:`bbox` (length units)."""
-        lo, hi = self.bbox
-        return float(np.linalg.norm(hi - lo))
+        if self._box is None:
+            fill_boxes([self])
+        assert self._box is not None
+        return self._box[2]
 
     # -- protocol ------------------------------------------------------
     closed = (False, False)
@@ -186,15 +193,32 @@ class AnalyticSurface:
 
     _curved = (False, False)
 
-    def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """Bounding box of the face's parameter box (grid samples plus their sagitta)."""
-        (u0, u1), (v0, v1) = self.bounds
-        u = np.linspace(u0, u1, 17)
-        v = np.linspace(v0, v1, 17)
-        uu, vv = np.meshgrid(u, v, indexing="ij")
-        S = self._points(uu.ravel(), vv.ravel())
-        pad = self._sagitta(u[1] - u[0], v[1] - v[0])
-        return S.min(axis=0) - pad, S.max(axis=0) + pad
+    #: the scalar fields :meth:`_local` reads (besides the frame), per class
+    _shape_fields: tuple[str, ...] = ()
+
+    @classmethod
+    def _sample_boxes(cls, surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)``, each ``(k, 3)``: boxes of the parameter boxes of ``k`` surfaces of this
+        class, the points of a :data:`BOX_GRID` x :data:`BOX_GRID` grid widened by their sagitta.
+
+        The grids are evaluated together: :meth:`_local` of one surface whose shape fields
+        are per-point arrays, :func:`_to_global` with per-point frames (both are elementwise,
+        so each point is what its own surface's :meth:`_eval_soa` gives).
+        """
+        k, g = len(surfaces), BOX_GRID
+        B = np.array([sf.bounds for sf in surfaces])
+        u, v = _grid_lines(B[:, 0], g), _grid_lines(B[:, 1], g)  # (k, g) each
+        U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
+        stack = cls.__new__(cls)
+        for name in cls._shape_fields:
+            setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces], g * g))
+        c, sn = np.cos(U), np.sin(U)
+        frame = (np.repeat(np.array([getattr(sf, a) for sf in surfaces]).T, g * g, axis=1)  # (3, k g^2)
+                 for a in ("X", "Y", "Z", "origin"))
+        S = _to_global(stack._local(U, V, c, sn, 0), c, sn, *frame)[0].reshape(3, k, g * g)
+        pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
+                        zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
+        return S.min(axis=2).T - pad, S.max(axis=2).T + pad
 
     def _sagitta(self, du: float, dv: float) -> float:
         return 0.0
@@ -208,12 +232,7 @@ class AnalyticSurface:
         u, v = params[0], params[1]
         c, s = np.cos(u), np.sin(u)
         local = self._local(u, v, c, s, nderiv)  # (nd, 3, k) in the (e, e', Z) basis
-        # e = c X + s Y, e' = -s X + c Y
-        E = c[None, :, None] * self.X + s[None, :, None] * self.Y  # (1, k, 3)
-        Ep = -s[None, :, None] * self.X + c[None, :, None] * self.Y
-        out = local[:, 0, :, None] * E + local[:, 1, :, None] * Ep + local[:, 2, :, None] * self.Z
-        out[0] += self.origin
-        return out.transpose(0, 2, 1)
+        return _to_global(local, c, s, self.X[:, None], self.Y[:, None], self.Z[:, None], self.origin[:, None])
 
     def _points(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         return self._eval_soa(np.stack([u, v]), 0)[0].T
@@ -360,11 +379,15 @@ class Plane(AnalyticSurface):
         self._uv_origin = self._uv_axes @ self.origin
         self._z_origin = float(self.Z @ self.origin)
 
-    def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """The box of the parameter box's four corners (exact: the plane is linear in ``u, v``)."""
-        (u0, u1), (v0, v1) = self.bounds
-        S = self._points(np.array([u0, u0, u1, u1]), np.array([v0, v1, v0, v1]))
-        return S.min(axis=0), S.max(axis=0)
+    @classmethod
+    def _sample_boxes(cls, surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
+        """The boxes of the parameter boxes' four corners ``O + u X + v Y`` (exact: the plane is
+        linear in ``u, v``), ``(lo, hi)`` each ``(k, 3)``."""
+        B = np.array([sf.bounds for sf in surfaces])  # (k, 2, 2)
+        u, v = B[:, 0][:, [0, 0, 1, 1], None], B[:, 1][:, [0, 1, 0, 1], None]  # (k, 4, 1)
+        O, X, Y = (np.array([getattr(sf, a) for sf in surfaces])[:, None] for a in ("origin", "X", "Y"))
+        S = O + X * u + Y * v
+        return S.min(axis=1), S.max(axis=1)
 
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)
@@ -379,6 +402,7 @@ class Cylinder(AnalyticSurface):
     can_degenerate = False
     closed = (True, False)
     _curved = (True, False)
+    _shape_fields = ("radius",)
 
     def __init__(self, origin, x, y, z, radius, bounds):
         self.radius = _positive(radius, "cylinder radius")
@@ -417,6 +441,7 @@ class Cone(AnalyticSurface):
     kind = "cone"
     closed = (True, False)
     _curved = (True, False)
+    _shape_fields = ("radius", "sin", "cos")
 
     def __init__(self, origin, x, y, z, radius, semi_angle, bounds):
         self.radius = float(radius)
@@ -511,6 +536,7 @@ class Sphere(AnalyticSurface):
     kind = "sphere"
     closed = (True, False)
     _curved = (True, True)
+    _shape_fields = ("radius",)
     limits = np.array([[-np.inf, np.inf], [-np.pi / 2, np.pi / 2]])
 
     def __init__(self, origin, x, y, z, radius, bounds):
@@ -568,6 +594,7 @@ class Torus(AnalyticSurface):
     kind = "torus"
     closed = (True, True)
     _curved = (True, True)
+    _shape_fields = ("major", "minor")
 
     def __init__(self, origin, x, y, z, major, minor, bounds):
         self.major = _positive(major, "torus major radius")
@@ -621,6 +648,43 @@ class Torus(AnalyticSurface):
         sign = np.sign(self.major + self.minor * np.cos(v))
         sign = np.where(sign == 0, 1.0, sign)
         return sign * np.cos(v), sign * np.sin(v)
+
+
+def _to_global(local: np.ndarray, c: np.ndarray, s: np.ndarray, X: np.ndarray, Y: np.ndarray, Z: np.ndarray,
+               O: np.ndarray) -> np.ndarray:
+    """``(nd, 3, k)`` points and derivatives of a surface of revolution in the global frame.
+
+    ``local (nd, 3, k)``: their components along ``e(u) = c X + s Y``, ``e'(u) = -s X + c Y``
+    and ``Z`` (:meth:`AnalyticSurface._local`), ``c, s = cos u, sin u (k,)``; the frame
+    ``X, Y, Z`` and the origin ``O`` are ``(3, 1)`` (one surface) or ``(3, k)`` (one per point).
+    """
+    E = c * X + s * Y  # (3, k)
+    Ep = -s * X + c * Y
+    out = local[:, 0, None] * E + local[:, 1, None] * Ep + local[:, 2, None] * Z
+    out[0] += O
+    return out
+
+
+def _grid_lines(b: np.ndarray, n: int) -> np.ndarray:
+    """``(k, n)``: ``np.linspace(b[i, 0], b[i, 1], n)`` for each row of ``b (k, 2)``, to the last bit
+    (numpy's array ``linspace`` takes another formula for every row if one row is empty)."""
+    if np.all(b[:, 1] != b[:, 0]):
+        return np.linspace(b[:, 0], b[:, 1], n, axis=1)
+    return np.array([np.linspace(lo, hi, n) for lo, hi in b]).reshape(-1, n)
+
+
+def fill_boxes(surfaces: Sequence) -> None:
+    """Compute the bounding boxes of the analytic surfaces among ``surfaces`` that have none yet,
+    those of a class together (:meth:`AnalyticSurface._sample_boxes`); others are skipped."""
+    todo: dict[type, list[AnalyticSurface]] = {}
+    for sf in surfaces:  # loop over surfaces (grouping by class)
+        if isinstance(sf, AnalyticSurface) and sf._box is None:
+            todo.setdefault(type(sf), []).append(sf)
+    for cls, group in todo.items():
+        lo, hi = cls._sample_boxes(group)
+        size = np.sqrt(np.vecdot(hi - lo, hi - lo))  # = np.linalg.norm of each row, to the last bit
+        for sf, a, b, d in zip(group, lo, hi, size.tolist(), strict=True):
+            sf._box = (a, b, d)
 
 
 def analytic_surface(desc: dict, bounds) -> AnalyticSurface:

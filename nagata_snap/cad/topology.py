@@ -33,7 +33,7 @@ import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
-from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface
+from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface, fill_boxes
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 
@@ -429,6 +429,7 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
             wires.append((i, bool(w["outer"])))
     face_a = np.array(face, dtype=np.int64)
     f = _PCurves(descs, face_a, uv_maps)
+    fill_boxes(surfaces)  # the analytic faces' boxes, those of a kind together
     tols = SAMPLE_RTOL * np.array([s.bbox_size for s in surfaces])
     P, use, dev = _refine(f, f.initial(descs), np.array(rev, dtype=bool), surfaces, tols)
     keep = np.zeros(len(use), dtype=bool)  # a use's last point starts the next use
