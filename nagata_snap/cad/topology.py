@@ -114,9 +114,7 @@ class Face:
 
 def nurbs_curve(desc: dict) -> NurbsCurve:
     """A :class:`NurbsCurve` from a B-spline description (2D poles get z = 0)."""
-    poles = np.asarray(desc["poles"], dtype=float)
-    if poles.shape[1] == 2:
-        poles = np.c_[poles, np.zeros(len(poles))]
+    poles = np.asarray(desc["poles"], dtype=float)  # (n, 2) poles get z = 0 (NurbsCurve)
     w = desc.get("weights")
     return NurbsCurve(int(desc["degree"]), np.asarray(desc["knots"], dtype=float), poles,
                       np.ones(len(poles)) if w is None else np.asarray(w, dtype=float))
@@ -304,9 +302,12 @@ def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: S
     t = np.concatenate(ts) if ts else np.zeros(0)
     P = f(t, use)
     dev = np.nan_to_num(done, nan=0.0)[use]
-    active = (f.kind != 0) & np.isnan(done)  # lines: the chord is the curve
+    # segments (by their first point) to test: first those of the curved uses (lines: the
+    # chord is the curve), then the halves of the segments split (a segment kept keeps its
+    # deviation: testing it again would give the same)
+    fresh = ((f.kind != 0) & np.isnan(done))[use]
     for it in range(MAX_REFINE + 1):
-        k = np.flatnonzero((use[:-1] == use[1:]) & active[use[:-1]])
+        k = np.flatnonzero((use[:-1] == use[1:]) & fresh[:-1])
         if k.size == 0:
             break
         tm, um = 0.5 * (t[k] + t[k + 1]), use[k]
@@ -317,11 +318,12 @@ def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: S
         split = d > tols[f.face[um]]
         if it == MAX_REFINE or not split.any():
             break
-        active = np.zeros(len(active), dtype=bool)
-        active[um[split]] = True
         at = k[split] + 1  # the midpoints go between their segment's ends
         t, use = np.insert(t, at, tm[split]), np.insert(use, at, um[split])
         P, dev = np.insert(P, at, Pm[split], axis=0), np.insert(dev, at, 0.0)
+        fresh = np.zeros(len(t), dtype=bool)
+        new = at + np.arange(len(at))  # where the midpoints are now
+        fresh[new] = fresh[new - 1] = True
     return P, use, dev
 
 
