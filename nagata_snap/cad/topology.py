@@ -34,6 +34,7 @@ import numpy as np
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface, fill_boxes
+from nagata_snap.mesh.arrays import ramp
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 
@@ -153,41 +154,44 @@ class _PCurves:
 
     def __init__(self, descs: Sequence[dict], face: np.ndarray, uv_maps: Sequence[np.ndarray | None]):
         n = len(descs)
-        self.kind = np.array([_KINDS.get(d["type"], 2) for d in descs], dtype=np.int64)
+        kinds = [_KINDS.get(d["type"], 2) for d in descs]
+        self.kind = np.array(kinds, dtype=np.int64)
         self.A, self.B, self.C = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2))
         self.R = np.zeros(n)
         self.splines: dict[int, NurbsCurve] = {}
         self.face = np.asarray(face, dtype=np.int64)
-        for j, d in enumerate(descs):  # loop over edge uses (coefficients)
-            if self.kind[j] == 0:
-                self.A[j], self.B[j] = d["origin"], d["direction"]
-            elif self.kind[j] == 1:
-                self.A[j], self.B[j], self.C[j], self.R[j] = d["center"], d["x"], d["y"], d["radius"]
-            else:
+        for kind, names in ((0, ("origin", "direction")), (1, ("center", "x", "y"))):
+            sel = [j for j, k in enumerate(kinds) if k == kind]
+            if sel:
+                for arr, name in zip((self.A, self.B, self.C), names):
+                    arr[sel] = [descs[j][name] for j in sel]
+                if kind == 1:
+                    self.R[sel] = [descs[j]["radius"] for j in sel]
+        for j, k in enumerate(kinds):  # loop over edge uses (B-spline p-curves)
+            if k == 2:
                 try:
-                    self.splines[j] = nurbs_curve(d)
+                    self.splines[j] = nurbs_curve(descs[j])
                 except (ValueError, NurbsError) as err:
                     raise _FaceError(int(self.face[j]), str(err)) from None
         maps = [np.eye(3)[:, :2] if m is None else np.asarray(m, dtype=float) for m in uv_maps]
         self.M = np.array(maps).reshape(-1, 3, 2)
         self.mapped = np.array([m is not None for m in uv_maps] + [False], dtype=bool)[self.face]
 
-    def initial(self, descs: Sequence[dict]) -> list[np.ndarray]:
+    def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
         :data:`SPLINE_SAMPLES` per knot span (B-spline)."""
-        out = []
-        for j, d in enumerate(descs):  # loop over edge uses (first samples)
-            t0, t1 = d["range"]
-            if self.kind[j] == 0:
-                out.append(np.array([t0, t1], dtype=float))
-            elif self.kind[j] == 1:
-                out.append(np.linspace(t0, t1, max(2, int(np.ceil(abs(t1 - t0) / CIRCLE_STEP))) + 1))
-            else:
-                k = np.unique(self.splines[j].knots)
-                k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
-                s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
-                out.append(np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]]))
-        return out
+        rng = np.array([d["range"] for d in descs], dtype=float).reshape(-1, 2)
+        steps = np.ones(len(descs), dtype=np.int64)
+        c = self.kind == 1
+        steps[c] = np.maximum(2, np.ceil(np.abs(rng[c, 1] - rng[c, 0]) / CIRCLE_STEP).astype(np.int64))
+        splines = {}
+        for j, curve in self.splines.items():  # loop over B-spline p-curves
+            t0, t1 = rng[j]
+            k = np.unique(curve.knots)
+            k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
+            s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+            splines[j] = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
+        return _Samples(rng, steps, splines)
 
     def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
@@ -211,6 +215,38 @@ class _PCurves:
 
 #: p-curve types evaluated in closed form (the rest: B-splines)
 _KINDS = {"line": 0, "circle": 1}
+
+
+@dataclass
+class _Samples:
+    """First samples of edge uses: ``steps[j]`` uniform steps over ``range[j] (2,)`` (lines and
+    circles; as ``np.linspace(*range[j], steps[j] + 1)``), or, for B-spline uses, ``splines[j]``."""
+
+    range: np.ndarray
+    steps: np.ndarray
+    splines: dict[int, np.ndarray]
+
+    def flat(self, reverses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(t (N,), use (N,))``: every use's samples, grouped by use, each in traversal order
+        (backwards where ``reverses``); the uniform ones all at once, to the last bit
+        ``linspace``'s (``i step + t0``, the last ``t1``; a line's ends are its range)."""
+        cnt = self.steps + 1
+        for j, t in self.splines.items():  # loop over B-spline uses (their counts)
+            cnt[j] = len(t)
+        use = np.repeat(np.arange(len(cnt)), cnt)
+        i = ramp(cnt)
+        t0, t1 = self.range[:, 0], self.range[:, 1]
+        t = i * ((t1 - t0) / self.steps)[use] + t0[use]
+        end = np.cumsum(cnt)
+        t[end - 1] = t1
+        line = self.steps == 1
+        t[(end - cnt)[line]] = t0[line]
+        for j, tj in self.splines.items():  # loop over B-spline uses (their samples)
+            t[end[j] - cnt[j]:end[j]] = tj
+        r = reverses[use]
+        pos = np.arange(len(t))
+        pos[r] = (2 * (end - cnt) + cnt - 1)[use[r]] - pos[r]  # start + (count - 1 - i)
+        return t[pos], use
 
 
 class _Metric:
@@ -246,8 +282,7 @@ class _Metric:
         return dev
 
 
-def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols: np.ndarray
-                       ) -> tuple[list[np.ndarray], np.ndarray]:
+def _circles_on_planes(f: _PCurves, first: _Samples, metric: _Metric, tols: np.ndarray) -> np.ndarray:
     """Circular p-curves on (unmapped) planes sampled at once to their final step.
 
     On a plane the metric is the identity (orthonormal ``X``, ``Y``) and every
@@ -257,15 +292,15 @@ def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols:
     :data:`MAX_REFINE`) that brings the sagitta within the face's tolerance.
 
     Returns:
-        ``(ts, dev (n_uses,))``: the samples (those circles' replaced) and their
-        chords' deviation (NaN for the uses still to refine).
+        ``dev (n_uses,)``: those circles' chords' deviation (NaN for the uses still to
+        refine); their steps in ``first`` are multiplied.
     """
-    done = np.full(len(ts), np.nan)
+    done = np.full(len(first.steps), np.nan)
     sel = np.flatnonzero((f.kind == 1) & metric.plane[f.face] & ~f.mapped)
     if sel.size == 0:
-        return ts, done
-    n0 = np.array([len(ts[j]) - 1 for j in sel])
-    t0, t1 = np.array([ts[j][0] for j in sel]), np.array([ts[j][-1] for j in sel])
+        return done
+    n0 = first.steps[sel]
+    t0, t1 = first.range[sel, 0], first.range[sel, 1]
     dt0 = np.abs(t1 - t0) / n0
     R, tol = np.abs(f.R[sel]), tols[f.face[sel]]
     h = np.zeros(sel.size, dtype=np.int64)
@@ -274,14 +309,12 @@ def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols:
         if not more.any():
             break
         h += more
-    ts = list(ts)
-    for j, a, b, n in zip(sel, t0, t1, n0 * 2 ** h, strict=True):  # loop over those circles
-        ts[j] = np.linspace(a, b, n + 1)
+    first.steps[sel] = n0 * 2 ** h
     done[sel] = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h))
-    return ts, done
+    return done
 
 
-def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: Sequence,
+def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequence,
             tols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample every use's p-curve and refine its chords until within its face's tolerance.
 
@@ -296,10 +329,8 @@ def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: S
         (0 for lines; meaningless at a use's last point).
     """
     metric = _Metric(surfaces)
-    ts, done = _circles_on_planes(f, ts, metric, tols)
-    ts = [t[::-1] if r else t for t, r in zip(ts, reverses, strict=True)]  # traversal order
-    use = np.repeat(np.arange(len(ts)), [len(t) for t in ts])
-    t = np.concatenate(ts) if ts else np.zeros(0)
+    done = _circles_on_planes(f, first, metric, tols)
+    t, use = first.flat(reverses)
     P = f(t, use)
     dev = np.nan_to_num(done, nan=0.0)[use]
     # segments (by their first point) to test: first those of the curved uses (lines: the
