@@ -350,11 +350,11 @@ def _recognised(face, size: float) -> dict | None:
     points there (``"samples"``), to which :mod:`nagata_snap.cad.topology`
     fits the parameter map.
     """
-    from OCP.BRep import BRep_Tool
-    from OCP.BRepTools import BRepTools
     from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
+    from OCP.gp import gp_Pnt
 
-    geo = BRep_Tool.Surface_s(face)  # with the face's location applied
+    o = _occ()
+    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
     try:
         conv = GeomConvert_SurfToAnaSurf(geo)
         ana = conv.ConvertToAnalytical(1e-9 * size)
@@ -363,11 +363,15 @@ def _recognised(face, size: float) -> dict | None:
     desc = None if ana is None else _elementary(ana)
     if desc is None or not conv.Gap() <= 1e-9 * size:
         return None
-    u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+    u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
     uu, vv = np.meshgrid(np.linspace(u0, u1, MAP_SAMPLES), np.linspace(v0, v1, MAP_SAMPLES),
                          indexing="ij")
     uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
-    desc["samples"] = (uv, np.array([_xyz(geo.Value(u, v)) for u, v in uv]))
+    p, xyz = gp_Pnt(), []
+    for u, v in uv.tolist():  # loop over the samples (one OCC evaluation each, into one point)
+        geo.D0(u, v, p)
+        xyz.append(p.Coord())
+    desc["samples"] = (uv, np.array(xyz))
     return desc
 
 
