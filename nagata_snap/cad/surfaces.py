@@ -56,12 +56,15 @@ def _positive(value, what: str) -> float:
     return v
 
 
-def _unit(v: npt.ArrayLike, what: str) -> np.ndarray:
-    a = np.asarray(v, dtype=float).reshape(3)
-    n = np.linalg.norm(a)
-    if not np.isfinite(n) or n == 0.0:
-        raise ValueError(f"{what} must be a finite non-zero vector, got {a.tolist()}")
-    return a / n
+def _units(vectors: Sequence[npt.ArrayLike], names: str) -> np.ndarray:
+    """``(k, 3)``: the 3-vectors ``vectors`` normalised (``names[i]`` names vector ``i`` in the error)."""
+    a = np.stack([np.asarray(v, dtype=float).reshape(3) for v in vectors])
+    n = np.sqrt(np.vecdot(a, a))  # = np.linalg.norm of each row, to the last bit
+    bad = ~np.isfinite(n) | (n == 0.0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"{names[i]} must be a finite non-zero vector, got {a[i].tolist()}")
+    return a / n[:, None]
 
 
 def _norm2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -130,15 +133,16 @@ class AnalyticSurface:
 
     def __init__(self, origin, x, y, z, bounds):
         self.origin = np.asarray(origin, dtype=float).reshape(3)
-        self.X, self.Y, self.Z = _unit(x, "x"), _unit(y, "y"), _unit(z, "z")
-        if not np.all(np.isfinite(self.origin)):
+        axes = _units((x, y, z), "xyz")
+        self.X, self.Y, self.Z = axes
+        if not np.isfinite(self.origin).all():
             raise ValueError(f"origin must be finite, got {self.origin.tolist()}")
         #: +1 for a right-handed frame, -1 for a left-handed one
-        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = self.X.tolist(), self.Y.tolist(), self.Z.tolist()
+        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = axes.tolist()
         triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
         self.hand = 1.0 if triple > 0 else -1.0
         b = np.asarray(bounds, dtype=float).reshape(2, 2)
-        if not np.all(np.isfinite(b)) or np.any(b[:, 1] < b[:, 0]):
+        if not np.isfinite(b).all() or (b[:, 1] < b[:, 0]).any():
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
         self.bounds = b
         #: closest points measure the angle from e(u0 + pi): atan2 then lands in
@@ -148,7 +152,7 @@ class AnalyticSurface:
         # (3, 3) rows e(shift), e'(shift), Z: the local frame of :meth:`_coords`
         self._frame = np.stack([c * self.X + sn * self.Y, c * self.Y - sn * self.X, self.Z])
         self._o_local = self._frame @ self.origin
-        self._frame4 = np.vstack([self._frame, self.origin])  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
+        self._frame4 = np.concatenate([self._frame, self.origin[None]])  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
         #: ``(lo, hi, diagonal)`` of :attr:`bbox`, computed on first use (:func:`fill_boxes`)
         self._box: tuple[np.ndarray, np.ndarray, float] | None = None
 
