@@ -80,7 +80,6 @@ def _occ() -> SimpleNamespace:
     compared there (comparing pybind11 enums costs several times more than their ints)."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d, BRepAdaptor_Surface
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
     from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
     from OCP.Geom import Geom_TrimmedCurve
     from OCP.Geom2d import Geom2d_TrimmedCurve
@@ -94,7 +93,7 @@ def _occ() -> SimpleNamespace:
 
     return SimpleNamespace(
         BRep_Tool=BRep_Tool, BRepAdaptor_Curve=BRepAdaptor_Curve, BRepAdaptor_Curve2d=BRepAdaptor_Curve2d,
-        BRepAdaptor_Surface=BRepAdaptor_Surface, BRepBuilderAPI_NurbsConvert=BRepBuilderAPI_NurbsConvert,
+        BRepAdaptor_Surface=BRepAdaptor_Surface,
         BRepTools=BRepTools, BRepTools_WireExplorer=BRepTools_WireExplorer,
         Geom_TrimmedCurve=Geom_TrimmedCurve, Geom2d_TrimmedCurve=Geom2d_TrimmedCurve,
         Geom2dConvert=Geom2dConvert, GeomConvert=GeomConvert, TopExp=TopExp, TopExp_Explorer=TopExp_Explorer,
@@ -480,9 +479,11 @@ def _face(face, index: int, edge_map, size: float) -> dict:
     o = _occ()
     surface, convert = _surface(face, size)
     pface, edge_of = face, (lambda e: e)
-    if convert:
+    if convert:  # (rare: the class is imported here)
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+
         try:
-            conv = o.BRepBuilderAPI_NurbsConvert(face, True)
+            conv = BRepBuilderAPI_NurbsConvert(face, True)
             pface = o.TopoDS.Face(conv.Shape())
             surface, convert_again = _surface(pface, size)
             if convert_again:
