@@ -320,7 +320,11 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
 
     Segments whose mid-parameter point is farther than ``tols[face]`` from the
     chord's midpoint (:class:`_Metric`) are split, up to :data:`MAX_REFINE`
-    times; all uses of all faces are refined together.
+    times; all uses of all faces are refined together.  Only the halves of the
+    segments split are tested again (a segment kept keeps its deviation), and one
+    evaluation tests two levels: each segment's midpoint and the midpoints of its
+    two halves, whose tests count only where the segment is split (the same
+    points and decisions as level by level, in half the calls).
 
     Returns:
         ``(P (N, 2), use (N,), dev (N,))``: the samples of every use in
@@ -333,29 +337,57 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     t, use = first.flat(reverses)
     P = f(t, use)
     dev = np.nan_to_num(done, nan=0.0)[use]
-    # segments (by their first point) to test: first those of the curved uses (lines: the
-    # chord is the curve), then the halves of the segments split (a segment kept keeps its
-    # deviation: testing it again would give the same)
-    fresh = ((f.kind != 0) & np.isnan(done))[use]
-    for it in range(MAX_REFINE + 1):
+    fresh = ((f.kind != 0) & np.isnan(done))[use]  # segments (by their first point) to test
+    it = 0  # refinement level of the segments tested
+    while it <= MAX_REFINE:
         k = np.flatnonzero((use[:-1] == use[1:]) & fresh[:-1])
         if k.size == 0:
             break
-        tm, um = 0.5 * (t[k] + t[k + 1]), use[k]
-        mid = 0.5 * (P[k] + P[k + 1])
-        Pm = f(tm, um)
-        d = metric(Pm - mid, mid, f.face[um])
+        two = it < MAX_REFINE  # the halves' level is within the refinement limit
+        um = use[k]
+        fm = f.face[um]
+        Pa, Pb = P[k], P[k + 1]
+        tm = 0.5 * (t[k] + t[k + 1])
+        if two:  # midpoints, then the midpoints of both halves, interleaved (uses stay sorted)
+            tq = np.stack([tm, 0.5 * (t[k] + tm), 0.5 * (tm + t[k + 1])], axis=1)
+            Pq = f(tq.ravel(), np.repeat(um, 3)).reshape(-1, 3, 2)
+            Pm = Pq[:, 0]
+            mids = np.stack([0.5 * (Pa + Pb), 0.5 * (Pa + Pm), 0.5 * (Pm + Pb)], axis=1)
+            dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), np.repeat(fm, 3)).reshape(-1, 3)
+            d = dq[:, 0]
+        else:
+            mid = 0.5 * (Pa + Pb)
+            Pm = f(tm, um)
+            d = metric(Pm - mid, mid, fm)
         dev[k] = d
-        split = d > tols[f.face[um]]
+        split = d > tols[fm]
         if it == MAX_REFINE or not split.any():
             break
-        at = k[split] + 1  # the midpoints go between their segment's ends
-        t, use = np.insert(t, at, tm[split]), np.insert(use, at, um[split])
-        P, dev = np.insert(P, at, Pm[split], axis=0), np.insert(dev, at, 0.0)
+        sel = np.flatnonzero(split)
+        t, use, P, dev, new = _split(t, use, P, dev, k[sel], tm[sel], Pm[sel])
+        it += 1
+        if two:  # the halves' tests, done: their deviations, then their splits
+            halves = np.stack([new - 1, new], axis=1)  # (n, 2) first points of both halves
+            dev[halves] = dq[sel, 1:]
+            split2 = dq[sel, 1:] > tols[fm[sel], None]
+            if it == MAX_REFINE or not split2.any():
+                break
+            t, use, P, dev, new = _split(t, use, P, dev, halves[split2], tq[sel, 1:][split2],
+                                         Pq[sel, 1:][split2])
+            it += 1
         fresh = np.zeros(len(t), dtype=bool)
-        new = at + np.arange(len(at))  # where the midpoints are now
         fresh[new] = fresh[new - 1] = True
     return P, use, dev
+
+
+def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np.ndarray,
+           tm: np.ndarray, Pm: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Insert the midpoints ``tm (n,)``, ``Pm (n, 2)`` of the segments starting at ``k (n,)``
+    (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions."""
+    at = k + 1
+    t, use = np.insert(t, at, tm), np.insert(use, at, use[k])
+    P, dev = np.insert(P, at, Pm, axis=0), np.insert(dev, at, 0.0)
+    return t, use, P, dev, at + np.arange(len(at))
 
 
 def _edge_curves(edges: Sequence[dict], path: str) -> list:
