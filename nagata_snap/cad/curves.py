@@ -25,6 +25,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from nagata_snap.mesh.arrays import linspaces
+
 __all__ = ["Line", "Circle", "analytic_curve", "analytic_curves"]
 
 TWO_PI = 2.0 * np.pi
@@ -201,7 +203,7 @@ class Circle(_Curve):
         circles, t0, t1 = cls._new(a, b)
         for c, *f in zip(circles, C, X, Y, R.tolist(), full.tolist(), strict=True):  # loop over circles
             c.center, c.X, c.Y, c.radius, c.closed = f[0], f[1], f[2], f[3], (f[4],)
-        t = np.linspace(t0, t1, BOX_SAMPLES, axis=1)  # (k, s)
+        t = linspaces(t0, t1, BOX_SAMPLES)  # (k, s)
         P = C[:, None, :] + R[:, None, None] * (X[:, None, :] * np.cos(t)[:, :, None] +
                                                 Y[:, None, :] * np.sin(t)[:, :, None])
         pad = (R * (1 - np.cos((t1 - t0) / (BOX_SAMPLES - 1) / 2)))[:, None]

@@ -41,6 +41,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from nagata_snap.mesh.arrays import linspaces
+
 __all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface",
            "fill_boxes"]
 
@@ -211,7 +213,7 @@ class AnalyticSurface:
         """
         k, g = len(surfaces), BOX_GRID
         B = np.array([sf.bounds for sf in surfaces])
-        u, v = _grid_lines(B[:, 0], g), _grid_lines(B[:, 1], g)  # (k, g) each
+        u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
         U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
         stack = cls.__new__(cls)
         for name in cls._shape_fields:
@@ -667,14 +669,6 @@ def _to_global(local: np.ndarray, c: np.ndarray, s: np.ndarray, X: np.ndarray, Y
     out = local[:, 0, None] * E + local[:, 1, None] * Ep + local[:, 2, None] * Z
     out[0] += O
     return out
-
-
-def _grid_lines(b: np.ndarray, n: int) -> np.ndarray:
-    """``(k, n)``: ``np.linspace(b[i, 0], b[i, 1], n)`` for each row of ``b (k, 2)``, to the last bit
-    (numpy's array ``linspace`` takes another formula for every row if one row is empty)."""
-    if np.all(b[:, 1] != b[:, 0]):
-        return np.linspace(b[:, 0], b[:, 1], n, axis=1)
-    return np.array([np.linspace(lo, hi, n) for lo, hi in b]).reshape(-1, n)
 
 
 def fill_boxes(surfaces: Sequence) -> None:
