@@ -57,5 +57,5 @@ def test_linspaces_are_each_rows_linspace():
     b[::7] = a[::7]
     a[5] = b[5] = -0.0
     for n in (2, 3, 17, 65):
-        want = np.array([np.linspace(x, y, n) for x, y in zip(a, b)])
+        want = np.array([np.linspace(x, y, n) for x, y in zip(a, b, strict=True)])
         assert linspaces(a, b, n).tobytes() == want.tobytes()

@@ -261,13 +261,13 @@ def test_many_curves_are_the_curves_built_one_by_one():
     circles = Circle.many(O_, Xs, Ys, R, t0, t1)
     for i in range(k):
         one = [Line(O_[i], D[i], t0[i], t1[i]), Circle(O_[i], Xs[i], Ys[i], R[i], t0[i], t1[i])]
-        for a, b in zip((lines[i], circles[i]), one):
+        for a, b in zip((lines[i], circles[i]), one, strict=True):
             assert a.closed == b.closed and a.bbox_size == b.bbox_size
             for name in ("bounds", "limits"):
                 assert np.array_equal(getattr(a, name), getattr(b, name))
-            assert all(np.array_equal(p, q) for p, q in zip(a.bbox, b.bbox))
+            assert all(np.array_equal(p, q) for p, q in zip(a.bbox, b.bbox, strict=True))
             assert all(np.array_equal(p, q) for p, q in zip(a._eval_soa(np.array([[0.1, 0.7]]), 2),
-                                                            b._eval_soa(np.array([[0.1, 0.7]]), 2)))
+                                                            b._eval_soa(np.array([[0.1, 0.7]]), 2), strict=True))
         lo, hi = _arc_box(circles[i])
         pad = R[i] * (1 - np.cos((t1[i] - t0[i]) / 128))
         assert np.all(circles[i].bbox[0] <= lo + 1e-14) and np.all(circles[i].bbox[1] >= hi - 1e-14)
@@ -300,16 +300,16 @@ def test_surface_boxes_filled_together_are_each_surfaces_own():
 
     together, alone = make(), make()
     fill_boxes(together)
-    for a, b in zip(together, alone):
+    for a, b in zip(together, alone, strict=True):
         box = b.bbox  # computed alone, on first use
-        assert all(np.array_equal(p, q) for p, q in zip(a.bbox, box)) and a.bbox_size == b.bbox_size
+        assert all(np.array_equal(p, q) for p, q in zip(a.bbox, box, strict=True)) and a.bbox_size == b.bbox_size
         (u0, u1), (v0, v1) = a.bounds
         uu, vv = np.meshgrid(np.linspace(u0, u1, 101), np.linspace(v0, v1, 101))
-        S = a.evaluate(uu.ravel(), vv.ravel())[0]
+        pts = a.evaluate(uu.ravel(), vv.ravel())[0]
         slack = 1e-12
         if isinstance(a, Sphere):
             slack += a._sagitta((u1 - u0) / 16, (v1 - v0) / 16)
-        assert np.all(S >= a.bbox[0] - slack) and np.all(S <= a.bbox[1] + slack)
+        assert np.all(pts >= a.bbox[0] - slack) and np.all(pts <= a.bbox[1] + slack)
         if isinstance(a, Plane):
             C = a.evaluate([u0, u0, u1, u1], [v0, v1, v0, v1])[0]
             assert np.allclose(a.bbox[0], C.min(axis=0), rtol=0, atol=1e-15)

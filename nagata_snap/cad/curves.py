@@ -22,6 +22,8 @@ well as the edges of a 3D one.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
@@ -141,6 +143,8 @@ class Line(_Curve):
     """``C(t) = O + t D`` on ``[t0, t1]``."""
 
     kind = "line"
+    origin: np.ndarray
+    direction: np.ndarray
 
     def __init__(self, origin, direction, t0: float, t1: float):
         self._copy_from(Line.many([origin], [direction], [t0], [t1])[0])
@@ -178,6 +182,10 @@ class Circle(_Curve):
     """``C(t) = c + R (cos t X + sin t Y)`` on ``[t0, t1]`` (a full circle if ``t1 - t0 = 2 pi``)."""
 
     kind = "circle"
+    center: np.ndarray
+    X: np.ndarray
+    Y: np.ndarray
+    radius: float
 
     def __init__(self, center, x, y, radius: float, t0: float, t1: float):
         self._copy_from(Circle.many([center], [x], [y], [radius], [t0], [t1])[0])
@@ -249,7 +257,8 @@ def analytic_curve(desc: dict):
 
 
 #: description fields of the analytic curves, in the order of the ``many`` constructors
-_FIELDS = {"line": (Line, ("origin", "direction")), "circle": (Circle, ("center", "x", "y", "radius"))}
+_FIELDS: dict[str, tuple[Any, tuple[str, ...]]] = {
+    "line": (Line, ("origin", "direction")), "circle": (Circle, ("center", "x", "y", "radius"))}
 
 
 def analytic_curves(descs: list[dict]) -> list:

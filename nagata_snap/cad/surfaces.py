@@ -674,7 +674,7 @@ def _to_global(local: np.ndarray, c: np.ndarray, s: np.ndarray, X: np.ndarray, Y
 def fill_boxes(surfaces: Sequence) -> None:
     """Compute the bounding boxes of the analytic surfaces among ``surfaces`` that have none yet,
     those of a class together (:meth:`AnalyticSurface._sample_boxes`); others are skipped."""
-    todo: dict[type, list[AnalyticSurface]] = {}
+    todo: dict[type[AnalyticSurface], list[AnalyticSurface]] = {}
     for sf in surfaces:  # loop over surfaces (grouping by class)
         if isinstance(sf, AnalyticSurface) and sf._box is None:
             todo.setdefault(type(sf), []).append(sf)

@@ -163,7 +163,7 @@ class _PCurves:
         for kind, names in ((0, ("origin", "direction")), (1, ("center", "x", "y"))):
             sel = [j for j, k in enumerate(kinds) if k == kind]
             if sel:
-                for arr, name in zip((self.A, self.B, self.C), names):
+                for arr, name in zip((self.A, self.B, self.C), names, strict=False):
                     arr[sel] = [descs[j][name] for j in sel]
                 if kind == 1:
                     self.R[sel] = [descs[j]["radius"] for j in sel]
