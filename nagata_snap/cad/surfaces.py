@@ -202,26 +202,34 @@ class AnalyticSurface:
     #: the scalar fields :meth:`_local` reads (besides the frame), per class
     _shape_fields: tuple[str, ...] = ()
 
-    @classmethod
-    def _sample_boxes(cls, surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
-        """``(lo, hi)``, each ``(k, 3)``: boxes of the parameter boxes of ``k`` surfaces of this
-        class, the points of a :data:`BOX_GRID` x :data:`BOX_GRID` grid widened by their sagitta.
+    @staticmethod
+    def _sample_boxes(surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)``, each ``(k, 3)``: boxes of the parameter boxes of ``k`` surfaces of
+        revolution (any classes, those of a class next to each other), the points of a
+        :data:`BOX_GRID` x :data:`BOX_GRID` grid widened by their sagitta.
 
-        The grids are evaluated together: :meth:`_local` of one surface whose shape fields
-        are per-point arrays, :func:`_to_global` with per-point frames (both are elementwise,
-        so each point is what its own surface's :meth:`_eval_soa` gives).
+        The grids are evaluated together: per class :meth:`_local` of one surface whose
+        shape fields are per-point arrays, then :func:`_to_global` with per-point frames
+        (both are elementwise, so each point is what its own surface's :meth:`_eval_soa`
+        gives).
         """
         k, g = len(surfaces), BOX_GRID
         B = np.array([sf.bounds for sf in surfaces])
         u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
         U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
-        stack = cls.__new__(cls)
-        for name in cls._shape_fields:
-            setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces], g * g))
         c, sn = np.cos(U), np.sin(U)
+        local = np.empty((1, 3, k * g * g))
+        cls = [type(sf) for sf in surfaces]
+        first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
+        for i0, i1 in zip(first[:-1], first[1:], strict=True):  # loop over classes (their formulas)
+            stack = cls[i0].__new__(cls[i0])
+            for name in cls[i0]._shape_fields:
+                setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g * g))
+            sl = slice(i0 * g * g, i1 * g * g)
+            local[:, :, sl] = stack._local(U[sl], V[sl], c[sl], sn[sl], 0)
         frame = (np.repeat(np.array([getattr(sf, a) for sf in surfaces]).T, g * g, axis=1)  # (3, k g^2)
                  for a in ("X", "Y", "Z", "origin"))
-        S = _to_global(stack._local(U, V, c, sn, 0), c, sn, *frame)[0].reshape(3, k, g * g)
+        S = _to_global(local, c, sn, *frame)[0].reshape(3, k, g * g)
         pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
                         zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
         return S.min(axis=2).T - pad, S.max(axis=2).T + pad
@@ -385,8 +393,8 @@ class Plane(AnalyticSurface):
         self._uv_origin = self._uv_axes @ self.origin
         self._z_origin = float(self.Z @ self.origin)
 
-    @classmethod
-    def _sample_boxes(cls, surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
+    @staticmethod
+    def _sample_boxes(surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
         """The boxes of the parameter boxes' four corners ``O + u X + v Y`` (exact: the plane is
         linear in ``u, v``), ``(lo, hi)`` each ``(k, 3)``."""
         B = np.array([sf.bounds for sf in surfaces])  # (k, 2, 2)
@@ -672,14 +680,16 @@ def _to_global(local: np.ndarray, c: np.ndarray, s: np.ndarray, X: np.ndarray, Y
 
 
 def fill_boxes(surfaces: Sequence) -> None:
-    """Compute the bounding boxes of the analytic surfaces among ``surfaces`` that have none yet,
-    those of a class together (:meth:`AnalyticSurface._sample_boxes`); others are skipped."""
-    todo: dict[type[AnalyticSurface], list[AnalyticSurface]] = {}
-    for sf in surfaces:  # loop over surfaces (grouping by class)
-        if isinstance(sf, AnalyticSurface) and sf._box is None:
-            todo.setdefault(type(sf), []).append(sf)
-    for cls, group in todo.items():
-        lo, hi = cls._sample_boxes(group)
+    """Compute the bounding boxes of the analytic surfaces among ``surfaces`` that have none yet:
+    the planes' together, those of all surfaces of revolution together
+    (:meth:`AnalyticSurface._sample_boxes`); others are skipped."""
+    todo = [sf for sf in surfaces if isinstance(sf, AnalyticSurface) and sf._box is None]
+    planes = [sf for sf in todo if isinstance(sf, Plane)]
+    rest = sorted((sf for sf in todo if not isinstance(sf, Plane)), key=lambda sf: type(sf).__name__)
+    for group, boxes in ((planes, Plane._sample_boxes), (rest, AnalyticSurface._sample_boxes)):
+        if not group:
+            continue
+        lo, hi = boxes(group)
         size = np.sqrt(np.vecdot(hi - lo, hi - lo))  # = np.linalg.norm of each row, to the last bit
         for sf, a, b, d in zip(group, lo, hi, size.tolist(), strict=True):
             sf._box = (a, b, d)
