@@ -37,6 +37,7 @@ taken); evaluation is not clamped to it: the surface extends beyond its face.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
@@ -221,7 +222,7 @@ class AnalyticSurface:
         local = np.empty((1, 3, k * g * g))
         cls = [type(sf) for sf in surfaces]
         first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
-        for i0, i1 in zip(first[:-1], first[1:], strict=True):  # loop over classes (their formulas)
+        for i0, i1 in pairwise(first):  # loop over classes (their formulas)
             stack = cls[i0].__new__(cls[i0])
             for name in cls[i0]._shape_fields:
                 setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g * g))
