@@ -263,3 +263,89 @@ def test_planes_and_segments_project_at_once_as_each_alone():
                     rtol=0, atol=1e-13)
         if kind == "line":
             assert np.all((P >= -0.5) & (P <= 1.5)) and np.any(P == 1.5) and np.any(P == -0.5)
+
+
+# ----------------------------------------------------------------------
+# curves and surfaces built together (a file's edges and faces)
+# ----------------------------------------------------------------------
+def _arc_box(c: Circle) -> tuple[np.ndarray, np.ndarray]:
+    """Exact bounding box of a circular arc: its ends and the axis extremes inside its range."""
+    t0, t1 = c.bounds[0]
+    # extremes of coordinate i: d/dt (cos t X_i + sin t Y_i) = 0 at t = atan2(Y_i, X_i) (+ pi)
+    cand = [t0, t1]
+    for i in range(3):
+        for t in np.arctan2(c.Y[i], c.X[i]) + np.pi * np.arange(-4, 5):
+            if t0 <= t <= t1:
+                cand.append(t)
+    P = c._points(np.array(cand))
+    return P.min(axis=0), P.max(axis=0)
+
+
+def test_many_curves_are_the_curves_built_one_by_one():
+    """``Line.many`` / ``Circle.many`` give each curve exactly (to the last bit) what its own
+    constructor gives; the circles' boxes hold the exact arc box, widened by at most the
+    sagitta of the 64 sample steps; a line's box is its end points'."""
+    k = 7
+    O_, D = RNG.normal(size=(k, 3)), RNG.normal(size=(k, 3))
+    t0 = RNG.uniform(-3.0, 0.0, k)
+    t1 = t0 + RNG.uniform(0.1, 2 * np.pi, k)
+    R = RNG.uniform(0.5, 3.0, k)
+    Xs = RNG.normal(size=(k, 3))
+    Ys = np.cross(D, Xs)
+    lines = Line.many(O_, D, t0, t1)
+    circles = Circle.many(O_, Xs, Ys, R, t0, t1)
+    for i in range(k):
+        one = [Line(O_[i], D[i], t0[i], t1[i]), Circle(O_[i], Xs[i], Ys[i], R[i], t0[i], t1[i])]
+        for a, b in zip((lines[i], circles[i]), one, strict=True):
+            assert a.closed == b.closed and a.bbox_size == b.bbox_size
+            for name in ("bounds", "limits"):
+                assert np.array_equal(getattr(a, name), getattr(b, name))
+            assert all(np.array_equal(p, q) for p, q in zip(a.bbox, b.bbox, strict=True))
+            assert all(np.array_equal(p, q) for p, q in zip(a._eval_soa(np.array([[0.1, 0.7]]), 2),
+                                                            b._eval_soa(np.array([[0.1, 0.7]]), 2), strict=True))
+        lo, hi = _arc_box(circles[i])
+        pad = R[i] * (1 - np.cos((t1[i] - t0[i]) / 128))
+        assert np.all(circles[i].bbox[0] <= lo + 1e-14) and np.all(circles[i].bbox[1] >= hi - 1e-14)
+        assert np.all(circles[i].bbox[0] >= lo - pad - 1e-14) and np.all(circles[i].bbox[1] <= hi + pad + 1e-14)
+        ends = lines[i]._points(np.array([t0[i], t1[i]]))
+        assert np.array_equal(lines[i].bbox[0], ends.min(axis=0))
+    with pytest.raises(ValueError, match="circle radius must be positive, got -1"):
+        Circle.many(O_[:2], Xs[:2], Ys[:2], [1.0, -1.0], t0[:2], t1[:2])
+    with pytest.raises(ValueError, match="finite with t0 < t1"):
+        Line.many(O_[:2], D[:2], [0.0, 1.0], [1.0, 1.0])
+
+
+def test_surface_boxes_filled_together_are_each_surfaces_own():
+    """``fill_boxes`` on many analytic faces gives each the box it computes alone (to the last
+    bit), and every box holds a dense sample of its face (a plane's: its 4 corners exactly).
+
+    Except on the sphere: its pad, the sagitta ``R (1 - cos(max(du, dv) / 2))`` of the larger
+    grid step, is short of a cell's diagonal there, and a sphere's box can miss its face by up
+    to about another such pad (as before batching: the boxes are unchanged)."""
+    from nagata_snap.cad.surfaces import fill_boxes
+
+    def make():
+        out = []
+        for i in range(3):
+            b = [[0.1 * i, 1.5 + i], [-0.5, 0.4 + 0.2 * i]]
+            out += [Plane(O + i, X, Y, Z, b), Cylinder(O - i, X, Y, Z, 0.7 + i, b),
+                    Cone(O, X, Y, Z, 0.4 + i, 0.3, b), Sphere(O, X, Y, Z, 1.0 + i, [[0, 2], [-1.2, 0.5]]),
+                    Torus(O, X, Y, Z, 2.0 + i, 0.5, b)]
+        return out
+
+    together, alone = make(), make()
+    fill_boxes(together)
+    for a, b in zip(together, alone, strict=True):
+        box = b.bbox  # computed alone, on first use
+        assert all(np.array_equal(p, q) for p, q in zip(a.bbox, box, strict=True)) and a.bbox_size == b.bbox_size
+        (u0, u1), (v0, v1) = a.bounds
+        uu, vv = np.meshgrid(np.linspace(u0, u1, 101), np.linspace(v0, v1, 101))
+        pts = a.evaluate(uu.ravel(), vv.ravel())[0]
+        slack = 1e-12
+        if isinstance(a, Sphere):
+            slack += a._sagitta((u1 - u0) / 16, (v1 - v0) / 16)
+        assert np.all(pts >= a.bbox[0] - slack) and np.all(pts <= a.bbox[1] + slack)
+        if isinstance(a, Plane):
+            C = a.evaluate([u0, u0, u1, u1], [v0, v1, v0, v1])[0]
+            assert np.allclose(a.bbox[0], C.min(axis=0), rtol=0, atol=1e-15)
+            assert np.allclose(a.bbox[1], C.max(axis=0), rtol=0, atol=1e-15)

@@ -138,3 +138,47 @@ def test_points_on_the_boundary_are_on_both_faces(part):
             mids = 0.5 * (P + np.roll(P, -1, axis=0))
             assert geo.inside(np.full(len(P), e), P).all()
             assert geo.inside(np.full(len(P), e), mids).all()
+
+
+def test_first_samples_of_all_uses_are_linspace_per_use():
+    """The first p-curve samples of many edge uses, built at once (``topology._Samples.flat``),
+    are each use's own ``np.linspace`` over its range (a line: exactly its two ends), to the
+    last bit, in traversal order (backwards for reversed uses); B-spline uses keep theirs."""
+    from nagata_snap.cad.topology import _Samples
+
+    n = 40
+    t0 = RNG.uniform(-7.0, 7.0, n)
+    t1 = t0 + RNG.uniform(1e-3, 7.0, n)
+    t0[3], t1[3] = -0.0, 2.5  # a signed zero at the start of a line
+    steps = RNG.integers(1, 70, n)
+    steps[3] = 1
+    rev = RNG.random(n) < 0.5
+    spline = {5: np.array([0.0, 0.25, 1.0]), 17: np.array([1.0, 2.0, 3.0, 4.0])}
+    t, use = _Samples(np.c_[t0, t1], steps.copy(), spline).flat(rev)
+    for j in range(n):
+        want = spline.get(j, np.array([t0[j], t1[j]]) if steps[j] == 1 else np.linspace(t0[j], t1[j], steps[j] + 1))
+        got = t[use == j]
+        assert got.tobytes() == (want[::-1] if rev[j] else want).tobytes(), j
+    assert np.all(np.diff(use) >= 0)
+
+
+def test_invalid_edge_curve_is_named(tmp_path):
+    """An edge whose (batched) analytic curve is invalid: the error names that edge."""
+    from nagata_snap.cad.read import read_shape
+    from nagata_snap.cad.topology import CadModel
+
+    path = str(tmp_path / "box.step")
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
+    data = read_shape(path)
+    lines = [i for i, e in enumerate(data["edges"]) if e["curve"] is not None and e["curve"]["type"] == "line"]
+    bad = lines[len(lines) // 2]
+    data["edges"][bad]["curve"]["direction"] = [0.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match=rf"edge {bad} \(line curve\): line direction must be non-zero"):
+        CadModel.from_data(data)

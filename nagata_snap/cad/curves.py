@@ -8,6 +8,11 @@ clamped to the range; ``t = atan2((P - c).Y, (P - c).X)`` wrapped into
 ``[t0, t0 + 2 pi)``, and outside a partial arc the nearer end.  A point on
 the circle's axis takes the seed (every point of the circle is equally near).
 
+Many curves of a kind are built at once (:meth:`Line.many`, :meth:`Circle.many`,
+:func:`analytic_curves`: the checks, unit directions and bounding boxes
+vectorised over the curves, as a file's edges are); one curve is a batch of
+one.
+
 Both classes follow the curve protocol of :class:`nagata_snap.cad.nurbs.NurbsCurve`
 (``param_dim = 1``, ``bounds``, ``closed``, ``bbox``, ``bbox_size``,
 ``distinct_knots``, ``_eval_soa``, ``_evaluate_inside``), so they can be the
@@ -17,21 +22,38 @@ well as the edges of a 3D one.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Line", "Circle", "analytic_curve"]
+from nagata_snap.mesh.arrays import linspaces
+
+__all__ = ["Line", "Circle", "analytic_curve", "analytic_curves"]
 
 TWO_PI = 2.0 * np.pi
+#: samples of the curve's range whose box (plus their sagitta) is a circle's bounding box
+BOX_SAMPLES = 65
 
 
-def _vec(a, n: int, what: str) -> np.ndarray:
-    v = np.zeros(3)
-    a = np.asarray(a, dtype=float).reshape(-1)
-    if a.size not in (n, 3) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{what} must be a finite {n}- or 3-vector, got {a.tolist()}")
-    v[: a.size] = a
+def _vecs(a, n: int, what: str) -> np.ndarray:
+    """``(k, 3)`` from ``k`` finite ``n``- or 3-vectors (``(k, n)`` or ``(k, 3)``; z = 0 for ``n = 2``)."""
+    a = np.asarray(a, dtype=float)
+    a = a.reshape(len(a), -1)
+    if a.shape[1] not in (n, 3) or not np.isfinite(a).all():
+        bad = a[np.flatnonzero(~np.isfinite(a).all(axis=1))[0]] if a.shape[1] in (n, 3) else a[0]
+        raise ValueError(f"{what} must be a finite {n}- or 3-vector, got {bad.tolist()}")
+    if a.shape[1] == 3:
+        return a
+    v = np.zeros((len(a), 3))
+    v[:, :n] = a
     return v
+
+
+def _norms(V: np.ndarray) -> np.ndarray:
+    """``(k,)`` Euclidean norms of the rows of ``V (k, 3)``, the same to the last bit as
+    ``np.linalg.norm`` of each row (a dot product: ``vecdot``, not a sum of squares)."""
+    return np.sqrt(np.vecdot(V, V))
 
 
 class _Curve:
@@ -39,27 +61,40 @@ class _Curve:
     kind = "curve"
     #: the tangent of a line or circle never vanishes
     can_degenerate = False
+    bounds: np.ndarray
+    limits: np.ndarray
+    #: ``(lo, hi)`` bounding box of the curve on its range, and its diagonal
+    bbox: tuple[np.ndarray, np.ndarray]
+    bbox_size: float
 
-    def __init__(self, t0: float, t1: float):
-        t0, t1 = float(t0), float(t1)
-        if not (np.isfinite(t0) and np.isfinite(t1) and t1 > t0):
-            raise ValueError(f"curve range must be finite with t0 < t1, got ({t0}, {t1})")
-        self.bounds = np.array([[t0, t1]])
-        self.limits = self.bounds
-        lo, hi = self._box(t0, t1)
-        self.bbox = (lo, hi)
-        self.bbox_size = float(np.linalg.norm(hi - lo))
+    @classmethod
+    def _new(cls, t0: npt.ArrayLike, t1: npt.ArrayLike) -> tuple[list, np.ndarray, np.ndarray]:
+        """``(curves, t0 (k,), t1 (k,))``: ``k`` bare curves with their ranges set (checked)."""
+        t0, t1 = np.asarray(t0, dtype=float).reshape(-1), np.asarray(t1, dtype=float).reshape(-1)
+        bad = np.flatnonzero(~(np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)))
+        if bad.size:
+            raise ValueError(f"curve range must be finite with t0 < t1, got ({t0[bad[0]]}, {t1[bad[0]]})")
+        bounds = np.stack([t0, t1], axis=1)
+        curves = []
+        for b in bounds:  # loop over curves (the objects)
+            c = cls.__new__(cls)
+            c.bounds = c.limits = b[None]
+            curves.append(c)
+        return curves, t0, t1
 
-    def _box(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(lo, hi)`` box of the curve on ``[t0, t1]``: 65 samples plus their sagitta."""
-        pts = self._points(np.linspace(t0, t1, 65))
-        pad = self._sagitta((t1 - t0) / 64)
-        return pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    @staticmethod
+    def _set_boxes(curves: list, lo: np.ndarray, hi: np.ndarray) -> list:
+        """Store the boxes ``lo, hi (k, 3)`` and their diagonals on ``curves``; returns ``curves``."""
+        size = _norms(hi - lo)
+        for c, a, b, d in zip(curves, lo, hi, size.tolist(), strict=True):
+            c.bbox, c.bbox_size = (a, b), d
+        return curves
+
+    def _copy_from(self, other: _Curve) -> None:
+        """``__init__`` of one curve: the attributes of the batch of one that built it."""
+        self.__dict__.update(other.__dict__)
 
     closed = (False,)
-
-    def _sagitta(self, dt: float) -> float:
-        return 0.0
 
     @property
     def distinct_knots(self) -> np.ndarray:
@@ -110,15 +145,28 @@ class Line(_Curve):
     """``C(t) = O + t D`` on ``[t0, t1]``."""
 
     kind = "line"
+    origin: np.ndarray
+    direction: np.ndarray
 
     def __init__(self, origin, direction, t0: float, t1: float):
-        self.origin = _vec(origin, 2, "line origin")
-        d = _vec(direction, 2, "line direction")
-        n = np.linalg.norm(d)
-        if n == 0:
+        self._copy_from(Line.many([origin], [direction], [t0], [t1])[0])
+
+    @classmethod
+    def many(cls, origins: npt.ArrayLike, directions: npt.ArrayLike, t0: npt.ArrayLike,
+             t1: npt.ArrayLike) -> list[Line]:
+        """``k`` lines from ``origins, directions (k, 2|3)`` (directions are normalised) and
+        ranges ``t0, t1 (k,)``; their boxes are their end points' (exact: linear in ``t``)."""
+        O = _vecs(origins, 2, "line origin")
+        D = _vecs(directions, 2, "line direction")
+        n = _norms(D)
+        if np.any(n == 0):
             raise ValueError("line direction must be non-zero")
-        self.direction = d / n
-        super().__init__(t0, t1)
+        D = D / n[:, None]
+        lines, t0, t1 = cls._new(t0, t1)
+        for ln, o, d in zip(lines, O, D, strict=True):  # loop over lines (their fields)
+            ln.origin, ln.direction = o, d
+        a, b = O + D * t0[:, None], O + D * t1[:, None]
+        return cls._set_boxes(lines, np.minimum(a, b), np.maximum(a, b))
 
     @property
     def affine(self) -> tuple[np.ndarray, np.ndarray]:
@@ -137,31 +185,45 @@ class Line(_Curve):
     def _closest_t(self, X, seed):
         return np.clip((X - self.origin) @ self.direction, *self.bounds[0])
 
-    def _box(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
-        """The box of the two end points (exact: the segment is linear in ``t``)."""
-        pts = self._points(np.array([t0, t1]))
-        return pts.min(axis=0), pts.max(axis=0)
-
 
 class Circle(_Curve):
     """``C(t) = c + R (cos t X + sin t Y)`` on ``[t0, t1]`` (a full circle if ``t1 - t0 = 2 pi``)."""
 
     kind = "circle"
+    center: np.ndarray
+    X: np.ndarray
+    Y: np.ndarray
+    radius: float
 
     def __init__(self, center, x, y, radius: float, t0: float, t1: float):
-        self.center = _vec(center, 2, "circle centre")
-        X, Y = _vec(x, 2, "circle x direction"), _vec(y, 2, "circle y direction")
-        self.X, self.Y = X / np.linalg.norm(X), Y / np.linalg.norm(Y)
-        self.radius = float(radius)
-        if not (np.isfinite(self.radius) and self.radius > 0):
-            raise ValueError(f"circle radius must be positive, got {radius}")
-        if t1 - t0 > TWO_PI * (1 + 1e-12):
-            raise ValueError(f"circle range longer than 2 pi: ({t0}, {t1})")
-        self.closed = (bool(abs((t1 - t0) - TWO_PI) <= 1e-12 * TWO_PI),)
-        super().__init__(t0, t1)
+        self._copy_from(Circle.many([center], [x], [y], [radius], [t0], [t1])[0])
 
-    def _sagitta(self, dt):
-        return self.radius * (1 - np.cos(dt / 2))
+    @classmethod
+    def many(cls, centers: npt.ArrayLike, xs: npt.ArrayLike, ys: npt.ArrayLike, radii: npt.ArrayLike,
+             t0: npt.ArrayLike, t1: npt.ArrayLike) -> list[Circle]:
+        """``k`` circles from ``centers, xs, ys (k, 2|3)`` (``xs, ys`` are normalised), ``radii (k,)``
+        and ranges ``t0, t1 (k,)``.  Box: :data:`BOX_SAMPLES` points on the range, widened by the
+        sagitta ``R (1 - cos(dt / 2))`` of their spacing ``dt``."""
+        C = _vecs(centers, 2, "circle centre")
+        X, Y = _vecs(xs, 2, "circle x direction"), _vecs(ys, 2, "circle y direction")
+        X, Y = X / _norms(X)[:, None], Y / _norms(Y)[:, None]
+        R = np.asarray(radii, dtype=float).reshape(-1)
+        bad = np.flatnonzero(~(np.isfinite(R) & (R > 0)))
+        if bad.size:
+            raise ValueError(f"circle radius must be positive, got {np.reshape(radii, -1)[bad[0]]}")
+        a, b = np.asarray(t0, dtype=float).reshape(-1), np.asarray(t1, dtype=float).reshape(-1)
+        long = np.flatnonzero(b - a > TWO_PI * (1 + 1e-12))
+        if long.size:
+            raise ValueError(f"circle range longer than 2 pi: ({a[long[0]]}, {b[long[0]]})")
+        full = np.abs((b - a) - TWO_PI) <= 1e-12 * TWO_PI
+        circles, t0, t1 = cls._new(a, b)
+        for c, *f in zip(circles, C, X, Y, R.tolist(), full.tolist(), strict=True):  # loop over circles
+            c.center, c.X, c.Y, c.radius, c.closed = f[0], f[1], f[2], f[3], (f[4],)
+        t = linspaces(t0, t1, BOX_SAMPLES)  # (k, s)
+        P = C[:, None, :] + R[:, None, None] * (X[:, None, :] * np.cos(t)[:, :, None] +
+                                                Y[:, None, :] * np.sin(t)[:, :, None])
+        pad = (R * (1 - np.cos((t1 - t0) / (BOX_SAMPLES - 1) / 2)))[:, None]
+        return cls._set_boxes(circles, P.min(axis=1) - pad, P.max(axis=1) + pad)
 
     def _pieces(self) -> int:
         return max(1, int(np.ceil((self.bounds[0, 1] - self.bounds[0, 0]) / (np.pi / 4))))
@@ -197,9 +259,31 @@ class Circle(_Curve):
 
 def analytic_curve(desc: dict):
     """A :class:`Line` or :class:`Circle` from an edge description of :func:`~nagata_snap.cad.read.read_shape`."""
-    t0, t1 = desc["range"]
-    if desc["type"] == "line":
-        return Line(desc["origin"], desc["direction"], t0, t1)
-    if desc["type"] == "circle":
-        return Circle(desc["center"], desc["x"], desc["y"], desc["radius"], t0, t1)
-    raise ValueError(f"not an analytic curve type: {desc['type']!r}")
+    if desc["type"] not in ("line", "circle"):
+        raise ValueError(f"not an analytic curve type: {desc['type']!r}")
+    return analytic_curves([desc])[0]
+
+
+#: description fields of the analytic curves, in the order of the ``many`` constructors
+_FIELDS: dict[str, tuple[Any, tuple[str, ...]]] = {
+    "line": (Line, ("origin", "direction")), "circle": (Circle, ("center", "x", "y", "radius"))}
+
+
+def analytic_curves(descs: list[dict]) -> list:
+    """:func:`analytic_curve` of every description of ``descs`` (lines and circles only), the
+    curves of a kind built together (:meth:`Line.many`, :meth:`Circle.many`).
+
+    Raises:
+        ValueError: an invalid description (the message is :func:`analytic_curve`'s on it;
+            with several invalid ones, the first of a kind).
+    """
+    out: list = [None] * len(descs)
+    for kind, (cls, names) in _FIELDS.items():
+        sel = [i for i, d in enumerate(descs) if d["type"] == kind]
+        if not sel:
+            continue
+        cols = [[descs[i][name] for i in sel] for name in names]
+        rng = np.array([descs[i]["range"] for i in sel], dtype=float).reshape(-1, 2)
+        for i, c in zip(sel, cls.many(*cols, rng[:, 0], rng[:, 1]), strict=True):
+            out[i] = c
+    return out

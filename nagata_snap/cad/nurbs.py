@@ -100,10 +100,10 @@ def _check_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str) -> None
             f"{what}: {m} knots given, but {n_ctrl} control points of degree {degree} "
             f"need n + p + 1 = {n_ctrl + degree + 1}"
         )
-    if not np.all(np.isfinite(knots)):
+    if not np.isfinite(knots).all():
         raise NurbsError(f"{what}: knot vector contains NaN or infinite values")
-    dk = np.diff(knots)
-    if np.any(dk < 0):
+    dk = knots[1:] - knots[:-1]
+    if (dk < 0).any():
         i = int(np.flatnonzero(dk < 0)[0])
         raise NurbsError(
             f"{what}: knot vector must be non-decreasing, but knot[{i}]={knots[i]!r} "
@@ -111,7 +111,7 @@ def _check_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str) -> None
         )
     # every basis function needs a non-empty support [u_i, u_{i+p+1})
     supp = knots[degree + 1 :] - knots[: n_ctrl]
-    if np.any(supp <= 0):
+    if (supp <= 0).any():
         i = int(np.flatnonzero(supp <= 0)[0])
         raise NurbsError(
             f"{what}: knot {knots[i]!r} has multiplicity > degree + 1 = {degree + 1} "
@@ -311,7 +311,8 @@ def _check_nderiv(nderiv: int) -> int:
 
 def _bbox_size(points: np.ndarray) -> float:
     pts = points.reshape(-1, 3)
-    return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    d = pts.max(axis=0) - pts.min(axis=0)
+    return float(np.sqrt(d @ d))  # np.linalg.norm(d), to the last bit
 
 
 def _control_points(a: npt.ArrayLike, shape_prefix: tuple, what: str) -> np.ndarray:
@@ -322,7 +323,7 @@ def _control_points(a: npt.ArrayLike, shape_prefix: tuple, what: str) -> np.ndar
         )
     if cp.shape[-1] == 2:  # planar data: z = 0
         cp = np.concatenate([cp, np.zeros((*cp.shape[:-1], 1))], axis=-1)
-    if not np.all(np.isfinite(cp)):
+    if not np.isfinite(cp).all():
         raise NurbsError(f"{what}: control points contain NaN or infinite values")
     return cp
 
@@ -331,7 +332,7 @@ def _weights(a: npt.ArrayLike, shape: tuple, what: str) -> np.ndarray:
     w = _as_float(a, f"{what}: weights")
     if w.shape != shape:
         raise NurbsError(f"{what}: weights must have shape {shape}, got {w.shape}")
-    if not np.all(np.isfinite(w)) or np.any(w <= 0):
+    if not ((w > 0) & (w < np.inf)).all():  # positive and finite (NaN fails both)
         bad = np.flatnonzero(~(np.isfinite(w) & (w > 0)).ravel())[0]
         raise NurbsError(
             f"{what}: weights must be positive and finite, got {w.ravel()[bad]!r} "
@@ -460,8 +461,9 @@ class NurbsCurve(_ControlNet):
         _freeze(self, "_spans", _span_table(knots, self.degree, n))
         object.__setattr__(self, "_size", _bbox_size(cp))
         u0, u1 = self.domain
-        ends = self._evaluate_inside(np.array([u0, u1]), 0)[0]
-        closed = bool(np.linalg.norm(ends[0] - ends[1]) <= CLOSED_RTOL * max(self._size, 1e-300))
+        ends = self._eval_soa(np.array([[u0, u1]]), 0)[0]  # (3, 2)
+        gap = ends[:, 0] - ends[:, 1]
+        closed = bool(np.sqrt(gap @ gap) <= CLOSED_RTOL * max(self._size, 1e-300))
         object.__setattr__(self, "is_closed", closed)
 
     # -- properties ----------------------------------------------------
@@ -649,13 +651,10 @@ class NurbsSurface(_ControlNet):
         k = k[(k >= lo) & (k <= hi)]
         t = np.linspace(0.0, 1.0, 9)[:-1]
         s = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), t)).ravel(), [hi]])
-        if direction == 0:
-            a = self._evaluate_inside(np.full_like(s, u0), s, 0)[0]
-            b = self._evaluate_inside(np.full_like(s, u1), s, 0)[0]
-        else:
-            a = self._evaluate_inside(s, np.full_like(s, v0), 0)[0]
-            b = self._evaluate_inside(s, np.full_like(s, v1), 0)[0]
-        gap = np.max(np.linalg.norm(a - b, axis=1))
+        ends = np.repeat([u0, u1] if direction == 0 else [v0, v1], len(s))
+        ss = np.tile(s, 2)
+        ab = self._eval_soa(np.stack([ends, ss] if direction == 0 else [ss, ends]), 0)[0]  # (3, 2 m), both curves
+        gap = np.max(np.linalg.norm((ab[:, :len(s)] - ab[:, len(s):]).T, axis=1))
         return bool(gap <= CLOSED_RTOL * max(self._size, 1e-300))
 
     # -- properties ----------------------------------------------------

@@ -75,28 +75,38 @@ def preload() -> None:
 
 @functools.cache
 def _occ() -> SimpleNamespace:
-    """The OpenCASCADE classes used once per edge or edge use, imported once (lazily: importing
-    this module does not load OpenCASCADE)."""
+    """The OpenCASCADE classes used once per face, edge or edge use, imported once (lazily:
+    importing this module does not load OpenCASCADE), and the integer values of the enums
+    compared there (comparing pybind11 enums costs several times more than their ints)."""
     from OCP.BRep import BRep_Tool
-    from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d
+    from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d, BRepAdaptor_Surface
+    from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
     from OCP.Geom import Geom_TrimmedCurve
     from OCP.Geom2d import Geom2d_TrimmedCurve
     from OCP.Geom2dConvert import Geom2dConvert
-    from OCP.GeomAbs import GeomAbs_CurveType
+    from OCP.GeomAbs import GeomAbs_CurveType as C
+    from OCP.GeomAbs import GeomAbs_SurfaceType as S
     from OCP.GeomConvert import GeomConvert
+    from OCP.TopAbs import TopAbs_Orientation, TopAbs_WIRE
+    from OCP.TopExp import TopExp, TopExp_Explorer
+    from OCP.TopoDS import TopoDS
 
-    return SimpleNamespace(BRep_Tool=BRep_Tool, BRepAdaptor_Curve=BRepAdaptor_Curve,
-                           BRepAdaptor_Curve2d=BRepAdaptor_Curve2d, Geom_TrimmedCurve=Geom_TrimmedCurve,
-                           Geom2d_TrimmedCurve=Geom2d_TrimmedCurve, Geom2dConvert=Geom2dConvert,
-                           CurveType=GeomAbs_CurveType, GeomConvert=GeomConvert)
+    return SimpleNamespace(
+        BRep_Tool=BRep_Tool, BRepAdaptor_Curve=BRepAdaptor_Curve, BRepAdaptor_Curve2d=BRepAdaptor_Curve2d,
+        BRepAdaptor_Surface=BRepAdaptor_Surface,
+        BRepTools=BRepTools, BRepTools_WireExplorer=BRepTools_WireExplorer,
+        Geom_TrimmedCurve=Geom_TrimmedCurve, Geom2d_TrimmedCurve=Geom2d_TrimmedCurve,
+        Geom2dConvert=Geom2dConvert, GeomConvert=GeomConvert, TopExp=TopExp, TopExp_Explorer=TopExp_Explorer,
+        TopoDS=TopoDS, WIRE=TopAbs_WIRE, REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
+        LINE=int(C.GeomAbs_Line), CIRCLE=int(C.GeomAbs_Circle), BSPLINE_CURVE=int(C.GeomAbs_BSplineCurve),
+        BSPLINE_SURFACE=int(S.GeomAbs_BSplineSurface), BEZIER_SURFACE=int(S.GeomAbs_BezierSurface),
+        ANALYTIC={int(getattr(S, f"GeomAbs_{kind.capitalize()}")): kind for kind in _ANALYTIC_FIELDS},
+        SurfaceType=S)
 
 
 def _xyz(p) -> list[float]:
-    return [p.X(), p.Y(), p.Z()]
-
-
-def _xy(p) -> list[float]:
-    return [p.X(), p.Y()]
+    """The coordinates of a ``gp_Pnt`` / ``gp_Dir`` (3) or ``gp_Pnt2d`` / ``gp_Dir2d`` (2)."""
+    return list(p.Coord())
 
 
 def _check_finite(values, what: str) -> None:
@@ -169,7 +179,8 @@ def _file_units(reader, fmt: str) -> list[str]:
 
         names, angles, solid = Names(), Names(), Names()
         reader.FileUnits(names, angles, solid)
-        return sorted({names.Value(i + 1).ToCString() for i in range(names.Length())})
+        # len(): the sequence's Length() costs ~0.2 ms through OCP, len() a call
+        return sorted({names.Value(i + 1).ToCString() for i in range(len(names))})
     g = reader.IGESModel().GlobalSection()
     name = g.UnitName().ToCString() if g.UnitName() is not None else ""
     if not _unit_key(name):  # the unit flag (IGES 5.3 Global parameter 14) names it
@@ -269,7 +280,7 @@ def _bspline_surface(s) -> dict:
         if s.IsVPeriodic():
             s.SetVNotPeriodic()
     nu, nv = s.NbUPoles(), s.NbVPoles()
-    poles = np.array([[_xyz(s.Pole(i, j)) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
+    poles = np.array([[s.Pole(i, j).Coord() for j in range(1, nv + 1)] for i in range(1, nu + 1)])
     weights = None
     if s.IsURational() or s.IsVRational():
         weights = np.array([[s.Weight(i, j) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
@@ -284,9 +295,8 @@ def _bspline_curve(c, dim: int) -> dict:
     if c.IsPeriodic():
         c = c.Copy()
         c.SetNotPeriodic()
-    pt = _xyz if dim == 3 else _xy
     n = c.NbPoles()
-    poles = np.array([pt(c.Pole(i)) for i in range(1, n + 1)])
+    poles = np.array([c.Pole(i).Coord() for i in range(1, n + 1)]).reshape(n, dim)
     weights = np.array([c.Weight(i) for i in range(1, n + 1)]) if c.IsRational() else None
     knots = [c.Knot(i) for i in range(1, c.NbKnots() + 1) for _ in range(c.Multiplicity(i))]
     return {"type": "bspline", "degree": c.Degree(), "poles": poles, "weights": weights,
@@ -302,7 +312,6 @@ _ANALYTIC_FIELDS: dict[str, dict[str, str]] = {
     "sphere": {"radius": "Radius"},
     "torus": {"major": "MajorRadius", "minor": "MinorRadius"},
 }
-_ANALYTIC_TYPES = {f"GeomAbs_{kind.capitalize()}": kind for kind in _ANALYTIC_FIELDS}
 
 
 def _analytic(kind: str, s) -> dict:
@@ -341,11 +350,11 @@ def _recognised(face, size: float) -> dict | None:
     points there (``"samples"``), to which :mod:`nagata_snap.cad.topology`
     fits the parameter map.
     """
-    from OCP.BRep import BRep_Tool
-    from OCP.BRepTools import BRepTools
     from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
+    from OCP.gp import gp_Pnt
 
-    geo = BRep_Tool.Surface_s(face)  # with the face's location applied
+    o = _occ()
+    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
     try:
         conv = GeomConvert_SurfToAnaSurf(geo)
         ana = conv.ConvertToAnalytical(1e-9 * size)
@@ -354,55 +363,57 @@ def _recognised(face, size: float) -> dict | None:
     desc = None if ana is None else _elementary(ana)
     if desc is None or not conv.Gap() <= 1e-9 * size:
         return None
-    u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+    u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
     uu, vv = np.meshgrid(np.linspace(u0, u1, MAP_SAMPLES), np.linspace(v0, v1, MAP_SAMPLES),
                          indexing="ij")
     uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
-    desc["samples"] = (uv, np.array([_xyz(geo.Value(u, v)) for u, v in uv]))
+    p, xyz = gp_Pnt(), []
+    for u, v in uv.tolist():  # loop over the samples (one OCC evaluation each, into one point)
+        geo.D0(u, v, p)
+        xyz.append(p.Coord())
+    desc["samples"] = (uv, np.array(xyz))
     return desc
 
 
 def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
     """Description of a face's surface; ``(desc, needs NurbsConvert)``."""
-    from OCP.BRepAdaptor import BRepAdaptor_Surface
-    from OCP.GeomAbs import GeomAbs_SurfaceType as T
-    from OCP.GeomConvert import GeomConvert
-
-    a = BRepAdaptor_Surface(face, False)
-    t = a.GetType()
-    kind = _ANALYTIC_TYPES.get(t.name)
+    o = _occ()
+    a = o.BRepAdaptor_Surface(face, False)
+    t = int(a.GetType())
+    kind = o.ANALYTIC.get(t)
     if kind is not None:  # a.Plane(), a.Cylinder(), ...: the gp primitive
         return _analytic(kind, getattr(a, kind.capitalize())()), False
-    if t == T.GeomAbs_BSplineSurface:
+    if t == o.BSPLINE_SURFACE:
         return _bspline_surface(a.BSpline()), False
-    if t == T.GeomAbs_BezierSurface:
-        return _bspline_surface(GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
+    if t == o.BEZIER_SURFACE:
+        return _bspline_surface(o.GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
+    name = o.SurfaceType(t).name.replace("GeomAbs_", "")
     desc = _recognised(face, size)
     if desc is not None:
-        desc["source"] = t.name.replace("GeomAbs_", "")
+        desc["source"] = name
         return desc, False
-    return {"type": t.name.replace("GeomAbs_", "")}, True
+    return {"type": name}, True
 
 
-def _described(a, pt, dim: int, other) -> dict:
-    """Description of a curve adaptor (3D edge or 2D p-curve) with its range.
+def _described(a, dim: int, other) -> dict:
+    """Description of a curve adaptor (3D edge or 2D p-curve, ``dim`` 3 or 2) with its range.
 
     Lines and circles in closed form, B-splines as they are, anything else
     as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).
     """
-    T = _occ().CurveType
+    o = _occ()
     t0, t1 = a.FirstParameter(), a.LastParameter()
-    t = a.GetType()
-    if t == T.GeomAbs_Line:
+    t = int(a.GetType())
+    if t == o.LINE:
         ln = a.Line()
-        return {"type": "line", "origin": pt(ln.Location()), "direction": pt(ln.Direction()),
+        return {"type": "line", "origin": _xyz(ln.Location()), "direction": _xyz(ln.Direction()),
                 "range": (t0, t1)}
-    if t == T.GeomAbs_Circle:
+    if t == o.CIRCLE:
         c = a.Circle()
         ax = c.Position()
-        return {"type": "circle", "center": pt(ax.Location()), "x": pt(ax.XDirection()),
-                "y": pt(ax.YDirection()), "radius": c.Radius(), "range": (t0, t1)}
-    if t == T.GeomAbs_BSplineCurve:
+        return {"type": "circle", "center": _xyz(ax.Location()), "x": _xyz(ax.XDirection()),
+                "y": _xyz(ax.YDirection()), "radius": c.Radius(), "range": (t0, t1)}
+    if t == o.BSPLINE_CURVE:
         d = _bspline_curve(a.BSpline(), dim)
     else:
         d = _bspline_curve(other(t0, t1), dim)
@@ -421,7 +432,7 @@ def _curve3d(edge) -> dict | None:
         geo = o.BRep_Tool.Curve_s(edge, t0, t1)
         return o.GeomConvert.CurveToBSplineCurve_s(o.Geom_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve(edge), _xyz, 3, other)
+    return _described(o.BRepAdaptor_Curve(edge), 3, other)
 
 
 def _curve2d(edge, face) -> dict:
@@ -432,7 +443,7 @@ def _curve2d(edge, face) -> dict:
         geo = o.BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
         return o.Geom2dConvert.CurveToBSplineCurve_s(o.Geom2d_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve2d(edge, face), _xy, 2, other)
+    return _described(o.BRepAdaptor_Curve2d(edge, face), 2, other)
 
 
 # ----------------------------------------------------------------------
@@ -440,28 +451,23 @@ def _curve2d(edge, face) -> dict:
 # ----------------------------------------------------------------------
 def _wires(face, pface, edge_map, edge_of) -> list[dict]:
     """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin)."""
-    from OCP.BRep import BRep_Tool
-    from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
-    from OCP.TopAbs import TopAbs_Orientation, TopAbs_WIRE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    outer = BRepTools.OuterWire_s(face)
+    o = _occ()
+    tool = o.BRep_Tool
+    outer = o.BRepTools.OuterWire_s(face)
     wires = []
-    ex = TopExp_Explorer(face, TopAbs_WIRE)
+    ex = o.TopExp_Explorer(face, o.WIRE)
     while ex.More():
-        w = TopoDS.Wire(ex.Current())
+        w = o.TopoDS.Wire(ex.Current())
         uses = []
-        we = BRepTools_WireExplorer(w, face)
+        we = o.BRepTools_WireExplorer(w, face)
         while we.More():
             e = we.Current()
-            pe = edge_of(e)
             uses.append({
                 "edge": edge_map.FindIndex(e) - 1,
-                "reversed": e.Orientation() == TopAbs_Orientation.TopAbs_REVERSED,
-                "seam": BRep_Tool.IsClosed_s(e, face),
-                "degenerate": BRep_Tool.Degenerated_s(e),
-                "pcurve": _curve2d(pe, pface),
+                "reversed": int(e.Orientation()) == o.REVERSED,
+                "seam": tool.IsClosed_s(e, face),
+                "degenerate": tool.Degenerated_s(e),
+                "pcurve": _curve2d(edge_of(e), pface),
             })
             we.Next()
         wires.append({"outer": w.IsSame(outer), "uses": uses})
@@ -471,17 +477,15 @@ def _wires(face, pface, edge_map, edge_of) -> list[dict]:
 
 def _face(face, index: int, edge_map, size: float) -> dict:
     """Surface, bounds, orientation and wires of one face (converting it if needed)."""
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
-    from OCP.BRepTools import BRepTools
-    from OCP.TopAbs import TopAbs_Orientation
-    from OCP.TopoDS import TopoDS
-
+    o = _occ()
     surface, convert = _surface(face, size)
     pface, edge_of = face, (lambda e: e)
-    if convert:
+    if convert:  # (rare: the class is imported here)
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+
         try:
             conv = BRepBuilderAPI_NurbsConvert(face, True)
-            pface = TopoDS.Face(conv.Shape())
+            pface = o.TopoDS.Face(conv.Shape())
             surface, convert_again = _surface(pface, size)
             if convert_again:
                 raise ReadError(f"BRepBuilderAPI_NurbsConvert gave a {surface['type']} surface")
@@ -493,12 +497,12 @@ def _face(face, index: int, edge_map, size: float) -> dict:
                 f"{type(e).__name__}: {e}") from None
 
         def edge_of(e, conv=conv):  # the converted edge, used as the original (seams!)
-            return TopoDS.Edge(conv.ModifiedShape(e).Oriented(e.Orientation()))
-    uv = BRepTools.UVBounds_s(pface)
+            return o.TopoDS.Edge(conv.ModifiedShape(e).Oriented(e.Orientation()))
+    uv = o.BRepTools.UVBounds_s(pface)
     return {
         "surface": surface,
         "uv": tuple(uv),
-        "reversed": face.Orientation() == TopAbs_Orientation.TopAbs_REVERSED,
+        "reversed": int(face.Orientation()) == o.REVERSED,
         "converted": convert,
         "wires": _wires(face, pface, edge_map, edge_of),
     }
@@ -606,11 +610,10 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     times = info["times"]
     t0 = time.perf_counter()
     fmap, emap, vmap, smap = shape_maps(shape)
-    vertices = np.array([_xyz(BRep_Tool.Pnt_s(TopoDS.Vertex(vmap.FindKey(i))))
-                         for i in range(1, vmap.Extent() + 1)]).reshape(-1, 3)
+    vmaps = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, vmap.Extent() + 1)]
+    vertices = np.array([BRep_Tool.Pnt_s(v).Coord() for v in vmaps]).reshape(-1, 3)
     _check_finite(vertices, f"{path}: the vertices")
-    vtol = np.array([BRep_Tool.Tolerance_s(TopoDS.Vertex(vmap.FindKey(i)))
-                     for i in range(1, vmap.Extent() + 1)])
+    vtol = np.array([BRep_Tool.Tolerance_s(v) for v in vmaps])
     try:  # the edge and face errors name their entity; the file is named here
         edges = []
         for i in range(1, emap.Extent() + 1):  # loop over CAD edges (reading)

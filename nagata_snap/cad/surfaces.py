@@ -36,14 +36,20 @@ taken); evaluation is not clamped to it: the surface extends beyond its face.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface"]
+from nagata_snap.mesh.arrays import linspaces
+
+__all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface",
+           "fill_boxes"]
 
 TWO_PI = 2.0 * np.pi
+#: samples per direction of the grid whose box (plus its sagitta) is a curved face's bounding box
+BOX_GRID = 17
 
 
 def _positive(value, what: str) -> float:
@@ -53,12 +59,15 @@ def _positive(value, what: str) -> float:
     return v
 
 
-def _unit(v: npt.ArrayLike, what: str) -> np.ndarray:
-    a = np.asarray(v, dtype=float).reshape(3)
-    n = np.linalg.norm(a)
-    if not np.isfinite(n) or n == 0.0:
-        raise ValueError(f"{what} must be a finite non-zero vector, got {a.tolist()}")
-    return a / n
+def _units(vectors: Sequence[npt.ArrayLike], names: str) -> np.ndarray:
+    """``(k, 3)``: the 3-vectors ``vectors`` normalised (``names[i]`` names vector ``i`` in the error)."""
+    a = np.stack([np.asarray(v, dtype=float).reshape(3) for v in vectors])
+    n = np.sqrt(np.vecdot(a, a))  # = np.linalg.norm of each row, to the last bit
+    bad = ~np.isfinite(n) | (n == 0.0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"{names[i]} must be a finite non-zero vector, got {a[i].tolist()}")
+    return a / n[:, None]
 
 
 def _norm2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -127,15 +136,16 @@ class AnalyticSurface:
 
     def __init__(self, origin, x, y, z, bounds):
         self.origin = np.asarray(origin, dtype=float).reshape(3)
-        self.X, self.Y, self.Z = _unit(x, "x"), _unit(y, "y"), _unit(z, "z")
-        if not np.all(np.isfinite(self.origin)):
+        axes = _units((x, y, z), "xyz")
+        self.X, self.Y, self.Z = axes
+        if not np.isfinite(self.origin).all():
             raise ValueError(f"origin must be finite, got {self.origin.tolist()}")
         #: +1 for a right-handed frame, -1 for a left-handed one
-        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = self.X.tolist(), self.Y.tolist(), self.Z.tolist()
+        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = axes.tolist()
         triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
         self.hand = 1.0 if triple > 0 else -1.0
         b = np.asarray(bounds, dtype=float).reshape(2, 2)
-        if not np.all(np.isfinite(b)) or np.any(b[:, 1] < b[:, 0]):
+        if not np.isfinite(b).all() or (b[:, 1] < b[:, 0]).any():
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
         self.bounds = b
         #: closest points measure the angle from e(u0 + pi): atan2 then lands in
@@ -145,21 +155,25 @@ class AnalyticSurface:
         # (3, 3) rows e(shift), e'(shift), Z: the local frame of :meth:`_coords`
         self._frame = np.stack([c * self.X + sn * self.Y, c * self.Y - sn * self.X, self.Z])
         self._o_local = self._frame @ self.origin
-        self._frame4 = np.vstack([self._frame, self.origin])  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
-        self._box = None
+        self._frame4 = np.concatenate([self._frame, self.origin[None]])  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
+        #: ``(lo, hi, diagonal)`` of :attr:`bbox`, computed on first use (:func:`fill_boxes`)
+        self._box: tuple[np.ndarray, np.ndarray, float] | None = None
 
     @property
     def bbox(self) -> tuple[np.ndarray, np.ndarray]:
         """``(lo, hi)`` box of the face's parameter box (grid samples plus their sagitta)."""
         if self._box is None:
-            self._box = self._sample_box()
-        return self._box
+            fill_boxes([self])
+        assert self._box is not None
+        return self._box[0], self._box[1]
 
     @property
     def bbox_size(self) -> float:
         """Diagonal of :attr:`bbox` (length units)."""
-        lo, hi = self.bbox
-        return float(np.linalg.norm(hi - lo))
+        if self._box is None:
+            fill_boxes([self])
+        assert self._box is not None
+        return self._box[2]
 
     # -- protocol ------------------------------------------------------
     closed = (False, False)
@@ -186,15 +200,40 @@ class AnalyticSurface:
 
     _curved = (False, False)
 
-    def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """Bounding box of the face's parameter box (grid samples plus their sagitta)."""
-        (u0, u1), (v0, v1) = self.bounds
-        u = np.linspace(u0, u1, 17)
-        v = np.linspace(v0, v1, 17)
-        uu, vv = np.meshgrid(u, v, indexing="ij")
-        S = self._points(uu.ravel(), vv.ravel())
-        pad = self._sagitta(u[1] - u[0], v[1] - v[0])
-        return S.min(axis=0) - pad, S.max(axis=0) + pad
+    #: the scalar fields :meth:`_local` reads (besides the frame), per class
+    _shape_fields: tuple[str, ...] = ()
+
+    @staticmethod
+    def _sample_boxes(surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)``, each ``(k, 3)``: boxes of the parameter boxes of ``k`` surfaces of
+        revolution (any classes, those of a class next to each other), the points of a
+        :data:`BOX_GRID` x :data:`BOX_GRID` grid widened by their sagitta.
+
+        The grids are evaluated together: per class :meth:`_local` of one surface whose
+        shape fields are per-point arrays, then :func:`_to_global` with per-point frames
+        (both are elementwise, so each point is what its own surface's :meth:`_eval_soa`
+        gives).
+        """
+        k, g = len(surfaces), BOX_GRID
+        B = np.array([sf.bounds for sf in surfaces])
+        u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
+        U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
+        c, sn = np.cos(U), np.sin(U)
+        local = np.empty((1, 3, k * g * g))
+        cls = [type(sf) for sf in surfaces]
+        first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
+        for i0, i1 in pairwise(first):  # loop over classes (their formulas)
+            stack = cls[i0].__new__(cls[i0])
+            for name in cls[i0]._shape_fields:
+                setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g * g))
+            sl = slice(i0 * g * g, i1 * g * g)
+            local[:, :, sl] = stack._local(U[sl], V[sl], c[sl], sn[sl], 0)
+        frame = (np.repeat(np.array([getattr(sf, a) for sf in surfaces]).T, g * g, axis=1)  # (3, k g^2)
+                 for a in ("X", "Y", "Z", "origin"))
+        S = _to_global(local, c, sn, *frame)[0].reshape(3, k, g * g)
+        pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
+                        zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
+        return S.min(axis=2).T - pad, S.max(axis=2).T + pad
 
     def _sagitta(self, du: float, dv: float) -> float:
         return 0.0
@@ -208,12 +247,7 @@ class AnalyticSurface:
         u, v = params[0], params[1]
         c, s = np.cos(u), np.sin(u)
         local = self._local(u, v, c, s, nderiv)  # (nd, 3, k) in the (e, e', Z) basis
-        # e = c X + s Y, e' = -s X + c Y
-        E = c[None, :, None] * self.X + s[None, :, None] * self.Y  # (1, k, 3)
-        Ep = -s[None, :, None] * self.X + c[None, :, None] * self.Y
-        out = local[:, 0, :, None] * E + local[:, 1, :, None] * Ep + local[:, 2, :, None] * self.Z
-        out[0] += self.origin
-        return out.transpose(0, 2, 1)
+        return _to_global(local, c, s, self.X[:, None], self.Y[:, None], self.Z[:, None], self.origin[:, None])
 
     def _points(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         return self._eval_soa(np.stack([u, v]), 0)[0].T
@@ -366,11 +400,15 @@ class Plane(AnalyticSurface):
         (projections onto many planes at once: :class:`nagata_snap.cad.projection.AffineBatch`)."""
         return self.origin, np.stack([self.X, self.Y])
 
-    def _sample_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """The box of the parameter box's four corners (exact: the plane is linear in ``u, v``)."""
-        (u0, u1), (v0, v1) = self.bounds
-        S = self._points(np.array([u0, u0, u1, u1]), np.array([v0, v1, v0, v1]))
-        return S.min(axis=0), S.max(axis=0)
+    @staticmethod
+    def _sample_boxes(surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
+        """The boxes of the parameter boxes' four corners ``O + u X + v Y`` (exact: the plane is
+        linear in ``u, v``), ``(lo, hi)`` each ``(k, 3)``."""
+        B = np.array([sf.bounds for sf in surfaces])  # (k, 2, 2)
+        u, v = B[:, 0][:, [0, 0, 1, 1], None], B[:, 1][:, [0, 1, 0, 1], None]  # (k, 4, 1)
+        O, X, Y = (np.array([getattr(sf, a) for sf in surfaces])[:, None] for a in ("origin", "X", "Y"))
+        S = O + X * u + Y * v
+        return S.min(axis=1), S.max(axis=1)
 
     def normals(self, params):
         P = np.asarray(params, dtype=float).reshape(-1, 2)
@@ -385,6 +423,7 @@ class Cylinder(AnalyticSurface):
     can_degenerate = False
     closed = (True, False)
     _curved = (True, False)
+    _shape_fields = ("radius",)
 
     def __init__(self, origin, x, y, z, radius, bounds):
         self.radius = _positive(radius, "cylinder radius")
@@ -423,6 +462,7 @@ class Cone(AnalyticSurface):
     kind = "cone"
     closed = (True, False)
     _curved = (True, False)
+    _shape_fields = ("radius", "sin", "cos")
 
     def __init__(self, origin, x, y, z, radius, semi_angle, bounds):
         self.radius = float(radius)
@@ -517,6 +557,7 @@ class Sphere(AnalyticSurface):
     kind = "sphere"
     closed = (True, False)
     _curved = (True, True)
+    _shape_fields = ("radius",)
     limits = np.array([[-np.inf, np.inf], [-np.pi / 2, np.pi / 2]])
 
     def __init__(self, origin, x, y, z, radius, bounds):
@@ -574,6 +615,7 @@ class Torus(AnalyticSurface):
     kind = "torus"
     closed = (True, True)
     _curved = (True, True)
+    _shape_fields = ("major", "minor")
 
     def __init__(self, origin, x, y, z, major, minor, bounds):
         self.major = _positive(major, "torus major radius")
@@ -627,6 +669,37 @@ class Torus(AnalyticSurface):
         sign = np.sign(self.major + self.minor * np.cos(v))
         sign = np.where(sign == 0, 1.0, sign)
         return sign * np.cos(v), sign * np.sin(v)
+
+
+def _to_global(local: np.ndarray, c: np.ndarray, s: np.ndarray, X: np.ndarray, Y: np.ndarray, Z: np.ndarray,
+               O: np.ndarray) -> np.ndarray:
+    """``(nd, 3, k)`` points and derivatives of a surface of revolution in the global frame.
+
+    ``local (nd, 3, k)``: their components along ``e(u) = c X + s Y``, ``e'(u) = -s X + c Y``
+    and ``Z`` (:meth:`AnalyticSurface._local`), ``c, s = cos u, sin u (k,)``; the frame
+    ``X, Y, Z`` and the origin ``O`` are ``(3, 1)`` (one surface) or ``(3, k)`` (one per point).
+    """
+    E = c * X + s * Y  # (3, k)
+    Ep = -s * X + c * Y
+    out = local[:, 0, None] * E + local[:, 1, None] * Ep + local[:, 2, None] * Z
+    out[0] += O
+    return out
+
+
+def fill_boxes(surfaces: Sequence) -> None:
+    """Compute the bounding boxes of the analytic surfaces among ``surfaces`` that have none yet:
+    the planes' together, those of all surfaces of revolution together
+    (:meth:`AnalyticSurface._sample_boxes`); others are skipped."""
+    todo = [sf for sf in surfaces if isinstance(sf, AnalyticSurface) and sf._box is None]
+    planes = [sf for sf in todo if isinstance(sf, Plane)]
+    rest = sorted((sf for sf in todo if not isinstance(sf, Plane)), key=lambda sf: type(sf).__name__)
+    for group, boxes in ((planes, Plane._sample_boxes), (rest, AnalyticSurface._sample_boxes)):
+        if not group:
+            continue
+        lo, hi = boxes(group)
+        size = np.sqrt(np.vecdot(hi - lo, hi - lo))  # = np.linalg.norm of each row, to the last bit
+        for sf, a, b, d in zip(group, lo, hi, size.tolist(), strict=True):
+            sf._box = (a, b, d)
 
 
 def analytic_surface(desc: dict, bounds) -> AnalyticSurface:

@@ -31,9 +31,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nagata_snap.cad.curves import Circle, Line, analytic_curve
+from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
-from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface
+from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface, fill_boxes
+from nagata_snap.mesh.arrays import ramp
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 
@@ -114,9 +115,7 @@ class Face:
 
 def nurbs_curve(desc: dict) -> NurbsCurve:
     """A :class:`NurbsCurve` from a B-spline description (2D poles get z = 0)."""
-    poles = np.asarray(desc["poles"], dtype=float)
-    if poles.shape[1] == 2:
-        poles = np.c_[poles, np.zeros(len(poles))]
+    poles = np.asarray(desc["poles"], dtype=float)  # (n, 2) poles get z = 0 (NurbsCurve)
     w = desc.get("weights")
     return NurbsCurve(int(desc["degree"]), np.asarray(desc["knots"], dtype=float), poles,
                       np.ones(len(poles)) if w is None else np.asarray(w, dtype=float))
@@ -155,41 +154,44 @@ class _PCurves:
 
     def __init__(self, descs: Sequence[dict], face: np.ndarray, uv_maps: Sequence[np.ndarray | None]):
         n = len(descs)
-        self.kind = np.array([_KINDS.get(d["type"], 2) for d in descs], dtype=np.int64)
+        kinds = [_KINDS.get(d["type"], 2) for d in descs]
+        self.kind = np.array(kinds, dtype=np.int64)
         self.A, self.B, self.C = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2))
         self.R = np.zeros(n)
         self.splines: dict[int, NurbsCurve] = {}
         self.face = np.asarray(face, dtype=np.int64)
-        for j, d in enumerate(descs):  # loop over edge uses (coefficients)
-            if self.kind[j] == 0:
-                self.A[j], self.B[j] = d["origin"], d["direction"]
-            elif self.kind[j] == 1:
-                self.A[j], self.B[j], self.C[j], self.R[j] = d["center"], d["x"], d["y"], d["radius"]
-            else:
+        for kind, names in ((0, ("origin", "direction")), (1, ("center", "x", "y"))):
+            sel = [j for j, k in enumerate(kinds) if k == kind]
+            if sel:
+                for arr, name in zip((self.A, self.B, self.C), names, strict=False):
+                    arr[sel] = [descs[j][name] for j in sel]
+                if kind == 1:
+                    self.R[sel] = [descs[j]["radius"] for j in sel]
+        for j, k in enumerate(kinds):  # loop over edge uses (B-spline p-curves)
+            if k == 2:
                 try:
-                    self.splines[j] = nurbs_curve(d)
+                    self.splines[j] = nurbs_curve(descs[j])
                 except (ValueError, NurbsError) as err:
                     raise _FaceError(int(self.face[j]), str(err)) from None
         maps = [np.eye(3)[:, :2] if m is None else np.asarray(m, dtype=float) for m in uv_maps]
         self.M = np.array(maps).reshape(-1, 3, 2)
         self.mapped = np.array([m is not None for m in uv_maps] + [False], dtype=bool)[self.face]
 
-    def initial(self, descs: Sequence[dict]) -> list[np.ndarray]:
+    def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
         :data:`SPLINE_SAMPLES` per knot span (B-spline)."""
-        out = []
-        for j, d in enumerate(descs):  # loop over edge uses (first samples)
-            t0, t1 = d["range"]
-            if self.kind[j] == 0:
-                out.append(np.array([t0, t1], dtype=float))
-            elif self.kind[j] == 1:
-                out.append(np.linspace(t0, t1, max(2, int(np.ceil(abs(t1 - t0) / CIRCLE_STEP))) + 1))
-            else:
-                k = np.unique(self.splines[j].knots)
-                k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
-                s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
-                out.append(np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]]))
-        return out
+        rng = np.array([d["range"] for d in descs], dtype=float).reshape(-1, 2)
+        steps = np.ones(len(descs), dtype=np.int64)
+        c = self.kind == 1
+        steps[c] = np.maximum(2, np.ceil(np.abs(rng[c, 1] - rng[c, 0]) / CIRCLE_STEP).astype(np.int64))
+        splines = {}
+        for j, curve in self.splines.items():  # loop over B-spline p-curves
+            t0, t1 = rng[j]
+            k = np.unique(curve.knots)
+            k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
+            s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+            splines[j] = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
+        return _Samples(rng, steps, splines)
 
     def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
@@ -213,6 +215,38 @@ class _PCurves:
 
 #: p-curve types evaluated in closed form (the rest: B-splines)
 _KINDS = {"line": 0, "circle": 1}
+
+
+@dataclass
+class _Samples:
+    """First samples of edge uses: ``steps[j]`` uniform steps over ``range[j] (2,)`` (lines and
+    circles; as ``np.linspace(*range[j], steps[j] + 1)``), or, for B-spline uses, ``splines[j]``."""
+
+    range: np.ndarray
+    steps: np.ndarray
+    splines: dict[int, np.ndarray]
+
+    def flat(self, reverses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(t (N,), use (N,))``: every use's samples, grouped by use, each in traversal order
+        (backwards where ``reverses``); the uniform ones all at once, to the last bit
+        ``linspace``'s (``i step + t0``, the last ``t1``; a line's ends are its range)."""
+        cnt = self.steps + 1
+        for j, t in self.splines.items():  # loop over B-spline uses (their counts)
+            cnt[j] = len(t)
+        use = np.repeat(np.arange(len(cnt)), cnt)
+        i = ramp(cnt)
+        t0, t1 = self.range[:, 0], self.range[:, 1]
+        t = i * ((t1 - t0) / self.steps)[use] + t0[use]
+        end = np.cumsum(cnt)
+        t[end - 1] = t1
+        line = self.steps == 1
+        t[(end - cnt)[line]] = t0[line]
+        for j, tj in self.splines.items():  # loop over B-spline uses (their samples)
+            t[end[j] - cnt[j]:end[j]] = tj
+        r = reverses[use]
+        pos = np.arange(len(t))
+        pos[r] = (2 * (end - cnt) + cnt - 1)[use[r]] - pos[r]  # start + (count - 1 - i)
+        return t[pos], use
 
 
 class _Metric:
@@ -248,8 +282,7 @@ class _Metric:
         return dev
 
 
-def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols: np.ndarray
-                       ) -> tuple[list[np.ndarray], np.ndarray]:
+def _circles_on_planes(f: _PCurves, first: _Samples, metric: _Metric, tols: np.ndarray) -> np.ndarray:
     """Circular p-curves on (unmapped) planes sampled at once to their final step.
 
     On a plane the metric is the identity (orthonormal ``X``, ``Y``) and every
@@ -259,15 +292,15 @@ def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols:
     :data:`MAX_REFINE`) that brings the sagitta within the face's tolerance.
 
     Returns:
-        ``(ts, dev (n_uses,))``: the samples (those circles' replaced) and their
-        chords' deviation (NaN for the uses still to refine).
+        ``dev (n_uses,)``: those circles' chords' deviation (NaN for the uses still to
+        refine); their steps in ``first`` are multiplied.
     """
-    done = np.full(len(ts), np.nan)
+    done = np.full(len(first.steps), np.nan)
     sel = np.flatnonzero((f.kind == 1) & metric.plane[f.face] & ~f.mapped)
     if sel.size == 0:
-        return ts, done
-    n0 = np.array([len(ts[j]) - 1 for j in sel])
-    t0, t1 = np.array([ts[j][0] for j in sel]), np.array([ts[j][-1] for j in sel])
+        return done
+    n0 = first.steps[sel]
+    t0, t1 = first.range[sel, 0], first.range[sel, 1]
     dt0 = np.abs(t1 - t0) / n0
     R, tol = np.abs(f.R[sel]), tols[f.face[sel]]
     h = np.zeros(sel.size, dtype=np.int64)
@@ -276,20 +309,22 @@ def _circles_on_planes(f: _PCurves, ts: list[np.ndarray], metric: _Metric, tols:
         if not more.any():
             break
         h += more
-    ts = list(ts)
-    for j, a, b, n in zip(sel, t0, t1, n0 * 2 ** h, strict=True):  # loop over those circles
-        ts[j] = np.linspace(a, b, n + 1)
+    first.steps[sel] = n0 * 2 ** h
     done[sel] = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h))
-    return ts, done
+    return done
 
 
-def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: Sequence,
+def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequence,
             tols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample every use's p-curve and refine its chords until within its face's tolerance.
 
     Segments whose mid-parameter point is farther than ``tols[face]`` from the
     chord's midpoint (:class:`_Metric`) are split, up to :data:`MAX_REFINE`
-    times; all uses of all faces are refined together.
+    times; all uses of all faces are refined together.  Only the halves of the
+    segments split are tested again (a segment kept keeps its deviation), and one
+    evaluation tests two levels: each segment's midpoint and the midpoints of its
+    two halves, whose tests count only where the segment is split (the same
+    points and decisions as level by level, in half the calls).
 
     Returns:
         ``(P (N, 2), use (N,), dev (N,))``: the samples of every use in
@@ -298,31 +333,87 @@ def _refine(f: _PCurves, ts: list[np.ndarray], reverses: np.ndarray, surfaces: S
         (0 for lines; meaningless at a use's last point).
     """
     metric = _Metric(surfaces)
-    ts, done = _circles_on_planes(f, ts, metric, tols)
-    ts = [t[::-1] if r else t for t, r in zip(ts, reverses, strict=True)]  # traversal order
-    use = np.repeat(np.arange(len(ts)), [len(t) for t in ts])
-    t = np.concatenate(ts) if ts else np.zeros(0)
+    done = _circles_on_planes(f, first, metric, tols)
+    t, use = first.flat(reverses)
     P = f(t, use)
     dev = np.nan_to_num(done, nan=0.0)[use]
-    active = (f.kind != 0) & np.isnan(done)  # lines: the chord is the curve
-    for it in range(MAX_REFINE + 1):
-        k = np.flatnonzero((use[:-1] == use[1:]) & active[use[:-1]])
+    fresh = ((f.kind != 0) & np.isnan(done))[use]  # segments (by their first point) to test
+    it = 0  # refinement level of the segments tested
+    while it <= MAX_REFINE:
+        k = np.flatnonzero((use[:-1] == use[1:]) & fresh[:-1])
         if k.size == 0:
             break
-        tm, um = 0.5 * (t[k] + t[k + 1]), use[k]
-        mid = 0.5 * (P[k] + P[k + 1])
-        Pm = f(tm, um)
-        d = metric(Pm - mid, mid, f.face[um])
+        two = it < MAX_REFINE  # the halves' level is within the refinement limit
+        um = use[k]
+        fm = f.face[um]
+        Pa, Pb = P[k], P[k + 1]
+        tm = 0.5 * (t[k] + t[k + 1])
+        if two:  # midpoints, then the midpoints of both halves, interleaved (uses stay sorted)
+            tq = np.stack([tm, 0.5 * (t[k] + tm), 0.5 * (tm + t[k + 1])], axis=1)
+            Pq = f(tq.ravel(), np.repeat(um, 3)).reshape(-1, 3, 2)
+            Pm = Pq[:, 0]
+            mids = np.stack([0.5 * (Pa + Pb), 0.5 * (Pa + Pm), 0.5 * (Pm + Pb)], axis=1)
+            dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), np.repeat(fm, 3)).reshape(-1, 3)
+            d = dq[:, 0]
+        else:
+            mid = 0.5 * (Pa + Pb)
+            Pm = f(tm, um)
+            d = metric(Pm - mid, mid, fm)
         dev[k] = d
-        split = d > tols[f.face[um]]
+        split = d > tols[fm]
         if it == MAX_REFINE or not split.any():
             break
-        active = np.zeros(len(active), dtype=bool)
-        active[um[split]] = True
-        at = k[split] + 1  # the midpoints go between their segment's ends
-        t, use = np.insert(t, at, tm[split]), np.insert(use, at, um[split])
-        P, dev = np.insert(P, at, Pm[split], axis=0), np.insert(dev, at, 0.0)
+        sel = np.flatnonzero(split)
+        t, use, P, dev, new = _split(t, use, P, dev, k[sel], tm[sel], Pm[sel])
+        it += 1
+        if two:  # the halves' tests, done: their deviations, then their splits
+            halves = np.stack([new - 1, new], axis=1)  # (n, 2) first points of both halves
+            dev[halves] = dq[sel, 1:]
+            split2 = dq[sel, 1:] > tols[fm[sel], None]
+            if it == MAX_REFINE or not split2.any():
+                break
+            t, use, P, dev, new = _split(t, use, P, dev, halves[split2], tq[sel, 1:][split2],
+                                         Pq[sel, 1:][split2])
+            it += 1
+        fresh = np.zeros(len(t), dtype=bool)
+        fresh[new] = fresh[new - 1] = True
     return P, use, dev
+
+
+def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np.ndarray,
+           tm: np.ndarray, Pm: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Insert the midpoints ``tm (n,)``, ``Pm (n, 2)`` of the segments starting at ``k (n,)``
+    (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions."""
+    at = k + 1
+    t, use = np.insert(t, at, tm), np.insert(use, at, use[k])
+    P, dev = np.insert(P, at, Pm, axis=0), np.insert(dev, at, 0.0)
+    return t, use, P, dev, at + np.arange(len(at))
+
+
+def _edge_curves(edges: Sequence[dict], path: str) -> list:
+    """The 3D curve of every edge description (None for degenerate edges): lines and circles
+    built together (:func:`~nagata_snap.cad.curves.analytic_curves`), B-splines one by one.
+
+    Raises:
+        ValueError: naming the first edge (in edge order) whose curve is invalid.
+    """
+    descs = [e["curve"] for e in edges]
+    ana = [i for i, c in enumerate(descs) if c is not None and c["type"] in ("line", "circle")]
+    out: list = [None] * len(descs)
+    try:
+        for i, c in zip(ana, analytic_curves([descs[i] for i in ana]), strict=True):
+            out[i] = c
+        for i, c in enumerate(descs):  # loop over B-spline edges
+            if c is not None and out[i] is None:
+                out[i] = nurbs_curve(c)
+    except (ValueError, NurbsError):  # the first invalid edge, built alone, names the error
+        for i, c in enumerate(descs):  # loop over edges (error path)
+            try:
+                None if c is None else (analytic_curve(c) if i in ana else nurbs_curve(c))
+            except (ValueError, NurbsError) as err:
+                raise ValueError(f"{path}: edge {i} ({c['type']} curve): {err}") from None
+        raise  # pragma: no cover - the batch failed, so one of them does
+    return out
 
 
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
@@ -403,6 +494,7 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
             wires.append((i, bool(w["outer"])))
     face_a = np.array(face, dtype=np.int64)
     f = _PCurves(descs, face_a, uv_maps)
+    fill_boxes(surfaces)  # the analytic faces' boxes, those of a kind together
     tols = SAMPLE_RTOL * np.array([s.bbox_size for s in surfaces])
     P, use, dev = _refine(f, f.initial(descs), np.array(rev, dtype=bool), surfaces, tols)
     keep = np.zeros(len(use), dtype=bool)  # a use's last point starts the next use
@@ -517,17 +609,8 @@ class CadModel:
 
         t0 = time.perf_counter()
         path = data.get("path", "")
-        edges = []
-        for i, e in enumerate(data["edges"]):
-            c = e["curve"]
-            try:
-                curve = None if c is None else (
-                    analytic_curve(c) if c["type"] in ("line", "circle") else nurbs_curve(c))
-            except (ValueError, NurbsError) as err:
-                raise ValueError(f"{path}: edge {i} ({c['type']} curve): {err}") from None
-            v0, v1 = e["vertices"]
-            edges.append(Edge(curve, (int(v0), int(v1)), (),
-                              float(e.get("tolerance", 0.0))))
+        edges = [Edge(curve, (int(e["vertices"][0]), int(e["vertices"][1])), (), float(e.get("tolerance", 0.0)))
+                 for e, curve in zip(data["edges"], _edge_curves(data["edges"], path), strict=True)]
         tol = np.array([e.tolerance for e in edges] + [0.0])
         fdata = data["faces"]
         surfaces, maps = [], []

@@ -135,6 +135,19 @@ class _Slabs:
         return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
 
 
+def _segments(polys: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Per closed polygon ``(k_i, 2)`` its edge vectors ``P[(j + 1) % k_i] - P[j]``, computed for all
+    polygons at once."""
+    if not polys:
+        return []
+    m = np.array([len(P) for P in polys])
+    off = np.concatenate([[0], np.cumsum(m)])
+    P = np.concatenate(polys)
+    nxt = np.arange(len(P)) + 1
+    nxt[off[1:] - 1] = off[:-1]  # each polygon closes on its first vertex
+    return np.split(P[nxt] - P, off[1:-1])
+
+
 def _user_band(P: np.ndarray) -> np.ndarray:
     """Parametric sagitta bound of a user polygon's segments (no true curve known).
 
@@ -179,9 +192,9 @@ class TrimLoops:
         for e in range(n):  # loop over entities (checks and bands)
             for k, poly in enumerate(loops[e] or []):
                 P = np.asarray(poly, dtype=float)
-                if P.ndim != 2 or P.shape[1] != 2 or not np.all(np.isfinite(P)):
+                if P.ndim != 2 or P.shape[1] != 2 or not np.isfinite(P).all():
                     raise ValueError(f"entity {e}: trimming loop {k} must be a finite (k, 2) polygon, got {P.shape}")
-                if len(P) > 1 and np.array_equal(P[0], P[-1]):
+                if len(P) > 1 and P[0, 0] == P[-1, 0] and P[0, 1] == P[-1, 1]:  # closed on its first vertex
                     P = P[:-1]
                 if len(P) < 2:
                     raise ValueError(f"entity {e}: trimming loop {k} has fewer than 2 vertices")
@@ -190,10 +203,12 @@ class TrimLoops:
                 else:
                     band = np.asarray(bands[e][k], dtype=float).reshape(len(P))
                 checked.append((e, P, band + self.rtol * self.entities[e].bbox_size))
-        slabs = _Slabs.many([P for _, P, _ in checked])
+        polys = [P for _, P, _ in checked]
+        slabs = _Slabs.many(polys)
+        segs = _segments(polys)
         self._loops: list[list[tuple]] = [[] for _ in range(n)]
-        for (e, P, band), sl in zip(checked, slabs, strict=True):  # loop over loops (their records)
-            self._loops[e].append((P, np.roll(P, -1, axis=0) - P, band, sl))
+        for (e, P, band), seg, sl in zip(checked, segs, slabs, strict=True):  # loop over loops (their records)
+            self._loops[e].append((P, seg, band, sl))
         self.trimmed = np.array([bool(lp) for lp in self._loops])
         self._period = np.array([entity_periods(ent) for ent in self.entities])
 

@@ -1,0 +1,99 @@
+"""Read + convert of this checkout against a git revision of it, side by side in one process.
+
+The revision's ``nagata_snap`` is exported (``git archive``) into a temporary directory and
+renamed ``nagata_snap_ref``, so that both versions are imported together; for every part and
+format of ``meshes/parts.py`` asked for, OpenCASCADE's own import of the file (``ReadFile`` +
+``TransferRoots`` + ``OneShape``), the revision's ``CadGeometry.from_file(isolate=False)`` and
+this checkout's are timed interleaved, ``--rounds`` rounds, and the best time of each is kept
+(CPU time, ``time.process_time``; ``--wall``: wall time).  Interleaving in one process makes
+the ratios comparable on a shared machine, where one run of each at different moments is not.
+
+    python benchmarks/read_vs_ref.py [--ref main] [--parts a,b] [--formats step,iges] [--rounds 15] [--wall]
+
+Printed per part and format: the three times [ms] and the ratios of the revision and of this
+checkout to OpenCASCADE's import.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def export_ref(ref: str) -> str:
+    """Directory holding the revision's package as ``nagata_snap_ref``."""
+    out = tempfile.mkdtemp(prefix="read_vs_ref_")
+    tar = subprocess.run(["git", "-C", ROOT, "archive", ref, "nagata_snap"], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", out], input=tar, check=True)
+    pkg = os.path.join(out, "nagata_snap_ref")
+    os.rename(os.path.join(out, "nagata_snap"), pkg)
+    for d, _, files in os.walk(pkg):  # its imports of itself
+        for f in files:
+            if f.endswith(".py"):
+                p = os.path.join(d, f)
+                with open(p) as fh:
+                    text = fh.read()
+                with open(p, "w") as fh:
+                    fh.write(text.replace("nagata_snap.", "nagata_snap_ref.").replace("import nagata_snap\n",
+                                                                                     "import nagata_snap_ref\n"))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--ref", default="main", help="git revision to compare with (default main)")
+    ap.add_argument("--parts", default="box_fillet_chamfer,plate,revolved,extruded_bspline,lofted_blade,"
+                                       "crossing_cylinders,seamed,assembly,profile_2d,plate_holes_2d")
+    ap.add_argument("--formats", default="step,iges", help="step, iges (faces-only or B-rep, as the part is written)")
+    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--wall", action="store_true", help="wall time instead of CPU time")
+    args = ap.parse_args()
+    sys.path[:0] = [export_ref(args.ref), ROOT, os.path.join(ROOT, "meshes")]
+    out = os.fdopen(os.dup(1), "w")
+    os.dup2(os.open(os.devnull, os.O_WRONLY), 1)  # OpenCASCADE's messages on reading IGES
+    import mpi4py.MPI  # noqa: F401  (before DOLFINx, which the packages import)
+    import nagata_snap_ref.cad as ref
+    import parts
+    from OCP.IGESControl import IGESControl_Reader
+    from OCP.STEPControl import STEPControl_Reader
+
+    import nagata_snap.cad as new
+
+    def occ(path: str) -> None:
+        r = STEPControl_Reader() if path.endswith(".step") else IGESControl_Reader()
+        r.ReadFile(path)
+        r.TransferRoots()
+        r.OneShape()
+
+    clock = time.perf_counter if args.wall else time.process_time
+    tmp = tempfile.mkdtemp(prefix="read_vs_ref_parts_")
+    print(f"{'part':20s} {'format':9s} {'OCC':>7s} {args.ref:>7s} {'this':>7s}   ratio {args.ref:>5s} {'this':>5s}"
+          f"   ({'wall' if args.wall else 'CPU'} ms, best of {args.rounds})", file=out, flush=True)
+    for name in args.parts.split(","):
+        for fmt in args.formats.split(","):
+            f = fmt if fmt == "step" else ("iges" if parts.PARTS[name].iges_faces_solid else "iges_brep")
+            path = str(parts.write_part(name, tmp, (f,))[f])
+            runs = {"occ": lambda p=path: occ(p), "ref": lambda p=path: ref.CadGeometry.from_file(p, isolate=False),
+                    "this": lambda p=path: new.CadGeometry.from_file(p, isolate=False)}
+            best = dict.fromkeys(runs, float("inf"))
+            for g in runs.values():
+                g()  # first calls (imports, caches) are not timed
+            for _ in range(args.rounds):
+                for k, g in runs.items():
+                    t0 = clock()
+                    g()
+                    best[k] = min(best[k], clock() - t0)
+            o = best["occ"]
+            print(f"{name:20s} {f:9s} {1e3 * o:7.2f} {1e3 * best['ref']:7.2f} {1e3 * best['this']:7.2f}   "
+                  f"      {best['ref'] / o:5.2f} {best['this'] / o:5.2f}", file=out, flush=True)
+
+
+if __name__ == "__main__":
+    main()
