@@ -11,10 +11,11 @@ B-rep IGES) the script measures, side by side in one process:
   shared machine), each the best of 3;
 * attach: ``CadGeometry.attach`` of the coarse gmsh mesh's boundary facets, per
   distinct boundary vertex, with gmsh's classification (``mesh_cad``: known
-  faces and (u, v) seeds; target < 20 us; best of 3 calls: the first call
-  in a process also warms numpy's and the CPU's caches, and on the smallest
-  parts takes up to 2x longer) and without (global search; one call, which
-  includes building the search grid and its KD-tree);
+  faces and (u, v) seeds; target < 20 us; best of 10 calls: a call on the
+  smallest parts takes ~0.5 ms, which one scheduler hiccup on a shared
+  machine doubles, and the first call in a process also warms numpy's and
+  the CPU's caches, up to 2x longer) and without (global search; one call,
+  which includes building the search grid and its KD-tree);
 * place: the ``place`` stage of ``Snapper.refine`` per snapped point, two
   uniform levels;
 * snapping: after the two levels, every snapped vertex's distance from OCC's
@@ -111,7 +112,7 @@ def ours_read_seconds(path: str) -> tuple[float, float]:
 
 
 def attach_timing(cm, geo) -> tuple[float, float, int]:
-    """us per distinct boundary vertex: attach with the mesh hints (best of 3), and by global
+    """us per distinct boundary vertex: attach with the mesh hints (best of 10), and by global
     search (the first call)."""
     gids = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
     x = cm.mesh.geometry.x[cm.facets.nodes]
@@ -125,7 +126,7 @@ def attach_timing(cm, geo) -> tuple[float, float, int]:
             best = min(best, time.perf_counter() - t0)
         return best
 
-    hinted = seconds(3)
+    hinted = seconds(10)
     hints, geo._hints = geo._hints, None
     search = seconds(1)
     geo._hints = hints
