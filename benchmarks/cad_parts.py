@@ -40,9 +40,9 @@ on the face's underlying surface, without the trimming test (ours: the
 closed form of :mod:`nagata_snap.cad.surfaces`, or seeded Newton on NURBS;
 gmsh's ``getClosestPoint`` on a CAD face: OpenCASCADE's
 ``GeomAPI_ProjectPointOnSurf`` on the surface restricted to the face's
-parameter box), for the same 1e5 points (best of 5 calls on both sides for
-the analytic faces, best of 3 interleaved on the NURBS face, where OCC gets
-the first tenth of the points: its time per point does not depend on n).
+parameter box), for the same 1e5 points (best of 5 calls on both sides,
+interleaved; on the NURBS face OCC gets the first tenth of the points: its
+time per point does not depend on n).
 
     python benchmarks/cad_parts.py [--parts a,b] [--points 100000] [--no-large]
 """
@@ -216,12 +216,13 @@ def projection_speed(path: str, kinds: set[str], n: int, rng) -> list[tuple]:
             # the gmsh face on which these points lie
             tag = min(tags, key=lambda t: np.abs(np.reshape(gmsh.model.getClosestPoint(2, t, S[:20].ravel())[0], (-1, 3)) - S[:20]).max())
             seeds = uv + 1e-3 * (hi - lo) * rng.normal(size=uv.shape)  # refinement-like seeds
-            # best of 5 (closed forms) or 3 (NURBS) on both sides, calls interleaved: one run is
-            # at the mercy of the scheduler.  OCC needs ~400 us/point on a NURBS, so there it
-            # gets the first tenth of the points (its time per point does not depend on n)
+            # best of 5 on both sides, calls interleaved: one run is at the mercy of the
+            # scheduler (consecutive calls of ours on the NURBS face take 1.6-2.7 us/point on a
+            # shared machine).  OCC needs ~200-400 us/point on a NURBS, so there it gets the
+            # first tenth of the points (its time per point does not depend on n)
             m = n // 10 if kind == "nurbs" else n
             ours = theirs = np.inf
-            for _ in range(3 if kind == "nurbs" else 5):
+            for _ in range(5):
                 t0 = time.perf_counter()
                 res = project_points(s, X, seeds)
                 ours = min(ours, time.perf_counter() - t0)
