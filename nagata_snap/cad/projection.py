@@ -72,6 +72,7 @@ __all__ = [
     "ProjectionResult",
     "project_newton",
     "GlobalSearcher",
+    "AffineBatch",
     "global_search",
     "sample_entity",
     "normalize_params",
