@@ -331,8 +331,8 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
     on = np.flatnonzero(finite & ~analytic)
     if on.size:  # NURBS seeds that are the vertex itself (a mesh made from the CAD) need no Newton
         s = first[on]
-        ok = seed_is_point(geo, X[s], ent[s], sd[s])
-        par[on[ok]], dist[on[ok]] = sd[s[ok]], 0.0
+        ok, dd = seed_is_point(geo, X[s], ent[s], sd[s])
+        par[on[ok]], dist[on[ok]] = sd[s[ok]], dd[ok]
     seeded = np.flatnonzero((finite | analytic) & ~(dist <= t))
     if seeded.size:  # Newton from the given seeds (closed form on analytic faces)
         s = first[seeded]
@@ -352,15 +352,18 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
 SEED_RTOL = 1e-13
 
 
-def seed_is_point(geo: CadGeometry, X: np.ndarray, ent: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """``(n,)`` bool: entity ``ent`` at ``seeds (n, d)`` is the point ``X (n, 3)`` (within
-    :data:`SEED_RTOL` of the entity's size), so the seed is the vertex's closest point.
+def seed_is_point(geo: CadGeometry, X: np.ndarray, ent: np.ndarray, seeds: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``(ok (n,) bool, dist (n,))``: entity ``ent`` at ``seeds (n, d)`` is the point ``X (n, 3)``
+    (within :data:`SEED_RTOL` of the entity's size), so the seed is the vertex's closest
+    point; ``dist`` how far they are apart.
 
     One evaluation per point instead of a Newton projection: the parameters a
     mesher gives with its nodes are exact (gmsh evaluates the CAD at them).
     """
     S = geo.evaluate(ent, seeds[:, None, :])[:, 0]
-    return np.linalg.norm(S - X, axis=1) <= SEED_RTOL * geo._sizes[ent]
+    dist = np.linalg.norm(S - X, axis=1)
+    return dist <= SEED_RTOL * geo._sizes[ent], dist
 
 
 def edge_channels(keys: np.ndarray, allkeys: np.ndarray, nfv: int) -> np.ndarray:
