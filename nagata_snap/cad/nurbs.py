@@ -668,8 +668,8 @@ class NurbsSurface(_ControlNet):
         only if the row's control points coincide.  True if some row or column
         of the net does (within 1e-9 x bounding-box size); then
         :func:`nagata_snap.cad.params.degenerate` evaluates the tangents.  (An
-        iso-line between rows collapses only if the blended rows coincide by
-        construction, which CAD surfaces do not do.)
+        iso-line between rows collapses only where rows that do not coincide
+        blend to one point; this test does not catch that.)
         """
         cp = self.control_points
         tol = CLOSED_RTOL * max(self._size, 1e-300)
