@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nagata_snap.mesh.arrays import best_per_group, dot, dot_last, row_index
+from nagata_snap.mesh.arrays import best_per_group, dot, dot_last, row_index, unique_rows
 
 
 def _best_by_loop(group, keys, n, mask):
@@ -49,7 +49,7 @@ def test_dot_products_match_sums():
 @pytest.mark.parametrize("dtype", [np.int64, np.int32, np.float64])
 def test_row_index_numbers_rows_in_lexicographic_order(high, dtype):
     """Packed integer keys (narrow ids) and the generic path (wide ids, floats) agree with
-    sorting the distinct rows as tuples."""
+    sorting the distinct rows as tuples, and ``unique_rows`` with ``np.unique(axis=0)``."""
     rng = np.random.default_rng(high % 97)
     rows = rng.integers(0, high, (300, 3))
     rows[100:200] = rows[:100]  # repeated rows
@@ -57,6 +57,10 @@ def test_row_index_numbers_rows_in_lexicographic_order(high, dtype):
     rows = rows.astype(dtype)
     ranked = {r: i for i, r in enumerate(sorted({tuple(r) for r in rows.tolist()}))}
     assert np.array_equal(row_index(rows), [ranked[tuple(r)] for r in rows.tolist()])
+    first, inverse, distinct = unique_rows(rows)
+    want, want_first = np.unique(rows, axis=0, return_index=True)
+    assert np.array_equal(first, want_first) and np.array_equal(distinct, want)
+    assert np.array_equal(distinct[inverse], rows)
 
 
 def test_linspaces_are_each_rows_linspace():

@@ -73,48 +73,42 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     As ``np.unique(a, axis=0, return_index=True, return_inverse=True)`` (rows
     compared by value: ``-0.0 == 0.0``; a row with NaN is its own group), but
-    with one ``np.lexsort`` of the columns instead of a sort of the rows as
-    opaque byte strings.
+    sorted by one ``np.lexsort`` of the columns instead of as opaque byte
+    strings; rows of narrow non-negative integers (vertex ids) by one sort of
+    a packed int64 key each (:func:`_packed`, the same order).
     """
     a = np.ascontiguousarray(a)
     n = a.shape[0]
     if n == 0:
         return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), a[:0]
-    order = np.lexsort(a.T[::-1])  # stable: equal rows keep their input order
-    srt = a[order]
+    key = _packed(a)
     new = np.ones(n, dtype=bool)
-    new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
+    if key is None:
+        order = np.lexsort(a.T[::-1])  # stable: equal rows keep their input order
+        srt = a[order]
+        new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
+    else:  # equal keys are equal rows
+        order = np.argsort(key, kind="stable")
+        srt = key[order]
+        np.not_equal(srt[1:], srt[:-1], out=new[1:])
     inverse = np.empty(n, dtype=np.intp)
     inverse[order] = np.cumsum(new) - 1
-    return order[new], inverse, srt[new]
+    first = order[new]
+    return first, inverse, a[first]
 
 
 def row_index(rows: np.ndarray) -> np.ndarray:
     """``(n,)`` id of each row of ``rows (n, k)`` (equal rows, equal ids; ids ``0..m-1`` in
-    the lexicographic order of the rows).
-
-    Rows of non-negative integers that fit are packed into one int64 key each
-    (the first column most significant, so the order is the same) and sorted
-    once; other rows go through :func:`unique_rows`.
-    """
+    the lexicographic order of the rows)."""
     if len(rows) == 0:
         return np.zeros(0, dtype=np.int64)
-    key = _packed(rows)
-    if key is None:
-        return unique_rows(rows)[1].astype(np.int64, copy=False)
-    order = np.argsort(key, kind="stable")
-    srt = key[order]
-    new = np.empty(len(srt), dtype=bool)
-    new[0] = True
-    np.not_equal(srt[1:], srt[:-1], out=new[1:])
-    ids = np.empty(len(srt), dtype=np.int64)
-    ids[order] = np.cumsum(new) - 1
-    return ids
+    return unique_rows(rows)[1].astype(np.int64, copy=False)
 
 
 def _packed(rows: np.ndarray) -> np.ndarray | None:
-    """``(n,)`` int64 keys of integer ``rows (n, k)`` with ``k`` fields of equal width, or None
-    (not integers, negative, or too wide for 63 bits)."""
+    """``(n,)`` int64 keys of integer ``rows (n, k)`` with ``k`` fields of equal width (the
+    first column most significant: keys sort as the rows), or None (not integers, negative,
+    or too wide for 63 bits)."""
     if rows.dtype.kind not in "iu" or rows.ndim != 2:
         return None
     lo, hi = int(rows.min()), int(rows.max())
