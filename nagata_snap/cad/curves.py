@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.mesh.arrays import linspaces
+from nagata_snap.mesh.arrays import linspaces, norms
 
 __all__ = ["Line", "Circle", "analytic_curve", "analytic_curves"]
 
@@ -48,12 +48,6 @@ def _vecs(a, n: int, what: str) -> np.ndarray:
     v = np.zeros((len(a), 3))
     v[:, :n] = a
     return v
-
-
-def _norms(V: np.ndarray) -> np.ndarray:
-    """``(k,)`` Euclidean norms of the rows of ``V (k, 3)``, the same to the last bit as
-    ``np.linalg.norm`` of each row (a dot product: ``vecdot``, not a sum of squares)."""
-    return np.sqrt(np.vecdot(V, V))
 
 
 class _Curve:
@@ -85,7 +79,7 @@ class _Curve:
     @staticmethod
     def _set_boxes(curves: list, lo: np.ndarray, hi: np.ndarray) -> list:
         """Store the boxes ``lo, hi (k, 3)`` and their diagonals on ``curves``; returns ``curves``."""
-        size = _norms(hi - lo)
+        size = norms(hi - lo)
         for c, a, b, d in zip(curves, lo, hi, size.tolist(), strict=True):
             c.bbox, c.bbox_size = (a, b), d
         return curves
@@ -158,7 +152,7 @@ class Line(_Curve):
         ranges ``t0, t1 (k,)``; their boxes are their end points' (exact: linear in ``t``)."""
         O = _vecs(origins, 2, "line origin")
         D = _vecs(directions, 2, "line direction")
-        n = _norms(D)
+        n = norms(D)
         if np.any(n == 0):
             raise ValueError("line direction must be non-zero")
         D = D / n[:, None]
@@ -206,7 +200,7 @@ class Circle(_Curve):
         sagitta ``R (1 - cos(dt / 2))`` of their spacing ``dt``."""
         C = _vecs(centers, 2, "circle centre")
         X, Y = _vecs(xs, 2, "circle x direction"), _vecs(ys, 2, "circle y direction")
-        X, Y = X / _norms(X)[:, None], Y / _norms(Y)[:, None]
+        X, Y = X / norms(X)[:, None], Y / norms(Y)[:, None]
         R = np.asarray(radii, dtype=float).reshape(-1)
         bad = np.flatnonzero(~(np.isfinite(R) & (R > 0)))
         if bad.size:

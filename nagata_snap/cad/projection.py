@@ -66,7 +66,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from nagata_snap.mesh.arrays import Groups, best_per_group, dot
+from nagata_snap.mesh.arrays import Groups, best_per_group, dot, norms
 
 __all__ = [
     "ProjectionResult",
@@ -696,8 +696,7 @@ class AffineBatch:
             np.clip(P, lim[:, :, 0], lim[:, :, 1], out=P)
         r = np.einsum("nd,ndc->nc", P, ax)
         r -= q  # foot minus point
-        S = r + X
-        return P, S, np.sqrt(np.einsum("nc,nc->n", r, r))
+        return P, r + X, norms(r)
 
 
 # ----------------------------------------------------------------------
@@ -872,10 +871,11 @@ class GlobalSearcher:
         dist = np.full(n, np.inf)
         its = np.zeros(n, dtype=np.int64)
         conv = np.zeros(n, dtype=bool)
-        aff = self.affine.has[ent[g.order]]
+        es = ent[g.order]
+        aff = self.affine.has[es]
         if aff.any():  # planes and segments: all at once
             _check_finite(X[aff], "points")
-            params[aff], proj[aff], dist[aff] = self.affine.closest(ent[g.order][aff], X[aff])
+            params[aff], proj[aff], dist[aff] = self.affine.closest(es[aff], X[aff])
             conv[aff] = True
         for e, sl in g:  # loop over the other entities, vectorised inside
             if self.affine.has[e]:

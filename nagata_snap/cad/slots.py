@@ -18,7 +18,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from nagata_snap.mesh.arrays import unique_rows
+from nagata_snap.mesh.arrays import norms, unique_rows
 
 __all__ = ["MERGE_RTOL", "facet_array", "longest_edge", "vertex_groups", "box_pairs"]
 
@@ -51,8 +51,7 @@ def longest_edge(x: np.ndarray) -> np.ndarray:
     if x.shape[1] < 2:
         return np.zeros(x.shape[0])
     i, j = _pairs(x.shape[1])
-    e = x[:, i] - x[:, j]
-    return np.sqrt(np.einsum("fpc,fpc->fp", e, e).max(axis=1))
+    return norms(x[:, i] - x[:, j]).max(axis=1)
 
 
 @lru_cache(maxsize=8)

@@ -42,7 +42,7 @@ from itertools import pairwise
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.mesh.arrays import linspaces
+from nagata_snap.mesh.arrays import linspaces, norms
 
 __all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface",
            "fill_boxes"]
@@ -62,7 +62,7 @@ def _positive(value, what: str) -> float:
 def _units(vectors: Sequence[npt.ArrayLike], names: str) -> np.ndarray:
     """``(k, 3)``: the 3-vectors ``vectors`` normalised (``names[i]`` names vector ``i`` in the error)."""
     a = np.stack([np.asarray(v, dtype=float).reshape(3) for v in vectors])
-    n = np.sqrt(np.vecdot(a, a))  # = np.linalg.norm of each row, to the last bit
+    n = norms(a)
     bad = ~np.isfinite(n) | (n == 0.0)
     if bad.any():
         i = int(np.argmax(bad))
@@ -697,7 +697,7 @@ def fill_boxes(surfaces: Sequence) -> None:
         if not group:
             continue
         lo, hi = boxes(group)
-        size = np.sqrt(np.vecdot(hi - lo, hi - lo))  # = np.linalg.norm of each row, to the last bit
+        size = norms(hi - lo)
         for sf, a, b, d in zip(group, lo, hi, size.tolist(), strict=True):
             sf._box = (a, b, d)
 

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["best_per_group", "dot", "dot_last", "unique_rows", "row_index", "ramp", "linspaces", "Ragged",
+__all__ = ["best_per_group", "dot", "dot_last", "norms", "unique_rows", "row_index", "ramp", "linspaces", "Ragged",
            "Groups"]
 
 
@@ -66,6 +66,12 @@ def dot(a: Sequence[np.ndarray] | np.ndarray, b: Sequence[np.ndarray] | np.ndarr
 def dot_last(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot product over the last axis of ``(..., d)`` arrays."""
     return np.einsum("...i,...i->...", a, b)
+
+
+def norms(V: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of ``V (..., d)``, the same to the last bit as
+    ``np.linalg.norm(V, axis=-1)`` (a dot product: ``vecdot``), with less overhead."""
+    return np.sqrt(np.vecdot(V, V))
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
