@@ -540,17 +540,18 @@ class CadGeometry:
         ent = np.repeat(root, nfv)
         out = np.zeros((nf * nfv, 3))
         sign = self._orientation()[ent]
+        g = Groups(ent)
         if d == 1:
-            for e in np.unique(ent):  # loop over entities
-                sel = np.flatnonzero(ent == e)
+            for e, sl in g:  # loop over entities
+                sel = g.order[sl]
                 c = self.entities[e]
                 _, T = evaluate_params(c, normalize_params(c, P[sel]), 1)
                 t = T[:, 0] / np.maximum(np.linalg.norm(T[:, 0], axis=1, keepdims=True), 1e-300)
                 out[sel] = np.stack([t[:, 1], -t[:, 0], np.zeros(len(sel))], axis=1)
             return (out * sign[:, None]).reshape(nf, nfv, 3)
         centre = np.repeat(params[:, :, :d].mean(axis=1), nfv, axis=0)
-        for e in np.unique(ent):  # loop over entities
-            sel = np.flatnonzero(ent == e)
+        for e, sl in g:  # loop over entities
+            sel = g.order[sl]
             s = self.entities[e]
             if hasattr(s, "normals"):
                 out[sel] = s.normals(P[sel])

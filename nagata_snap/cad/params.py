@@ -92,11 +92,12 @@ def unit_normals(entities: Sequence[Any], ent: np.ndarray, params: np.ndarray) -
     """``(n, 3)`` unit ``S_u x S_v`` at ``params (n, 2)`` of surfaces ``ent (n,)``; zero where
     degenerate and on curves."""
     out = np.zeros((len(ent), 3))
-    for e in np.unique(ent):  # loop over entities
+    g = Groups(ent)
+    for e, sl in g:  # loop over entities
         ent_e = entities[e]
         if ent_e.param_dim != 2:
             continue
-        sel = np.flatnonzero(ent == e)
+        sel = g.order[sl]
         _, T = evaluate_params(ent_e, normalize_params(ent_e, params[sel]), 1)
         c = np.cross(T[:, 0], T[:, 1])
         n = np.linalg.norm(c, axis=1)

@@ -956,8 +956,9 @@ class GlobalSearcher:
             return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
         kk = self.k_seeds if k_seeds is None else int(k_seeds)
         pts, ents, seeds = [], [], []
-        for e in np.unique(ent):  # loop over entities
-            sel = np.flatnonzero(ent == e)
+        g = Groups(ent)
+        for e, sl in g:  # loop over entities
+            sel = g.order[sl]
             if is_analytic(self.entities[e]):  # closed form: one projection, no seeds
                 pts.append(sel)
                 ents.append(np.full(len(sel), e))

@@ -30,7 +30,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.mesh.arrays import ramp
+from nagata_snap.mesh.arrays import Groups, ramp
 
 __all__ = ["TrimLoops"]
 
@@ -284,8 +284,10 @@ class TrimLoops:
         out = np.full(len(ent), -np.inf)
         if len(ent) == 0 or not self.trimmed.any():
             return out
-        for e in np.unique(ent[self.trimmed[ent]]):  # loop over trimmed entities
-            sel = np.flatnonzero(ent == e)
+        rows = np.flatnonzero(self.trimmed[ent])
+        g = Groups(ent[rows])
+        for e, gs in g:  # loop over trimmed entities
+            sel = rows[g.order[gs]]
             q0 = normalize_params(self.entities[e], params[sel])
             su, sv = self._scales(e, q0)
             shifts = [np.zeros(2)]
@@ -315,8 +317,10 @@ class TrimLoops:
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
         params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
         out = np.ones(len(ent), dtype=bool)
-        for e in np.unique(ent[self.trimmed[ent]]):  # loop over trimmed entities
-            sel = np.flatnonzero(ent == e)
+        rows = np.flatnonzero(self.trimmed[ent])
+        g = Groups(ent[rows])
+        for e, gs in g:  # loop over trimmed entities
+            sel = rows[g.order[gs]]
             q = normalize_params(self.entities[e], params[sel])
             cross = sum(_crossings(P, q, slabs) for P, _, _, slabs in self._loops[e])
             out[sel] = cross % 2 == 1
