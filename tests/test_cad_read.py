@@ -58,6 +58,60 @@ def sources(tmp_path_factory):
     return out
 
 
+def build_vase(path: str) -> None:
+    """A solid of revolution of a profile with a cone and a B-spline (no analytic surface), with
+    a B-spline prism beside it (a linear extrusion of a B-spline curve)."""
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        occ = gmsh.model.occ
+        pts = [occ.addPoint(x, 0, z) for x, z in ((0, 0), (1.0, 0), (1.2, 0.3), (1.4, 0.6), (0.8, 0.9),
+                                                  (0.9, 1.2), (0, 1.2))]
+        loop = occ.addCurveLoop([occ.addLine(pts[0], pts[1]), occ.addLine(pts[1], pts[2]),  # a cone
+                                 occ.addBSpline(pts[2:6]), occ.addLine(pts[5], pts[6]), occ.addLine(pts[6], pts[0])])
+        occ.revolve([(2, occ.addPlaneSurface([loop]))], 0, 0, 0, 0, 0, 1, 2 * np.pi)
+        base = [occ.addPoint(3 + x, y, 0) for x, y in ((0, 0), (1, 0.2), (1.2, 1), (0.3, 0.8))]
+        prism = occ.addCurveLoop([occ.addBSpline(base[:3]), occ.addLine(base[2], base[3]),
+                                  occ.addLine(base[3], base[0])])
+        occ.extrude([(2, occ.addPlaneSurface([prism]))], 0, 0, 0.5)
+        occ.synchronize()
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
+
+
+@pytest.mark.parametrize("ext", ["step", "igs"])
+def test_faces_keep_the_files_parameters_unless_converted(tmp_path, ext):
+    """Every face not marked ``converted`` is, at the file's ``(u, v)`` (through the face's
+    parameter map where it was recognised as analytic), OpenCASCADE's own surface point
+    there; the B-spline extrusion keeps its parameters, the revolved B-spline cannot."""
+    from occ_reference import OccShape
+    from OCP.BRepAdaptor import BRepAdaptor_Surface
+    from OCP.BRepTools import BRepTools
+
+    path = str(tmp_path / f"vase.{ext}")
+    build_vase(path)
+    geo = CadGeometry.from_file(path, isolate=False)
+    occ = OccShape(path)
+    kinds = {}
+    rng = np.random.default_rng(3)
+    for face, ours in zip(occ.faces, geo.model.faces, strict=True):
+        kind = type(ours.surface).__name__
+        kinds[kind, ours.converted] = kinds.get((kind, ours.converted), 0) + 1
+        if ours.converted:
+            continue
+        u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+        uv = np.c_[rng.uniform(u0, u1, 40), rng.uniform(v0, v1, 40)]
+        a = BRepAdaptor_Surface(face)
+        want = np.array([a.Value(u, v).Coord() for u, v in uv])
+        mine = uv if ours.uv_map is None else np.c_[uv, np.ones(len(uv))] @ ours.uv_map
+        got = ours.surface.evaluate(mine[:, 0], mine[:, 1])[0]
+        assert np.abs(got - want).max() <= 1e-9 * occ.size, kind
+    assert kinds[("NurbsSurface", False)] == 1  # the extrusion of the B-spline, not converted
+    assert kinds[("NurbsSurface", True)] == 1  # the revolved B-spline: rational circles reparametrise
+    assert kinds[("Plane", False)] >= 4 and kinds[("Cone", False)] == 1
+
+
 # ----------------------------------------------------------------------
 # errors
 # ----------------------------------------------------------------------

@@ -24,7 +24,11 @@ surfaces, curves and trimming loops:
   (``GeomConvert_SurfToAnaSurf``, as IGES files write them) gets that
   analytic surface and a grid of its own parameters and points, from which
   the parameter map is fitted; a Bezier surface becomes a B-spline with the
-  same parameters; anything else is converted with
+  same parameters; any other surface whose B-spline form
+  (``GeomConvert::SurfaceToBSplineSurface`` of the face's parameter box) keeps
+  its parameters, as a linear extrusion of a B-spline curve does, becomes that
+  B-spline (checked inside every knot span, where a reparametrisation would
+  show; the p-curves stay valid); anything else is converted with
   ``BRepBuilderAPI_NurbsConvert``, together with its p-curves, and marked
   ``converted`` (its ``(u, v)`` then differ from the file's).
 * ``edges``: the 3D curve (``"line"``, ``"circle"``, else a B-spline from
@@ -375,6 +379,46 @@ def _recognised(face, size: float) -> dict | None:
     return desc
 
 
+#: points per knot span (each direction) where a B-spline twin is compared with its surface
+TWIN_SAMPLES = 3
+
+
+def _bspline_twin(face, size: float) -> dict | None:
+    """The face's surface as a B-spline with the same parameters, or None.
+
+    ``GeomConvert::SurfaceToBSplineSurface`` of the surface restricted to the
+    face's ``(u, v)`` box is exact for some surfaces (a linear extrusion of a
+    B-spline curve) and reparametrises others (the rational circles of a
+    surface of revolution).  It is kept if it reproduces the surface within
+    1e-9 of the model size at :data:`TWIN_SAMPLES` points inside every knot
+    span in both directions, since a reparametrisation agrees at the spans'
+    ends and differs inside them.
+    """
+    from OCP.Geom import Geom_RectangularTrimmedSurface
+    from OCP.gp import gp_Pnt
+
+    o = _occ()
+    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
+    u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
+    try:
+        twin = o.GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geo, u0, u1, v0, v1))
+        desc = _bspline_surface(twin)
+    except Exception:  # OpenCASCADE's construction and domain errors: not convertible this way
+        return None
+    inside = np.arange(1, TWIN_SAMPLES + 1) / (TWIN_SAMPLES + 1)
+    grids = []
+    for knots in (desc["knots_u"], desc["knots_v"]):
+        k = np.unique(knots)
+        grids.append(np.concatenate([(k[:-1, None] + np.outer(np.diff(k), inside)).ravel(), k]))
+    uu, vv = np.meshgrid(*grids, indexing="ij")
+    a, b, gap = gp_Pnt(), gp_Pnt(), 0.0
+    for u, v in zip(uu.ravel().tolist(), vv.ravel().tolist(), strict=True):  # samples (two OCC evaluations)
+        geo.D0(u, v, a)
+        twin.D0(u, v, b)
+        gap = max(gap, a.Distance(b))
+    return desc if gap <= 1e-9 * size else None
+
+
 def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
     """Description of a face's surface; ``(desc, needs NurbsConvert)``."""
     o = _occ()
@@ -388,7 +432,7 @@ def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
     if t == o.BEZIER_SURFACE:
         return _bspline_surface(o.GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
     name = o.SurfaceType(t).name.replace("GeomAbs_", "")
-    desc = _recognised(face, size)
+    desc = _recognised(face, size) or _bspline_twin(face, size)
     if desc is not None:
         desc["source"] = name
         return desc, False
