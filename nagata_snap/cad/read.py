@@ -45,10 +45,12 @@ carry no unit: their coordinates are taken as they are.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
 import time
+from collections.abc import Iterator
 from types import SimpleNamespace
 
 import numpy as np
@@ -121,6 +123,23 @@ def _check_finite(values, what: str) -> None:
 # ----------------------------------------------------------------------
 # reading and healing
 # ----------------------------------------------------------------------
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """OpenCASCADE's own messages below warnings (the IGES reader's entity counts on stdout)
+    not printed while reading; the printers' levels are restored after."""
+    from OCP.Message import Message, Message_Gravity
+
+    printers = list(Message.DefaultMessenger_s().Printers())
+    levels = [p.GetTraceLevel() for p in printers]
+    for p in printers:
+        p.SetTraceLevel(Message_Gravity.Message_Warning)
+    try:
+        yield
+    finally:
+        for p, level in zip(printers, levels, strict=True):
+            p.SetTraceLevel(level)
+
+
 def _read(path: str, fmt: str, unit: str):
     """``(shape, the file's own length unit names, unit of the shape's coordinates)``."""
     from OCP.BRep import BRep_Builder
@@ -591,7 +610,8 @@ def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
         raise ReadError(f"{path}: no such file")
     times = {}
     t0 = time.perf_counter()
-    shape, file_units, unit = _read(path, fmt, unit)
+    with _quiet():
+        shape, file_units, unit = _read(path, fmt, unit)
     times["read"] = time.perf_counter() - t0
     if shape.IsNull() or _count(shape, TopAbs_VERTEX) == 0:
         raise ReadError(f"{path}: the file holds an empty shape (no vertices, edges or faces)")
