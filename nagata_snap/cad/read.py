@@ -22,8 +22,8 @@ surfaces, curves and trimming loops:
   is neither analytic nor a B-spline (surface of revolution or extrusion,
   offset surface, ...) but is a plane, cylinder, cone, sphere or torus
   (``GeomConvert_SurfToAnaSurf``, as IGES files write them) gets that
-  analytic surface and a grid of its own parameters and points, from which
-  the parameter map is fitted; a Bezier surface becomes a B-spline with the
+  analytic surface and the affine map of its own parameters onto the
+  surface's (``"uv_map"``); a Bezier surface becomes a B-spline with the
   same parameters; any other surface whose B-spline form
   (``GeomConvert::SurfaceToBSplineSurface`` of the face's parameter box) keeps
   its parameters, as a linear extrusion of a B-spline curve does, becomes that
@@ -360,21 +360,43 @@ def _elementary(s) -> dict | None:
     return None
 
 
-#: samples per direction of a recognised surface (its parameter map is fitted to them)
-MAP_SAMPLES = 9
+#: samples per direction of the grid on which a recognised surface's parameter map is checked
+MAP_SAMPLES = 4
+#: the gp primitive of each analytic Geom_ surface, and its periodic parameters
+_PRIMITIVES = {"plane": ("Pln", ()), "cylinder": ("Cylinder", (0,)), "cone": ("Cone", (0,)),
+               "sphere": ("Sphere", (0,)), "torus": ("Torus", (0, 1))}
+
+
+def _max_gap(geo, other, uv: np.ndarray, uv_other: np.ndarray) -> float:
+    """Largest distance between ``geo`` at ``uv (k, 2)`` and ``other`` at ``uv_other (k, 2)``
+    (two OpenCASCADE surfaces, one evaluation each per sample)."""
+    from OCP.gp import gp_Pnt
+
+    a, b, gap = gp_Pnt(), gp_Pnt(), 0.0
+    for (u, v), (s, t) in zip(uv.tolist(), uv_other.tolist(), strict=True):  # samples
+        geo.D0(u, v, a)
+        other.D0(s, t, b)
+        gap = max(gap, a.Distance(b))
+    return gap
 
 
 def _recognised(face, size: float) -> dict | None:
     """An analytic twin of a face's other surface (surface of revolution or extrusion, ...).
 
     ``GeomConvert_SurfToAnaSurf`` finds the plane, cylinder, cone, sphere or
-    torus within 1e-9 of the model size; its parameters differ from the
-    face's, so the description carries a grid of the face's ``(u, v)`` and the
-    points there (``"samples"``), to which :mod:`nagata_snap.cad.topology`
-    fits the parameter map.
+    torus within 1e-9 of the model size.  Its parameters differ from the
+    face's by an affine map ``(u', v') = [u, v, 1] M`` where the face is a
+    surface of revolution or extrusion of a line or circle: ``M`` is read off
+    three points (the centre of the face's ``(u, v)`` box and a quarter of the
+    box along each direction; their analytic parameters by ``ElSLib``, turns
+    unwrapped, whole turns chosen so that the image of the box's corner
+    ``(u0, v0)`` is in ``[0, 2 pi)``) and kept (``"uv_map"``, ``(3, 2)``) if it maps a
+    :data:`MAP_SAMPLES` x :data:`MAP_SAMPLES` grid over the box onto the
+    surface's points within 1e-9 of the model size; else None (a plane swept
+    by a radial line has polar parameters: no affine map).
     """
+    from OCP.ElSLib import ElSLib
     from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
-    from OCP.gp import gp_Pnt
 
     o = _occ()
     geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
@@ -386,15 +408,25 @@ def _recognised(face, size: float) -> dict | None:
     desc = None if ana is None else _elementary(ana)
     if desc is None or not conv.Gap() <= 1e-9 * size:
         return None
+    accessor, periodic = _PRIMITIVES[desc["type"]]
+    prim = getattr(ana, accessor)()
     u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
-    uu, vv = np.meshgrid(np.linspace(u0, u1, MAP_SAMPLES), np.linspace(v0, v1, MAP_SAMPLES),
-                         indexing="ij")
-    uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
-    p, xyz = gp_Pnt(), []
-    for u, v in uv.tolist():  # loop over the samples (one OCC evaluation each, into one point)
-        geo.D0(u, v, p)
-        xyz.append(p.Coord())
-    desc["samples"] = (uv, np.array(xyz))
+    du, dv = 0.25 * (u1 - u0), 0.25 * (v1 - v0)
+    base = np.array([[u0 + 2 * du, v0 + 2 * dv]]) + np.array([[0.0, 0.0], [du, 0.0], [0.0, dv]])
+    own = np.array([ElSLib.Parameters_s(prim, geo.Value(u, v)) for u, v in base.tolist()])
+    step = own[1:] - own[0]  # (2, 2): the images of (du, 0) and (0, dv)
+    for a in periodic:  # turns unwrapped: a quarter of the box is less than half a turn
+        step[:, a] -= 2 * np.pi * np.round(step[:, a] / (2 * np.pi))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lin = step / np.array([[du], [dv]])
+    M = np.vstack([lin, own[0] - base[0] @ lin])
+    for a in periodic:  # whole turns: the image of the box's corner (u0, v0) in [0, 2 pi) (to 1e-9)
+        M[2, a] -= 2 * np.pi * np.floor((u0 * M[0, a] + v0 * M[1, a] + M[2, a]) / (2 * np.pi) + 1e-9)
+    g = np.linspace(0.0, 1.0, MAP_SAMPLES)
+    uv = np.stack(np.meshgrid(u0 + g * (u1 - u0), v0 + g * (v1 - v0), indexing="ij"), axis=-1).reshape(-1, 2)
+    if not (np.isfinite(M).all() and _max_gap(geo, ana, uv, uv @ M[:2] + M[2]) <= 1e-9 * size):
+        return None
+    desc["uv_map"] = M
     return desc
 
 
@@ -414,7 +446,6 @@ def _bspline_twin(face, size: float) -> dict | None:
     ends and differs inside them.
     """
     from OCP.Geom import Geom_RectangularTrimmedSurface
-    from OCP.gp import gp_Pnt
 
     o = _occ()
     geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
@@ -429,13 +460,8 @@ def _bspline_twin(face, size: float) -> dict | None:
     for knots in (desc["knots_u"], desc["knots_v"]):
         k = np.unique(knots)
         grids.append(np.concatenate([(k[:-1, None] + np.outer(np.diff(k), inside)).ravel(), k]))
-    uu, vv = np.meshgrid(*grids, indexing="ij")
-    a, b, gap = gp_Pnt(), gp_Pnt(), 0.0
-    for u, v in zip(uu.ravel().tolist(), vv.ravel().tolist(), strict=True):  # samples (two OCC evaluations)
-        geo.D0(u, v, a)
-        twin.D0(u, v, b)
-        gap = max(gap, a.Distance(b))
-    return desc if gap <= 1e-9 * size else None
+    uv = np.stack(np.meshgrid(*grids, indexing="ij"), axis=-1).reshape(-1, 2)
+    return desc if _max_gap(geo, twin, uv, uv) <= 1e-9 * size else None
 
 
 def _surface(face, size: float = 1.0) -> tuple[dict, bool]:

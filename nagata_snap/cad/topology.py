@@ -25,7 +25,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -417,49 +416,19 @@ def _edge_curves(edges: Sequence[dict], path: str) -> list:
 
 
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
-    """The face's surface, and the map of the file's ``(u, v)`` to its parameters (or None)."""
-    bounds = [[uv[0], uv[1]], [uv[2], uv[3]]]
+    """The face's surface, and the map of the file's ``(u, v)`` to its parameters (or None).
+
+    A face recognised as analytic (``desc["uv_map"]``, ``(3, 2)``: ``(u', v') = [u, v, 1] M``,
+    from :mod:`~nagata_snap.cad.read`) gets the image of its ``(u, v)`` box as its bounds.
+    """
+    box = np.array([[uv[0], uv[1]], [uv[2], uv[3]]], dtype=float)
     if desc["type"] == "bspline":
         return nurbs_surface(desc), None
-    if "samples" not in desc:
-        return analytic_surface(desc, bounds), None
-    return fit_uv_map(desc, bounds)
-
-
-def fit_uv_map(desc: dict, bounds) -> tuple[AnalyticSurface, np.ndarray]:
-    """Analytic surface of a recognised face and the affine map of the face's parameters.
-
-    ``desc["samples"] = (uv (k, 2), points (k, 3))``: a grid over the face's
-    own ``(u, v)`` box and its points.  Their closed-form parameters on the
-    analytic surface (unwrapped along the grid in closed directions) are fitted
-    by ``(u', v') = [u, v, 1] M`` (least squares on the grid's interior, clear
-    of poles and apexes, where a parameter is free); the map is accepted if
-    it reproduces every sample point within 1e-9 of the face's size.
-
-    Returns:
-        ``(surface, M (3, 2))``, the surface's bounds the image of the face's box.
-
-    Raises:
-        ValueError: no affine map fits (the caller converts to NURBS instead).
-    """
-    uv, xyz = (np.asarray(a, dtype=float) for a in desc["samples"])
-    n = math.isqrt(len(uv))
-    size = float(np.linalg.norm(xyz.max(axis=0) - xyz.min(axis=0)))
-    probe = analytic_surface(desc, [[0.0, 2 * np.pi], [-1.0, 1.0]])
-    P = probe.closest(xyz)[0]
-    for a, per in enumerate(probe.periods):
-        if np.isfinite(per):
-            g = np.unwrap(P[:, a].reshape(n, n), period=per, axis=1)
-            P[:, a] = np.unwrap(g, period=per, axis=0).ravel()
-    grid = np.zeros((n, n), dtype=bool)
-    grid[1:-1, 1:-1] = True
-    inner = grid.ravel() if n > 2 else np.ones(len(uv), dtype=bool)
-    A = np.c_[uv, np.ones(len(uv))]
-    M = np.linalg.lstsq(A[inner], P[inner], rcond=None)[0]  # (3, 2)
-    err = np.linalg.norm(probe._points(*(A @ M).T) - xyz, axis=1).max()
-    if not err <= 1e-9 * max(size, 1e-300):
-        raise ValueError(f"no affine parameter map onto the {desc['type']} (error {err:.2e})")
-    corners = np.c_[np.array([[b0, b1] for b0 in bounds[0] for b1 in bounds[1]]), np.ones(4)] @ M
+    M = desc.get("uv_map")
+    if M is None:
+        return analytic_surface(desc, box), None
+    M = np.asarray(M, dtype=float).reshape(3, 2)
+    corners = np.c_[np.array([[a, b] for a in box[0] for b in box[1]]), np.ones(4)] @ M
     return analytic_surface(desc, np.stack([corners.min(axis=0), corners.max(axis=0)], axis=1)), M
 
 
