@@ -112,6 +112,30 @@ def test_faces_keep_the_files_parameters_unless_converted(tmp_path, ext):
     assert kinds[("Plane", False)] >= 4 and kinds[("Cone", False)] == 1
 
 
+def test_revolved_radial_line_is_converted_not_refused(tmp_path):
+    """A plane face written as a surface of revolution of a radial line (an annulus) has polar
+    parameters, no affine map onto the plane: it is converted to NURBS (it was refused), and
+    its surface is the exact annulus."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
+    from OCP.BRepTools import BRepTools
+    from OCP.Geom import Geom_Line, Geom_SurfaceOfRevolution
+    from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt
+
+    radial = Geom_Line(gp_Pnt(1, 0, 0), gp_Dir(1, 0, 0))
+    surface = Geom_SurfaceOfRevolution(radial, gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(0, 0, 1)))
+    path = str(tmp_path / "annulus.brep")
+    BRepTools.Write_s(BRepBuilderAPI_MakeFace(surface, 0.0, 1.5, 0.0, 1.0, 1e-7).Face(), path)
+    geo = CadGeometry.from_file(path, isolate=False)
+    (face,) = geo.model.faces
+    assert face.converted
+    b = face.surface.bounds
+    u, v = np.meshgrid(np.linspace(*b[0], 9), np.linspace(*b[1], 9))
+    P = face.surface.evaluate(u.ravel(), v.ravel())[0]
+    r = np.hypot(P[:, 0], P[:, 1])
+    assert np.abs(P[:, 2]).max() <= 1e-12 and r.min() >= 1 - 1e-9 and r.max() <= 2 + 1e-9
+    assert np.arctan2(P[:, 1], P[:, 0]).max() >= 1.4  # the quarter turn is covered
+
+
 # ----------------------------------------------------------------------
 # errors
 # ----------------------------------------------------------------------
