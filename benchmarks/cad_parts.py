@@ -4,11 +4,13 @@ For every part (STEP, and IGES: faces-only where gmsh re-solidifies it, else
 B-rep IGES) the script measures, side by side in one process:
 
 * read: ``CadGeometry.from_file`` in this process (OpenCASCADE read, B-rep
-  conversion, trimming loops, search grid) against OpenCASCADE's own import
-  of the same file (``STEPControl_Reader`` / ``IGESControl_Reader``:
-  ``ReadFile`` + ``TransferRoots``); the ratio (target <= 2), of the wall
-  times and of the CPU times (``time.process_time``, the fairer one on a
-  shared machine), each the best of 3;
+  conversion, trimming loops) against OpenCASCADE's own import of the same
+  file (``STEPControl_Reader`` / ``IGESControl_Reader``: ``ReadFile`` +
+  ``TransferRoots`` + ``OneShape``), called in turn for 7 rounds, the least
+  time of each side: the ratio of the CPU times (``time.process_time``: the
+  work done, what the target <= 2 is judged on; on a shared machine the wall
+  clock also counts the time other processes hold the cores) and of the wall
+  times;
 * attach: ``CadGeometry.attach`` of the coarse gmsh mesh's boundary facets, per
   distinct boundary vertex, with gmsh's classification (``mesh_cad``: known
   faces and (u, v) seeds; target < 20 us; best of 10 calls: a call on the
@@ -83,34 +85,27 @@ MESH = {"box_fillet_chamfer": (0.4, 4), "plate": (0.3, 8), "revolved": (0.6, 10)
         "seamed": (0.4, 4), "assembly": (0.3, 6), "profile_2d": (0.1, 12), "plate_holes_2d": (0.1, 12)}
 
 
-def best_seconds(f, n: int = 3) -> tuple[float, float]:
-    """``(wall, cpu)``: the least wall time and the least CPU time (``time.process_time``) of
-    ``n`` calls of ``f()``."""
-    wall = cpu = np.inf
-    for _ in range(n):
-        t0, c0 = time.perf_counter(), time.process_time()
-        f()
-        wall, cpu = min(wall, time.perf_counter() - t0), min(cpu, time.process_time() - c0)
-    return wall, cpu
-
-
-def occ_import_seconds(path: str) -> tuple[float, float]:
-    """OpenCASCADE's own import: ReadFile + TransferRoots + OneShape, ``(wall, cpu)`` best of 3."""
+def read_seconds(path: str, rounds: int = 7) -> tuple[tuple[float, float], tuple[float, float]]:
+    """OpenCASCADE's own import of ``path`` (ReadFile + TransferRoots + OneShape) and
+    ``CadGeometry.from_file(path, isolate=False)`` in this process, called in turn for
+    ``rounds`` rounds: ``((occ wall, occ cpu), (ours wall, ours cpu))``, each the least of its
+    rounds (CPU: ``time.process_time``).  Interleaved, so that both sides see the same load."""
     from OCP.IGESControl import IGESControl_Reader
     from OCP.STEPControl import STEPControl_Reader
 
-    def read() -> None:
+    def occ() -> None:
         r = STEPControl_Reader() if path.endswith((".step", ".stp")) else IGESControl_Reader()
         r.ReadFile(path)
         r.TransferRoots()
         r.OneShape()
 
-    return best_seconds(read)
-
-
-def ours_read_seconds(path: str) -> tuple[float, float]:
-    """``CadGeometry.from_file`` in this process, ``(wall, cpu)`` best of 3."""
-    return best_seconds(lambda: CadGeometry.from_file(path, isolate=False))
+    best = np.full((2, 2), np.inf)
+    for _ in range(rounds):
+        for k, f in enumerate((occ, lambda: CadGeometry.from_file(path, isolate=False))):
+            t0, c0 = time.perf_counter(), time.process_time()
+            f()
+            best[k] = np.minimum(best[k], (time.perf_counter() - t0, time.process_time() - c0))
+    return (float(best[0, 0]), float(best[0, 1])), (float(best[1, 0]), float(best[1, 1]))
 
 
 def attach_timing(cm, geo) -> tuple[float, float, int]:
@@ -220,7 +215,7 @@ def large_cases(tmp: str) -> list[tuple]:
     plate = str(parts.write_part("plate", tmp, ("step",))["step"])
     for name, path, sf, cu in (("plate_100_holes", holes, 0.05, 8), ("bracket", block, 0.1, 8),
                                ("plate (fine)", plate, 0.01, 16)):
-        (occ_t, occ_cpu), (our_t, our_cpu) = occ_import_seconds(path), ours_read_seconds(path)
+        (occ_t, occ_cpu), (our_t, our_cpu) = read_seconds(path)
         t0 = time.perf_counter()
         cm, geo = mesh_cad(path, MPI.COMM_SELF, size_factor=sf, curvature=cu)
         t_mesh = time.perf_counter() - t0
@@ -293,7 +288,7 @@ def main() -> None:
         files = parts.write_part(name, tmp, tuple(fmts))
         for fmt in fmts:
             path = str(files[fmt])
-            (occ_t, occ_c), (our_t, our_c) = occ_import_seconds(path), ours_read_seconds(path)
+            (occ_t, occ_c), (our_t, our_c) = read_seconds(path)
             r = snap_part(name, fmt, path)
             ok = r["worst"] <= 1e-9 and r["inverted"] == 0 and r["short"] == 0
             passed += ok
@@ -306,12 +301,11 @@ def main() -> None:
                   f"{r['vertices']:6d} {r['attach_hint']:9.1f} {r['attach_search']:10.1f} "
                   f"{r['place']:7.2f} {r['worst']:9.1e} {r['inverted']:4d} {r['short']:5d}{'' if ok else '  FAIL'}",
                   flush=True)
-    med = float(np.median(read_ratios))
-    print(f"read + convert / OCC import: median {med:.2f}, max {max(read_ratios):.2f} (target <= 2: "
-          f"{'met' if max(read_ratios) <= 2 else 'not met'} for the max); CPU time: median "
-          f"{float(np.median(cpu_ratios)):.2f}, max {max(cpu_ratios):.2f}")
+    print(f"read + convert / OCC import, CPU time: median {float(np.median(cpu_ratios)):.2f}, max "
+          f"{max(cpu_ratios):.2f} (target <= 2: {'met' if max(cpu_ratios) <= 2 else 'not met'}); wall time: "
+          f"median {float(np.median(read_ratios)):.2f}, max {max(read_ratios):.2f}")
     total += 2
-    passed += max(read_ratios) <= 2
+    passed += max(cpu_ratios) <= 2
     passed += max(attach_hint) < 20
     print(f"attach with gmsh's classification: max {max(attach_hint):.1f} us/vertex (target < 20)")
 
