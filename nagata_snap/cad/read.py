@@ -47,10 +47,11 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import itertools
 import math
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from types import SimpleNamespace
 
 import numpy as np
@@ -362,22 +363,28 @@ def _elementary(s) -> dict | None:
 
 #: samples per direction of the grid on which a recognised surface's parameter map is checked
 MAP_SAMPLES = 4
+TWO_PI = 2.0 * math.pi
 #: the gp primitive of each analytic Geom_ surface, and its periodic parameters
 _PRIMITIVES = {"plane": ("Pln", ()), "cylinder": ("Cylinder", (0,)), "cone": ("Cone", (0,)),
                "sphere": ("Sphere", (0,)), "torus": ("Torus", (0, 1))}
 
 
-def _max_gap(geo, other, uv: np.ndarray, uv_other: np.ndarray) -> float:
-    """Largest distance between ``geo`` at ``uv (k, 2)`` and ``other`` at ``uv_other (k, 2)``
-    (two OpenCASCADE surfaces, one evaluation each per sample)."""
+def _max_gap(geo, other, uv: Sequence[tuple[float, float]], uv_other: Sequence[tuple[float, float]]) -> float:
+    """Largest distance between ``geo`` at the ``(u, v)`` pairs ``uv`` and ``other`` at
+    ``uv_other`` (two OpenCASCADE surfaces, one evaluation each per sample)."""
     from OCP.gp import gp_Pnt
 
     a, b, gap = gp_Pnt(), gp_Pnt(), 0.0
-    for (u, v), (s, t) in zip(uv.tolist(), uv_other.tolist(), strict=True):  # samples
+    for (u, v), (s, t) in zip(uv, uv_other, strict=True):  # samples
         geo.D0(u, v, a)
         other.D0(s, t, b)
         gap = max(gap, a.Distance(b))
     return gap
+
+
+def _pairs(us: Sequence[float], vs: Sequence[float]) -> list[tuple[float, float]]:
+    """The grid ``us x vs`` as ``(u, v)`` pairs, ``u`` major (a few samples: plain floats)."""
+    return [(u, v) for u in us for v in vs]
 
 
 def _recognised(face, size: float) -> dict | None:
@@ -393,7 +400,8 @@ def _recognised(face, size: float) -> dict | None:
     ``(u0, v0)`` is in ``[0, 2 pi)``) and kept (``"uv_map"``, ``(3, 2)``) if it maps a
     :data:`MAP_SAMPLES` x :data:`MAP_SAMPLES` grid over the box onto the
     surface's points within 1e-9 of the model size; else None (a plane swept
-    by a radial line has polar parameters: no affine map).
+    by a radial line has polar parameters: no affine map).  A handful of
+    numbers per face: plain floats, not numpy.
     """
     from OCP.ElSLib import ElSLib
     from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
@@ -412,21 +420,25 @@ def _recognised(face, size: float) -> dict | None:
     prim = getattr(ana, accessor)()
     u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
     du, dv = 0.25 * (u1 - u0), 0.25 * (v1 - v0)
-    base = np.array([[u0 + 2 * du, v0 + 2 * dv]]) + np.array([[0.0, 0.0], [du, 0.0], [0.0, dv]])
-    own = np.array([ElSLib.Parameters_s(prim, geo.Value(u, v)) for u, v in base.tolist()])
-    step = own[1:] - own[0]  # (2, 2): the images of (du, 0) and (0, dv)
-    for a in periodic:  # turns unwrapped: a quarter of the box is less than half a turn
-        step[:, a] -= 2 * np.pi * np.round(step[:, a] / (2 * np.pi))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lin = step / np.array([[du], [dv]])
-    M = np.vstack([lin, own[0] - base[0] @ lin])
-    for a in periodic:  # whole turns: the image of the box's corner (u0, v0) in [0, 2 pi) (to 1e-9)
-        M[2, a] -= 2 * np.pi * np.floor((u0 * M[0, a] + v0 * M[1, a] + M[2, a]) / (2 * np.pi) + 1e-9)
-    g = np.linspace(0.0, 1.0, MAP_SAMPLES)
-    uv = np.stack(np.meshgrid(u0 + g * (u1 - u0), v0 + g * (v1 - v0), indexing="ij"), axis=-1).reshape(-1, 2)
-    if not (np.isfinite(M).all() and _max_gap(geo, ana, uv, uv @ M[:2] + M[2]) <= 1e-9 * size):
+    if not (du > 0 and dv > 0):
         return None
-    desc["uv_map"] = M
+    uc, vc = u0 + 2 * du, v0 + 2 * dv
+    (a0, b0), (a1, b1), (a2, b2) = (ElSLib.Parameters_s(prim, geo.Value(u, v))
+                                    for u, v in ((uc, vc), (uc + du, vc), (uc, vc + dv)))
+    step = [[a1 - a0, b1 - b0], [a2 - a0, b2 - b0]]  # the images of (du, 0) and (0, dv)
+    for a in periodic:  # turns unwrapped: a quarter of the box is less than half a turn
+        for row in step:
+            row[a] -= TWO_PI * round(row[a] / TWO_PI)
+    lin = [[step[0][0] / du, step[0][1] / du], [step[1][0] / dv, step[1][1] / dv]]
+    off = [a0 - uc * lin[0][0] - vc * lin[1][0], b0 - uc * lin[0][1] - vc * lin[1][1]]
+    for a in periodic:  # whole turns: the image of the box's corner (u0, v0) in [0, 2 pi) (to 1e-9)
+        off[a] -= TWO_PI * math.floor((u0 * lin[0][a] + v0 * lin[1][a] + off[a]) / TWO_PI + 1e-9)
+    g = [i / (MAP_SAMPLES - 1) for i in range(MAP_SAMPLES)]
+    uv = _pairs([u0 + t * (u1 - u0) for t in g], [v0 + t * (v1 - v0) for t in g])
+    image = [(u * lin[0][0] + v * lin[1][0] + off[0], u * lin[0][1] + v * lin[1][1] + off[1]) for u, v in uv]
+    if not (all(map(math.isfinite, lin[0] + lin[1] + off)) and _max_gap(geo, ana, uv, image) <= 1e-9 * size):
+        return None
+    desc["uv_map"] = np.array([lin[0], lin[1], off])
     return desc
 
 
@@ -455,12 +467,12 @@ def _bspline_twin(face, size: float) -> dict | None:
         desc = _bspline_surface(twin)
     except Exception:  # OpenCASCADE's construction and domain errors: not convertible this way
         return None
-    inside = np.arange(1, TWIN_SAMPLES + 1) / (TWIN_SAMPLES + 1)
+    inside = [(i + 1) / (TWIN_SAMPLES + 1) for i in range(TWIN_SAMPLES)]
     grids = []
     for knots in (desc["knots_u"], desc["knots_v"]):
-        k = np.unique(knots)
-        grids.append(np.concatenate([(k[:-1, None] + np.outer(np.diff(k), inside)).ravel(), k]))
-    uv = np.stack(np.meshgrid(*grids, indexing="ij"), axis=-1).reshape(-1, 2)
+        k = np.unique(knots).tolist()
+        grids.append(k + [a + t * (b - a) for a, b in itertools.pairwise(k) for t in inside])
+    uv = _pairs(*grids)
     return desc if _max_gap(geo, twin, uv, uv) <= 1e-9 * size else None
 
 
