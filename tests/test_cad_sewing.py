@@ -31,6 +31,7 @@ import pytest
 import parts  # meshes/ is on sys.path (conftest.py)
 
 from nagata_snap.cad import read as cad_read
+from nagata_snap.cad import sewing
 from nagata_snap.cad.projection import evaluate_params, normalize_params
 from nagata_snap.cad.read import read_shape
 from nagata_snap.cad.topology import CadModel
@@ -298,3 +299,80 @@ def test_sewing_loads_without_the_package():
     assert mod._sewing().__name__ == "_nagata_snap_cad_sewing" and "_nagata_snap_cad_sewing" in sys.modules
     assert os.path.dirname(mod._sewing().__file__) == os.path.dirname(cad_read.__file__)
     assert math.isclose(mod.SEW_RTOL[0], cad_read.SEW_RTOL[0])
+
+
+# ----------------------------------------------------------------------
+# the join's own decisions, on made-up copies
+# ----------------------------------------------------------------------
+def _copies(points, ends, mid, tangent, curved=None) -> sewing.EdgeCopies:
+    P = np.asarray(points, dtype=float)
+    ends = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
+    n = len(ends)
+    return sewing.EdgeCopies(P, np.full(len(P), 1e-7), ends, np.full(n, 1e-7), np.zeros(n, dtype=bool),
+                             np.zeros(n, dtype=bool) if curved is None else np.asarray(curved, dtype=bool),
+                             np.asarray(mid, dtype=float), np.asarray(tangent, dtype=float))
+
+
+def test_join_of_made_up_copies():
+    tol = 1e-3
+    a, b = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]
+    # two copies of a line, the second running the other way: joined, one vertex per end
+    j = sewing.join_edges(_copies([a, b, b, a], [[0, 1], [2, 3]], [[0.5, 0, 0]] * 2, [[1, 0, 0], [-1, 0, 0]]), tol)
+    assert j.edge.tolist() == [0, 0] and j.opposed.tolist() == [False, True] and j.vertex.tolist() == [0, 1, 1, 0]
+    assert j.source.tolist() == [0] and j.ends.tolist() == [[0, 1]]
+    # the kept curve: a line or circle rather than a B-spline copy, whichever comes first
+    j = sewing.join_edges(_copies([a, b, b, a], [[0, 1], [2, 3]], [[0.5, 0, 0]] * 2, [[1, 0, 0], [-1, 0, 0]],
+                                  curved=[True, False]), tol)
+    assert j.source.tolist() == [1] and j.ends.tolist() == [[1, 0]] and j.opposed.tolist() == [True, False]
+    # a gap between the copies' middle points widens the tolerance
+    j = sewing.join_edges(_copies([a, b, b, a], [[0, 1], [2, 3]], [[0.5, 0, 0], [0.5, 4e-4, 0]],
+                                  [[1, 0, 0], [-1, 0, 0]]), tol)
+    assert j.edge_tolerance[0] == pytest.approx(4e-4)
+    # closed copies (one vertex twice): their direction by the tangent
+    c = [[1.0, 0, 0], [-1.0, 0, 0]]
+    j = sewing.join_edges(_copies([b, b], [[0, 0], [1, 1]], c[1:] * 2, [[0, 1, 0], [0, -1, 0]]), tol)
+    assert j.edge.tolist() == [0, 0] and j.opposed.tolist() == [False, True]
+
+
+@pytest.mark.parametrize("points, ends, mid, tangent, why", [
+    # vertices chained wider than the tolerance
+    ([[0, 0, 0], [6e-4, 0, 0], [1.2e-3, 0, 0], [1, 0, 0]], [[0, 3], [2, 3]], [[0.5, 0, 0]] * 2,
+     [[1, 0, 0]] * 2, "wider than the tolerance"),
+    # two vertices just beyond the tolerance: a near miss
+    ([[0, 0, 0], [1.5e-3, 0, 0], [1, 0, 0], [1, 0, 0]], [[0, 2], [1, 3]], [[0.5, 0, 0]] * 2,
+     [[1, 0, 0]] * 2, "within twice the tolerance"),
+    # an edge whose two vertices merge
+    ([[0, 0, 0], [5e-4, 0, 0]], [[0, 1]], [[2.5e-4, 0, 0]], [[1, 0, 0]], "shorter than the tolerance"),
+    # an edge with no other copy
+    ([[0, 0, 0], [1, 0, 0]], [[0, 1]], [[0.5, 0, 0]], [[1, 0, 0]], "free edges"),
+    # two half-circles and a third copy of one of them
+    ([[1, 0, 0], [-1, 0, 0]] * 3, [[0, 1], [2, 3], [4, 5]], [[0, 1, 0]] * 3, [[-1, 0, 0]] * 3,
+     "more than two copies"),
+    # copies running the same way by their vertices, the other way by their tangents
+    ([[0, 0, 0], [1, 0, 0]] * 2, [[0, 1], [2, 3]], [[0.5, 0, 0]] * 2, [[1, 0, 0], [-1, 0, 0]],
+     "directions disagree"),
+])
+def test_join_names_what_it_cannot_sew(points, ends, mid, tangent, why):
+    out = sewing.join_edges(_copies(points, ends, mid, tangent), 1e-3)
+    assert isinstance(out, str) and why in out, out
+
+
+def test_outside_of_a_shell_by_a_supporting_plane():
+    """A unit cube's six faces (boxes), the plane z = 0 with its normal: outward if -z."""
+    lo = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 0], [0, 1, 0], [0, 0, 0], [1, 0, 0]], dtype=float)
+    hi = np.array([[1, 1, 0], [1, 1, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1], [1, 1, 1]], dtype=float)
+    box = np.stack([lo, hi], axis=1)
+    plane = np.zeros(6, dtype=bool)
+    plane[0] = True
+    shell = np.zeros(6, dtype=np.int64)
+
+    def uses(normal, origin=(0.0, 0.0, 0.0)):
+        n, o = np.zeros((6, 3)), np.zeros((6, 3))
+        n[0], o[0] = normal, origin
+        return sewing.FaceUses(np.arange(6), np.arange(6), np.zeros(6, dtype=bool), 6, plane, o, n, box)
+
+    assert sewing._outside(uses([0, 0, -1]), shell, 1e-9) is None
+    assert "inward" in sewing._outside(uses([0, 0, 1]), shell, 1e-9)
+    assert sewing._outside(uses([0, 0, -1], [0, 0, 1e-10]), shell, 1e-9) is None  # within the tolerance
+    assert "no planar face" in sewing._outside(uses([0, 0, -1], [0, 0, 1e-8]), shell, 1e-9)  # beyond it
+    assert "no planar face" in sewing._outside(uses([1, 0, 0], [0.5, 0, 0]), shell, 1e-9)  # cuts the cube

@@ -199,8 +199,9 @@ def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.nda
         ambiguous: one wider than ``tol`` (a chain), or two within ``2 tol``.
     """
     n = len(P)
-    tree = cKDTree(P)
-    lab = _components(n, tree.query_pairs(tol, output_type="ndarray"))
+    near = cKDTree(P).query_pairs(2.0 * tol, output_type="ndarray")
+    close = near[np.linalg.norm(P[near[:, 0]] - P[near[:, 1]], axis=1) <= tol]
+    lab = _components(n, close)
     m = int(lab.max()) + 1 if n else 0
     lo, hi = np.full((m, 3), np.inf), np.full((m, 3), -np.inf)
     np.minimum.at(lo, lab, P)
@@ -208,8 +209,7 @@ def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.nda
     wide = np.linalg.norm(hi - lo, axis=1) > tol
     if wide.any():
         return f"{int(wide.sum())} vertex clusters wider than the tolerance (chained vertices)"
-    near = tree.query_pairs(2.0 * tol, output_type="ndarray")
-    if len(near) and np.any(lab[near[:, 0]] != lab[near[:, 1]]):
+    if np.any(lab[near[:, 0]] != lab[near[:, 1]]):
         return "vertices of different clusters within twice the tolerance"
     count = np.bincount(lab, minlength=m)[:, None]
     mean = np.zeros((m, 3))
@@ -248,9 +248,10 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     # copies: same merged end vertices (either order), middle points within tol
     nd = np.flatnonzero(curve)
     key = np.sort(ends[nd], axis=1)
-    tree = cKDTree(w.mid[nd])
-    pairs = tree.query_pairs(tol, output_type="ndarray")
-    pairs = pairs[np.all(key[pairs[:, 0]] == key[pairs[:, 1]], axis=1)]
+    mid = w.mid[nd]
+    near = cKDTree(mid).query_pairs(2.0 * tol, output_type="ndarray")
+    near = near[np.all(key[near[:, 0]] == key[near[:, 1]], axis=1)]
+    pairs = near[np.linalg.norm(mid[near[:, 0]] - mid[near[:, 1]], axis=1) <= tol]
     lab = _components(ne, nd[pairs])
     size = np.bincount(lab)
     if np.any(size > 2):
@@ -258,9 +259,7 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     single = curve & (size[lab] == 1)
     if single.any():
         return f"{int(single.sum())} free edges (an open shell)"
-    near = tree.query_pairs(2.0 * tol, output_type="ndarray")
-    near = near[np.all(key[near[:, 0]] == key[near[:, 1]], axis=1)]
-    if len(near) and np.any(lab[nd[near[:, 0]]] != lab[nd[near[:, 1]]]):
+    if np.any(lab[nd[near[:, 0]]] != lab[nd[near[:, 1]]]):
         return "copies of different edges within twice the tolerance"
     # the kept copy: a line or circle rather than another curve, else the first
     m = len(size)
