@@ -376,3 +376,15 @@ def test_outside_of_a_shell_by_a_supporting_plane():
     assert sewing._outside(uses([0, 0, -1], [0, 0, 1e-10]), shell, 1e-9) is None  # within the tolerance
     assert "no planar face" in sewing._outside(uses([0, 0, -1], [0, 0, 1e-8]), shell, 1e-9)  # beyond it
     assert "no planar face" in sewing._outside(uses([1, 0, 0], [0.5, 0, 0]), shell, 1e-9)  # cuts the cube
+
+
+def test_two_solids(tmp_path):
+    """Two disjoint bodies: two shells, two solids (OpenCASCADE numbers the faces shell by shell)."""
+    def build(occ):
+        occ.addBox(0, 0, 0, 1, 1, 1)
+        occ.addCylinder(3, 0, 0, 0, 0, 1, 0.5)
+
+    path = _gmsh_iges(str(tmp_path / "two.igs"), build)
+    fast, occ = read_shape(path), read_shape(path, join=False)
+    assert fast["healed"]["method"] == "join" and fast["num_solids"] == 2
+    assert_same_model(fast, occ)
