@@ -10,7 +10,7 @@ crash there must not take the user's process down.
 Faces that share no edge (faces-only IGES files) are sewn into shells and
 the closed shells made solids.  Where the faces meet cleanly the walked
 data of the unsewn shape are joined by :mod:`nagata_snap.cad.sewing`
-(vectorised, at a fraction of OpenCASCADE's sewing); anything else is sewn by
+(vectorised, on plain data); anything else is sewn by
 OpenCASCADE (``BRepBuilderAPI_Sewing``, ``ShapeFix_Solid``, ``ShapeFix_Shape``),
 as every file was before; ``healed["method"]`` says which.
 

@@ -4,9 +4,10 @@ Faces-only IGES files (type-144 trimmed surfaces, as gmsh and OpenCASCADE
 write them) share no edge: every face has its own copy of each edge and
 vertex.  OpenCASCADE's sewing (``BRepBuilderAPI_Sewing``), followed by
 ``ShapeFix_Solid::SolidFromShell`` on the closed shells and
-``ShapeFix_Shape``, turns them into solids at several times the cost of
-the import itself.  Where the faces meet cleanly, the same model follows
-from plain data: :func:`nagata_snap.cad.read.read_shape` walks the unsewn
+``ShapeFix_Shape``, turns them into solids; it is general (it compares,
+splits and re-parametrises edges, then fixes the whole shape) and costs
+accordingly.  Where the faces meet cleanly, the same model follows from
+plain data: :func:`nagata_snap.cad.read.read_shape` walks the unsewn
 shape (faces in their order, every edge copy with its end vertices, a point
 and the tangent at the middle of its range) and this module joins it,
 vectorised (numpy, scipy), with no OpenCASCADE call:
@@ -31,17 +32,24 @@ vectorised (numpy, scipy), with no OpenCASCADE call:
   closed face);
 * **shells and solids**: the faces connected through shared edges form a
   shell; every edge being used by exactly two faces (or twice by one, a
-  seam) in opposite senses, it is closed and consistently oriented, and it
-  becomes a solid, as ``SolidFromShell`` makes one.  Which side is outside
-  is decided by a supporting plane: a planar face whose plane has every
-  face of its shell (OpenCASCADE's bounding box of each face, a
-  conservative enclosure) on one side.  The solid lies on that side, so the
-  face's oriented normal points outward exactly when it points away from
-  it.  ``SolidFromShell`` reverses a shell it finds inward.
+  seam) in opposite senses (a use's sense is OpenCASCADE's orientation of
+  the edge in the face, which composes the face's own, against the joined
+  curve where the use is opposed), it is closed and consistently
+  oriented, and it becomes a solid, as ``SolidFromShell`` makes one.
+  Which side is outside is decided by a supporting plane: a planar face
+  whose plane has every face of its shell on one side (within the
+  tolerance), tested with OpenCASCADE's bounding box of each face (for a
+  plane the box of its edges, else of the surface over the face's
+  ``(u, v)`` box, enlarged by the tolerance: it encloses the face).  The
+  solid lies on that side, so the face's oriented normal points outward
+  exactly when it points away from it.  ``SolidFromShell`` reverses a shell
+  its classifier finds inward.
 
-The join is used only where it provably gives the model OpenCASCADE's
-sewing gives; anything else returns the reason, and the caller sews with
-OpenCASCADE instead: a vertex cluster wider than the tolerance or another
+The join is used only where every copy pairs without ambiguity and the
+shells close, consistently and outward oriented: there OpenCASCADE's
+sewing makes the same model (the tests compare the two part by part).
+Anything else returns the reason, and the caller sews with OpenCASCADE
+instead: a vertex cluster wider than the tolerance or another
 cluster within twice the tolerance (a chain, or near misses: ambiguous), an
 edge that collapses into a vertex, an edge without vertices or 3D curve, a
 copy with no partner (a free edge: an open shell) or with more than one
@@ -54,8 +62,10 @@ wires would then be walked backwards, which is left to OpenCASCADE).
 What differs from OpenCASCADE's sewn shape, and why it does not matter
 downstream: the faces keep the unsewn order (OpenCASCADE orders them shell
 by shell), the kept 3D curve may be another copy of the edge (all copies
-lie within the tolerance), the merged vertex is the mean of its copies (not
-the centre of their tolerance spheres), and p-curves keep their own
+lie within the tolerance), the merged vertex is the mean of its copies
+(OpenCASCADE places it a little differently, within the tolerance), edge
+and vertex tolerances are not re-measured along the curves as
+OpenCASCADE does, and p-curves keep their own
 parametrisation (OpenCASCADE re-parametrises them along the kept curve; the
 trimming loops sample them as curves in the ``(u, v)`` plane, whatever the
 parameter).  Each joined edge records its ``source``: the copy whose 3D curve
