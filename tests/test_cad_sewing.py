@@ -304,13 +304,18 @@ def test_sewing_loads_without_the_package():
 # ----------------------------------------------------------------------
 # the join's own decisions, on made-up copies
 # ----------------------------------------------------------------------
-def _copies(points, ends, mid, tangent, curved=None) -> sewing.EdgeCopies:
+def _copies(points, ends, mid, tangent, curved=None, quarters=None) -> sewing.EdgeCopies:
+    """Edge copies: straight from vertex to vertex (quarter points between them) unless given."""
     P = np.asarray(points, dtype=float)
     ends = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
     n = len(ends)
+    if quarters is None:
+        a, b = P[ends[:, 0]], P[ends[:, 1]]
+        quarters = np.stack([0.75 * a + 0.25 * b, 0.25 * a + 0.75 * b], axis=1)
     return sewing.EdgeCopies(P, np.full(len(P), 1e-7), ends, np.full(n, 1e-7), np.zeros(n, dtype=bool),
                              np.zeros(n, dtype=bool) if curved is None else np.asarray(curved, dtype=bool),
-                             np.asarray(mid, dtype=float), np.asarray(tangent, dtype=float))
+                             np.asarray(mid, dtype=float), np.asarray(tangent, dtype=float),
+                             np.asarray(quarters, dtype=float))
 
 
 def test_join_of_made_up_copies():
@@ -328,10 +333,19 @@ def test_join_of_made_up_copies():
     j = sewing.join_edges(_copies([a, b, b, a], [[0, 1], [2, 3]], [[0.5, 0, 0], [0.5, 4e-4, 0]],
                                   [[1, 0, 0], [-1, 0, 0]]), tol)
     assert j.edge_tolerance[0] == pytest.approx(4e-4)
-    # closed copies (one vertex twice): their direction by the tangent
-    c = [[1.0, 0, 0], [-1.0, 0, 0]]
-    j = sewing.join_edges(_copies([b, b], [[0, 0], [1, 1]], c[1:] * 2, [[0, 1, 0], [0, -1, 0]]), tol)
+    # ... and so does one at their quarter points
+    j = sewing.join_edges(_copies([a, b, b, a], [[0, 1], [2, 3]], [[0.5, 0, 0]] * 2, [[1, 0, 0], [-1, 0, 0]],
+                                  quarters=[[[0.25, 0, 0], [0.75, 0, 0]], [[0.75, 6e-4, 0], [0.25, 0, 0]]]), tol)
+    assert j.edge_tolerance[0] == pytest.approx(6e-4)
+    # closed copies (a unit circle from b, one vertex twice): their direction by the tangent,
+    # their quarter points swapped
+    ccw = [[[0.0, 1, 0], [0, -1, 0]]]
+    j = sewing.join_edges(_copies([b, b], [[0, 0], [1, 1]], [[-1.0, 0, 0]] * 2, [[0, -1, 0], [0, 1, 0]],
+                                  quarters=[ccw[0], ccw[0][::-1]]), tol)
     assert j.edge.tolist() == [0, 0] and j.opposed.tolist() == [False, True]
+    out = sewing.join_edges(_copies([b, b], [[0, 0], [1, 1]], [[-1.0, 0, 0]] * 2, [[0, -1, 0], [0, 1, 0]],
+                                    quarters=ccw * 2), tol)
+    assert isinstance(out, str) and "parametrised differently" in out
 
 
 @pytest.mark.parametrize("points, ends, mid, tangent, why", [

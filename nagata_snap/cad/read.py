@@ -794,24 +794,28 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     degenerate = [tool.Degenerated_s(e) for e in edges]
     adaptors: list = [None] * n
     mid, tangent = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    quarters = np.full((n, 2, 3), np.nan)
     curved = np.zeros(n, dtype=bool)
     p, v = gp_Pnt(), gp_Vec()
-    rows, pts, tans, kinds = [], [], [], []
+    rows, pts, tans, quads, kinds = [], [], [], [], []
     for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
         if degenerate[i] or not tool.IsGeometric_s(e):
             continue
         a = adaptors[i] = o.BRepAdaptor_Curve(e)
-        a.D1(0.5 * (a.FirstParameter() + a.LastParameter()), p, v)
+        t0, t1 = a.FirstParameter(), a.LastParameter()
+        a.D1(0.5 * (t0 + t1), p, v)
         rows.append(i)
         pts.append(p.Coord())
         tans.append(v.Coord())
+        quads.append((a.Value(0.75 * t0 + 0.25 * t1).Coord(), a.Value(0.25 * t0 + 0.75 * t1).Coord()))
         kinds.append(int(a.GetType()))
     if rows:
-        mid[rows], tangent[rows] = pts, tans
+        mid[rows], tangent[rows], quarters[rows] = pts, tans, quads
         curved[rows] = ~np.isin(kinds, (o.LINE, o.CIRCLE))
     copies = _sewing().EdgeCopies(
         points, vtol, np.array([_ends(e, vmap) for e in edges], dtype=np.int64).reshape(-1, 2),
-        np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent)
+        np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent,
+        quarters)
     return copies, edges, adaptors
 
 

@@ -19,11 +19,13 @@ vectorised (numpy, scipy), with no OpenCASCADE call:
 * **edges**: two copies are the same edge when their merged end vertices
   are the same pair and their middle points are within the tolerance (two
   half-circles between the same vertices do not match; a closed edge has
-  one vertex twice).  The joined edge keeps one copy's 3D curve (a line or
-  circle rather than a B-spline, else the first copy), with the largest
-  tolerance of the copies and of the gap between their middle points; a
-  copy running the other way (by its vertices, or for a closed edge by its
-  tangent) is *opposed*.  Degenerate edges (poles, apexes) stay with their
+  one vertex twice).  A copy running the other way (by its vertices, or
+  for a closed edge by its tangent) is *opposed*.  The copies must also
+  meet at their quarter points (swapped where opposed): copies of one edge
+  are parametrised alike or reversed.  The joined edge keeps one copy's 3D
+  curve (a line or circle rather than a B-spline, else the first copy),
+  with the largest tolerance of the copies and of the gap between them at
+  those three points.  Degenerate edges (poles, apexes) stay with their
   face;
 * **uses**: every face keeps its wires and p-curves (each use's p-curve is
   still parametrised along its own copy: ``opposed`` uses run against the
@@ -53,7 +55,8 @@ instead: a vertex cluster wider than the tolerance or another
 cluster within twice the tolerance (a chain, or near misses: ambiguous), an
 edge that collapses into a vertex, an edge without vertices or 3D curve, a
 copy with no partner (a free edge: an open shell) or with more than one
-(more than two faces on an edge), copies whose directions disagree, a
+(more than two faces on an edge), copies whose directions disagree or that
+do not meet at their quarter points, a
 joined edge not used exactly twice, two uses in the same sense
 (inconsistent orientation), a shell whose outside no planar face decides,
 and a shell oriented inward (OpenCASCADE would reverse it; its faces'
@@ -103,6 +106,8 @@ class EdgeCopies:
         mid: ``(ne, 3)`` the point at the middle of each edge's parameter range (NaN for
             degenerate edges and edges without a 3D curve).
         tangent: ``(ne, 3)`` the curve's derivative there (any length; NaN likewise).
+        quarters: ``(ne, 2, 3)`` the points at a quarter and three quarters of the range
+            (NaN likewise).
     """
 
     points: np.ndarray
@@ -113,6 +118,7 @@ class EdgeCopies:
     curved: np.ndarray
     mid: np.ndarray
     tangent: np.ndarray
+    quarters: np.ndarray
 
 
 @dataclass
@@ -288,10 +294,17 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     agree = np.where(opposed, cos <= -TANGENT_COS, cos >= TANGENT_COS)
     if np.any(curve & ~agree):
         return "copies of an edge whose directions disagree"
+    # the gap between copies: at their middle and quarter points (an opposed copy's quarters
+    # swapped), which must correspond (copies parametrised alike, or reversed)
+    q = w.quarters[keep]
+    q = np.where(opposed[:, None, None], q[:, ::-1], q)
+    gap = np.maximum(np.linalg.norm(w.mid - w.mid[keep], axis=1),
+                     np.linalg.norm(w.quarters - q, axis=2).max(axis=1))
+    if np.any(curve & ~(gap <= tol)):
+        return "copies of an edge that differ away from their middle points (parametrised differently)"
     etol = np.zeros(m)
     np.maximum.at(etol, lab, w.tolerance)
-    gap = np.where(curve, np.linalg.norm(w.mid - w.mid[keep], axis=1), 0.0)
-    np.maximum.at(etol, lab, gap)
+    np.maximum.at(etol, lab, np.where(curve, gap, 0.0))
     return Joined(tol, vlab, points, vtol, lab, source, ends[source], etol, opposed & curve)
 
 
