@@ -820,26 +820,30 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
 
 
 def _face_uses(faces: list[dict], fmap) -> Any:
-    """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape."""
+    """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape: their
+    uses (as walked), and from OpenCASCADE each face's plane (if it is one) and bounding box."""
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
 
+    o = _occ()
+    plane_type = int(o.SurfaceType.GeomAbs_Plane)
     flat = [(i, u["edge"], u["reversed"]) for i, f in enumerate(faces) for w in f["wires"] for u in w["uses"]]
     use = np.array(flat, dtype=np.int64).reshape(-1, 3)
     nf = len(faces)
-    plane = np.array([f["surface"]["type"] == "plane" and "samples" not in f["surface"] for f in faces],
-                     dtype=bool)
+    plane = np.zeros(nf, dtype=bool)
     origin, normal = np.zeros((nf, 3)), np.zeros((nf, 3))
-    p = np.flatnonzero(plane)
-    if p.size:
-        s = [faces[i]["surface"] for i in p]
-        origin[p] = [d["origin"] for d in s]
-        sign = np.where([faces[i]["reversed"] for i in p], -1.0, 1.0)[:, None]
-        normal[p] = sign * np.cross([d["x"] for d in s], [d["y"] for d in s])
     box = np.full((nf, 2, 3), np.nan)
-    for i in range(nf):  # loop over faces (their bounding boxes)
+    for i in range(nf):  # loop over faces (plane, bounding box)
+        face = o.TopoDS.Face(fmap.FindKey(i + 1))
+        a = o.BRepAdaptor_Surface(face, False)
+        if int(a.GetType()) == plane_type:  # S_u x S_v = X x Y, negated for a reversed face
+            ax = a.Plane().Position()
+            plane[i] = True
+            origin[i] = ax.Location().Coord()
+            n = np.cross(ax.XDirection().Coord(), ax.YDirection().Coord())
+            normal[i] = -n if int(face.Orientation()) == o.REVERSED else n
         b = Bnd_Box()
-        BRepBndLib.Add_s(fmap.FindKey(i + 1), b)
+        BRepBndLib.Add_s(face, b)
         if not b.IsVoid():
             box[i] = b.CornerMin().Coord(), b.CornerMax().Coord()
     return _sewing().FaceUses(use[:, 0], use[:, 1], use[:, 2].astype(bool), nf, plane, origin, normal, box)

@@ -239,8 +239,9 @@ def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.nda
 def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     """Merge the vertices and pair the edge copies of an unsewn shape at tolerance ``tol``.
 
-    Every non-degenerate edge must find exactly one other copy (same merged
-    end vertices, middle points within ``tol``); degenerate edges stay alone.
+    Every non-degenerate edge must find exactly one other copy (the same merged
+    end vertices, middle and quarter points within ``tol``); degenerate edges
+    stay alone.
 
     Returns:
         the :class:`Joined` vertices and edges (faces not yet checked: see
