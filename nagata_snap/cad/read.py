@@ -748,12 +748,18 @@ def _vertices(vmap) -> tuple[np.ndarray, np.ndarray]:
     return points, np.array([BRep_Tool.Tolerance_s(v) for v in vs])
 
 
-def _ends(e, vmap) -> tuple[int, int]:
-    """Indices of an edge's first and last vertex in ``vmap`` (-1: none)."""
+def _ends(edges: list, vmap) -> list[tuple[int, int]]:
+    """Indices of each edge's first and last vertex in ``vmap`` (-1: none, a null vertex's
+    index being 0)."""
+    from OCP.TopoDS import TopoDS_Vertex
+
     o = _occ()
-    v0, v1 = o.TopExp.FirstVertex_s(e), o.TopExp.LastVertex_s(e)
-    return (vmap.FindIndex(v0) - 1 if not v0.IsNull() else -1,
-            vmap.FindIndex(v1) - 1 if not v1.IsNull() else -1)
+    v0, v1 = TopoDS_Vertex(), TopoDS_Vertex()
+    out = []
+    for e in edges:  # loop over edges (two vertices each, into the same two objects)
+        o.TopExp.Vertices_s(e, v0, v1)
+        out.append((vmap.FindIndex(v0) - 1, vmap.FindIndex(v1) - 1))
+    return out
 
 
 def _walk(shape, size: float) -> dict:
@@ -764,15 +770,15 @@ def _walk(shape, size: float) -> dict:
 
     fmap, emap, vmap, smap = shape_maps(shape)
     vertices, vtol = _vertices(vmap)
+    occ_edges = [TopoDS.Edge(emap.FindKey(i)) for i in range(1, emap.Extent() + 1)]
     edges = []
-    for i in range(1, emap.Extent() + 1):  # loop over CAD edges (reading)
-        e = TopoDS.Edge(emap.FindKey(i))
+    for i, (e, ends) in enumerate(zip(occ_edges, _ends(occ_edges, vmap), strict=True)):  # loop over CAD edges
         edges.append({
             "curve": _curve3d(e),
-            "vertices": _ends(e, vmap),
+            "vertices": ends,
             "tolerance": BRep_Tool.Tolerance_s(e),
             "degenerate": BRep_Tool.Degenerated_s(e),
-            "source": i - 1,
+            "source": i,
         })
     faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size) for i in range(1, fmap.Extent() + 1)]
     solids = _ancestors(TopAbs_FACE, fmap, smap)
@@ -813,7 +819,7 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
         mid[rows], tangent[rows], quarters[rows] = pts, tans, quads
         curved[rows] = ~np.isin(kinds, (o.LINE, o.CIRCLE))
     copies = _sewing().EdgeCopies(
-        points, vtol, np.array([_ends(e, vmap) for e in edges], dtype=np.int64).reshape(-1, 2),
+        points, vtol, np.array(_ends(edges, vmap), dtype=np.int64).reshape(-1, 2),
         np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent,
         quarters)
     return copies, edges, adaptors
