@@ -402,3 +402,20 @@ def test_two_solids(tmp_path):
     fast, occ = read_shape(path), read_shape(path, join=False)
     assert fast["healed"]["method"] == "join" and fast["num_solids"] == 2
     assert_same_model(fast, occ)
+
+
+def test_components_are_scipys():
+    """The join's components (label propagation) against scipy's connected_components."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        n, k = int(rng.integers(1, 60)), int(rng.integers(0, 80))
+        pairs = rng.integers(0, n, size=(k, 2))
+        ref = connected_components(coo_matrix((np.ones(k), (pairs[:, 0], pairs[:, 1])), shape=(n, n)),
+                                   directed=False)[1]
+        _, first = np.unique(ref, return_index=True)  # numbered by their lowest node
+        rank = np.empty(len(first), dtype=np.int64)
+        rank[np.argsort(first)] = np.arange(len(first))
+        assert np.array_equal(sewing._components(n, pairs), rank[ref])

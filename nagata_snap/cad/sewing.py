@@ -203,7 +203,8 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
         if np.array_equal(new, lab):
             break
         lab = new
-    return np.unique(lab, return_inverse=True)[1]
+    # settled: every node's label is the lowest node of its component (labelled itself)
+    return (np.cumsum(lab == np.arange(n)) - 1)[lab]
 
 
 def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray,
