@@ -11,8 +11,13 @@ points, by how the faces are numbered:
   :func:`gmsh_face_distance` (``gmsh.model.getClosestPoint``),
   :func:`gmsh_curved_faces`, :class:`GmshFaceNormals` (``gmsh.model.getNormal``).
 
-:class:`OccShape` reads and heals the shape as
-:func:`nagata_snap.cad.read.load_shape` does.  Its distances are
+:class:`OccShape` takes the shape the package's reader walks: OpenCASCADE's
+healed shape (:func:`nagata_snap.cad.read.load_shape`), or, where the reader
+sewed a faces-only file by joining its data (:mod:`nagata_snap.cad.sewing`),
+the unsewn shape as read, whose faces are the model's in the same order and
+whose edge copies give each model edge the one whose 3D curve it keeps (the
+model edge's ``source``): the numbering comes from the reader, the geometry
+stays OpenCASCADE's own.  Its distances are
 ``BRepExtrema_DistShapeShape`` between a vertex and the trimmed face (or
 edge), and, because that Extrema is off by up to ~1e-6 within ~1e-8 of a
 periodic surface's seam in its parameter, the surface's own projection
@@ -26,20 +31,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from nagata_snap.cad.read import load_shape, shape_maps
+from nagata_snap.cad.read import load_shape, read_shape, shape_maps
 
 
 class OccShape:
-    """Faces and edges of a CAD file as OpenCASCADE shapes."""
+    """Faces and edges of a CAD file as OpenCASCADE shapes, numbered as the package's model."""
 
     def __init__(self, path: str, unit: str = "MM"):
         from OCP.TopoDS import TopoDS
 
-        self.shape, info = load_shape(path, unit)
+        data = read_shape(path, unit)
+        self.joined = data["healed"].get("method") == "join"
+        self.shape, info = load_shape(path, unit, heal=not self.joined)
         self.size = info["size"]
         fm, em, _, _ = shape_maps(self.shape)
         self.faces = [TopoDS.Face(fm.FindKey(i)) for i in range(1, fm.Extent() + 1)]
-        self.edges = [TopoDS.Edge(em.FindKey(i)) for i in range(1, em.Extent() + 1)]
+        edges = [TopoDS.Edge(em.FindKey(i)) for i in range(1, em.Extent() + 1)]
+        self.edges = [edges[e["source"]] for e in data["edges"]]
+        if len(self.faces) != len(data["faces"]):
+            raise RuntimeError(f"{path}: {len(self.faces)} OpenCASCADE faces, {len(data['faces'])} in the model")
 
     @staticmethod
     def _extrema(shape, p) -> float:

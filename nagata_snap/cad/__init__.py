@@ -4,6 +4,7 @@ Modules:
 
 * :mod:`~nagata_snap.cad.read`: OpenCASCADE (OCP) reads STEP, IGES and BREP
   files into plain data (the only module that calls OpenCASCADE);
+  :mod:`~nagata_snap.cad.sewing` sews faces-only files on that data;
   :mod:`~nagata_snap.cad.worker` runs it in a child process;
 * :mod:`~nagata_snap.cad.topology`: the B-rep as faces, edges, vertices and
   trimming loops (:class:`~nagata_snap.cad.topology.CadModel`);

@@ -286,9 +286,11 @@ class CadGeometry:
         """Geometry of a STEP (``.step/.stp``), IGES (``.igs/.iges``) or BREP file.
 
         The file is read by OpenCASCADE (:mod:`nagata_snap.cad.read`):
-        healed with ``ShapeFix_Shape`` (faces that share no edge, as in most
-        IGES files, are sewn first), analytic faces kept analytic, every
-        other face converted to NURBS, trimming loops from the p-curves.
+        faces that share no edge, as in most IGES files, sewn into shells
+        and solids (joined on the read data where they meet cleanly,
+        :mod:`nagata_snap.cad.sewing`, else by OpenCASCADE's sewing and
+        ``ShapeFix_Shape``), analytic faces kept analytic, every other face
+        converted to NURBS, trimming loops from the p-curves.
 
         Args:
             path: the file.

@@ -1,10 +1,18 @@
 """Read STEP, IGES and BREP files with OpenCASCADE (OCP) into plain numpy data.
 
 This is the only module that calls OpenCASCADE.  It imports nothing from
-the package (only numpy and OCP), so that :mod:`nagata_snap.cad.worker` can
-run it in a child process that never initialises MPI: OpenCASCADE can crash
-or hang on malformed files, and a crash there must not take the user's
-process down.
+the package but :mod:`nagata_snap.cad.sewing` (numpy and scipy, loaded from
+its file where this module runs alone), so that
+:mod:`nagata_snap.cad.worker` can run it in a child process that never
+initialises MPI: OpenCASCADE can crash or hang on malformed files, and a
+crash there must not take the user's process down.
+
+Faces that share no edge (faces-only IGES files) are sewn into shells and
+the closed shells made solids.  Where the faces meet cleanly the walked
+data of the unsewn shape are joined by :mod:`nagata_snap.cad.sewing`
+(vectorised, on plain data); anything else is sewn by
+OpenCASCADE (``BRepBuilderAPI_Sewing``, ``ShapeFix_Solid``, ``ShapeFix_Shape``),
+as every file was before; ``healed["method"]`` says which.
 
 :func:`read_shape` returns a dict of plain Python/numpy data describing the
 B-rep (every face, edge and vertex of the shape, numbered as in
@@ -17,8 +25,11 @@ surfaces, curves and trimming loops:
   face's ``(u, v)`` bounds, its orientation in the shape (``reversed``), and
   its wires: for each edge use, in the order of ``BRepTools_WireExplorer``,
   the edge index, the sense and the edge's p-curve in the face's parameter
-  plane (``"line"``, ``"circle"`` or ``"bspline"`` with its parameter range).
-  Seam edges appear twice in a wire, once per p-curve.  A face whose surface
+  plane (``"line"``, ``"circle"`` or ``"bspline"`` with its parameter range;
+  where the faces were joined, ``opposed``: the p-curve is parametrised
+  against the edge's 3D curve, so the use runs along the curve where
+  ``reversed`` and ``opposed`` differ).  Seam edges appear twice in a wire,
+  once per p-curve.  A face whose surface
   is neither analytic nor a B-spline (surface of revolution or extrusion,
   offset surface, ...) but is a plane, cylinder, cone, sphere or torus
   (``GeomConvert_SurfToAnaSurf``, as IGES files write them) gets that
@@ -33,7 +44,10 @@ surfaces, curves and trimming loops:
   ``converted`` (its ``(u, v)`` then differ from the file's).
 * ``edges``: the 3D curve (``"line"``, ``"circle"``, else a B-spline from
   ``GeomConvert``) and parameter range of every edge, its two vertices and
-  tolerance; degenerate edges (sphere poles, cone apexes) have no curve.
+  tolerance; degenerate edges (sphere poles, cone apexes) have no curve;
+  ``source``: the index of the OpenCASCADE edge the curve is taken from, in
+  the shape walked (the unsewn shape where the faces were joined, whose
+  faces are numbered as here; else the edge itself).
 * ``vertices``: ``(nv, 3)`` points.
 
 Lengths are in ``unit`` (OpenCASCADE's ``xstep.cascade.unit``: STEP and IGES
@@ -53,6 +67,7 @@ import os
 import time
 from collections.abc import Iterator, Sequence
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -71,13 +86,15 @@ class ReadError(Exception):
 
 
 def preload() -> None:
-    """Import the OpenCASCADE modules :func:`read_shape` uses (a forked reader starts warm)."""
+    """Import the OpenCASCADE modules :func:`read_shape` uses, and :mod:`nagata_snap.cad.sewing` with
+    scipy (a forked reader starts warm)."""
     from OCP.IGESControl import IGESControl_Reader
     from OCP.STEPControl import STEPControl_Reader
 
     STEPControl_Reader()  # registers the static parameters (xstep.cascade.unit, ...)
     IGESControl_Reader()
     _occ()
+    _sewing()
 
 
 @functools.cache
@@ -229,9 +246,7 @@ def _heal(shape, size: float, sew: bool | None):
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS, TopoDS_Compound
 
-    if sew is None:
-        sew = _count(shape, TopAbs_FACE) > 1 and _count(shape, TopAbs_SHELL) == 0
-    if not sew:
+    if not _needs_sewing(shape, sew):
         return shape, {"sewn": False}
     for rtol in SEW_RTOL:
         s = BRepBuilderAPI_Sewing(rtol * size)
@@ -523,8 +538,9 @@ def _described(a, dim: int, other) -> dict:
     return d
 
 
-def _curve3d(edge) -> dict | None:
-    """Description of an edge's 3D curve (None for degenerate edges)."""
+def _curve3d(edge, adaptor=None) -> dict | None:
+    """Description of an edge's 3D curve (None for degenerate edges); ``adaptor``: the edge's
+    ``BRepAdaptor_Curve`` if there is one already."""
     o = _occ()
     if o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge):
         return None
@@ -533,7 +549,7 @@ def _curve3d(edge) -> dict | None:
         geo = o.BRep_Tool.Curve_s(edge, t0, t1)
         return o.GeomConvert.CurveToBSplineCurve_s(o.Geom_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve(edge), 3, other)
+    return _described(o.BRepAdaptor_Curve(edge) if adaptor is None else adaptor, 3, other)
 
 
 def _curve2d(edge, face) -> dict:
@@ -628,16 +644,11 @@ def _ancestors(kind, maps_child, maps_parent) -> list[list[int]]:
     return [sorted(s) for s in out]
 
 
-def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
-               sew: bool | None = None) -> tuple:
-    """Read and heal a file: ``(shape, info)`` (see :func:`read_shape`).
-
-    ``info``: ``file_units``, ``unit`` (of the coordinates), ``healed``,
-    ``times`` and ``size`` (bounding-box diagonal).
-    """
+def _load(path: str, unit: str) -> tuple:
+    """Read a file (no healing): ``(shape, info)``, ``info`` as :func:`load_shape`'s without
+    ``healed`` and the healing time."""
     from OCP.TopAbs import TopAbs_VERTEX
 
-    path = os.fspath(path)
     fmt = FORMATS.get(os.path.splitext(path)[1].lower())
     if fmt is None:
         raise ReadError(f"{path}: unknown CAD file extension (expected one of {', '.join(sorted(FORMATS))})")
@@ -656,13 +667,38 @@ def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
     size = _size(shape)
     if not (math.isfinite(size) and size > 0):
         raise ReadError(f"{path}: the shape has no finite extent (bounding box diagonal {size})")
+    return shape, {"file_units": file_units, "unit": unit, "times": times, "size": size, "format": fmt}
+
+
+def _needs_sewing(shape, sew: bool | None) -> bool:
+    """Whether healing sews ``shape``: as asked, by default when it has several faces and no
+    shell (IGES files usually)."""
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL
+
+    if sew is None:
+        return _count(shape, TopAbs_FACE) > 1 and _count(shape, TopAbs_SHELL) == 0
+    return sew
+
+
+def load_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
+               sew: bool | None = None) -> tuple:
+    """Read and heal a file with OpenCASCADE: ``(shape, info)`` (see :func:`read_shape`).
+
+    The shape is OpenCASCADE's own healing (sewing included), whichever path
+    :func:`read_shape` takes; ``heal=False`` gives the shape as read.
+
+    ``info``: ``file_units``, ``unit`` (of the coordinates), ``healed``,
+    ``times`` and ``size`` (bounding-box diagonal).
+    """
+    path = os.fspath(path)
+    shape, info = _load(path, unit)
     t0 = time.perf_counter()
     healed = {"sewn": False}
     if heal:
-        shape, healed = _heal(shape, size, sew)
-    times["heal"] = time.perf_counter() - t0
-    return shape, {"file_units": file_units, "unit": unit, "healed": healed, "times": times,
-                   "size": size, "format": fmt}
+        shape, healed = _heal(shape, info["size"], sew)
+    info["times"]["heal"] = time.perf_counter() - t0
+    info["healed"] = healed
+    return shape, info
 
 
 def shape_maps(shape) -> tuple:
@@ -681,8 +717,196 @@ def shape_maps(shape) -> tuple:
     return tuple(maps)
 
 
+@functools.cache
+def _sewing():
+    """:mod:`nagata_snap.cad.sewing` (numpy and scipy only), also where this module runs
+    without its package: the worker's reader server loads this file alone (no MPI)."""
+    if __package__:
+        from nagata_snap.cad import sewing
+
+        return sewing
+    import importlib.util
+    import sys
+
+    name = "_nagata_snap_cad_sewing"
+    spec = importlib.util.spec_from_file_location(name, os.path.join(os.path.dirname(__file__), "sewing.py"))
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod  # (dataclasses look their module up)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _vertices(vmap) -> tuple[np.ndarray, np.ndarray]:
+    """``(points (nv, 3), tolerances (nv,))`` of the vertices of ``vmap``."""
+    from OCP.BRep import BRep_Tool
+    from OCP.TopoDS import TopoDS
+
+    vs = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, vmap.Extent() + 1)]
+    points = np.array([BRep_Tool.Pnt_s(v).Coord() for v in vs]).reshape(-1, 3)
+    _check_finite(points, "the vertices")
+    return points, np.array([BRep_Tool.Tolerance_s(v) for v in vs])
+
+
+def _ends(edges: list, vmap) -> list[tuple[int, int]]:
+    """Indices of each edge's first and last vertex in ``vmap`` (-1: none, a null vertex's
+    index being 0)."""
+    from OCP.TopoDS import TopoDS_Vertex
+
+    o = _occ()
+    v0, v1 = TopoDS_Vertex(), TopoDS_Vertex()
+    out = []
+    for e in edges:  # loop over edges (two vertices each, into the same two objects)
+        o.TopExp.Vertices_s(e, v0, v1)
+        out.append((vmap.FindIndex(v0) - 1, vmap.FindIndex(v1) - 1))
+    return out
+
+
+def _walk(shape, size: float) -> dict:
+    """``vertices``, ``vertex_tolerance``, ``edges``, ``faces`` and ``num_solids`` of a shape."""
+    from OCP.BRep import BRep_Tool
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopoDS import TopoDS
+
+    fmap, emap, vmap, smap = shape_maps(shape)
+    vertices, vtol = _vertices(vmap)
+    occ_edges = [TopoDS.Edge(emap.FindKey(i)) for i in range(1, emap.Extent() + 1)]
+    edges = []
+    for i, (e, ends) in enumerate(zip(occ_edges, _ends(occ_edges, vmap), strict=True)):  # loop over CAD edges
+        edges.append({
+            "curve": _curve3d(e),
+            "vertices": ends,
+            "tolerance": BRep_Tool.Tolerance_s(e),
+            "degenerate": BRep_Tool.Degenerated_s(e),
+            "source": i,
+        })
+    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size) for i in range(1, fmap.Extent() + 1)]
+    solids = _ancestors(TopAbs_FACE, fmap, smap)
+    for f, s in zip(faces, solids, strict=True):
+        f["solids"] = s
+    return {"num_solids": smap.Extent(), "vertices": vertices, "vertex_tolerance": vtol, "edges": edges,
+            "faces": faces}
+
+
+def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
+    """:class:`~nagata_snap.cad.sewing.EdgeCopies` of an unsewn shape, the edges and their
+    curve adaptors (None: degenerate or without a 3D curve)."""
+    from OCP.gp import gp_Pnt, gp_Vec
+
+    o = _occ()
+    tool = o.BRep_Tool
+    n = emap.Extent()
+    edges = [o.TopoDS.Edge(emap.FindKey(i)) for i in range(1, n + 1)]
+    degenerate = [tool.Degenerated_s(e) for e in edges]
+    adaptors: list = [None] * n
+    mid, tangent = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    quarters = np.full((n, 2, 3), np.nan)
+    curved = np.zeros(n, dtype=bool)
+    p, v = gp_Pnt(), gp_Vec()
+    rows, pts, tans, quads, kinds = [], [], [], [], []
+    for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
+        if degenerate[i] or not tool.IsGeometric_s(e):
+            continue
+        a = adaptors[i] = o.BRepAdaptor_Curve(e)
+        t0, t1 = a.FirstParameter(), a.LastParameter()
+        a.D1(0.5 * (t0 + t1), p, v)
+        rows.append(i)
+        pts.append(p.Coord())
+        tans.append(v.Coord())
+        quads.append((a.Value(0.75 * t0 + 0.25 * t1).Coord(), a.Value(0.25 * t0 + 0.75 * t1).Coord()))
+        kinds.append(int(a.GetType()))
+    if rows:
+        mid[rows], tangent[rows], quarters[rows] = pts, tans, quads
+        curved[rows] = ~np.isin(kinds, (o.LINE, o.CIRCLE))
+    copies = _sewing().EdgeCopies(
+        points, vtol, np.array(_ends(edges, vmap), dtype=np.int64).reshape(-1, 2),
+        np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent,
+        quarters)
+    return copies, edges, adaptors
+
+
+def _face_uses(faces: list[dict], fmap) -> Any:
+    """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape: their
+    uses (as walked), and from OpenCASCADE each face's plane (if it is one) and bounding box."""
+    from OCP.Bnd import Bnd_Box
+    from OCP.BRepBndLib import BRepBndLib
+
+    o = _occ()
+    plane_type = int(o.SurfaceType.GeomAbs_Plane)
+    flat = [(i, u["edge"], u["reversed"]) for i, f in enumerate(faces) for w in f["wires"] for u in w["uses"]]
+    use = np.array(flat, dtype=np.int64).reshape(-1, 3)
+    nf = len(faces)
+    plane = np.zeros(nf, dtype=bool)
+    origin, normal = np.zeros((nf, 3)), np.zeros((nf, 3))
+    box = np.full((nf, 2, 3), np.nan)
+    for i in range(nf):  # loop over faces (plane, bounding box)
+        face = o.TopoDS.Face(fmap.FindKey(i + 1))
+        a = o.BRepAdaptor_Surface(face, False)
+        if int(a.GetType()) == plane_type:  # S_u x S_v = X x Y, negated for a reversed face
+            ax = a.Plane().Position()
+            plane[i] = True
+            origin[i] = ax.Location().Coord()
+            n = np.cross(ax.XDirection().Coord(), ax.YDirection().Coord())
+            normal[i] = -n if int(face.Orientation()) == o.REVERSED else n
+        b = Bnd_Box()
+        BRepBndLib.Add_s(face, b)
+        if not b.IsVoid():
+            box[i] = b.CornerMin().Coord(), b.CornerMax().Coord()
+    return _sewing().FaceUses(use[:, 0], use[:, 1], use[:, 2].astype(bool), nf, plane, origin, normal, box)
+
+
+def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
+    """Walk an unsewn shape and sew it by :mod:`nagata_snap.cad.sewing` (no OpenCASCADE sewing).
+
+    Returns:
+        ``(data, healed)``: :func:`_walk`'s data and the ``healed`` info, or ``(None,
+        {"join": why not})`` where the join is not clean (then OpenCASCADE sews).  Adds the
+        time of the join to ``times["heal"]`` and of the walk to ``times["convert"]``.
+    """
+    from OCP.TopoDS import TopoDS
+
+    sewing = _sewing()
+    t0 = time.perf_counter()
+    fmap, emap, vmap, _ = shape_maps(shape)
+    points, vtol = _vertices(vmap)
+    copies, edges, adaptors = _edge_copies(emap, vmap, points, vtol)
+    joined, why = None, []
+    for rtol in SEW_RTOL:  # the first tolerance at which the edges join cleanly
+        j = sewing.join_edges(copies, rtol * size)
+        if not isinstance(j, str):
+            joined = j
+            break
+        why.append(f"{j} (tolerance {rtol:g} x size)")
+    t1 = time.perf_counter()
+    times["heal"] += t1 - t0
+    if joined is None:
+        return None, {"join": "; ".join(why)}
+    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size) for i in range(1, fmap.Extent() + 1)]
+    t2 = time.perf_counter()
+    j = sewing.join_faces(joined, _face_uses(faces, fmap), ~copies.degenerate)
+    t3 = time.perf_counter()
+    times["heal"] += t3 - t2
+    if isinstance(j, str):
+        times["convert"] += t2 - t1
+        return None, {"join": j}
+    sewing.relabel(faces, j)
+    out = []
+    for m, src in enumerate(j.source.tolist()):  # loop over the joined edges (their 3D curves)
+        out.append({
+            "curve": _curve3d(edges[src], adaptors[src]),
+            "vertices": (int(j.ends[m, 0]), int(j.ends[m, 1])),
+            "tolerance": float(j.edge_tolerance[m]),
+            "degenerate": bool(copies.degenerate[src]),
+            "source": src,
+        })
+    times["convert"] += t2 - t1 + time.perf_counter() - t3
+    healed = {"sewn": True, "method": "join", "tolerance": j.tolerance, "free_edges": 0, "solids": j.num_solids}
+    return {"num_solids": j.num_solids, "vertices": j.points, "vertex_tolerance": j.vertex_tolerance,
+            "edges": out, "faces": faces}, healed
+
+
 def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
-               sew: bool | None = None) -> dict:
+               sew: bool | None = None, join: bool = True) -> dict:
     """Read a STEP, IGES or BREP file into plain data (see the module docstring).
 
     Args:
@@ -692,51 +916,55 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
             coordinates are converted; ``"FILE"`` keeps the file's own unit.
             BREP coordinates are always kept.
         heal: sew faces that share no edge (see ``sew``), make solids of the
-            closed shells and fix the result (``ShapeFix_Shape``).
+            closed shells and, where OpenCASCADE sewed, fix the result
+            (``ShapeFix_Shape``).
         sew: sew the faces into shells (``BRepBuilderAPI_Sewing``, at the
             smallest tolerance of :data:`SEW_RTOL` that leaves no free edge);
             default: when the shape has several faces and no shell (IGES files
             usually).
+        join: sew by joining the walked data (:mod:`nagata_snap.cad.sewing`)
+            where that gives OpenCASCADE's model (closed, consistently and
+            outward oriented shells), else with OpenCASCADE; ``False``: always
+            with OpenCASCADE.  ``healed["method"]`` says which (``"join"`` or
+            ``"occ"``), ``healed["join"]`` why the join was not used.
+
+    Every edge has a ``source``: the index of the edge whose 3D curve it is in
+    the shape walked: the file's unsewn shape (:func:`load_shape` with
+    ``heal=False``) where the join sewed it, else the healed shape (its own
+    index).
 
     Raises:
         ReadError: unknown extension, unreadable file, empty shape, a face
             that cannot be converted to NURBS, non-finite geometry.
     """
-    from OCP.BRep import BRep_Tool
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp
-    from OCP.TopoDS import TopoDS
-
     path = os.fspath(path)
-    shape, info = load_shape(path, unit, heal, sew)
-    times = info["times"]
-    t0 = time.perf_counter()
-    fmap, emap, vmap, smap = shape_maps(shape)
-    vmaps = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, vmap.Extent() + 1)]
-    vertices = np.array([BRep_Tool.Pnt_s(v).Coord() for v in vmaps]).reshape(-1, 3)
-    _check_finite(vertices, f"{path}: the vertices")
-    vtol = np.array([BRep_Tool.Tolerance_s(v) for v in vmaps])
+    shape, info = _load(path, unit)
+    size, times = info["size"], info["times"]
+    times["heal"] = times["convert"] = 0.0
+    data: dict | None = None
+    healed: dict = {"sewn": False}
     try:  # the edge and face errors name their entity; the file is named here
-        edges = []
-        for i in range(1, emap.Extent() + 1):  # loop over CAD edges (reading)
-            e = TopoDS.Edge(emap.FindKey(i))
-            v0, v1 = TopExp.FirstVertex_s(e), TopExp.LastVertex_s(e)
-            edges.append({
-                "curve": _curve3d(e),
-                "vertices": (vmap.FindIndex(v0) - 1 if not v0.IsNull() else -1,
-                             vmap.FindIndex(v1) - 1 if not v1.IsNull() else -1),
-                "tolerance": BRep_Tool.Tolerance_s(e),
-                "degenerate": BRep_Tool.Degenerated_s(e),
-            })
-        faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, info["size"])
-                 for i in range(1, fmap.Extent() + 1)]
+        if heal and _needs_sewing(shape, sew):
+            healed = {}
+            if join:
+                try:
+                    data, healed = _walk_joined(shape, size, times)
+                except Exception as err:  # OpenCASCADE's sewing decides about odd shapes
+                    healed = {"join": f"{type(err).__name__}: {err}"}
+            if data is None:  # OpenCASCADE sews; healed["join"]: why the join did not
+                t0 = time.perf_counter()
+                shape, occ = _heal(shape, size, True)
+                healed = {**occ, "method": "occ", **healed}
+                times["heal"] += time.perf_counter() - t0
+        elif heal:
+            t0 = time.perf_counter()
+            shape, healed = _heal(shape, size, False)
+            times["heal"] = time.perf_counter() - t0
+        if data is None:
+            t0 = time.perf_counter()
+            data = _walk(shape, size)
+            times["convert"] = time.perf_counter() - t0
     except ReadError as err:
         raise ReadError(f"{path}: {err}") from None
-    solids = _ancestors(TopAbs_FACE, fmap, smap)
-    for f, s in zip(faces, solids, strict=True):
-        f["solids"] = s
-    times["convert"] = time.perf_counter() - t0
-    return {"path": path, "format": info["format"], "unit": info["unit"],
-            "file_units": info["file_units"], "size": info["size"], "healed": info["healed"],
-            "times": times, "num_solids": smap.Extent(), "vertices": vertices,
-            "vertex_tolerance": vtol, "edges": edges, "faces": faces}
+    return {"path": path, "format": info["format"], "unit": info["unit"], "file_units": info["file_units"],
+            "size": size, "healed": healed, "times": times, **data}

@@ -72,12 +72,19 @@ class Loop:
 
 @dataclass
 class Edge:
-    """A CAD edge: its 3D curve (``None`` if degenerate), vertices, faces."""
+    """A CAD edge: its 3D curve (``None`` if degenerate), vertices, faces.
+
+    ``source``: the OpenCASCADE edge whose 3D curve it is, by its index in the
+    shape read (:func:`~nagata_snap.cad.read.read_shape`: the unsewn shape
+    where its faces were joined by :mod:`~nagata_snap.cad.sewing`, else the
+    healed shape, i.e. its own index).
+    """
 
     curve: Line | Circle | NurbsCurve | None
     vertices: tuple[int, int]
     faces: tuple[int, ...] = ()
     tolerance: float = 0.0
+    source: int = -1
 
     @property
     def degenerate(self) -> bool:
@@ -449,6 +456,7 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
     descs: list[dict] = []
     face, wire, edge = [], [], []
     rev: list[bool] = []
+    opp: list[bool] = []
     wires: list[tuple[int, bool]] = []
     for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
         for w in fd["wires"]:
@@ -460,6 +468,7 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
                 wire.append(len(wires))
                 edge.append(u["edge"])
                 rev.append(bool(u["reversed"]))
+                opp.append(bool(u.get("opposed", False)))
             wires.append((i, bool(w["outer"])))
     face_a = np.array(face, dtype=np.int64)
     f = _PCurves(descs, face_a, uv_maps)
@@ -470,7 +479,9 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
     keep[:-1] = use[1:] == use[:-1]
     P, use, dev = P[keep], use[keep], dev[keep]
     E = np.array(edge, dtype=np.int64)[use]
-    S = np.where(np.array(rev, dtype=bool)[use], -1.0, 1.0)
+    # a use runs against its edge's 3D curve where it traverses its p-curve backwards, or its
+    # p-curve is parametrised against the curve (a joined copy: nagata_snap.cad.sewing)
+    S = np.where((np.array(rev, dtype=bool) ^ np.array(opp, dtype=bool))[use], -1.0, 1.0)
     ends = np.searchsorted(np.array(wire, dtype=np.int64)[use], np.arange(len(wires) + 1))
     _check_wires(P, ends, [i for i, _ in wires])
     band = 2.0 * dev + tolerances[E]
@@ -578,8 +589,9 @@ class CadModel:
 
         t0 = time.perf_counter()
         path = data.get("path", "")
-        edges = [Edge(curve, (int(e["vertices"][0]), int(e["vertices"][1])), (), float(e.get("tolerance", 0.0)))
-                 for e, curve in zip(data["edges"], _edge_curves(data["edges"], path), strict=True)]
+        edges = [Edge(curve, (int(e["vertices"][0]), int(e["vertices"][1])), (), float(e.get("tolerance", 0.0)),
+                      int(e.get("source", i)))
+                 for i, (e, curve) in enumerate(zip(data["edges"], _edge_curves(data["edges"], path), strict=True))]
         tol = np.array([e.tolerance for e in edges] + [0.0])
         fdata = data["faces"]
         surfaces, maps = [], []
