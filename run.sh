@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up (or reuse) the virtual environment and run the demo, the tests or the checks.
 #   bash run.sh demo         -- flow past a cylinder with snapping (main demo)
-#   bash run.sh test         -- the whole test suite (serial and mpiexec -n 2/3)
+#   bash run.sh test [ARGS]  -- the whole test suite (serial and mpiexec -n 2/3), or the pytest
+#                               ARGS given (files, -k ...)
 #   bash run.sh check        -- ruff, mypy, API reference build, README layout (fails on any problem)
 #   bash run.sh docs [DIR]   -- the API reference (HTML from the docstrings) into DIR (out/api)
 set -euo pipefail
@@ -60,7 +61,7 @@ check() {
 
 case "${1:-test}" in
   demo) shift; exec "$VENV/bin/python" demos/flow_past_cylinder.py "$@" ;;
-  test) shift; exec "$VENV/bin/python" -m pytest -q tests "$@" ;;
+  test) shift; exec "$VENV/bin/python" -m pytest -q "$@" ;;  # pyproject: testpaths = tests
   check) check ;;
   docs) exec "$VENV/bin/python" docs/build_api.py "${2:-out/api}" ;;
   *) echo "usage: bash run.sh {demo|test|check|docs} [args...]" >&2; exit 2 ;;
