@@ -37,7 +37,7 @@ def facet_array(a: npt.ArrayLike, what: str) -> np.ndarray:
         raise ValueError(f"{what} must have shape (nf, nfv, 3), got {x.shape}")
     if x.shape[2] == 2:
         x = np.concatenate([x, np.zeros((*x.shape[:2], 1))], axis=2)
-    if not np.all(np.isfinite(x)):
+    if not np.isfinite(x).all():
         raise ValueError(f"{what} contains NaN or infinite coordinates")
     return x
 
