@@ -6,7 +6,8 @@ stored per facet in :class:`nagata_snap.mesh.records.Records`:
 
 * the entity is known when the mesh came from the CAD (``faces``, or the
   mesher's classification recorded as :class:`MeshHints`): one projection
-  per vertex (:func:`on_faces`);
+  per vertex (:func:`on_faces`), none where the mesher's parameters give
+  the vertex itself (:func:`seed_is_point`);
 * otherwise a global search finds it (:func:`search_faces`): every entity
   whose bounding box holds the vertex (within the tolerance) is a candidate,
   analytic faces project in closed form, NURBS faces by Newton from their
@@ -17,6 +18,13 @@ With topology (3D models) :func:`attach` then adds the CAD-edge channels
 (:func:`edge_channels`, over all MPI processes): a facet edge is on a CAD
 edge if a facet sharing it lies on another face (see
 :mod:`nagata_snap.cad.geometry`).
+
+A mesh made from the CAD is attached by a fixed number of array operations
+beside the projections, so that a small mesh costs little per vertex: the
+hinted facets are found by a binary search of their node-set keys (sorted
+once when the hints are recorded), the vertex ids given serve as they are
+(only the global search numbers the vertices without gaps), the (vertex,
+entity) pairs and, on one process, the facet edges are each sorted once.
 """
 
 from __future__ import annotations
@@ -180,7 +188,7 @@ def facet_edge_keys(ids: np.ndarray, root: np.ndarray) -> np.ndarray:
 
     Facet edge ``m`` is the one opposite vertex ``m`` (row ``3 f + m``); ``a < b``.
     """
-    a, b = ids[:, _EDGE_A], ids[:, _EDGE_B]
+    a, b = ids.take(_EDGE_A, axis=1), ids.take(_EDGE_B, axis=1)
     out = np.empty((len(ids), 3, 3), dtype=np.int64)
     np.minimum(a, b, out=out[:, :, 0])
     np.maximum(a, b, out=out[:, :, 1])
@@ -342,7 +350,8 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
              seeds: npt.ArrayLike | None, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every facet vertex on a given entity (known faces, optional seeds).
 
-    ``fp (nf, nfv, 3)`` facets, ``gid (nf, nfv)`` vertex ids, ``faces (nf,)``,
+    ``fp (nf, nfv, 3)`` facets, ``gid (nf, nfv)`` vertex ids (equal ids: one vertex;
+    any integers), ``faces (nf,)``,
     ``seeds (nf, nfv, d)`` (NaN: unknown), ``tol (nf,)`` per facet.  Newton from the seeds (closed
     form on analytic faces), else from the entity's own search samples.
 
@@ -425,8 +434,9 @@ def edge_channels(keys: np.ndarray, allkeys: np.ndarray, nfv: int) -> np.ndarray
     mine = allkeys is keys
     row = row_index(keys[:, :2] if mine else np.concatenate([keys[:, :2], allkeys[:, :2]]))
     n = int(row.max()) + 1
-    lo = np.full(n, np.iinfo(np.int64).max)
-    hi = np.full(n, np.iinfo(np.int64).min)
+    lo, hi = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    lo.fill(np.iinfo(np.int64).max)
+    hi.fill(np.iinfo(np.int64).min)
     every = row if mine else row[len(keys):]
     np.minimum.at(lo, every, allkeys[:, 2])
     np.maximum.at(hi, every, allkeys[:, 2])

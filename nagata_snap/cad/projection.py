@@ -58,6 +58,7 @@ refines each, the best is kept.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal, Protocol, TypeGuard, overload
@@ -201,7 +202,7 @@ def normalize_params(entity: Entity, params: npt.ArrayLike) -> np.ndarray:
     lim = entity_limits(entity)
     for a in range(entity.param_dim):
         col = p[:, a]
-        if np.isfinite(per[a]):
+        if math.isfinite(per[a]):
             lo = b[a, 0]
             out = (col < lo) | (col > lo + per[a])
             col[out] = lo + np.mod(col[out] - lo, per[a])

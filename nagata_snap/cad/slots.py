@@ -51,7 +51,7 @@ def longest_edge(x: np.ndarray) -> np.ndarray:
     if x.shape[1] < 2:
         return np.zeros(x.shape[0])
     i, j = _pairs(x.shape[1])
-    return norms(x[:, i] - x[:, j]).max(axis=1)
+    return norms(x.take(i, axis=1) - x.take(j, axis=1)).max(axis=1)
 
 
 @lru_cache(maxsize=8)

@@ -84,11 +84,18 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     a packed int64 key each (:func:`_packed`, the same order).
     """
     a = np.ascontiguousarray(a)
+    first, inverse = _first_inverse(a)
+    return first, inverse, a[first]
+
+
+def _first_inverse(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(first (m,), inverse (n,))`` of :func:`unique_rows` for contiguous ``a (n, k)``."""
     n = a.shape[0]
     if n == 0:
-        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), a[:0]
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
     key = _packed(a)
-    new = np.ones(n, dtype=bool)
+    new = np.empty(n, dtype=bool)
+    new[0] = True
     if key is None:
         order = np.lexsort(a.T[::-1])  # stable: equal rows keep their input order
         srt = a[order]
@@ -99,8 +106,7 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         np.not_equal(srt[1:], srt[:-1], out=new[1:])
     inverse = np.empty(n, dtype=np.intp)
     inverse[order] = new.cumsum() - 1
-    first = order[new]
-    return first, inverse, a[first]
+    return order[new], inverse
 
 
 def row_index(rows: np.ndarray) -> np.ndarray:
@@ -108,7 +114,7 @@ def row_index(rows: np.ndarray) -> np.ndarray:
     the lexicographic order of the rows)."""
     if len(rows) == 0:
         return np.zeros(0, dtype=np.int64)
-    return unique_rows(rows)[1].astype(np.int64, copy=False)
+    return _first_inverse(np.ascontiguousarray(rows))[1].astype(np.int64, copy=False)
 
 
 def _packed(rows: np.ndarray) -> np.ndarray | None:
