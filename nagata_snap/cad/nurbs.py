@@ -197,18 +197,17 @@ def _basis_soa(
     LR = knots.take(span + _knot_offsets(p))
     np.subtract(u, LR[:p], out=LR[:p])
     np.subtract(LR[p:], u, out=LR[p:])
-    # levels[r] (r+1, k): the non-zero functions of degree r, rows a = 0..r; with no
-    # derivatives every level is computed in place in out[0]
-    T = out[0] if nderiv == 0 else np.empty((p + 1, p + 1, k))
-    levels = [T[None, 0] if nderiv == 0 else T[0, :1]]
-    levels[0][0] = 1.0
-    inv = [levels[0]]  # inv[r] (r, k): 1 / D_r[a], a = 0..r-1
+    # the r + 1 non-zero functions of degree r, rows a = 0..r: with no derivatives every
+    # level is computed in place in out[0], else each kept (levels[r], for eq. (46))
+    N = out[0, :1] if nderiv == 0 else np.empty((1, k))
+    N[0] = 1.0
+    levels, inv = [N], [N]  # inv[r] (r, k): 1 / D_r[a], a = 0..r-1
     for r in range(1, p + 1):
         right, left = LR[p : p + r], LR[p - r : p]  # right[1..r], left[r..1]
         ia = np.add(right, left)
         np.divide(1.0, ia, out=ia)
-        temp = levels[r - 1] * ia
-        N = T[: r + 1] if nderiv == 0 else T[r, : r + 1]
+        temp = N * ia
+        N = out[0, : r + 1] if nderiv == 0 else np.empty((r + 1, k))
         np.multiply(right, temp, out=N[:r])
         N[r] = 0.0
         temp *= left
