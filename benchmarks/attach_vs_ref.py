@@ -4,8 +4,12 @@ The revision's ``nagata_snap`` is exported (``git archive``) into a temporary di
 renamed ``nagata_snap_ref`` (:func:`read_vs_ref.export_ref`), so that both versions are
 imported together.  For every part and format of ``meshes/parts.py`` asked for, the part is
 meshed once by gmsh (this checkout's ``mesh_cad``, the sizes of ``cad_parts.MESH`` unless
-``--mesh name:size_factor:curvature`` overrides them) and read by both versions, each with the
-mesh hints of its own ``use_cad_mesh``.  Then:
+``--mesh name:size_factor:curvature`` overrides them) and read once (this checkout's
+``read_cad`` and ``CadModel.from_data``); both versions get that model (for the revision a
+copy by ``pickle``, its classes mapped to the revision's modules, its NURBS tables derived
+again by the revision's code: two builds of the model from
+the same data, one per package, can differ in the last bits on some IGES parts), each makes
+its ``CadGeometry.from_model`` and records the mesh hints by its own ``use_cad_mesh``.  Then:
 
 * the outputs of both versions' ``attach`` (root and params) are compared bitwise, with the
   hints and by global search (hints removed);
@@ -50,14 +54,40 @@ def main() -> None:
     sys.path.insert(0, export_ref(args.ref))
     out = os.fdopen(os.dup(1), "w")
     os.dup2(os.open(os.devnull, os.O_WRONLY), 1)  # OpenCASCADE's and gmsh's messages
+    import gc
+    import io
+    import pickle
+
     import mpi4py.MPI as MPI  # (before DOLFINx, which the packages import)
     import nagata_snap_ref.cad as ref
     import nagata_snap_ref.cad.meshed as ref_meshed
+    import nagata_snap_ref.cad.nurbs as ref_nurbs
     import numpy as np
     import parts
     from cad_parts import MESH
 
-    from nagata_snap.cad import mesh_cad
+    import nagata_snap.cad as new
+    import nagata_snap.cad.meshed as new_meshed
+    from nagata_snap.cad.topology import CadModel
+    from nagata_snap.cad.worker import read_cad
+    from nagata_snap.meshing import mesh_cad_file
+
+    class RefUnpickler(pickle.Unpickler):
+        """Unpickles this checkout's objects as the revision's."""
+
+        def find_class(self, module: str, name: str):
+            if module.startswith("nagata_snap."):
+                module = "nagata_snap_ref." + module[len("nagata_snap."):]
+            return super().find_class(module, name)
+
+    def as_ref(blob: bytes):
+        """The pickled model as the revision's objects; its NURBS derive their own tables again
+        (their layout may differ between the versions)."""
+        model = RefUnpickler(io.BytesIO(blob)).load()
+        for obj in gc.get_objects():
+            if isinstance(obj, ref_nurbs.NurbsSurface | ref_nurbs.NurbsCurve):
+                obj.__post_init__()
+        return model
 
     sizes = dict(MESH)
     for item in filter(None, args.mesh.split(",")):
@@ -85,8 +115,11 @@ def main() -> None:
             f = fmt if fmt == "step" or parts.PARTS[name].iges_faces_solid else "iges_brep"
             path = str(parts.write_part(name, tmp, (f,))[f])
             sf, cu = sizes[name]
-            cm, new_geo = mesh_cad(path, MPI.COMM_SELF, size_factor=sf, curvature=cu)
-            ref_geo = ref.CadGeometry.from_file(path, unit=cm.unit or "MM", comm=MPI.COMM_SELF)
+            cm = mesh_cad_file(path, MPI.COMM_SELF, size_factor=sf, curvature=cu)
+            blob = pickle.dumps(CadModel.from_data(read_cad(path, unit=cm.unit or "MM", isolate=False)))
+            new_geo = new.CadGeometry.from_model(pickle.loads(blob))
+            ref_geo = ref.CadGeometry.from_model(as_ref(blob))
+            new_meshed.use_cad_mesh(new_geo, cm)
             ref_meshed.use_cad_mesh(ref_geo, cm)
             gids = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
             x = cm.mesh.geometry.x[cm.facets.nodes]
@@ -99,13 +132,13 @@ def main() -> None:
                 g._hints = None
                 searched[k] = g.attach(x, nodes=gids)
                 if args.search:
-                    t_search[k] = best_of(lambda g=g: g.attach(x, nodes=gids), max(args.rounds // 4, 1))
+                    t_search[k] = best_of(lambda g=g, x=x, gids=gids: g.attach(x, nodes=gids), max(args.rounds // 4, 1))
                 g._hints = hints[k]
             ok = same(hinted["ref"], hinted["this"]) and same(searched["ref"], searched["this"])
             best = dict.fromkeys(geos, np.inf)
             for _ in range(args.rounds):
                 for k, g in geos.items():
-                    best[k] = min(best[k], best_of(lambda g=g: g.attach(x, nodes=gids), args.calls))
+                    best[k] = min(best[k], best_of(lambda g=g, x=x, gids=gids: g.attach(x, nodes=gids), args.calls))
             r, t = best["ref"], best["this"]
             print(f"{name:20s} {f:9s} {nv:6d} {1e6 * r / nv:10.2f} {1e6 * t / nv:10.2f} {1e3 * r:8.3f} "
                   f"{1e3 * t:8.3f} {t / r:6.2f}  {'same' if ok else 'DIFF'}"
