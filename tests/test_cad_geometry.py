@@ -501,18 +501,24 @@ def test_corner_rule_counts_distinct_faces_and_edges():
     assert not corner_vertices(np.zeros(0, int), np.zeros(0, int), 2, 3).any()
 
 
-def test_mesh_hints_find_facets_by_their_node_sets():
+@pytest.mark.parametrize("offset", [0, 2**40])
+def test_mesh_hints_find_facets_by_their_node_sets(offset):
     """``MeshHints.lookup``: a facet is found whatever the order of its nodes, and its seeds follow
-    that order; a facet the mesher did not make gives None."""
+    that order; a facet the mesher did not make gives None (also with ids beyond or below every
+    hinted one); a node set hinted twice gives the later facet.  With ``offset`` 2**40 the ids
+    are too wide for one packed key per facet (the rows are numbered together instead)."""
     from nagata_snap.cad.attach import MeshHints
 
-    nodes = np.array([[10, 20, 30], [30, 20, 40]])
-    params = np.arange(12.0).reshape(2, 3, 2)
-    hints = MeshHints.from_facets(nodes, [7, 8], params, 2)
-    faces, seeds = hints.lookup(np.array([[20, 40, 30], [30, 10, 20]]))
-    np.testing.assert_array_equal(faces, [8, 7])
-    np.testing.assert_array_equal(seeds, np.stack([params[1][[1, 2, 0]], params[0][[2, 0, 1]]]))
-    assert hints.lookup(np.array([[10, 20, 40]])) is None
+    nodes = np.array([[10, 20, 30], [30, 20, 40], [50, 60, 70], [60, 70, 50]]) + offset
+    params = np.arange(24.0).reshape(4, 3, 2)
+    hints = MeshHints.from_facets(nodes, [7, 8, 5, 6], params, 2)
+    assert (hints.keys is None) == (offset > 0)
+    faces, seeds = hints.lookup(np.array([[20, 40, 30], [30, 10, 20], [70, 50, 60]]) + offset)
+    np.testing.assert_array_equal(faces, [8, 7, 6])
+    np.testing.assert_array_equal(seeds, np.stack([params[1][[1, 2, 0]], params[0][[2, 0, 1]],
+                                                   params[3][[1, 2, 0]]]))
+    for missing in ([10, 20, 40], [10, 20, 2**41], [-1, 10, 20], [0, 10, 20]):
+        assert hints.lookup(np.array([[10, 20, 30], missing]) + offset) is None
 
 
 def test_place_stages_recover_from_a_bad_seed_on_the_root_entity():

@@ -17,6 +17,7 @@ from nagata_snap.cad.nurbs import (
     NurbsSurface,
     basis_functions,
     circle,
+    find_span,
     cylinder,
     sphere,
     torus,
@@ -89,6 +90,22 @@ def test_basis_matches_naive_recursion(p):
         )
         scale = max(1.0, np.abs(ref).max())
         np.testing.assert_allclose(N[k], ref, rtol=0, atol=1e-12 * scale)
+
+
+@pytest.mark.parametrize("p", [1, 2, 3])
+def test_find_span_is_the_knot_interval_of_each_parameter(p):
+    """``find_span``: ``u_s <= u < u_{s+1}`` with a non-empty span inside the domain (at a repeated
+    knot the span after it), the last non-empty span at ``u = u_max``, and beyond the domain the
+    first or last non-empty span (the span a clamp to the domain would give)."""
+    U = np.r_[[0.0] * (p + 1), 0.2, 0.5, 0.5, 0.8, [1.0] * (p + 1)]
+    n = len(U) - p - 1
+    nonempty = [s for s in range(p, n) if U[s] < U[s + 1]]
+    u = np.r_[np.linspace(0.0, 1.0, 41), 0.5, 0.8, -0.3, 1.7]
+    want = [max((s for s in nonempty if U[s] <= min(max(x, 0.0), 1.0)), default=nonempty[0]) for x in u]
+    np.testing.assert_array_equal(find_span(U, p, n, u), want)
+    inside = (u >= 0.0) & (u < 1.0)
+    s = find_span(U, p, n, u[inside])
+    assert np.all(U[s] <= u[inside]) and np.all(u[inside] < U[s + 1])
 
 
 def test_basis_partition_of_unity_and_end_of_range():

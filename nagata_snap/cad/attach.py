@@ -6,7 +6,8 @@ stored per facet in :class:`nagata_snap.mesh.records.Records`:
 
 * the entity is known when the mesh came from the CAD (``faces``, or the
   mesher's classification recorded as :class:`MeshHints`): one projection
-  per vertex (:func:`on_faces`);
+  per vertex (:func:`on_faces`), none where the mesher's parameters give
+  the vertex itself (:func:`seed_is_point`);
 * otherwise a global search finds it (:func:`search_faces`): every entity
   whose bounding box holds the vertex (within the tolerance) is a candidate,
   analytic faces project in closed form, NURBS faces by Newton from their
@@ -17,11 +18,19 @@ With topology (3D models) :func:`attach` then adds the CAD-edge channels
 (:func:`edge_channels`, over all MPI processes): a facet edge is on a CAD
 edge if a facet sharing it lies on another face (see
 :mod:`nagata_snap.cad.geometry`).
+
+A mesh made from the CAD is attached by a fixed number of array operations
+beside the projections, so that a small mesh costs little per vertex: the
+hinted facets are found by a binary search of their node-set keys (sorted
+once when the hints are recorded), the vertex ids given serve as they are
+(only the global search numbers the vertices without gaps), the (vertex,
+entity) pairs and, on one process, the facet edges are each sorted once.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -30,7 +39,7 @@ import numpy.typing as npt
 from nagata_snap.cad.errors import CadError
 from nagata_snap.cad.params import contiguous
 from nagata_snap.cad.slots import MERGE_RTOL, box_pairs, facet_array, longest_edge, vertex_groups
-from nagata_snap.mesh.arrays import best_per_group, ramp, row_index
+from nagata_snap.mesh.arrays import best_per_group, norms, pack_rows, ramp, row_index, unique_rows
 from nagata_snap.mesh.records import Records
 
 if TYPE_CHECKING:
@@ -47,11 +56,19 @@ class MeshHints:
         faces: ``(nf,)`` entity of each facet.
         params: ``(nf, nfv, d)`` parameters of the vertices (in the order of
             :attr:`nodes`; NaN where unknown).
+        keys: ``(nf,)`` sorted int64 keys of the facets' node sets (the sorted ids
+            side by side, :func:`~nagata_snap.mesh.arrays.pack_rows`, ``bits`` bits
+            each), or None where the ids are too wide for 63 bits.
+        at: ``(nf,)`` facet of each key.
+        bits: bits of one node id in a key.
     """
 
     nodes: np.ndarray
     faces: np.ndarray
     params: np.ndarray
+    keys: np.ndarray | None = None
+    at: np.ndarray | None = None
+    bits: int = 0
 
     @classmethod
     def from_facets(cls, facet_nodes: npt.ArrayLike, faces: npt.ArrayLike, params: npt.ArrayLike | None,
@@ -63,23 +80,48 @@ class MeshHints:
         par = np.full((nf, fn.shape[1], d), np.nan) if params is None else \
             np.asarray(params, dtype=float).reshape(nf, fn.shape[1], d)
         order = np.argsort(fn, axis=1)
-        return cls(np.take_along_axis(fn, order, axis=1), faces,
-                   np.take_along_axis(par, order[:, :, None], axis=1))
+        nodes = np.take_along_axis(fn, order, axis=1)
+        keys = at = None
+        bits = int(nodes.max()).bit_length() if nf else 0
+        if nf and nodes.min() >= 0 and bits * nodes.shape[1] <= 63:
+            packed = pack_rows(nodes, bits)
+            at = packed.argsort(kind="stable")
+            keys = packed[at]
+        return cls(nodes, faces, np.take_along_axis(par, order[:, :, None], axis=1), keys, at, bits)
 
     def lookup(self, gid: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``(faces (nf,), seeds (nf, nfv, d))`` of facets ``gid (nf, nfv)`` (global node ids),
-        or None if some facet is not among the hints."""
-        order = np.argsort(gid, axis=1)
-        srt = np.take_along_axis(gid, order, axis=1)
+        or None if some facet is not among the hints.
+
+        A facet is found by its node set: its sorted ids' key in :attr:`keys` (binary
+        search); where a node set is in the hints twice, the later facet counts.
+        """
+        nf, nfv = gid.shape
+        order = gid.argsort(axis=1)
+        if self.keys is None or self.at is None:
+            hit = self._hits_by_rows(np.take_along_axis(gid, order, axis=1))
+        else:
+            srt = gid.copy()
+            srt.sort(axis=1)
+            if nf and (srt[:, 0].min() < 0 or int(srt[:, -1].max()).bit_length() > self.bits):
+                return None  # an id no hinted facet has
+            key = pack_rows(srt, self.bits)
+            pos = self.keys.searchsorted(key, side="right") - 1  # -1 (wraps): below every key
+            hit = self.at[pos] if len(self.keys) and (self.keys[pos] == key).all() else None
+        if hit is None:
+            return None
+        rank = order.argsort(axis=1)  # position of each facet vertex among its sorted ids
+        seeds = self.params.reshape(len(self.nodes) * nfv, -1)[hit[:, None] * nfv + rank]
+        return self.faces[hit], seeds
+
+    def _hits_by_rows(self, srt: np.ndarray) -> np.ndarray | None:
+        """``(nf,)`` hinted facet of each of the sorted node-id rows ``srt (nf, nfv)`` (the later
+        one of equal hinted rows), or None if one is not hinted: the rows numbered together."""
         row = row_index(np.concatenate([self.nodes, srt]))
         where = np.full(int(row.max()) + 1, -1, dtype=np.int64)
         where[row[: len(self.nodes)]] = np.arange(len(self.nodes))
         hit = where[row[len(self.nodes):]]
-        if np.any(hit < 0):
-            return None
-        rank = np.argsort(order, axis=1)  # position of each facet vertex among its sorted ids
-        seeds = np.take_along_axis(self.params[hit], rank[:, :, None], axis=1)
-        return self.faces[hit], seeds
+        return None if (hit < 0).any() else hit
 
 
 def attach(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
@@ -137,14 +179,21 @@ def _check_kind(geo: CadGeometry, nfv: int) -> None:
         )
 
 
+#: facet edge ``m`` of a triangle: its vertices ``_EDGE_A[m]``, ``_EDGE_B[m]`` (the two other than ``m``)
+_EDGE_A, _EDGE_B = np.array([1, 2, 0]), np.array([2, 0, 1])
+
+
 def facet_edge_keys(ids: np.ndarray, root: np.ndarray) -> np.ndarray:
     """``(3 nf, 3)`` ``(node a, node b, face)`` of the edges of triangles ``ids (nf, 3)`` on faces ``root (nf,)``.
 
-    Facet edge ``m`` is the one opposite vertex ``m``; ``a < b``.
+    Facet edge ``m`` is the one opposite vertex ``m`` (row ``3 f + m``); ``a < b``.
     """
-    loc = np.array([[1, 2], [2, 0], [0, 1]])
-    a, b = ids[:, loc[:, 0]], ids[:, loc[:, 1]]
-    return np.stack([np.minimum(a, b).ravel(), np.maximum(a, b).ravel(), np.repeat(root, 3)], axis=1)
+    a, b = ids.take(_EDGE_A, axis=1), ids.take(_EDGE_B, axis=1)
+    out = np.empty((len(ids), 3, 3), dtype=np.int64)
+    np.minimum(a, b, out=out[:, :, 0])
+    np.maximum(a, b, out=out[:, :, 1])
+    out[:, :, 2] = root[:, None]
+    return out.reshape(-1, 3)
 
 
 def attach_local(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
@@ -154,10 +203,10 @@ def attach_local(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.Array
     fp = facet_array(facet_points, "facet_points")
     nf, nfv, _ = fp.shape
     _check_kind(geo, nfv)
-    flat = fp.reshape(-1, 3)
     gid_input = None if nodes is None else np.asarray(nodes, dtype=np.int64).reshape(nf, nfv)
-    gid = vertex_groups(flat, MERGE_RTOL * geo.size, gid_input).reshape(nf, nfv) if nf else \
-        np.zeros((0, nfv), dtype=np.int64)
+    # vertex identity: the given ids (equal ids, one vertex), else the points' grouping
+    radius = MERGE_RTOL * geo.size
+    gid = gid_input if gid_input is not None else vertex_groups(fp.reshape(-1, 3), radius).reshape(nf, nfv)
     h = longest_edge(fp)
     tol = geo.tol_factor * h
     if nf == 0:
@@ -167,7 +216,9 @@ def attach_local(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.Array
             hinted = geo._hints.lookup(gid_input)
             if hinted is not None:
                 faces, seeds = hinted
-        if faces is None:
+        if faces is None:  # the global search numbers the vertices 0..m-1
+            if gid_input is not None:
+                gid = vertex_groups(fp.reshape(-1, 3), radius, gid_input).reshape(nf, nfv)
             root, params, score = search_faces(geo, fp, gid, tol)
         else:
             root, params, score = on_faces(geo, fp, gid, faces, seeds, tol)
@@ -187,7 +238,7 @@ def check_attached(geo: CadGeometry, fp: np.ndarray, root: np.ndarray, score: np
     the largest vertex distance to it, ``tol``, ``h (nf,)`` tolerance and
     longest edge; ``given``: the entities were given (not searched).
     """
-    bad = np.flatnonzero(~(score <= tol))
+    bad = (~(score <= tol)).nonzero()[0]
     if not bad.size:
         return
     nf = len(fp)
@@ -299,7 +350,8 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
              seeds: npt.ArrayLike | None, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every facet vertex on a given entity (known faces, optional seeds).
 
-    ``fp (nf, nfv, 3)`` facets, ``gid (nf, nfv)`` vertex ids, ``faces (nf,)``,
+    ``fp (nf, nfv, 3)`` facets, ``gid (nf, nfv)`` vertex ids (equal ids: one vertex;
+    any integers), ``faces (nf,)``,
     ``seeds (nf, nfv, d)`` (NaN: unknown), ``tol (nf,)`` per facet.  Newton from the seeds (closed
     form on analytic faces), else from the entity's own search samples.
 
@@ -314,31 +366,32 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
     if nf and (root.min() < 0 or root.max() >= geo.num_entities):
         raise ValueError(f"faces refer to entities outside 0..{geo.num_entities - 1}")
     X = fp.reshape(-1, 3)
-    ent = np.repeat(root, nfv)
-    tol = np.repeat(tol, nfv)
+    ent = root.repeat(nfv)
+    tol = tol.repeat(nfv)
     sd = np.full((nf * nfv, d), np.nan) if seeds is None else \
         np.asarray(seeds, dtype=float).reshape(nf * nfv, d)
     # one projection per (vertex, entity): the slots of a vertex on one face share it
-    key = gid.reshape(-1) * geo.num_entities + ent
-    _, first, inv = np.unique(key, return_index=True, return_inverse=True)
-    inv = inv.reshape(-1)
+    pairs = np.empty((nf * nfv, 2), dtype=np.int64)
+    pairs[:, 0], pairs[:, 1] = gid.reshape(-1), ent
+    first, inv, _ = unique_rows(pairs)
     t = np.zeros(len(first))
     np.maximum.at(t, inv, tol)
     par = np.zeros((len(first), d))
     dist = np.full(len(first), np.inf)
-    finite = np.all(np.isfinite(sd[first]), axis=1)
+    finite = np.isfinite(sd[first]).all(axis=1)
     analytic = geo._analytic[ent[first]]
-    on = np.flatnonzero(finite & ~analytic)
+    on = (finite & ~analytic).nonzero()[0]
     if on.size:  # NURBS seeds that are the vertex itself (a mesh made from the CAD) need no Newton
         s = first[on]
         ok, dd = seed_is_point(geo, X[s], ent[s], sd[s])
         par[on[ok]], dist[on[ok]] = sd[s[ok]], dd[ok]
-    seeded = np.flatnonzero((finite | analytic) & ~(dist <= t))
+    seeded = ((finite | analytic) & ~(dist <= t)).nonzero()[0]
     if seeded.size:  # Newton from the given seeds (closed form on analytic faces)
         s = first[seeded]
-        p, _, dd, _, conv = geo.searcher.refine(s, ent[s], np.nan_to_num(sd[s]), X, geo.max_iter)
+        S = sd[s] if finite[seeded].all() else np.nan_to_num(sd[s])
+        p, _, dd, _, conv = geo.searcher.refine(s, ent[s], S, X, geo.max_iter)
         par[seeded], dist[seeded] = p, np.where(conv, dd, np.inf)
-    todo = np.flatnonzero(~(dist <= t))
+    todo = (~(dist <= t)).nonzero()[0]
     if todo.size:  # the entity's own search samples
         s = first[todo]
         res = geo.searcher.search_on(X[s], ent[s])
@@ -362,7 +415,7 @@ def seed_is_point(geo: CadGeometry, X: np.ndarray, ent: np.ndarray, seeds: np.nd
     mesher gives with its nodes are exact (gmsh evaluates the CAD at them).
     """
     S = geo.evaluate(ent, seeds[:, None, :])[:, 0]
-    dist = np.linalg.norm(S - X, axis=1)
+    dist = norms(S - X)
     return dist <= SEED_RTOL * geo._sizes[ent], dist
 
 
@@ -370,21 +423,29 @@ def edge_channels(keys: np.ndarray, allkeys: np.ndarray, nfv: int) -> np.ndarray
     """CAD-edge channels ``(nf, nfv, 3)`` from the facet-edge keys of all processes.
 
     ``keys (3 nf, 3)``: ``(node a, node b, face)`` of this process's facet
-    edges (:func:`facet_edge_keys`); ``allkeys`` those of every process.  A
-    facet edge is on a CAD edge if a facet sharing it (on any process) lies
-    on another face.  Channel ``m`` of facet vertex ``i`` is ``f_m (1 - delta_im)``.
+    edges (:func:`facet_edge_keys`); ``allkeys`` those of every process (on one
+    process ``keys`` itself: then they are numbered once).  A facet edge is on a
+    CAD edge if a facet sharing it (on any process) lies on another face.
+    Channel ``m`` of facet vertex ``i`` is ``f_m (1 - delta_im)``.
     """
     nf = len(keys) // 3
     if nf == 0:
         return np.zeros((0, nfv, 3))
-    row = row_index(np.concatenate([keys[:, :2], allkeys[:, :2]]))
+    mine = allkeys is keys
+    row = row_index(keys[:, :2] if mine else np.concatenate([keys[:, :2], allkeys[:, :2]]))
     n = int(row.max()) + 1
-    lo = np.full(n, np.iinfo(np.int64).max)
-    hi = np.full(n, np.iinfo(np.int64).min)
-    np.minimum.at(lo, row[len(keys):], allkeys[:, 2])
-    np.maximum.at(hi, row[len(keys):], allkeys[:, 2])
-    mine = row[: len(keys)]
-    flag = (lo[mine] != hi[mine]).reshape(nf, 3).astype(float)  # (nf, m)
-    ch = np.repeat(flag[:, None, :], nfv, axis=1)  # (nf, i, m)
-    ch[:, np.arange(nfv), np.arange(nfv)] = 0.0
-    return ch
+    lo, hi = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    lo.fill(np.iinfo(np.int64).max)
+    hi.fill(np.iinfo(np.int64).min)
+    every = row if mine else row[len(keys):]
+    np.minimum.at(lo, every, allkeys[:, 2])
+    np.maximum.at(hi, every, allkeys[:, 2])
+    row = row[: len(keys)]
+    flag = (lo[row] != hi[row]).reshape(nf, 1, 3)  # (nf, 1, m)
+    return flag * _off_diagonal(nfv)  # (nf, i, m)
+
+
+@lru_cache(maxsize=4)
+def _off_diagonal(nfv: int) -> np.ndarray:
+    """``(nfv, 3)`` float: 1 where vertex ``i`` is not the one opposite facet edge ``m``."""
+    return 1.0 - np.eye(nfv, 3)

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -125,10 +125,11 @@ def _check_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str) -> None
 
 
 def _span_table(knots: np.ndarray, degree: int, n_ctrl: int) -> np.ndarray:
-    """``table[i]`` = largest non-empty span index ``s <= i`` with ``p <= s <= n-1``.
+    """``(m + 1,)`` span of a parameter by its ``searchsorted(knots, u, side="right")`` index ``i``:
+    the largest non-empty span ``s <= clip(i - 1, p, n - 1)`` with ``p <= s <= n - 1``.
 
-    Used to map the (clipped) result of a ``searchsorted`` onto a non-empty
-    span, which makes the top end of the domain use the correct one-sided span.
+    One gather after the ``searchsorted`` then gives the span (:func:`find_span`), and
+    the top end of the domain gets the correct one-sided span.
     """
     m = knots.shape[0]
     table = np.empty(m, dtype=np.int64)
@@ -138,7 +139,7 @@ def _span_table(knots: np.ndarray, degree: int, n_ctrl: int) -> np.ndarray:
         if degree <= i <= n_ctrl - 1 and knots[i] < knots[i + 1]:
             last = i
         table[i] = last
-    return table
+    return table[np.clip(np.arange(-1, m), degree, n_ctrl - 1)]
 
 
 def find_span(
@@ -164,9 +165,7 @@ def find_span(
     """
     if table is None:
         table = _span_table(knots, degree, n_ctrl)
-    s = np.searchsorted(knots, u, side="right") - 1
-    np.clip(s, degree, n_ctrl - 1, out=s)
-    return table[s]
+    return table[knots.searchsorted(u, side="right")]
 
 
 def _basis_soa(
@@ -192,28 +191,34 @@ def _basis_soa(
         N^{(d)}_{i,r} = r ( N^{(d-1)}_{i,r-1} / D_r[a-1] - N^{(d-1)}_{i+1,r-1} / D_r[a] ).
     """
     k = u.shape[0]
-    j = np.arange(1, p + 1)[:, None]
-    left = np.empty((p + 1, k))  # rows 1..p: u - u_{s+1-j}
-    right = np.empty((p + 1, k))  # rows 1..p: u_{s+j} - u
-    np.subtract(u, knots[span + 1 - j], out=left[1:])
-    np.subtract(knots[span + j], u, out=right[1:])
-    N = np.ones((1, k))  # the r + 1 non-zero functions of degree r, rows a = 0..r
+    if out is None:
+        out = np.empty((nderiv + 1, p + 1, k))
+    # LR[i] = u - u_{s+1-p+i} for i < p (left[p-i]), u_{s+1-p+i} - u for i >= p (right[i-p+1])
+    LR = knots.take(span + _knot_offsets(p))
+    np.subtract(u, LR[:p], out=LR[:p])
+    np.subtract(LR[p:], u, out=LR[p:])
+    # the r + 1 non-zero functions of degree r, rows a = 0..r: with no derivatives every
+    # level is computed in place in out[0], else each kept (levels[r], for eq. (46))
+    N = out[0, :1] if nderiv == 0 else np.empty((1, k))
+    N[0] = 1.0
     levels, inv = [N], [N]  # inv[r] (r, k): 1 / D_r[a], a = 0..r-1
     for r in range(1, p + 1):
-        ia = np.add(right[1 : r + 1], left[r:0:-1])
+        right, left = LR[p : p + r], LR[p - r : p]  # right[1..r], left[r..1]
+        ia = np.add(right, left)
         np.divide(1.0, ia, out=ia)
         temp = N * ia
-        N = np.empty((r + 1, k))
-        np.multiply(right[1 : r + 1], temp, out=N[:r])
+        N = out[0, : r + 1] if nderiv == 0 else np.empty((r + 1, k))
+        np.multiply(right, temp, out=N[:r])
         N[r] = 0.0
-        temp *= left[r:0:-1]
+        temp *= left
         N[1:] += temp
         levels.append(N)
         inv.append(ia)
-    if out is None:
-        out = np.empty((nderiv + 1, p + 1, k))
-    out[0] = N
-    out[p + 1 :] = 0.0  # derivatives of order > p
+    if nderiv == 0:
+        return out
+    out[0] = levels[p]
+    if nderiv > p:
+        out[p + 1 :] = 0.0  # derivatives of order > p
     # D[r]: (d-1)-th derivatives of the r+1 non-zero degree-r functions
     D: list = levels
     for d in range(1, min(nderiv, p) + 1):
@@ -228,6 +233,12 @@ def _basis_soa(
         D = newD
         out[d] = D[p]
     return out
+
+
+@lru_cache(maxsize=16)
+def _knot_offsets(p: int) -> np.ndarray:
+    """``(2p, 1)`` offsets ``1-p .. p`` from a span of the knots its degree-``p`` basis uses."""
+    return np.arange(1 - p, p + 1)[:, None]
 
 
 def basis_functions(
@@ -343,14 +354,21 @@ def _weights(a: npt.ArrayLike, shape: tuple, what: str) -> np.ndarray:
 
 class _Work:
     """Work arrays of an evaluation, allocated once for its first (largest) chunk and
-    reused (as contiguous views of the same memory) for the following ones."""
+    reused (as contiguous views of the same memory) for the following ones.
 
-    def __init__(self, chunk: int) -> None:
+    ``reuse=False`` (an evaluation of one chunk, where nothing is reused): :meth:`get`
+    allocates and keeps nothing.
+    """
+
+    def __init__(self, chunk: int, reuse: bool = True) -> None:
         self.chunk = chunk
+        self.reuse = reuse
         self._bufs: dict[str, np.ndarray] = {}
 
     def get(self, name: str, shape: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
         """Contiguous ``shape`` array (its last axis at most :attr:`chunk` long)."""
+        if not self.reuse:
+            return np.empty(shape, dtype=dtype)
         size = math.prod(shape)
         buf = self._bufs.get(name)
         if buf is None:
@@ -693,10 +711,12 @@ class NurbsSurface(_ControlNet):
         return _domain(self.knots_v, self.degree_v)
 
 
-    @property
+    @cached_property
     def bounds(self) -> np.ndarray:
-        """``(2, 2)`` parameter bounds ``[[u0, u1], [v0, v1]]``."""
-        return np.array([self.domain_u, self.domain_v])
+        """``(2, 2)`` parameter bounds ``[[u0, u1], [v0, v1]]`` (read-only)."""
+        b = np.array([self.domain_u, self.domain_v])
+        b.flags.writeable = False
+        return b
 
     @property
     def closed(self) -> tuple[bool, bool]:
@@ -765,7 +785,7 @@ class NurbsSurface(_ControlNet):
         k = u.shape[0]
         n_ord = len(_ORDERS[nderiv])
         out = np.empty((n_ord, 3, k))
-        work = _Work(min(k, CHUNK))
+        work = _Work(min(k, CHUNK), reuse=k > CHUNK)
         for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
             sl = slice(c0, min(k, c0 + CHUNK))
             kc = sl.stop - c0
@@ -799,7 +819,7 @@ class NurbsSurface(_ControlNet):
         su += sv  # flat index of the first control point of each point's (p+1) x (q+1) block
         flat = work.get("flat", (p + 1, q + 1, kc), np.int64)
         np.add(self._block_offsets, su, out=flat)
-        L = np.take(self._pwT, flat, axis=1, out=work.get("L", (ch, p + 1, q + 1, kc)), mode="clip")
+        L = self._pwT.take(flat, axis=1, out=work.get("L", (ch, p + 1, q + 1, kc)), mode="clip")
         # along v: T[b] = sum_j N^{(b)}_j(v) Pw_ij -> (nd+1, channels, p+1, kc)
         T = np.einsum("bjk,cijk->bcik", Nv, L, out=work.get("T", (nderiv + 1, ch, p + 1, kc)))
         # along u: H_ab = sum_i N^{(a)}_i(u) T[b]_i

@@ -44,7 +44,7 @@ def degenerate(entities: Sequence[Any], root: np.ndarray, params: np.ndarray) ->
     n, d = params.shape
     out = np.zeros((n, d), dtype=bool)
     can = np.array([getattr(e, "can_degenerate", True) for e in entities])  # pole, apex, collapsed edge
-    rows = np.flatnonzero(can[root])
+    rows = can[root].nonzero()[0]
     if not rows.size:
         return out
     g = Groups(root[rows])

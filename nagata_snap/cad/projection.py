@@ -58,6 +58,7 @@ refines each, the best is kept.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal, Protocol, TypeGuard, overload
@@ -201,12 +202,12 @@ def normalize_params(entity: Entity, params: npt.ArrayLike) -> np.ndarray:
     lim = entity_limits(entity)
     for a in range(entity.param_dim):
         col = p[:, a]
-        if np.isfinite(per[a]):
+        if math.isfinite(per[a]):
             lo = b[a, 0]
             out = (col < lo) | (col > lo + per[a])
             col[out] = lo + np.mod(col[out] - lo, per[a])
         else:
-            np.clip(col, lim[a, 0], lim[a, 1], out=col)
+            col.clip(lim[a, 0], lim[a, 1], out=col)
     return p
 
 
@@ -693,7 +694,7 @@ class AffineBatch:
         P = np.einsum("nc,ndc->nd", q, ax)
         if self.clamped:
             lim = self.limits[ent]
-            np.clip(P, lim[:, :, 0], lim[:, :, 1], out=P)
+            P.clip(lim[:, :, 0], lim[:, :, 1], out=P)
         r = np.einsum("nd,ndc->nc", P, ax)
         r -= q  # foot minus point
         return P, r + X, norms(r)
@@ -863,27 +864,37 @@ class GlobalSearcher:
         max_iter = self.max_iter if max_iter is None else int(max_iter)
         n = len(pt)
         d = self.param_dim
-        g = Groups(ent)
-        X = points[pt[g.order]]
-        S = np.asarray(seeds, dtype=float).reshape(n, d)[g.order]
+        its = np.zeros(n, dtype=np.int64)
+        aff = self.affine.has[ent]
+        if aff.all():  # planes and segments only: all at once, in the input order
+            X = points[pt]
+            _check_finite(X, "points")
+            params, proj, dist = self.affine.closest(ent, X)
+            return params, proj, dist, its, np.ones(n, dtype=bool)
         params = np.zeros((n, d))
         proj = np.zeros((n, 3))
         dist = np.full(n, np.inf)
-        its = np.zeros(n, dtype=np.int64)
         conv = np.zeros(n, dtype=bool)
-        es = ent[g.order]
-        aff = self.affine.has[es]
         if aff.any():  # planes and segments: all at once
-            _check_finite(X[aff], "points")
-            params[aff], proj[aff], dist[aff] = self.affine.closest(es[aff], X[aff])
-            conv[aff] = True
-        for e, sl in g:  # loop over the other entities, vectorised inside
-            if self.affine.has[e]:
-                continue
+            rows = aff.nonzero()[0]
+            X = points[pt[rows]]
+            _check_finite(X, "points")
+            params[rows], proj[rows], dist[rows] = self.affine.closest(ent[rows], X)
+            conv[rows] = True
+        rows = (~aff).nonzero()[0]  # the other entities, one sort
+        g = Groups(ent[rows])
+        rows = rows[g.order]
+        X = points[pt[rows]]
+        S = np.asarray(seeds, dtype=float).reshape(n, d)[rows]
+        m = len(rows)
+        P, F, D = np.zeros((m, d)), np.zeros((m, 3)), np.full(m, np.inf)
+        it, cv = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=bool)
+        for e, sl in g:  # loop over the entities, vectorised inside
             res = project_points(self.entities[e], X[sl], S[sl], max_iter)
-            params[sl] = res.params.reshape(-1, d)
-            proj[sl], dist[sl], its[sl], conv[sl] = res.points, res.distance, res.iterations, res.converged
-        return g.unsort(params), g.unsort(proj), g.unsort(dist), g.unsort(its), g.unsort(conv)
+            P[sl] = res.params.reshape(-1, d)
+            F[sl], D[sl], it[sl], cv[sl] = res.points, res.distance, res.iterations, res.converged
+        params[rows], proj[rows], dist[rows], its[rows], conv[rows] = P, F, D, it, cv
+        return params, proj, dist, its, conv
 
     def search(
         self,

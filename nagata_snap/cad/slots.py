@@ -37,7 +37,7 @@ def facet_array(a: npt.ArrayLike, what: str) -> np.ndarray:
         raise ValueError(f"{what} must have shape (nf, nfv, 3), got {x.shape}")
     if x.shape[2] == 2:
         x = np.concatenate([x, np.zeros((*x.shape[:2], 1))], axis=2)
-    if not np.all(np.isfinite(x)):
+    if not np.isfinite(x).all():
         raise ValueError(f"{what} contains NaN or infinite coordinates")
     return x
 
@@ -51,7 +51,7 @@ def longest_edge(x: np.ndarray) -> np.ndarray:
     if x.shape[1] < 2:
         return np.zeros(x.shape[0])
     i, j = _pairs(x.shape[1])
-    return norms(x[:, i] - x[:, j]).max(axis=1)
+    return norms(x.take(i, axis=1) - x.take(j, axis=1)).max(axis=1)
 
 
 @lru_cache(maxsize=8)

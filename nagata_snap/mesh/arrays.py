@@ -22,8 +22,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["best_per_group", "dot", "dot_last", "norms", "unique_rows", "row_index", "ramp", "linspaces", "Ragged",
-           "Groups"]
+__all__ = ["best_per_group", "dot", "dot_last", "norms", "unique_rows", "row_index", "pack_rows", "ramp", "linspaces",
+           "Ragged", "Groups"]
 
 
 def best_per_group(
@@ -84,23 +84,31 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     a packed int64 key each (:func:`_packed`, the same order).
     """
     a = np.ascontiguousarray(a)
+    first, inverse = _first_inverse(a)
+    return first, inverse, a[first]
+
+
+def _first_inverse(a: np.ndarray, stable: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``(first (m,), inverse (n,))`` of :func:`unique_rows` for contiguous ``a (n, k)``;
+    ``stable=False``: ``first`` is any row of each group (the inverse is the same), by a
+    faster sort of the packed keys."""
     n = a.shape[0]
     if n == 0:
-        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp), a[:0]
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
     key = _packed(a)
-    new = np.ones(n, dtype=bool)
+    new = np.empty(n, dtype=bool)
+    new[0] = True
     if key is None:
         order = np.lexsort(a.T[::-1])  # stable: equal rows keep their input order
         srt = a[order]
-        new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
+        new[1:] = (srt[1:] != srt[:-1]).any(axis=1)
     else:  # equal keys are equal rows
-        order = np.argsort(key, kind="stable")
+        order = key.argsort(kind="stable" if stable else None)
         srt = key[order]
         np.not_equal(srt[1:], srt[:-1], out=new[1:])
     inverse = np.empty(n, dtype=np.intp)
-    inverse[order] = np.cumsum(new) - 1
-    first = order[new]
-    return first, inverse, a[first]
+    inverse[order] = new.cumsum() - 1
+    return order[new], inverse
 
 
 def row_index(rows: np.ndarray) -> np.ndarray:
@@ -108,7 +116,7 @@ def row_index(rows: np.ndarray) -> np.ndarray:
     the lexicographic order of the rows)."""
     if len(rows) == 0:
         return np.zeros(0, dtype=np.int64)
-    return unique_rows(rows)[1].astype(np.int64, copy=False)
+    return _first_inverse(np.ascontiguousarray(rows), stable=False)[1].astype(np.int64, copy=False)
 
 
 def _packed(rows: np.ndarray) -> np.ndarray | None:
@@ -121,6 +129,12 @@ def _packed(rows: np.ndarray) -> np.ndarray | None:
     bits = hi.bit_length()
     if lo < 0 or bits * rows.shape[1] > 63:
         return None
+    return pack_rows(rows, bits)
+
+
+def pack_rows(rows: np.ndarray, bits: int) -> np.ndarray:
+    """``(n,)`` int64 keys of non-negative integer ``rows (n, k)`` below ``2**bits``, ``k bits <= 63``:
+    the columns side by side, the first most significant (keys sort as the rows)."""
     key = rows[:, 0].astype(np.int64)
     for c in range(1, rows.shape[1]):  # loop over the columns
         key <<= bits
@@ -177,11 +191,12 @@ class Groups:
 
     def __init__(self, keys: np.ndarray):
         keys = np.asarray(keys).reshape(-1)
-        self.order = np.argsort(keys, kind="stable")
+        self.order = keys.argsort(kind="stable")
         srt = keys[self.order]
-        cut = np.flatnonzero(srt[1:] != srt[:-1]) + 1
-        self.keys = srt[np.concatenate([[0], cut])] if len(srt) else srt
-        self.bounds = np.concatenate([[0], cut, [len(srt)]]).tolist() if len(srt) else [0]
+        n = len(srt)
+        cut = (srt[1:] != srt[:-1]).nonzero()[0]  # last row of each group but the last one
+        self.keys = srt[[*cut.tolist(), n - 1]] if n else srt
+        self.bounds = [0, *(cut + 1).tolist(), n] if n else [0]
 
     def __len__(self) -> int:
         return len(self.keys)
