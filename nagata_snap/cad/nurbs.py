@@ -555,14 +555,11 @@ class NurbsCurve(_ControlNet):
         k = u.shape[0]
         p = self.degree
         out = np.empty((nderiv + 1, 3, k))
-        offs = np.arange(p + 1)[:, None]
         for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
             sl = slice(c0, min(k, c0 + CHUNK))
             uc = u[sl]
             span = find_span(self.knots, p, self.n_ctrl, uc, self._spans)
-            N = _basis_soa(self.knots, p, span, uc, nderiv)  # (nd+1, p+1, kc)
-            L = np.take(self._pwT, span[None, :] - p + offs, axis=1)  # (4, p+1, kc)
-            H = np.einsum("dik,cik->dck", N, L)  # (nd+1, 4, kc)
+            H = NurbsCurve._sums(self.knots, self._pwT, p, span, span - p, uc, nderiv)  # (nd+1, 4, kc)
             A, B = H[:, :3], H[:, 3]
             o = out[:, :, sl]
             o[0] = A[0] / B[0]
@@ -572,6 +569,22 @@ class NurbsCurve(_ControlNet):
                 o[2] = (A[2] - 2.0 * B[1] * o[1] - B[2] * o[0]) / B[0]
         return out
 
+
+    @staticmethod
+    def _sums(knots: np.ndarray, pw: np.ndarray, p: int, span: np.ndarray, first: np.ndarray,
+              u: np.ndarray, nderiv: int) -> np.ndarray:
+        """Homogeneous sums ``(nderiv+1, c, k)``: ``sum_a N^{(d)}_{s-p+a,p}(u) pw[:, first + a]``.
+
+        ``u (k,)`` in the knot spans ``span (k,)`` of ``knots`` (:func:`find_span`),
+        whose ``p + 1`` non-zero basis functions (:func:`_basis_soa`) weight the
+        columns ``first .. first + p`` of the homogeneous control points ``pw (c, n)``
+        (rows ``w P`` and ``w``).  One curve: ``first = span - p``; several curves
+        of degree ``p`` packed end to end (their knots concatenated, and their
+        columns): ``span`` indexes the concatenated knots, ``first`` the columns.
+        """
+        N = _basis_soa(knots, p, span, u, nderiv)  # (nd+1, p+1, k)
+        L = np.take(pw, first[None, :] + np.arange(p + 1)[:, None], axis=1)  # (c, p+1, k)
+        return np.einsum("dik,cik->dck", N, L)
 
     def __repr__(self) -> str:
         return (

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
-from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
+from nagata_snap.cad.nurbs import CHUNK, CLOSED_RTOL, NurbsCurve, NurbsError, NurbsSurface, _bbox_size
 from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface, fill_boxes
 from nagata_snap.mesh.arrays import ramp
 
@@ -145,11 +145,209 @@ class _FaceError(ValueError):
         self.face = face
 
 
+class _Splines:
+    """B-spline p-curves packed end to end and evaluated together (no object per curve).
+
+    Curve ``c`` has degree ``p[c]``, knots ``K[koff[c]:koff[c + 1]]``, the
+    homogeneous control points ``W[:, poff[c]:poff[c + 1]]`` (rows ``w x, w y,
+    w``) and the domain ``[lo[c], hi[c]]``.  A point is evaluated as
+    :meth:`NurbsCurve.evaluate <nagata_snap.cad.nurbs.NurbsCurve.evaluate>`
+    evaluates it, to the last bit: the parameter wrapped (closed curve) or
+    clamped into the domain, the span of :func:`~nagata_snap.cad.nurbs.find_span`,
+    the kernel :meth:`NurbsCurve._sums <nagata_snap.cad.nurbs.NurbsCurve._sums>`;
+    but for the points of all curves at once.  The span search counts the
+    knots of the point's curve up to the point with two sorted searches, one
+    over the distinct knot values of all curves (a rank), one over the knots'
+    ``(curve, rank)`` keys; the curves of a degree share one kernel call (a
+    loop over the distinct degrees).  A curve's closedness decides only how a
+    parameter beyond its domain is brought back, so it is computed for the
+    curves evaluated there, when they are.
+
+    Args:
+        descs: per curve its description (``read_shape``'s ``"pcurve"`` of type ``bspline``).
+        face: ``(n,)`` face of each curve (named in the error).
+
+    Raises:
+        _FaceError: the first invalid description (the checks are done together;
+            if one fails, :func:`nurbs_curve` builds the curves one by one and names
+            the error).
+    """
+
+    def __init__(self, descs: Sequence[dict], face: np.ndarray):
+        packed = _pack_splines(descs)
+        closed = None
+        if packed is None:  # an invalid (or unusual) description: NurbsCurve checks each
+            curves = []
+            for j, d in enumerate(descs):  # loop over p-curves (error path)
+                try:
+                    curves.append(nurbs_curve(d))
+                except (ValueError, NurbsError) as err:
+                    raise _FaceError(int(face[j]), str(err)) from None
+            packed = ([c.degree for c in curves], [c.knots for c in curves],
+                      np.concatenate([c.control_points[:, :2] for c in curves]),
+                      np.concatenate([c.weights for c in curves]))
+            closed = np.array([c.is_closed for c in curves], dtype=np.int8)
+        degrees, knots, poles, weights = packed
+        self.p = np.array(degrees, dtype=np.int64)
+        self.n = np.array([len(k) for k in knots], dtype=np.int64) - self.p - 1
+        m = self.n + self.p + 1
+        self.koff = np.concatenate([[0], np.cumsum(m)])
+        self.poff = np.concatenate([[0], np.cumsum(self.n)])
+        self.K = np.concatenate(knots)
+        self.P = poles
+        self.W = np.stack([poles[:, 0] * weights, poles[:, 1] * weights, weights])
+        ns = len(self.p)
+        #: curve of every knot
+        self.ck = np.repeat(np.arange(ns), m)
+        start = self.koff[:-1]
+        self.lo, self.hi = self.K[start + self.p], self.K[start + self.n]
+        # span table (nurbs._span_table for all curves): the last non-empty span s <= i
+        # with p <= s <= n - 1, else the first non-empty one
+        g = np.arange(len(self.K))
+        i = g - start[self.ck]
+        ok = (i >= self.p[self.ck]) & (i < self.n[self.ck])
+        ok[ok] = self.K[g[ok]] < self.K[g[ok] + 1]
+        last = np.maximum.accumulate(np.where(ok, g, -1))
+        first = np.minimum.reduceat(np.where(ok, g, len(g)), start)
+        #: global knot index of the span of each (clipped) ``searchsorted`` result
+        self.table = np.where(last >= start[self.ck], last, first[self.ck])
+        #: distinct knot values, and the ``(curve, rank)`` key of every knot
+        self.U = np.unique(self.K)
+        self.base = len(self.U) + 1
+        self.key = self.ck * self.base + np.searchsorted(self.U, self.K, side="right")
+        self.degrees = np.unique(self.p).tolist()
+        #: per curve: 1 closed, 0 open, -1 not known yet
+        self.closed = np.full(ns, -1, dtype=np.int8) if closed is None else closed
+
+    def __call__(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """``(k, 2)`` points at ``t (k,)`` of curves ``c (k,)`` (grouped by curve, in curve order)."""
+        out = np.flatnonzero((t < self.lo[c]) | (t > self.hi[c]))
+        if out.size:
+            t = self._wrap(t, c, out)
+        return self._inside(t, c)
+
+    def _wrap(self, t: np.ndarray, c: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``t`` with the rows ``out`` brought into their curve's domain, as ``NurbsCurve.wrap``."""
+        co = c[out]
+        todo = np.unique(co[self.closed[co] < 0])
+        if todo.size:
+            self._closedness(todo)
+        lo, hi, to = self.lo[co], self.hi[co], t[out]
+        t = t.copy()
+        t[out] = np.where(self.closed[co] == 1, lo + np.mod(to - lo, hi - lo), np.clip(to, lo, hi))
+        return t
+
+    def _closedness(self, cs: np.ndarray) -> None:
+        """Closedness of curves ``cs`` (sorted), as ``NurbsCurve.is_closed``: both ends within
+        :data:`~nagata_snap.cad.nurbs.CLOSED_RTOL` of the control points' box diagonal."""
+        ends = self._inside(np.stack([self.lo[cs], self.hi[cs]], axis=1).ravel(), np.repeat(cs, 2))
+        for j, cj in enumerate(cs.tolist()):  # loop over the curves evaluated beyond their domain
+            gap = np.array([*(ends[2 * j] - ends[2 * j + 1]), 0.0])
+            size = _bbox_size(np.c_[self.P[self.poff[cj]:self.poff[cj + 1]], np.zeros(self.n[cj])])
+            self.closed[cj] = np.sqrt(gap @ gap) <= CLOSED_RTOL * max(size, 1e-300)
+
+    def _inside(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """:meth:`__call__` at parameters inside the domains."""
+        q = np.searchsorted(self.U, t, side="right")
+        start, pc = self.koff[c], self.p[c]
+        cnt = np.searchsorted(self.key, c * self.base + q, side="right") - start  # knots <= t
+        span = self.table[start + np.minimum(np.maximum(cnt - 1, pc), self.n[c] - 1)]
+        first = span - start + self.poff[c] - pc
+        P = np.empty((len(t), 2))
+        for p in self.degrees:  # loop over the distinct degrees
+            sel = slice(None) if len(self.degrees) == 1 else np.flatnonzero(pc == p)
+            H = NurbsCurve._sums(self.K, self.W, p, span[sel], first[sel], t[sel], 0)[0]
+            P[sel] = (H[:2] / H[2]).T
+        # NurbsCurve.evaluate sums one point alone (a curve's only point, or the last of its
+        # points past a multiple of nurbs.CHUNK) with einsum's single-point kernel, whose
+        # rounding differs: those points again, alone
+        count = np.bincount(c, minlength=len(self.p)) % CHUNK  # points per curve past the chunks
+        if len(t) > 1 and (count == 1).any():
+            last = np.flatnonzero(np.append(c[1:] != c[:-1], True))  # each curve's last point
+            for j in last[count[c[last]] == 1].tolist():  # loop over such points
+                sl = slice(j, j + 1)  # (rare: a segment alone at the deepest refinement level)
+                H = NurbsCurve._sums(self.K, self.W, int(pc[j]), span[sl], first[sl], t[sl], 0)[0]
+                P[j] = H[:2, 0] / H[2, 0]
+        return P
+
+    def first_samples(self, t0: np.ndarray, t1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(counts (n,), t)``: per curve the distinct knots inside its range ``[t0, t1]`` and
+        its ends, :data:`SPLINE_SAMPLES` samples per interval between them, then ``t1``;
+        ``t`` all curves' samples, concatenated."""
+        ns, knots = len(self.p), self.K
+        inside = (knots >= t0[self.ck]) & (knots <= t1[self.ck])
+        cs = np.arange(ns)
+        v = np.concatenate([np.minimum(t0, t1), knots[inside], np.maximum(t0, t1)])
+        grp = np.concatenate([cs, self.ck[inside], cs])
+        order = np.argsort(grp, kind="stable")  # per curve: its start, its knots, its end
+        v, grp = v[order], grp[order]
+        keep = np.ones(len(v), dtype=bool)
+        keep[1:] = (v[1:] != v[:-1]) | (grp[1:] != grp[:-1])
+        v, grp = v[keep], grp[keep]
+        iv = np.flatnonzero(grp[1:] == grp[:-1])  # intervals: first point
+        s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+        counts = np.bincount(grp[iv], minlength=ns) * SPLINE_SAMPLES + 1
+        end = np.cumsum(counts) - 1
+        t = np.empty(int(end[-1]) + 1 if ns else 0)
+        spans = np.ones(len(t), dtype=bool)
+        spans[end] = False
+        t[spans] = (v[iv, None] + np.outer(v[iv + 1] - v[iv], s)).ravel()
+        t[end] = t1
+        return counts, t
+
+
+def _pack_splines(descs: Sequence[dict]) -> tuple[list[int], list[np.ndarray], np.ndarray, np.ndarray] | None:
+    """``(degrees, knots, poles (N, 2), weights (N,))`` of B-spline descriptions, their poles and
+    weights concatenated; None unless every description passes NurbsCurve's checks (done here
+    together): an integer degree ``p >= 1``, ``n > p`` finite 2D poles, ``n + p + 1`` finite
+    non-decreasing knots of multiplicity at most ``p + 1``, a non-empty domain, positive finite
+    weights."""
+    degrees: list[int] = []
+    knots: list[np.ndarray] = []
+    poles: list[np.ndarray] = []
+    rational: list[tuple[int, np.ndarray]] = []
+    try:
+        for d in descs:  # loop over p-curves (their arrays and sizes)
+            p, k = d["degree"], np.asarray(d["knots"], dtype=float)
+            P, w = np.asarray(d["poles"], dtype=float), d.get("weights")
+            if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1 or k.ndim != 1 or \
+                    P.ndim != 2 or P.shape[1] != 2 or len(k) != len(P) + p + 1 or len(P) <= p:
+                return None
+            if w is not None:
+                w = np.asarray(w, dtype=float)
+                if w.shape != (len(P),):
+                    return None
+                rational.append((len(poles), w))
+            degrees.append(int(p))
+            knots.append(k)
+            poles.append(P)
+    except (TypeError, ValueError):
+        return None
+    if not degrees:
+        return None
+    P = np.concatenate(poles)
+    n = np.array([len(a) for a in poles])
+    p = np.array(degrees)
+    poff = np.concatenate([[0], np.cumsum(n)])
+    weights = np.ones(len(P))
+    for j, w in rational:  # loop over rational p-curves (their weights)
+        weights[poff[j]:poff[j + 1]] = w
+    K = np.concatenate(knots)
+    koff = np.concatenate([[0], np.cumsum(n + p + 1)])
+    i = np.repeat(koff[:-1], n) + ramp(n)  # first knot of each basis function's support
+    dK = np.diff(K)
+    dK[koff[1:-1] - 1] = 0.0  # across curves
+    ok = (np.isfinite(K).all() and np.isfinite(P).all() and ((weights > 0) & (weights < np.inf)).all()
+          and (dK >= 0).all() and (K[i + np.repeat(p, n) + 1] > K[i]).all()
+          and (K[koff[:-1] + p] < K[koff[:-1] + n]).all())
+    return (degrees, knots, P, weights) if ok else None
+
+
 class _PCurves:
     """The p-curves of many edge uses (of many faces), evaluated together.
 
     Lines and circles are evaluated for all uses at once from per-use
-    coefficient arrays; B-spline p-curves one by one (each its own knots).
+    coefficient arrays, B-spline p-curves together by :class:`_Splines`.
     Points are mapped by their face's ``uv_map`` (identity where None).
 
     Args:
@@ -164,7 +362,6 @@ class _PCurves:
         self.kind = np.array(kinds, dtype=np.int64)
         self.A, self.B, self.C = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2))
         self.R = np.zeros(n)
-        self.splines: dict[int, NurbsCurve] = {}
         self.face = np.asarray(face, dtype=np.int64)
         for kind, names in ((0, ("origin", "direction")), (1, ("center", "x", "y"))):
             sel = [j for j, k in enumerate(kinds) if k == kind]
@@ -173,31 +370,28 @@ class _PCurves:
                     arr[sel] = [descs[j][name] for j in sel]
                 if kind == 1:
                     self.R[sel] = [descs[j]["radius"] for j in sel]
-        for j, k in enumerate(kinds):  # loop over edge uses (B-spline p-curves)
-            if k == 2:
-                try:
-                    self.splines[j] = nurbs_curve(descs[j])
-                except (ValueError, NurbsError) as err:
-                    raise _FaceError(int(self.face[j]), str(err)) from None
+        #: the B-spline uses, and the spline (of :attr:`splines`) of every use (-1: none)
+        self.spline_uses = np.flatnonzero(self.kind == 2)
+        self.spline_of = np.full(n, -1, dtype=np.int64)
+        self.spline_of[self.spline_uses] = np.arange(self.spline_uses.size)
+        self.splines = (_Splines([descs[j] for j in self.spline_uses.tolist()], self.face[self.spline_uses])
+                        if self.spline_uses.size else None)
         maps = [np.eye(3)[:, :2] if m is None else np.asarray(m, dtype=float) for m in uv_maps]
         self.M = np.array(maps).reshape(-1, 3, 2)
         self.mapped = np.array([m is not None for m in uv_maps] + [False], dtype=bool)[self.face]
 
     def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
-        :data:`SPLINE_SAMPLES` per knot span (B-spline)."""
+        :data:`SPLINE_SAMPLES` per knot span (B-spline, :meth:`_Splines.first_samples`)."""
         rng = np.array([d["range"] for d in descs], dtype=float).reshape(-1, 2)
         steps = np.ones(len(descs), dtype=np.int64)
         c = self.kind == 1
         steps[c] = np.maximum(2, np.ceil(np.abs(rng[c, 1] - rng[c, 0]) / CIRCLE_STEP).astype(np.int64))
-        splines = {}
-        for j, curve in self.splines.items():  # loop over B-spline p-curves
-            t0, t1 = rng[j]
-            k = np.unique(curve.knots)
-            k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
-            s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
-            splines[j] = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
-        return _Samples(rng, steps, splines)
+        su = self.spline_uses
+        if self.splines is None:
+            return _Samples(rng, steps, su, np.zeros(0, dtype=np.int64), np.zeros(0))
+        counts, t = self.splines.first_samples(rng[su, 0], rng[su, 1])
+        return _Samples(rng, steps, su, counts, t)
 
     def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
@@ -208,10 +402,10 @@ class _PCurves:
             uc, tc = use[c], t[c]
             P[c] = self.A[uc] + self.R[uc, None] * (np.cos(tc)[:, None] * self.B[uc] +
                                                     np.sin(tc)[:, None] * self.C[uc])
-        for j, curve in self.splines.items():  # loop over B-spline p-curves
-            lo, hi = np.searchsorted(use, [j, j + 1])
-            if hi > lo:
-                P[lo:hi] = curve.evaluate(t[lo:hi])[0][:, :2]
+        if self.splines is not None:
+            s = np.flatnonzero(kind == 2)
+            if s.size:
+                P[s] = self.splines(t[s], self.spline_of[use[s]])
         m = np.flatnonzero(self.mapped[use])
         if m.size:
             M = self.M[self.face[use[m]]]
@@ -226,19 +420,21 @@ _KINDS = {"line": 0, "circle": 1}
 @dataclass
 class _Samples:
     """First samples of edge uses: ``steps[j]`` uniform steps over ``range[j] (2,)`` (lines and
-    circles; as ``np.linspace(*range[j], steps[j] + 1)``), or, for B-spline uses, ``splines[j]``."""
+    circles; as ``np.linspace(*range[j], steps[j] + 1)``), or, for the B-spline uses
+    ``spline_uses (s,)`` (sorted), ``spline_counts (s,)`` samples each, concatenated in ``spline_t``."""
 
     range: np.ndarray
     steps: np.ndarray
-    splines: dict[int, np.ndarray]
+    spline_uses: np.ndarray
+    spline_counts: np.ndarray
+    spline_t: np.ndarray
 
     def flat(self, reverses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(t (N,), use (N,))``: every use's samples, grouped by use, each in traversal order
         (backwards where ``reverses``); the uniform ones all at once, to the last bit
         ``linspace``'s (``i step + t0``, the last ``t1``; a line's ends are its range)."""
         cnt = self.steps + 1
-        for j, t in self.splines.items():  # loop over B-spline uses (their counts)
-            cnt[j] = len(t)
+        cnt[self.spline_uses] = self.spline_counts
         use = np.repeat(np.arange(len(cnt)), cnt)
         i = ramp(cnt)
         t0, t1 = self.range[:, 0], self.range[:, 1]
@@ -247,8 +443,10 @@ class _Samples:
         t[end - 1] = t1
         line = self.steps == 1
         t[(end - cnt)[line]] = t0[line]
-        for j, tj in self.splines.items():  # loop over B-spline uses (their samples)
-            t[end[j] - cnt[j]:end[j]] = tj
+        if self.spline_uses.size:
+            spline = np.zeros(len(cnt), dtype=bool)
+            spline[self.spline_uses] = True
+            t[spline[use]] = self.spline_t
         r = reverses[use]
         pos = np.arange(len(t))
         pos[r] = (2 * (end - cnt) + cnt - 1)[use[r]] - pos[r]  # start + (count - 1 - i)
@@ -389,11 +587,19 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
 def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np.ndarray,
            tm: np.ndarray, Pm: np.ndarray) -> tuple[np.ndarray, ...]:
     """Insert the midpoints ``tm (n,)``, ``Pm (n, 2)`` of the segments starting at ``k (n,)``
-    (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions."""
-    at = k + 1
-    t, use = np.insert(t, at, tm), np.insert(use, at, use[k])
-    P, dev = np.insert(P, at, Pm, axis=0), np.insert(dev, at, 0.0)
-    return t, use, P, dev, at + np.arange(len(at))
+    (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions.
+
+    One scatter per array (the old rows by a mask, the midpoints by their positions)."""
+    n, m = len(t), len(k)
+    at = k + np.arange(1, m + 1)
+    old = np.ones(n + m, dtype=bool)
+    old[at] = False
+    t2, use2, P2, dev2 = np.empty(n + m), np.empty(n + m, dtype=use.dtype), np.empty((n + m, 2)), np.zeros(n + m)
+    t2[old], t2[at] = t, tm
+    use2[old], use2[at] = use, use[k]
+    P2[old], P2[at] = P, Pm
+    dev2[old] = dev
+    return t2, use2, P2, dev2, at
 
 
 def _edge_curves(edges: Sequence[dict], path: str) -> list:
