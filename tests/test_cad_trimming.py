@@ -233,6 +233,58 @@ def test_packed_splines_first_samples_per_knot_span():
         assert g.tobytes() == want.tobytes()
 
 
+def test_planar_profile_loops_are_sampled_when_first_read(tmp_path, monkeypatch):
+    """A planar 2D model's loop polygons are not sampled by ``from_data`` nor by its 2D geometry
+    (which snaps onto the edge curves); reading one samples all, exactly as a model sampled at
+    once; the 2D edge orientation from the wires' uses is the one from the sampled segments;
+    an invalid p-curve is named when the polygons are read (and by a 3D geometry of the model)."""
+    import copy
+
+    import parts
+
+    from nagata_snap.cad import topology
+    from nagata_snap.cad.read import read_shape
+
+    signs = []
+    for name in ("profile_2d", "plate_holes_2d"):
+        data = read_shape(str(parts.write_part(name, tmp_path, ("step",))["step"]))
+        model = topology.CadModel.from_data(data)
+        geo = CadGeometry.from_model(model)
+        assert geo.param_dim == 1 and model.is_planar_2d()
+        loops = [lp for f in model.faces for lp in f.loops]
+        assert loops and all("not sampled" in repr(lp) for lp in loops)
+        sign = geo._orientation()
+        assert all("not sampled" in repr(lp) for lp in loops)
+        with monkeypatch.context() as m:
+            m.setattr(topology, "_planar_2d", lambda *a, **k: False)
+            eager = topology.CadModel.from_data(data)
+        assert all("points" in repr(lp) for f in eager.faces for lp in f.loops)
+        for lp, want in zip(loops[::-1], [lp for f in eager.faces for lp in f.loops][::-1], strict=True):
+            for attr in ("points", "edges", "band", "senses"):
+                assert getattr(lp, attr).tobytes() == getattr(want, attr).tobytes(), attr
+        want_sign = np.ones(geo.num_entities)  # the outward sign per edge curve, from the segments
+        pos = {e: i for i, e in enumerate(geo._curve_edges.tolist())}
+        for f in eager.faces:
+            up = np.sign(np.cross(f.surface.X, f.surface.Y)[2]) * (-1.0 if f.reversed else 1.0)
+            for lp in f.loops:
+                for e, s in zip(lp.edges.tolist(), lp.senses.tolist(), strict=True):
+                    if e in pos:
+                        want_sign[pos[e]] = s * up
+        assert np.array_equal(sign, want_sign)
+        signs.append(sign)
+    assert (np.concatenate(signs) == -1).any() and (np.concatenate(signs) == 1).any()
+
+    bad = copy.deepcopy(read_shape(str(tmp_path / "profile_2d.step")))
+    use = next(u for f in bad["faces"] for w in f["wires"] for u in w["uses"] if u["pcurve"]["type"] == "bspline")
+    use["pcurve"]["knots"] = use["pcurve"]["knots"][::-1].copy()
+    model = topology.CadModel.from_data(bad)
+    CadGeometry.from_model(model)
+    with pytest.raises(ValueError, match=r"face 0 \(plane surface\): NurbsCurve: knot vector must be non-decreasing"):
+        _ = model.faces[0].loops[0].points
+    with pytest.raises(ValueError, match=r"face 0 \(plane surface\)"):
+        CadGeometry.from_model(topology.CadModel.from_data(bad), dim=3)
+
+
 def test_invalid_edge_curve_is_named(tmp_path):
     """An edge whose (batched) analytic curve is invalid: the error names that edge."""
     from nagata_snap.cad.read import read_shape

@@ -48,7 +48,6 @@ SAMPLE_RTOL = 1e-5
 MAX_REFINE = 10
 
 
-@dataclass
 class Loop:
     """A closed trimming polygon in a face's ``(u, v)`` plane.
 
@@ -61,13 +60,53 @@ class Loop:
         senses: ``(m,)`` +1 where the wire runs along its edge's 3D curve,
             -1 where against it (the edge is used reversed).
         outer: the face's outer wire (``BRepTools::OuterWire``).
+        uses: ``(k,)`` the edge of each edge use of the wire, in wire order
+            (default: :attr:`edges`, one use per segment).
+        use_senses: ``(k,)`` the sense of each use (default: :attr:`senses`).
+
+    The polygon (:attr:`points`, :attr:`edges`, :attr:`band`, :attr:`senses`)
+    of a planar 2D model's faces is sampled when one of them is first read,
+    for all faces of the model at once (:meth:`CadModel.from_data`: a 2D
+    geometry snaps onto the edge curves and needs only the uses).
     """
 
-    points: np.ndarray
-    edges: np.ndarray
-    band: np.ndarray
-    senses: np.ndarray
-    outer: bool = False
+    def __init__(self, points: np.ndarray | None, edges: np.ndarray | None, band: np.ndarray | None,
+                 senses: np.ndarray | None, outer: bool = False, uses: np.ndarray | None = None,
+                 use_senses: np.ndarray | None = None):
+        self._polygon = None if points is None else (points, edges, band, senses)
+        self.outer = outer
+        uses, use_senses = edges if uses is None else uses, senses if use_senses is None else use_senses
+        assert uses is not None and use_senses is not None, "a loop without a polygon has its uses"
+        self.uses, self.use_senses = uses, use_senses
+        #: samples the polygons of all loops of the model when one is first read (lazy loops)
+        self._sampler: _LazyLoops | None = None
+
+    def _sampled(self) -> tuple:
+        if self._polygon is None:
+            assert self._sampler is not None, "a loop without a polygon has a sampler"
+            self._sampler.fill()
+        assert self._polygon is not None
+        return self._polygon
+
+    @property
+    def points(self) -> np.ndarray:
+        return self._sampled()[0]
+
+    @property
+    def edges(self) -> np.ndarray:
+        return self._sampled()[1]
+
+    @property
+    def band(self) -> np.ndarray:
+        return self._sampled()[2]
+
+    @property
+    def senses(self) -> np.ndarray:
+        return self._sampled()[3]
+
+    def __repr__(self) -> str:
+        what = "not sampled" if self._polygon is None else f"{len(self.points)} points"
+        return f"Loop({'outer' if self.outer else 'inner'}, {len(self.uses)} uses, {what})"
 
 
 @dataclass
@@ -645,9 +684,72 @@ def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray
     return analytic_surface(desc, np.stack([corners.min(axis=0), corners.max(axis=0)], axis=1)), M
 
 
-def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.ndarray | None],
-               tolerances: np.ndarray) -> list[list[Loop]]:
-    """Closed polygons of every face's wires: their edge uses' p-curve samples, joined.
+@dataclass
+class _Wires:
+    """The edge uses of every face's wires, gathered (uses sorted by face, then wire).
+
+    Attributes:
+        descs: per use its p-curve description.
+        face, wire, edge: ``(n,)`` face, wire and edge of each use.
+        reverses: ``(n,)`` the use traverses its p-curve backwards.
+        opposed: ``(n,)`` its p-curve is parametrised against the edge's 3D curve (a joined
+            copy: :mod:`nagata_snap.cad.sewing`).
+        wires: per wire ``(face, outer)``.
+    """
+
+    descs: list[dict]
+    face: np.ndarray
+    wire: np.ndarray
+    edge: np.ndarray
+    reverses: np.ndarray
+    opposed: np.ndarray
+    wires: list[tuple[int, bool]]
+
+    @classmethod
+    def gather(cls, faces: Sequence[dict]) -> _Wires:
+        """The uses of the wires of ``faces`` (``read_shape``'s face descriptions); empty wires skipped."""
+        descs: list[dict] = []
+        face, wire, edge = [], [], []
+        rev: list[bool] = []
+        opp: list[bool] = []
+        wires: list[tuple[int, bool]] = []
+        for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
+            for w in fd["wires"]:
+                if not w["uses"]:
+                    continue
+                for u in w["uses"]:
+                    descs.append(u["pcurve"])
+                    face.append(i)
+                    wire.append(len(wires))
+                    edge.append(u["edge"])
+                    rev.append(bool(u["reversed"]))
+                    opp.append(bool(u.get("opposed", False)))
+                wires.append((i, bool(w["outer"])))
+        return cls(descs, np.array(face, dtype=np.int64), np.array(wire, dtype=np.int64),
+                   np.array(edge, dtype=np.int64), np.array(rev, dtype=bool), np.array(opp, dtype=bool), wires)
+
+    @property
+    def senses(self) -> np.ndarray:
+        """``(n,)`` -1 where a use runs against its edge's 3D curve (it traverses its p-curve
+        backwards, or its p-curve is parametrised against the curve), else +1."""
+        return np.where(self.reverses ^ self.opposed, -1.0, 1.0)
+
+    def loops(self, n_faces: int, polygons: list[tuple] | None = None) -> list[list[Loop]]:
+        """Per face its :class:`Loop` objects, with their uses and, if given, per wire its
+        polygon ``(points, edges, band, senses)``."""
+        ends = np.searchsorted(self.wire, np.arange(len(self.wires) + 1)).tolist()
+        senses = self.senses
+        loops: list[list[Loop]] = [[] for _ in range(n_faces)]
+        for w, (i, outer) in enumerate(self.wires):  # loop over wires (Loop objects)
+            sl = slice(ends[w], ends[w + 1])
+            P, E, band, S = (None, None, None, None) if polygons is None else polygons[w]
+            loops[i].append(Loop(P, E, band, S, outer, self.edge[sl], senses[sl]))
+        return loops
+
+
+def _polygons(wires: _Wires, surfaces: Sequence, uv_maps: Sequence[np.ndarray | None],
+              tolerances: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Closed polygons of all wires: their edge uses' p-curve samples, joined.
 
     All p-curves of all faces are sampled together (:func:`_refine`, to
     :data:`SAMPLE_RTOL` of each face's size).  Each segment's band is twice
@@ -655,47 +757,64 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
     (``tolerances (n_edges,)``).  ``uv_maps``: per face ``(3, 2)`` map of the
     file's parameters to the surface's, or None.
 
+    Returns:
+        per wire ``(points (m, 2), edges (m,), band (m,), senses (m,))`` (:class:`Loop`).
+
     Raises:
         _FaceError: a p-curve that is not a valid B-spline, or a wire with
             fewer than 3 distinct finite points.
     """
-    descs: list[dict] = []
-    face, wire, edge = [], [], []
-    rev: list[bool] = []
-    opp: list[bool] = []
-    wires: list[tuple[int, bool]] = []
-    for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
-        for w in fd["wires"]:
-            if not w["uses"]:
-                continue
-            for u in w["uses"]:
-                descs.append(u["pcurve"])
-                face.append(i)
-                wire.append(len(wires))
-                edge.append(u["edge"])
-                rev.append(bool(u["reversed"]))
-                opp.append(bool(u.get("opposed", False)))
-            wires.append((i, bool(w["outer"])))
-    face_a = np.array(face, dtype=np.int64)
-    f = _PCurves(descs, face_a, uv_maps)
+    f = _PCurves(wires.descs, wires.face, uv_maps)
     fill_boxes(surfaces)  # the analytic faces' boxes, those of a kind together
     tols = SAMPLE_RTOL * np.array([s.bbox_size for s in surfaces])
-    P, use, dev = _refine(f, f.initial(descs), np.array(rev, dtype=bool), surfaces, tols)
+    P, use, dev = _refine(f, f.initial(wires.descs), wires.reverses, surfaces, tols)
     keep = np.zeros(len(use), dtype=bool)  # a use's last point starts the next use
     keep[:-1] = use[1:] == use[:-1]
     P, use, dev = P[keep], use[keep], dev[keep]
-    E = np.array(edge, dtype=np.int64)[use]
-    # a use runs against its edge's 3D curve where it traverses its p-curve backwards, or its
-    # p-curve is parametrised against the curve (a joined copy: nagata_snap.cad.sewing)
-    S = np.where((np.array(rev, dtype=bool) ^ np.array(opp, dtype=bool))[use], -1.0, 1.0)
-    ends = np.searchsorted(np.array(wire, dtype=np.int64)[use], np.arange(len(wires) + 1))
-    _check_wires(P, ends, [i for i, _ in wires])
+    E = wires.edge[use]
+    S = wires.senses[use]
+    ends = np.searchsorted(wires.wire[use], np.arange(len(wires.wires) + 1))
+    _check_wires(P, ends, [i for i, _ in wires.wires])
     band = 2.0 * dev + tolerances[E]
-    loops: list[list[Loop]] = [[] for _ in faces]
-    for w, (i, outer) in enumerate(wires):  # loop over wires (Loop objects)
-        sl = slice(ends[w], ends[w + 1])
-        loops[i].append(Loop(P[sl], E[sl], band[sl], S[sl], outer))
-    return loops
+    cut = ends[1:-1]
+    return list(zip(*(np.split(a, cut) for a in (P, E, band, S)), strict=True))
+
+
+class _LazyLoops:
+    """The polygons of a model's loops (:func:`_polygons`), sampled when one is first read.
+
+    Args:
+        loops: per face its loops (without polygons).
+        wires: their uses.
+        surfaces, uv_maps, tolerances: as :func:`_polygons`.
+        path, faces: the file and its face descriptions (to name an invalid face).
+    """
+
+    def __init__(self, loops: list[list[Loop]], wires: _Wires, surfaces: Sequence,
+                 uv_maps: Sequence[np.ndarray | None], tolerances: np.ndarray, path: str, faces: Sequence[dict]):
+        self._loops = [lp for face in loops for lp in face]
+        self._args = (wires, surfaces, uv_maps, tolerances)
+        self._path, self._faces = path, faces
+        for lp in self._loops:
+            lp._sampler = self
+
+    def fill(self) -> None:
+        """Sample the polygons of all loops.
+
+        Raises:
+            ValueError: naming the face, as :meth:`CadModel.from_data` does.
+        """
+        try:
+            polygons = _polygons(*self._args)
+        except _FaceError as err:
+            raise ValueError(_face_message(self._path, self._faces, err)) from None
+        for lp, poly in zip(self._loops, polygons, strict=True):  # the loops in wire order
+            lp._polygon, lp._sampler = poly, None
+
+
+def _face_message(path: str, faces: Sequence[dict], err: _FaceError) -> str:
+    """The message of a :class:`_FaceError`, naming the file, the face and its surface type."""
+    return f"{path}: face {err.face} ({faces[err.face]['surface']['type']} surface): {err}"
 
 
 def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
@@ -756,6 +875,16 @@ def _tangents(surface, params: np.ndarray) -> np.ndarray:
     return T
 
 
+def _planar_2d(surfaces: Sequence, size: float, rtol: float = 1e-9) -> bool:
+    """Every surface is a plane in ``z = 0``: origin within ``rtol x size`` of it, normal
+    within ``rtol`` of ``z`` (:meth:`CadModel.is_planar_2d`)."""
+    tol = rtol * max(size, 1e-300)
+    for s in surfaces:
+        if getattr(s, "kind", "") != "plane" or abs(s.origin[2]) > tol or abs(abs(s.Z[2]) - 1.0) > rtol:
+            return False
+    return True
+
+
 class CadModel:
     """Faces, edges and vertices of a CAD file (see the module docstring).
 
@@ -810,13 +939,18 @@ class CadModel:
                 break
             surfaces.append(surface)
             maps.append(uv_map)
-        try:  # the loops of the faces before a bad surface: their errors come first
-            loops = _all_loops(fdata[:len(surfaces)], surfaces, maps, tol)
-            if bad is not None:
-                raise bad
-        except _FaceError as err:
-            raise ValueError(f"{path}: face {err.face} ({fdata[err.face]['surface']['type']} surface): "
-                             f"{err}") from None
+        wires = _Wires.gather(fdata[:len(surfaces)])
+        if bad is None and surfaces and _planar_2d(surfaces, float(data.get("size", 0.0))):
+            # a 2D geometry snaps onto the edge curves: the polygons when first read
+            loops = wires.loops(len(surfaces))
+            _LazyLoops(loops, wires, surfaces, maps, tol, path, fdata)
+        else:
+            try:  # the loops of the faces before a bad surface: their errors come first
+                loops = wires.loops(len(surfaces), _polygons(wires, surfaces, maps, tol))
+                if bad is not None:
+                    raise bad
+            except _FaceError as err:
+                raise ValueError(_face_message(path, fdata, err)) from None
         faces = []
         face_edges: list[set] = []
         for f, surface, uv_map, lp in zip(fdata, surfaces, maps, loops, strict=True):
@@ -849,13 +983,7 @@ class CadModel:
         """All faces are planes in ``z = 0`` (a profile for 2D meshes), or there are no faces."""
         if not self.faces:
             return len(self.curve_edges()) > 0
-        tol = rtol * max(self.size, 1e-300)
-        for f in self.faces:
-            s = f.surface
-            if getattr(s, "kind", "") != "plane" or abs(s.origin[2]) > tol or \
-                    abs(abs(s.Z[2]) - 1.0) > rtol:
-                return False
-        return True
+        return _planar_2d([f.surface for f in self.faces], self.size, rtol)
 
     def summary(self) -> str:
         kinds: dict[str, int] = {}
