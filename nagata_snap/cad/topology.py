@@ -32,7 +32,7 @@ import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import CHUNK, CLOSED_RTOL, NurbsCurve, NurbsError, NurbsSurface, _bbox_size
-from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface, fill_boxes
+from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
 from nagata_snap.mesh.arrays import ramp
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
@@ -667,11 +667,44 @@ def _edge_curves(edges: Sequence[dict], path: str) -> list:
     return out
 
 
+def _analytic_faces(faces: Sequence[dict]) -> dict[int, tuple[AnalyticSurface, np.ndarray | None]]:
+    """:func:`_surface` of the analytic faces, by face index, their surfaces built together
+    (:func:`~nagata_snap.cad.surfaces.analytic_surfaces`; the bounds of the recognised ones
+    mapped together); empty if one of them is invalid (:func:`_surface` then names it, face
+    by face)."""
+    sel = [i for i, f in enumerate(faces) if f["surface"]["type"] in _SURFACES]
+    try:
+        box = np.array([faces[i]["uv"] for i in sel], dtype=float).reshape(-1, 2, 2)
+        maps = [faces[i]["surface"].get("uv_map") for i in sel]
+        rec = [j for j, M in enumerate(maps) if M is not None]
+        if rec:
+            M = np.array([maps[j] for j in rec], dtype=float).reshape(-1, 3, 2)
+            _map_boxes(box, rec, M)
+            for j, Mj in zip(rec, M, strict=True):  # loop over recognised faces (their maps)
+                maps[j] = Mj
+        built = analytic_surfaces([faces[i]["surface"] for i in sel], box)
+    except (ValueError, TypeError, KeyError, IndexError):
+        return {}
+    return {i: (sf, M) for i, sf, M in zip(sel, built, maps, strict=True)}
+
+
+def _map_boxes(box: np.ndarray, rows: Sequence[int], M: np.ndarray) -> None:
+    """The images of the ``(u, v)`` boxes ``box[rows]`` (``(k, 2, 2)``) under their faces' maps
+    ``(u', v') = [u, v, 1] M`` (``M (k, 3, 2)``): the boxes of their corners' images, in place."""
+    b = box[rows]
+    corners = np.ones((len(rows), 4, 3))
+    corners[:, :, 0] = b[:, 0, [0, 0, 1, 1]]
+    corners[:, :, 1] = b[:, 1, [0, 1, 0, 1]]
+    img = np.matmul(corners, M)  # (k, 4, 2)
+    box[rows] = np.stack([img.min(axis=1), img.max(axis=1)], axis=2)
+
+
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
     """The face's surface, and the map of the file's ``(u, v)`` to its parameters (or None).
 
     A face recognised as analytic (``desc["uv_map"]``, ``(3, 2)``: ``(u', v') = [u, v, 1] M``,
-    from :mod:`~nagata_snap.cad.read`) gets the image of its ``(u, v)`` box as its bounds.
+    from :mod:`~nagata_snap.cad.read`) gets the image of its ``(u, v)`` box as its bounds
+    (:func:`_map_boxes`).
     """
     box = np.array([[uv[0], uv[1]], [uv[2], uv[3]]], dtype=float)
     if desc["type"] == "bspline":
@@ -680,8 +713,9 @@ def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray
     if M is None:
         return analytic_surface(desc, box), None
     M = np.asarray(M, dtype=float).reshape(3, 2)
-    corners = np.c_[np.array([[a, b] for a in box[0] for b in box[1]]), np.ones(4)] @ M
-    return analytic_surface(desc, np.stack([corners.min(axis=0), corners.max(axis=0)], axis=1)), M
+    boxes = box[None]
+    _map_boxes(boxes, [0], M[None])
+    return analytic_surface(desc, boxes[0]), M
 
 
 @dataclass
@@ -931,9 +965,10 @@ class CadModel:
         fdata = data["faces"]
         surfaces, maps = [], []
         bad = None
+        built = _analytic_faces(fdata)
         for i, f in enumerate(fdata):  # loop over faces (surfaces)
             try:
-                surface, uv_map = _surface(f["surface"], f["uv"])
+                surface, uv_map = built[i] if i in built else _surface(f["surface"], f["uv"])
             except (ValueError, NurbsError) as err:
                 bad = _FaceError(i, str(err))
                 break
