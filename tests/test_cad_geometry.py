@@ -487,6 +487,50 @@ def test_three_distinct_points_check_of_trimming_wires():
     assert not _three_distinct(np.array([a, b]))
 
 
+def test_wire_check_names_the_first_wire_without_three_distinct_finite_points():
+    """``topology._check_wires`` (a quick test of three points per wire, the full one where that
+    fails) against ``np.unique`` of every wire's rows rounded to 1e-12 of its extent."""
+    from nagata_snap.cad.topology import _check_wires, _FaceError
+
+    rng = np.random.default_rng(5)
+
+    def wire(kind: int) -> np.ndarray:
+        n = int(rng.integers(1, 40))
+        P = rng.uniform(-3.0, 5.0, (n, 2))
+        if kind == 1:  # two values, alternating
+            P[:] = P[0]
+            P[1::2] = P[min(1, n - 1)] + 1.0
+        elif kind == 2:  # one point off the rest, by less than the rounding
+            P[:] = P[0]
+            P[n // 2] += 1e-14
+        elif kind == 3:
+            P[rng.integers(n)] = np.nan
+        elif kind == 4:  # the quick test's three rows equal, another row off
+            P[:] = P[0]
+            P[-1] += 1.0
+            P[n // 2 + 1:n - 1] -= 0.5
+        return P
+
+    for _ in range(300):
+        wires = [wire(int(rng.choice(5, p=[0.8, 0.05, 0.05, 0.05, 0.05]))) for _ in range(int(rng.integers(1, 6)))]
+        ends = np.r_[0, np.cumsum([len(w) for w in wires])]
+        P = np.concatenate(wires)
+        good = []
+        for w in wires:
+            if not np.isfinite(w).all():
+                good.append(False)
+                continue
+            R = np.round(w / max(w.max() - w.min(), 1e-300), 12)
+            good.append(len(np.unique(R, axis=0)) >= 3)
+        face = list(range(10, 10 + len(wires)))
+        if all(good):
+            _check_wires(P, ends, face)
+        else:
+            with pytest.raises(_FaceError) as info:
+                _check_wires(P, ends, face)
+            assert info.value.face == face[good.index(False)]
+
+
 def test_corner_rule_counts_distinct_faces_and_edges():
     """``corner_vertices``: three faces, or two distinct CAD edges, make a corner; repeats do not."""
     from nagata_snap.mesh.corners import corner_vertices

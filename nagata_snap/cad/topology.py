@@ -27,11 +27,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
-from nagata_snap.cad.nurbs import CHUNK, CLOSED_RTOL, NurbsCurve, NurbsError, NurbsSurface, _bbox_size
+from nagata_snap.cad.nurbs import CHUNK, CLOSED_RTOL, NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
 from nagata_snap.mesh.arrays import ramp
 
@@ -280,10 +281,12 @@ class _Splines:
         """Closedness of curves ``cs`` (sorted), as ``NurbsCurve.is_closed``: both ends within
         :data:`~nagata_snap.cad.nurbs.CLOSED_RTOL` of the control points' box diagonal."""
         ends = self._inside(np.stack([self.lo[cs], self.hi[cs]], axis=1).ravel(), np.repeat(cs, 2))
-        for j, cj in enumerate(cs.tolist()):  # loop over the curves evaluated beyond their domain
-            gap = np.array([*(ends[2 * j] - ends[2 * j + 1]), 0.0])
-            size = _bbox_size(np.c_[self.P[self.poff[cj]:self.poff[cj + 1]], np.zeros(self.n[cj])])
-            self.closed[cj] = np.sqrt(gap @ gap) <= CLOSED_RTOL * max(size, 1e-300)
+        gap, box = np.zeros((len(cs), 3)), np.zeros((len(cs), 3))  # 3-vectors (z = 0), as NurbsCurve's
+        gap[:, :2] = ends[0::2] - ends[1::2]
+        first = self.poff[:-1]
+        box[:, :2] = (np.maximum.reduceat(self.P, first) - np.minimum.reduceat(self.P, first))[cs]
+        size = np.sqrt(np.vecdot(box, box))
+        self.closed[cs] = np.sqrt(np.vecdot(gap, gap)) <= CLOSED_RTOL * np.maximum(size, 1e-300)
 
     def _inside(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
         """:meth:`__call__` at parameters inside the domains."""
@@ -810,8 +813,7 @@ def _polygons(wires: _Wires, surfaces: Sequence, uv_maps: Sequence[np.ndarray | 
     ends = np.searchsorted(wires.wire[use], np.arange(len(wires.wires) + 1))
     _check_wires(P, ends, [i for i, _ in wires.wires])
     band = 2.0 * dev + tolerances[E]
-    cut = ends[1:-1]
-    return list(zip(*(np.split(a, cut) for a in (P, E, band, S)), strict=True))
+    return [(P[i:j], E[i:j], band[i:j], S[i:j]) for i, j in pairwise(ends.tolist())]
 
 
 class _LazyLoops:
@@ -854,7 +856,9 @@ def _face_message(path: str, faces: Sequence[dict], err: _FaceError) -> str:
 def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
     """Every wire (rows ``ends[w]:ends[w + 1]`` of ``P (m, 2)``) has 3 distinct finite points.
 
-    Points are compared rounded to 1e-12 of the wire's extent.
+    Points are compared rounded to 1e-12 of the wire's extent.  A quick sufficient test
+    first (finite points, and three of each wire distinct: its first, and those a third and
+    two thirds along it); the full test where that fails.
 
     Raises:
         _FaceError: naming the face (``face[w]``) of the first wire that has not.
@@ -862,6 +866,14 @@ def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
     if len(ends) < 2:
         return
     start = ends[:-1]
+    if len(P) and np.isfinite(P).all():
+        scale = np.maximum(np.maximum.reduceat(P.max(axis=1), start) - np.minimum.reduceat(P.min(axis=1), start),
+                           1e-300)
+        rows = start[:, None] + (np.diff(ends)[:, None] * np.arange(3)) // 3  # (w, 3)
+        R = np.round(P[rows] / scale[:, None, None], 12)
+        if ((R[:, 0] != R[:, 1]).any(axis=1) & (R[:, 0] != R[:, 2]).any(axis=1)
+                & (R[:, 1] != R[:, 2]).any(axis=1)).all():
+            return
     finite = np.isfinite(P).all(axis=1)
     ok = np.bincount(np.repeat(np.arange(len(start)), np.diff(ends))[~finite], minlength=len(start)) == 0
     if len(P):
