@@ -89,6 +89,9 @@ def _wrap(t: np.ndarray, lo: float, top: float = np.pi) -> np.ndarray:
     return t
 
 
+#: the periods of the surfaces by their closedness (``AnalyticSurface.periods``)
+_PERIODS: dict[tuple[bool, bool], np.ndarray] = {}
+
 #: rows per block of :func:`_add_rows`
 _ROW_BLOCK = 256
 
@@ -219,8 +222,13 @@ class AnalyticSurface:
 
     @property
     def periods(self) -> np.ndarray:
-        """``(2,)`` period per direction (NaN where open)."""
-        return np.array([TWO_PI if c else np.nan for c in self.closed])
+        """``(2,)`` period per direction (NaN where open); read-only, shared by the surfaces
+        closed alike."""
+        per = _PERIODS.get(self.closed)
+        if per is None:
+            per = _PERIODS[self.closed] = np.array([TWO_PI if c else np.nan for c in self.closed])
+            per.flags.writeable = False
+        return per
 
     @property
     def distinct_knots_u(self) -> np.ndarray:
@@ -448,7 +456,7 @@ class Plane(AnalyticSurface):
     def affine(self) -> tuple[np.ndarray, np.ndarray]:
         """``(origin (3,), axes (2, 3))``: ``S = origin + params @ axes``, orthonormal axes
         (projections onto many planes at once: :class:`nagata_snap.cad.projection.AffineBatch`)."""
-        return self.origin, np.stack([self.X, self.Y])
+        return self.origin, self._uv_axes
 
     @staticmethod
     def _sample_boxes(surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
