@@ -38,7 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from itertools import pairwise
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -143,18 +143,18 @@ class AnalyticSurface:
     _box: tuple[np.ndarray, np.ndarray, float] | None
 
     def __init__(self, origin, x, y, z, bounds):
-        type(self)._place([self], [origin], [(x, y, z)], [bounds])
+        AnalyticSurface._place([self], [origin], [(x, y, z)], [bounds])
 
     def _shape(self, shape: Sequence, bounds: npt.ArrayLike) -> None:
         """Set (and check) the shape fields of the class from their values ``shape`` (the
         arguments between the frame and the bounds; none for a plane)."""
 
-    @classmethod
-    def _place(cls, surfaces: Sequence[AnalyticSurface], origins: Sequence, axes: Sequence,
-               bounds: Sequence) -> tuple[np.ndarray, np.ndarray]:
-        """Set the placement, bounds and local frame of ``k`` surfaces of class ``cls`` (their
-        shape fields set, :meth:`_shape`), computed for all of them at once; returns their
-        origins ``(k, 3)`` and unit directions ``(k, 3, 3)``.
+    @staticmethod
+    def _place(surfaces: Sequence[AnalyticSurface], origins: Sequence, axes: Sequence,
+               bounds: Sequence | np.ndarray) -> None:
+        """Set the placement, bounds and local frame of ``k`` surfaces (any classes, their
+        shape fields set, :meth:`_shape`), and the planes' projection data, computed for all
+        of them at once.
 
         Args:
             surfaces: the surfaces.
@@ -187,7 +187,7 @@ class AnalyticSurface:
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {B[np.argmax(bad)].tolist()}")
         # closest points measure the angle from e(u0 + pi): atan2 then lands in
         # [u0, u0 + 2 pi] with one addition, no wrapping
-        shift = B[:, 0, 0] + np.pi if cls.closed[0] else np.zeros(k)
+        shift = np.where([sf.closed[0] for sf in surfaces], B[:, 0, 0] + np.pi, 0.0)
         c, sn = np.cos(shift)[:, None], np.sin(shift)[:, None]
         # (3, 3) rows e(shift), e'(shift), Z: the local frame of :meth:`_coords`
         frame = np.stack([c * X + sn * Y, c * Y - sn * X, Z], axis=1)
@@ -199,7 +199,9 @@ class AnalyticSurface:
             sf.hand, sf._shift = hand[i], float(shift[i])
             sf._frame, sf._o_local, sf._frame4 = frame[i], o_local[i], frame4[i]
             sf._box = None
-        return O, A
+        planes = [i for i, sf in enumerate(surfaces) if isinstance(sf, Plane)]
+        if planes:
+            Plane._axes([cast(Plane, surfaces[i]) for i in planes], O[planes], A[planes])
 
     @property
     def bbox(self) -> tuple[np.ndarray, np.ndarray]:
@@ -440,17 +442,16 @@ class Plane(AnalyticSurface):
         _add_rows(S, self.origin)
         return uv, S, np.abs(dist, out=dist)
 
-    @classmethod
-    def _place(cls, surfaces, origins, axes, bounds) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`AnalyticSurface._place`, and the planes' projection data (all at once)."""
-        O, A = super()._place(surfaces, origins, axes, bounds)
+    @staticmethod
+    def _axes(planes: Sequence[Plane], O: np.ndarray, A: np.ndarray) -> None:
+        """Set the projection data of ``planes`` from their origins ``O (k, 3)`` and unit
+        directions ``A (k, 3, 3)`` (:meth:`AnalyticSurface._place`), all at once."""
         uv_axes = A[:, :2]  # (k, 2, 3): X, Y
         uv_cols = np.ascontiguousarray(uv_axes.transpose(0, 2, 1))  # (k, 3, 2): contiguous for BLAS
         uv_origin = np.matmul(uv_axes, O[:, :, None])[:, :, 0]
         z_origin = np.vecdot(A[:, 2], O).tolist()
-        for i, sf in enumerate(surfaces):  # loop over planes (their fields)
+        for i, sf in enumerate(planes):  # loop over planes (their fields)
             sf._uv_axes, sf._uv_cols, sf._uv_origin, sf._z_origin = uv_axes[i], uv_cols[i], uv_origin[i], z_origin[i]
-        return O, A
 
     @property
     def affine(self) -> tuple[np.ndarray, np.ndarray]:
@@ -790,24 +791,20 @@ def analytic_surface(desc: dict, bounds) -> AnalyticSurface:
 
 def analytic_surfaces(descs: Sequence[dict], bounds: Sequence | np.ndarray) -> list[AnalyticSurface]:
     """:func:`analytic_surface` of every description (analytic types only) with its ``(2, 2)``
-    bounds, the frames of the surfaces of a type computed together
-    (:meth:`AnalyticSurface._place`); only the shape fields are set surface by surface.
+    bounds, the frames of all surfaces computed together (:meth:`AnalyticSurface._place`);
+    only the shape fields are set surface by surface.
 
     Raises:
-        ValueError: an invalid description (with several invalid ones, the first of a
-            type and check).
+        ValueError: an invalid description (with several invalid ones, the first of the
+            first failing check).
     """
-    out: list = [None] * len(descs)
-    for kind, (cls, fields) in _SURFACES.items():  # loop over the surface types
-        sel = [i for i, d in enumerate(descs) if d["type"] == kind]
-        if not sel:
-            continue
-        group = []
-        for i in sel:  # loop over the surfaces of the type (their shape fields)
-            sf = cls.__new__(cls)
-            sf._shape([descs[i][f] for f in fields], bounds[i])
-            group.append(sf)
-            out[i] = sf
-        cls._place(group, [descs[i]["origin"] for i in sel], [(descs[i]["x"], descs[i]["y"], descs[i]["z"])
-                                                            for i in sel], [bounds[i] for i in sel])
+    out = []
+    for d, b in zip(descs, bounds, strict=True):  # loop over the surfaces (their shape fields)
+        if d["type"] not in _SURFACES:
+            raise ValueError(f"not an analytic surface type: {d['type']!r}")
+        cls, fields = _SURFACES[d["type"]]
+        sf = cls.__new__(cls)
+        sf._shape([d[f] for f in fields], b)
+        out.append(sf)
+    AnalyticSurface._place(out, [d["origin"] for d in descs], [(d["x"], d["y"], d["z"]) for d in descs], bounds)
     return out
