@@ -32,7 +32,7 @@ from itertools import pairwise
 import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
-from nagata_snap.cad.nurbs import CHUNK, CLOSED_RTOL, NurbsCurve, NurbsError, NurbsSurface
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
 from nagata_snap.mesh.arrays import ramp
 
@@ -188,20 +188,11 @@ class _FaceError(ValueError):
 class _Splines:
     """B-spline p-curves packed end to end and evaluated together (no object per curve).
 
-    Curve ``c`` has degree ``p[c]``, knots ``K[koff[c]:koff[c + 1]]``, the
-    homogeneous control points ``W[:, poff[c]:poff[c + 1]]`` (rows ``w x, w y,
-    w``) and the domain ``[lo[c], hi[c]]``.  A point is evaluated as
-    :meth:`NurbsCurve.evaluate <nagata_snap.cad.nurbs.NurbsCurve.evaluate>`
-    evaluates it, to the last bit: the parameter wrapped (closed curve) or
-    clamped into the domain, the span of :func:`~nagata_snap.cad.nurbs.find_span`,
-    the kernel :meth:`NurbsCurve._sums <nagata_snap.cad.nurbs.NurbsCurve._sums>`;
-    but for the points of all curves at once.  The span search counts the
-    knots of the point's curve up to the point with two sorted searches, one
-    over the distinct knot values of all curves (a rank), one over the knots'
-    ``(curve, rank)`` keys; the curves of a degree share one kernel call (a
-    loop over the distinct degrees).  A curve's closedness decides only how a
-    parameter beyond its domain is brought back, so it is computed for the
-    curves evaluated there, when they are.
+    The curves are a :class:`NurbsCurve.Packed <nagata_snap.cad.nurbs.NurbsCurve.Packed>`,
+    whose points are :meth:`NurbsCurve.evaluate <nagata_snap.cad.nurbs.NurbsCurve.evaluate>`'s
+    to the last bit, with its parameter wrapping: a parameter beyond a curve's domain
+    wraps (closed curve) or is clamped; the closedness, which decides only that, is
+    computed for the curves evaluated there, when they are.
 
     Args:
         descs: per curve its description (``read_shape``'s ``"pcurve"`` of type ``bspline``).
@@ -214,7 +205,9 @@ class _Splines:
     """
 
     def __init__(self, descs: Sequence[dict], face: np.ndarray):
-        packed = _pack_splines(descs)
+        fields = ([d["degree"] for d in descs], [d["knots"] for d in descs], [d["poles"] for d in descs],
+                  [d.get("weights") for d in descs])
+        packed = NurbsCurve.Packed.checked(*fields)
         closed = None
         if packed is None:  # an invalid (or unusual) description: NurbsCurve checks each
             curves = []
@@ -223,104 +216,41 @@ class _Splines:
                     curves.append(nurbs_curve(d))
                 except (ValueError, NurbsError) as err:
                     raise _FaceError(int(face[j]), str(err)) from None
-            packed = ([c.degree for c in curves], [c.knots for c in curves],
-                      np.concatenate([c.control_points[:, :2] for c in curves]),
-                      np.concatenate([c.weights for c in curves]))
+            packed = NurbsCurve.Packed.of(curves)
             closed = np.array([c.is_closed for c in curves], dtype=np.int8)
-        degrees, knots, poles, weights = packed
-        self.p = np.array(degrees, dtype=np.int64)
-        self.n = np.array([len(k) for k in knots], dtype=np.int64) - self.p - 1
-        m = self.n + self.p + 1
-        self.koff = np.concatenate([[0], np.cumsum(m)])
-        self.poff = np.concatenate([[0], np.cumsum(self.n)])
-        self.K = np.concatenate(knots)
-        self.P = poles
-        self.W = np.stack([poles[:, 0] * weights, poles[:, 1] * weights, weights])
-        ns = len(self.p)
-        #: curve of every knot
-        self.ck = np.repeat(np.arange(ns), m)
-        start = self.koff[:-1]
-        self.lo, self.hi = self.K[start + self.p], self.K[start + self.n]
-        # span table (nurbs._span_table for all curves): the last non-empty span s <= i
-        # with p <= s <= n - 1, else the first non-empty one
-        g = np.arange(len(self.K))
-        i = g - start[self.ck]
-        ok = (i >= self.p[self.ck]) & (i < self.n[self.ck])
-        ok[ok] = self.K[g[ok]] < self.K[g[ok] + 1]
-        last = np.maximum.accumulate(np.where(ok, g, -1))
-        first = np.minimum.reduceat(np.where(ok, g, len(g)), start)
-        #: global knot index of the span of each (clipped) ``searchsorted`` result
-        self.table = np.where(last >= start[self.ck], last, first[self.ck])
-        #: distinct knot values, and the ``(curve, rank)`` key of every knot
-        self.U = np.unique(self.K)
-        self.base = len(self.U) + 1
-        self.key = self.ck * self.base + np.searchsorted(self.U, self.K, side="right")
-        self.degrees = np.unique(self.p).tolist()
+        self.packed = pk = packed
         #: per curve: 1 closed, 0 open, -1 not known yet
-        self.closed = np.full(ns, -1, dtype=np.int8) if closed is None else closed
+        self.closed = np.full(len(pk.p), -1, dtype=np.int8) if closed is None else closed
 
     def __call__(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points at ``t (k,)`` of curves ``c (k,)`` (grouped by curve, in curve order)."""
-        out = np.flatnonzero((t < self.lo[c]) | (t > self.hi[c]))
+        pk = self.packed
+        out = np.flatnonzero((t < pk.lo[c]) | (t > pk.hi[c]))
         if out.size:
             t = self._wrap(t, c, out)
-        return self._inside(t, c)
+        return pk.points(t, c)[:, :2]
 
     def _wrap(self, t: np.ndarray, c: np.ndarray, out: np.ndarray) -> np.ndarray:
         """``t`` with the rows ``out`` brought into their curve's domain, as ``NurbsCurve.wrap``."""
-        co = c[out]
+        pk, co = self.packed, c[out]
         todo = np.unique(co[self.closed[co] < 0])
         if todo.size:
-            self._closedness(todo)
-        lo, hi, to = self.lo[co], self.hi[co], t[out]
+            self.closed[todo] = pk.closed(todo)[0]
+        lo, hi, to = pk.lo[co], pk.hi[co], t[out]
         t = t.copy()
         t[out] = np.where(self.closed[co] == 1, lo + np.mod(to - lo, hi - lo), np.clip(to, lo, hi))
         return t
-
-    def _closedness(self, cs: np.ndarray) -> None:
-        """Closedness of curves ``cs`` (sorted), as ``NurbsCurve.is_closed``: both ends within
-        :data:`~nagata_snap.cad.nurbs.CLOSED_RTOL` of the control points' box diagonal."""
-        ends = self._inside(np.stack([self.lo[cs], self.hi[cs]], axis=1).ravel(), np.repeat(cs, 2))
-        gap, box = np.zeros((len(cs), 3)), np.zeros((len(cs), 3))  # 3-vectors (z = 0), as NurbsCurve's
-        gap[:, :2] = ends[0::2] - ends[1::2]
-        first = self.poff[:-1]
-        box[:, :2] = (np.maximum.reduceat(self.P, first) - np.minimum.reduceat(self.P, first))[cs]
-        size = np.sqrt(np.vecdot(box, box))
-        self.closed[cs] = np.sqrt(np.vecdot(gap, gap)) <= CLOSED_RTOL * np.maximum(size, 1e-300)
-
-    def _inside(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """:meth:`__call__` at parameters inside the domains."""
-        q = np.searchsorted(self.U, t, side="right")
-        start, pc = self.koff[c], self.p[c]
-        cnt = np.searchsorted(self.key, c * self.base + q, side="right") - start  # knots <= t
-        span = self.table[start + np.minimum(np.maximum(cnt - 1, pc), self.n[c] - 1)]
-        first = span - start + self.poff[c] - pc
-        P = np.empty((len(t), 2))
-        for p in self.degrees:  # loop over the distinct degrees
-            sel = slice(None) if len(self.degrees) == 1 else np.flatnonzero(pc == p)
-            H = NurbsCurve._sums(self.K, self.W, p, span[sel], first[sel], t[sel], 0)[0]
-            P[sel] = (H[:2] / H[2]).T
-        # NurbsCurve.evaluate sums one point alone (a curve's only point, or the last of its
-        # points past a multiple of nurbs.CHUNK) with einsum's single-point kernel, whose
-        # rounding differs: those points again, alone
-        count = np.bincount(c, minlength=len(self.p)) % CHUNK  # points per curve past the chunks
-        if len(t) > 1 and (count == 1).any():
-            last = np.flatnonzero(np.append(c[1:] != c[:-1], True))  # each curve's last point
-            for j in last[count[c[last]] == 1].tolist():  # loop over such points
-                sl = slice(j, j + 1)  # (rare: a segment alone at the deepest refinement level)
-                H = NurbsCurve._sums(self.K, self.W, int(pc[j]), span[sl], first[sl], t[sl], 0)[0]
-                P[j] = H[:2, 0] / H[2, 0]
-        return P
 
     def first_samples(self, t0: np.ndarray, t1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(counts (n,), t)``: per curve the distinct knots inside its range ``[t0, t1]`` and
         its ends, :data:`SPLINE_SAMPLES` samples per interval between them, then ``t1``;
         ``t`` all curves' samples, concatenated."""
-        ns, knots = len(self.p), self.K
-        inside = (knots >= t0[self.ck]) & (knots <= t1[self.ck])
+        pk = self.packed
+        ns, knots, ck = len(pk.p), pk.K, pk.ck
+        inside = (knots >= t0[ck]) & (knots <= t1[ck])
         cs = np.arange(ns)
         v = np.concatenate([np.minimum(t0, t1), knots[inside], np.maximum(t0, t1)])
-        grp = np.concatenate([cs, self.ck[inside], cs])
+        grp = np.concatenate([cs, ck[inside], cs])
         order = np.argsort(grp, kind="stable")  # per curve: its start, its knots, its end
         v, grp = v[order], grp[order]
         keep = np.ones(len(v), dtype=bool)
@@ -336,53 +266,6 @@ class _Splines:
         t[spans] = (v[iv, None] + np.outer(v[iv + 1] - v[iv], s)).ravel()
         t[end] = t1
         return counts, t
-
-
-def _pack_splines(descs: Sequence[dict]) -> tuple[list[int], list[np.ndarray], np.ndarray, np.ndarray] | None:
-    """``(degrees, knots, poles (N, 2), weights (N,))`` of B-spline descriptions, their poles and
-    weights concatenated; None unless every description passes NurbsCurve's checks (done here
-    together): an integer degree ``p >= 1``, ``n > p`` finite 2D poles, ``n + p + 1`` finite
-    non-decreasing knots of multiplicity at most ``p + 1``, a non-empty domain, positive finite
-    weights."""
-    degrees: list[int] = []
-    knots: list[np.ndarray] = []
-    poles: list[np.ndarray] = []
-    rational: list[tuple[int, np.ndarray]] = []
-    try:
-        for d in descs:  # loop over p-curves (their arrays and sizes)
-            p, k = d["degree"], np.asarray(d["knots"], dtype=float)
-            P, w = np.asarray(d["poles"], dtype=float), d.get("weights")
-            if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1 or k.ndim != 1 or \
-                    P.ndim != 2 or P.shape[1] != 2 or len(k) != len(P) + p + 1 or len(P) <= p:
-                return None
-            if w is not None:
-                w = np.asarray(w, dtype=float)
-                if w.shape != (len(P),):
-                    return None
-                rational.append((len(poles), w))
-            degrees.append(int(p))
-            knots.append(k)
-            poles.append(P)
-    except (TypeError, ValueError):
-        return None
-    if not degrees:
-        return None
-    P = np.concatenate(poles)
-    n = np.array([len(a) for a in poles])
-    p = np.array(degrees)
-    poff = np.concatenate([[0], np.cumsum(n)])
-    weights = np.ones(len(P))
-    for j, w in rational:  # loop over rational p-curves (their weights)
-        weights[poff[j]:poff[j + 1]] = w
-    K = np.concatenate(knots)
-    koff = np.concatenate([[0], np.cumsum(n + p + 1)])
-    i = np.repeat(koff[:-1], n) + ramp(n)  # first knot of each basis function's support
-    dK = np.diff(K)
-    dK[koff[1:-1] - 1] = 0.0  # across curves
-    ok = (np.isfinite(K).all() and np.isfinite(P).all() and ((weights > 0) & (weights < np.inf)).all()
-          and (dK >= 0).all() and (K[i + np.repeat(p, n) + 1] > K[i]).all()
-          and (K[koff[:-1] + p] < K[koff[:-1] + n]).all())
-    return (degrees, knots, P, weights) if ok else None
 
 
 class _PCurves:
@@ -646,7 +529,8 @@ def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np
 
 def _edge_curves(edges: Sequence[dict], path: str) -> list:
     """The 3D curve of every edge description (None for degenerate edges): lines and circles
-    built together (:func:`~nagata_snap.cad.curves.analytic_curves`), B-splines one by one.
+    built together (:func:`~nagata_snap.cad.curves.analytic_curves`), B-splines together
+    (:meth:`NurbsCurve.many <nagata_snap.cad.nurbs.NurbsCurve.many>`).
 
     Raises:
         ValueError: naming the first edge (in edge order) whose curve is invalid.
@@ -657,9 +541,13 @@ def _edge_curves(edges: Sequence[dict], path: str) -> list:
     try:
         for i, c in zip(ana, analytic_curves([descs[i] for i in ana]), strict=True):
             out[i] = c
-        for i, c in enumerate(descs):  # loop over B-spline edges
-            if c is not None and out[i] is None:
-                out[i] = nurbs_curve(c)
+        spl = [i for i, c in enumerate(descs) if c is not None and out[i] is None]
+        if spl:
+            b = [descs[i] for i in spl]
+            built = NurbsCurve.many([d["degree"] for d in b], [d["knots"] for d in b], [d["poles"] for d in b],
+                                    [d.get("weights") for d in b])
+            for i, c in zip(spl, built, strict=True):
+                out[i] = c
     except (ValueError, NurbsError):  # the first invalid edge, built alone, names the error
         for i, c in enumerate(descs):  # loop over edges (error path)
             try:
