@@ -321,7 +321,11 @@ class _PCurves:
     def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
         kind = self.kind[use]
-        P = self.A[use] + t[:, None] * self.B[use]  # lines
+        P = np.empty((len(t), 2))
+        ln = np.flatnonzero(kind == 0)
+        if ln.size:
+            ul = use[ln]
+            P[ln] = self.A[ul] + t[ln, None] * self.B[ul]
         c = np.flatnonzero(kind == 1)
         if c.size:
             uc, tc = use[c], t[c]
@@ -755,7 +759,8 @@ def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
         return
     start = ends[:-1]
     if len(P) and np.isfinite(P).all():
-        scale = np.maximum(np.maximum.reduceat(P.max(axis=1), start) - np.minimum.reduceat(P.min(axis=1), start),
+        x, y = P[:, 0], P[:, 1]
+        scale = np.maximum(np.maximum.reduceat(np.maximum(x, y), start) - np.minimum.reduceat(np.minimum(x, y), start),
                            1e-300)
         rows = start[:, None] + (np.diff(ends)[:, None] * np.arange(3)) // 3  # (w, 3)
         R = np.round(P[rows] / scale[:, None, None], 12)
@@ -765,8 +770,9 @@ def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
     finite = np.isfinite(P).all(axis=1)
     ok = np.bincount(np.repeat(np.arange(len(start)), np.diff(ends))[~finite], minlength=len(start)) == 0
     if len(P):
-        lo = np.minimum.reduceat(np.where(finite, P.min(axis=1), np.inf), start)
-        hi = np.maximum.reduceat(np.where(finite, P.max(axis=1), -np.inf), start)
+        x, y = P[:, 0], P[:, 1]
+        lo = np.minimum.reduceat(np.where(finite, np.minimum(x, y), np.inf), start)
+        hi = np.maximum.reduceat(np.where(finite, np.maximum(x, y), -np.inf), start)
         scale = np.maximum(hi - lo, 1e-300)
         grp = np.repeat(np.arange(len(start)), np.diff(ends))
         with np.errstate(invalid="ignore"):
