@@ -119,16 +119,12 @@ class _Slabs:
         slab = np.repeat(s0 + first[lid], cnt) + ramp(cnt)
         seg = seg[np.argsort(slab, kind="stable")]
         ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=int(first[-1])))])
-        # each polygon's n + 1 slab pointers, relative to its first
-        rows = np.repeat(first[:-1], n + 1) + ramp(n + 1)
-        rel = ptr[rows] - np.repeat(ptr[first[:-1]], n + 1)
-        rel_off = np.concatenate([[0], np.cumsum(n + 1)]).tolist()
-        seg_off = ptr[first].tolist()
         out = []
+        f, s0 = first.tolist(), ptr[first].tolist()
         for i, (a, b, c) in enumerate(zip(y0.tolist(), n.tolist(), dy.tolist(), strict=True)):  # loop over polygons
             sl = cls.__new__(cls)
             sl.y0, sl.n, sl.dy = a, b, c
-            sl.seg, sl.ptr = seg[seg_off[i]:seg_off[i + 1]], rel[rel_off[i]:rel_off[i + 1]]
+            sl.seg, sl.ptr = seg[s0[i]:s0[i + 1]], ptr[f[i]:f[i + 1] + 1] - s0[i]
             out.append(sl)
         return out
 
