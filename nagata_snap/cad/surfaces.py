@@ -267,7 +267,7 @@ class AnalyticSurface:
         B = np.array([sf.bounds for sf in surfaces])
         u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
         U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
-        c, sn = np.cos(U), np.sin(U)
+        c, sn = np.repeat(np.cos(u), g, axis=1).ravel(), np.repeat(np.sin(u), g, axis=1).ravel()  # of U
         local = np.empty((1, 3, k * g * g))
         cls = [type(sf) for sf in surfaces]
         first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
@@ -277,9 +277,9 @@ class AnalyticSurface:
                 setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g * g))
             sl = slice(i0 * g * g, i1 * g * g)
             local[:, :, sl] = stack._local(U[sl], V[sl], c[sl], sn[sl], 0)
-        frame = (np.repeat(np.array([getattr(sf, a) for sf in surfaces]).T, g * g, axis=1)  # (3, k g^2)
-                 for a in ("X", "Y", "Z", "origin"))
-        S = _to_global(local, c, sn, *frame)[0].reshape(3, k, g * g)
+        F = np.repeat(np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0), g * g,
+                      axis=2)  # (4, 3, k g^2): X, Y, Z, origin of every point's surface
+        S = _to_global(local, c, sn, F[0], F[1], F[2], F[3])[0].reshape(3, k, g * g)
         pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
                         zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
         return S.min(axis=2).T - pad, S.max(axis=2).T + pad
