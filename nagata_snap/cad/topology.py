@@ -21,6 +21,22 @@
   period.
 * the adjacency: the faces of every edge and the (non-degenerate, non-seam)
   edges of every face, the vertices of every edge.
+
+The per-file, per-face and per-edge Python cost is kept down by building
+things of a kind together: the analytic surfaces of all faces
+(:func:`~nagata_snap.cad.surfaces.analytic_surfaces`), the lines and circles
+of all edges (:func:`~nagata_snap.cad.curves.analytic_curves`), the B-spline
+edges (:meth:`NurbsCurve.many <nagata_snap.cad.nurbs.NurbsCurve.many>`) and
+the p-curves of all uses of all faces: lines and circles from per-use
+coefficient arrays, B-splines packed end to end and evaluated together
+(:class:`_Splines`, :class:`NurbsCurve.Packed <nagata_snap.cad.nurbs.NurbsCurve.Packed>`),
+their checks done together and repeated one by one only to name an invalid
+one.  Everything built so is the same, to the last bit, as built one by one.
+
+A planar 2D model (every face a plane in ``z = 0``,
+:meth:`CadModel.is_planar_2d`) is meshed and snapped onto its edge curves,
+which need only the wires' edge uses and senses: its loop polygons are
+sampled when first read (:class:`Loop`), for all faces at once.
 """
 
 from __future__ import annotations
