@@ -487,6 +487,96 @@ def test_three_distinct_points_check_of_trimming_wires():
     assert not _three_distinct(np.array([a, b]))
 
 
+def test_wire_check_names_the_first_wire_without_three_distinct_finite_points():
+    """``topology._check_wires`` (a quick test of three points per wire, the full one where that
+    fails) against ``np.unique`` of every wire's rows rounded to 1e-12 of its extent."""
+    from nagata_snap.cad.topology import _check_wires, _FaceError
+
+    rng = np.random.default_rng(5)
+
+    def wire(kind: int) -> np.ndarray:
+        n = int(rng.integers(1, 40))
+        P = rng.uniform(-3.0, 5.0, (n, 2))
+        if kind == 1:  # two values, alternating
+            P[:] = P[0]
+            P[1::2] = P[min(1, n - 1)] + 1.0
+        elif kind == 2:  # one point off the rest, by less than the rounding
+            P[:] = P[0]
+            P[n // 2] += 1e-14
+        elif kind == 3:
+            P[rng.integers(n)] = np.nan
+        elif kind == 4:  # the quick test's three rows equal, another row off
+            P[:] = P[0]
+            P[-1] += 1.0
+            P[n // 2 + 1:n - 1] -= 0.5
+        return P
+
+    for _ in range(300):
+        wires = [wire(int(rng.choice(5, p=[0.8, 0.05, 0.05, 0.05, 0.05]))) for _ in range(int(rng.integers(1, 6)))]
+        ends = np.r_[0, np.cumsum([len(w) for w in wires])]
+        P = np.concatenate(wires)
+        good = []
+        for w in wires:
+            if not np.isfinite(w).all():
+                good.append(False)
+                continue
+            R = np.round(w / max(w.max() - w.min(), 1e-300), 12)
+            good.append(len(np.unique(R, axis=0)) >= 3)
+        face = list(range(10, 10 + len(wires)))
+        if all(good):
+            _check_wires(P, ends, face)
+        else:
+            with pytest.raises(_FaceError) as info:
+                _check_wires(P, ends, face)
+            assert info.value.face == face[good.index(False)]
+
+
+def test_trim_loops_checked_together_as_loop_by_loop(monkeypatch):
+    """``TrimLoops`` of loops with bands (a model's) checks and prepares them all at once: the
+    same polygons, segments, bands and slabs as loop by loop, and the same error for a loop
+    that is not a finite polygon of 2 vertices (or a band of the wrong length)."""
+    from nagata_snap.cad.trimming import TrimLoops
+
+    rng = np.random.default_rng(8)
+    ents = [cylinder(1.0 + i, 2.0) for i in range(4)]
+
+    def loops_and_bands():
+        loops, bands = [], []
+        for e in range(4):
+            lp, bd = [], []
+            for _ in range(int(rng.integers(0, 3))):
+                P = rng.uniform(0.0, 1.0, (int(rng.integers(2, 30)), 2))
+                if rng.random() < 0.3:  # closed on its first vertex
+                    P = np.r_[P, P[:1]]
+                lp.append(P)
+                bd.append(rng.uniform(0.0, 1e-3, len(P) - (len(P) > 2 and (P[0] == P[-1]).all())))
+            loops.append(lp)
+            bands.append(bd)
+        return loops, bands
+
+    def state(t):
+        return [[(P.tobytes(), seg.tobytes(), band.tobytes(), sl.y0, sl.n, sl.dy, sl.seg.tobytes(), sl.ptr.tobytes())
+                 for P, seg, band, sl in lp] for lp in t._loops]
+
+    for _ in range(30):
+        loops, bands = loops_and_bands()
+        with monkeypatch.context() as m:  # all at once: not loop by loop
+            m.setattr(TrimLoops, "_checked", lambda self, lp, b: pytest.fail("checked loop by loop"))
+            together = TrimLoops(ents, loops, bands)
+        with monkeypatch.context() as m:
+            m.setattr(TrimLoops, "_checked_together", lambda self, lp, b: None)
+            alone = TrimLoops(ents, loops, bands)
+        assert state(together) == state(alone)
+        assert np.array_equal(together.trimmed, [bool(lp) for lp in loops])
+    loops, bands = [[np.zeros((3, 2))], [], [], []], [[np.zeros(3)], [], [], []]
+    for bad, match in ((np.array([[0.0, 0.0], [np.nan, 1.0], [1.0, 1.0]]), "loop 0 must be a finite"),
+                       (np.array([[0.0, 0.0], [0.0, 0.0]]), "fewer than 2 vertices"),
+                       (np.arange(8.0).reshape(4, 2), "cannot reshape")):
+        loops[0][0] = bad
+        with pytest.raises(ValueError, match=match):
+            TrimLoops(ents, loops, bands)
+
+
 def test_corner_rule_counts_distinct_faces_and_edges():
     """``corner_vertices``: three faces, or two distinct CAD edges, make a corner; repeats do not."""
     from nagata_snap.mesh.corners import corner_vertices

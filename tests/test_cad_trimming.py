@@ -154,12 +154,135 @@ def test_first_samples_of_all_uses_are_linspace_per_use():
     steps[3] = 1
     rev = RNG.random(n) < 0.5
     spline = {5: np.array([0.0, 0.25, 1.0]), 17: np.array([1.0, 2.0, 3.0, 4.0])}
-    t, use = _Samples(np.c_[t0, t1], steps.copy(), spline).flat(rev)
+    t, use = _Samples(np.c_[t0, t1], steps.copy(), np.array(list(spline)), np.array([len(v) for v in spline.values()]),
+                      np.concatenate(list(spline.values()))).flat(rev)
     for j in range(n):
         want = spline.get(j, np.array([t0[j], t1[j]]) if steps[j] == 1 else np.linspace(t0[j], t1[j], steps[j] + 1))
         got = t[use == j]
         assert got.tobytes() == (want[::-1] if rev[j] else want).tobytes(), j
     assert np.all(np.diff(use) >= 0)
+
+
+def _random_spline(rng, closed: bool) -> dict:
+    """A clamped B-spline p-curve description: degree 1-4, repeated interior knots, 2D poles,
+    weights or None; ``closed``: its first and last poles coincide."""
+    p = int(rng.integers(1, 5))
+    inner = np.sort(rng.uniform(-2.0, 3.0, int(rng.integers(0, 7))))
+    if inner.size and p > 1:
+        inner = np.sort(np.r_[inner, inner[:1]])  # a double knot
+    a, b = -2.5 + rng.uniform(0, 0.1), 3.5
+    knots = np.r_[[a] * (p + 1), inner, [b] * (p + 1)]
+    n = len(knots) - p - 1
+    poles = rng.normal(size=(n, 2))
+    if closed:
+        poles[-1] = poles[0]
+    w = None if rng.random() < 0.4 else rng.uniform(0.3, 2.0, n)
+    return {"type": "bspline", "degree": p, "knots": knots, "poles": poles, "weights": w, "range": (a, b)}
+
+
+def test_packed_splines_evaluate_as_nurbs_curves():
+    """``topology._Splines`` (all B-spline p-curves evaluated together) gives, to the last bit,
+    what each curve's own :meth:`NurbsCurve.evaluate` gives on the same points: at knots,
+    domain ends, inside, and beyond the domain (wrapped on closed curves, clamped on open
+    ones); a curve with a single point among many; mixed degrees."""
+    from nagata_snap.cad.topology import _FaceError, _Splines, nurbs_curve
+
+    rng = np.random.default_rng(11)
+    descs = [_random_spline(rng, closed=bool(i % 3 == 0)) for i in range(25)]
+    splines = _Splines(descs, np.arange(len(descs)))
+    ts, cs = [], []
+    for c, d in enumerate(descs):
+        a, b = d["range"]
+        k = int(rng.integers(1, 30)) if c % 5 else 1  # every fifth curve: one point
+        t = rng.uniform(a, b, k)
+        if k > 1:
+            t[:4] = [a, b, d["knots"][d["degree"] + 1], a - 1e-12 * (c % 2) - 0.3 * (c % 4 == 1)][:k]
+            t[-1] = b + 1e-12 + 0.2 * (c % 2)
+        ts.append(t)
+        cs.append(np.full(k, c))
+    got = splines(np.concatenate(ts), np.concatenate(cs))
+    start = 0
+    for c, (d, t) in enumerate(zip(descs, ts, strict=True)):
+        want = nurbs_curve(d).evaluate(t)[0][:, :2]
+        assert got[start:start + len(t)].tobytes() == want.tobytes(), c
+        start += len(t)
+    bad = dict(descs[7], knots=descs[7]["knots"][::-1])
+    with pytest.raises(_FaceError, match="non-decreasing") as info:
+        _Splines([*descs[:7], bad], np.arange(8) + 100)
+    assert info.value.face == 107
+
+
+def test_packed_splines_first_samples_per_knot_span():
+    """``_Splines.first_samples``: per curve :data:`SPLINE_SAMPLES` samples in every interval
+    between its range's ends and the distinct knots inside it, then its end (the per-curve
+    formula, to the last bit)."""
+    from nagata_snap.cad.topology import SPLINE_SAMPLES, _Splines
+
+    rng = np.random.default_rng(12)
+    descs = [_random_spline(rng, closed=False) for _ in range(12)]
+    t0 = np.array([d["knots"][0] for d in descs]) + rng.uniform(0.0, 1.0, 12) * (rng.random(12) < 0.5)
+    t1 = np.array([d["knots"][-1] for d in descs]) - rng.uniform(0.0, 1.0, 12) * (rng.random(12) < 0.5)
+    t1[3] = descs[3]["knots"][descs[3]["degree"] + 1]  # the range ends at an interior knot
+    counts, t = _Splines(descs, np.arange(12)).first_samples(t0, t1)
+    s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+    got = np.split(t, np.cumsum(counts)[:-1])
+    for d, a, b, g in zip(descs, t0, t1, got, strict=True):
+        k = np.unique(d["knots"])
+        k = np.unique(np.r_[a, b, k[(k >= a) & (k <= b)]])
+        want = np.r_[(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), b]
+        assert g.tobytes() == want.tobytes()
+
+
+def test_planar_profile_loops_are_sampled_when_first_read(tmp_path, monkeypatch):
+    """A planar 2D model's loop polygons are not sampled by ``from_data`` nor by its 2D geometry
+    (which snaps onto the edge curves); reading one samples all, exactly as a model sampled at
+    once; the 2D edge orientation from the wires' uses is the one from the sampled segments;
+    an invalid p-curve is named when the polygons are read (and by a 3D geometry of the model)."""
+    import copy
+
+    import parts
+
+    from nagata_snap.cad import topology
+    from nagata_snap.cad.read import read_shape
+
+    signs = []
+    for name in ("profile_2d", "plate_holes_2d"):
+        data = read_shape(str(parts.write_part(name, tmp_path, ("step",))["step"]))
+        model = topology.CadModel.from_data(data)
+        geo = CadGeometry.from_model(model)
+        assert geo.param_dim == 1 and model.is_planar_2d()
+        loops = [lp for f in model.faces for lp in f.loops]
+        assert loops and all("not sampled" in repr(lp) for lp in loops)
+        sign = geo._orientation()
+        assert all("not sampled" in repr(lp) for lp in loops)
+        with monkeypatch.context() as m:
+            m.setattr(topology, "_planar_2d", lambda *a, **k: False)
+            eager = topology.CadModel.from_data(data)
+        assert all("points" in repr(lp) for f in eager.faces for lp in f.loops)
+        for lp, want in zip(loops[::-1], [lp for f in eager.faces for lp in f.loops][::-1], strict=True):
+            for attr in ("points", "edges", "band", "senses"):
+                assert getattr(lp, attr).tobytes() == getattr(want, attr).tobytes(), attr
+        want_sign = np.ones(geo.num_entities)  # the outward sign per edge curve, from the segments
+        pos = {e: i for i, e in enumerate(geo._curve_edges.tolist())}
+        for f in eager.faces:
+            up = np.sign(np.cross(f.surface.X, f.surface.Y)[2]) * (-1.0 if f.reversed else 1.0)
+            for lp in f.loops:
+                for e, s in zip(lp.edges.tolist(), lp.senses.tolist(), strict=True):
+                    if e in pos:
+                        want_sign[pos[e]] = s * up
+        assert np.array_equal(sign, want_sign)
+        signs.append(sign)
+    assert (np.concatenate(signs) == -1).any() and (np.concatenate(signs) == 1).any()
+
+    bad = copy.deepcopy(read_shape(str(tmp_path / "profile_2d.step")))
+    use = next(u for f in bad["faces"] for w in f["wires"] for u in w["uses"] if u["pcurve"]["type"] == "bspline")
+    use["pcurve"]["knots"] = use["pcurve"]["knots"][::-1].copy()
+    model = topology.CadModel.from_data(bad)
+    CadGeometry.from_model(model)
+    with pytest.raises(ValueError, match=r"face 0 \(plane surface\): NurbsCurve: knot vector must be non-decreasing"):
+        _ = model.faces[0].loops[0].points
+    with pytest.raises(ValueError, match=r"face 0 \(plane surface\)"):
+        CadGeometry.from_model(topology.CadModel.from_data(bad), dim=3)
 
 
 def test_invalid_edge_curve_is_named(tmp_path):

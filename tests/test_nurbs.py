@@ -225,6 +225,43 @@ def test_curve_validation(kwargs, msg):
     assert issubclass(NurbsError, ValueError)
 
 
+def _curve_args(rng, dim: int, closed: bool) -> tuple:
+    p = int(rng.integers(1, 5))
+    inner = np.sort(rng.uniform(0.0, 1.0, int(rng.integers(0, 9))))
+    if inner.size and p > 1:
+        inner = np.sort(np.r_[inner, inner[:1]])  # a double knot
+    knots = np.r_[[0.0] * (p + 1), inner, [1.0] * (p + 1)] * rng.uniform(0.5, 3.0) - rng.uniform(0, 2)
+    n = len(knots) - p - 1
+    P = rng.normal(size=(n, dim))
+    if closed:
+        P[-1] = P[0]
+    return p, knots, P, (None if rng.random() < 0.4 else rng.uniform(0.3, 2.0, n))
+
+
+def test_many_curves_built_together_as_one_by_one():
+    """``NurbsCurve.many`` gives each curve exactly as its constructor does (every field and
+    derived array to the last bit: closedness, span table, homogeneous points, box size), for 2D
+    and 3D control points; an invalid curve raises the constructor's error of the first one."""
+    rng = np.random.default_rng(21)
+    for dim in (2, 3):
+        args = [_curve_args(rng, dim, closed=i % 3 == 0) for i in range(30)]
+        many = NurbsCurve.many(*zip(*args, strict=True))
+        assert sum(c.is_closed for c in many) >= 10
+        for c, (p, k, P, w) in zip(many, args, strict=True):
+            want = NurbsCurve(p, k, P, np.ones(len(P)) if w is None else w)
+            for name in ("degree", "knots", "control_points", "weights", "_pwT", "_spans", "_size", "is_closed"):
+                a, b = getattr(c, name), getattr(want, name)
+                assert type(a) is type(b) and np.asarray(a).tobytes() == np.asarray(b).tobytes(), name
+                assert not isinstance(a, np.ndarray) or (a.dtype == b.dtype and not a.flags.writeable)
+            u = np.linspace(*want.domain, 7)
+            assert c.evaluate(u, 2).tobytes() == want.evaluate(u, 2).tobytes()
+    args = [_curve_args(rng, 3, closed=False) for _ in range(5)]
+    bad = list(args[3])
+    bad[1] = bad[1][::-1]
+    with pytest.raises(NurbsError, match="non-decreasing"):
+        NurbsCurve.many(*zip(*args[:3], bad, args[4], strict=True))
+
+
 def test_surface_validation_and_immutability():
     s = sphere()
     with pytest.raises(NurbsError, match="weights"):

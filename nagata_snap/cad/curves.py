@@ -61,27 +61,30 @@ class _Curve:
     bbox: tuple[np.ndarray, np.ndarray]
     bbox_size: float
 
-    @classmethod
-    def _new(cls, t0: npt.ArrayLike, t1: npt.ArrayLike) -> tuple[list, np.ndarray, np.ndarray]:
-        """``(curves, t0 (k,), t1 (k,))``: ``k`` bare curves with their ranges set (checked)."""
+    @staticmethod
+    def _ranges(t0: npt.ArrayLike, t1: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """``(t0 (k,), t1 (k,))``: the ranges of ``k`` curves, checked."""
         t0, t1 = np.asarray(t0, dtype=float).reshape(-1), np.asarray(t1, dtype=float).reshape(-1)
         bad = np.flatnonzero(~(np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)))
         if bad.size:
             raise ValueError(f"curve range must be finite with t0 < t1, got ({t0[bad[0]]}, {t1[bad[0]]})")
-        bounds = np.stack([t0, t1], axis=1)
-        curves = []
-        for b in bounds:  # loop over curves (the objects)
-            c = cls.__new__(cls)
-            c.bounds = c.limits = b[None]
-            curves.append(c)
-        return curves, t0, t1
+        return t0, t1
 
-    @staticmethod
-    def _set_boxes(curves: list, lo: np.ndarray, hi: np.ndarray) -> list:
-        """Store the boxes ``lo, hi (k, 3)`` and their diagonals on ``curves``; returns ``curves``."""
-        size = norms(hi - lo)
-        for c, a, b, d in zip(curves, lo, hi, size.tolist(), strict=True):
-            c.bbox, c.bbox_size = (a, b), d
+    @classmethod
+    def _make(cls, t0: np.ndarray, t1: np.ndarray, lo: np.ndarray, hi: np.ndarray, **fields: Any) -> list:
+        """``k`` curves of class ``cls``: ranges ``t0, t1 (k,)`` (checked, :meth:`_ranges`), boxes
+        ``lo, hi (k, 3)`` (and their diagonals), and the per-curve values of ``fields``."""
+        bounds = np.stack([t0, t1], axis=1)[:, None, :]  # (k, 1, 2)
+        size = norms(hi - lo).tolist()
+        curves = []
+        for i, b in enumerate(bounds):  # loop over curves (the objects)
+            c = cls.__new__(cls)
+            d = c.__dict__
+            d["bounds"] = d["limits"] = b
+            d["bbox"], d["bbox_size"] = (lo[i], hi[i]), size[i]
+            for name, values in fields.items():
+                d[name] = values[i]
+            curves.append(c)
         return curves
 
     def _copy_from(self, other: _Curve) -> None:
@@ -156,11 +159,9 @@ class Line(_Curve):
         if np.any(n == 0):
             raise ValueError("line direction must be non-zero")
         D = D / n[:, None]
-        lines, t0, t1 = cls._new(t0, t1)
-        for ln, o, d in zip(lines, O, D, strict=True):  # loop over lines (their fields)
-            ln.origin, ln.direction = o, d
+        t0, t1 = cls._ranges(t0, t1)
         a, b = O + D * t0[:, None], O + D * t1[:, None]
-        return cls._set_boxes(lines, np.minimum(a, b), np.maximum(a, b))
+        return cls._make(t0, t1, np.minimum(a, b), np.maximum(a, b), origin=O, direction=D)
 
     @property
     def affine(self) -> tuple[np.ndarray, np.ndarray]:
@@ -210,14 +211,13 @@ class Circle(_Curve):
         if long.size:
             raise ValueError(f"circle range longer than 2 pi: ({a[long[0]]}, {b[long[0]]})")
         full = np.abs((b - a) - TWO_PI) <= 1e-12 * TWO_PI
-        circles, t0, t1 = cls._new(a, b)
-        for c, *f in zip(circles, C, X, Y, R.tolist(), full.tolist(), strict=True):  # loop over circles
-            c.center, c.X, c.Y, c.radius, c.closed = f[0], f[1], f[2], f[3], (f[4],)
+        t0, t1 = cls._ranges(a, b)
         t = linspaces(t0, t1, BOX_SAMPLES)  # (k, s)
-        P = C[:, None, :] + R[:, None, None] * (X[:, None, :] * np.cos(t)[:, :, None] +
-                                                Y[:, None, :] * np.sin(t)[:, :, None])
-        pad = (R * (1 - np.cos((t1 - t0) / (BOX_SAMPLES - 1) / 2)))[:, None]
-        return cls._set_boxes(circles, P.min(axis=1) - pad, P.max(axis=1) + pad)
+        # (3, k, s): the samples' coordinates, each along the last (contiguous) axis
+        P = C.T[:, :, None] + R[:, None] * (X.T[:, :, None] * np.cos(t) + Y.T[:, :, None] * np.sin(t))
+        pad = R * (1 - np.cos((t1 - t0) / (BOX_SAMPLES - 1) / 2))
+        return cls._make(t0, t1, P.min(axis=2).T - pad[:, None], P.max(axis=2).T + pad[:, None], center=C, X=X, Y=Y,
+                         radius=R.tolist(), closed=[(f,) for f in full.tolist()])
 
     def _pieces(self) -> int:
         return max(1, int(np.ceil((self.bounds[0, 1] - self.bounds[0, 0]) / (np.pi / 4))))

@@ -587,6 +587,6 @@ class CadGeometry:
         for f in self.model.faces:
             up = np.sign(np.cross(f.surface.X, f.surface.Y)[2]) * (-1.0 if f.reversed else 1.0)
             for lp in f.loops:
-                e = pos[lp.edges]
-                sign[e[e >= 0]] = lp.senses[e >= 0] * (up if up != 0 else 1.0)
+                e = pos[lp.uses]
+                sign[e[e >= 0]] = lp.use_senses[e >= 0] * (up if up != 0 else 1.0)
         return sign

@@ -46,8 +46,10 @@ The end of the knot range is evaluated with the last non-empty span, so
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property, lru_cache
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -555,14 +557,11 @@ class NurbsCurve(_ControlNet):
         k = u.shape[0]
         p = self.degree
         out = np.empty((nderiv + 1, 3, k))
-        offs = np.arange(p + 1)[:, None]
         for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
             sl = slice(c0, min(k, c0 + CHUNK))
             uc = u[sl]
             span = find_span(self.knots, p, self.n_ctrl, uc, self._spans)
-            N = _basis_soa(self.knots, p, span, uc, nderiv)  # (nd+1, p+1, kc)
-            L = np.take(self._pwT, span[None, :] - p + offs, axis=1)  # (4, p+1, kc)
-            H = np.einsum("dik,cik->dck", N, L)  # (nd+1, 4, kc)
+            H = NurbsCurve._sums(self.knots, self._pwT, p, span, span - p, uc, nderiv)  # (nd+1, 4, kc)
             A, B = H[:, :3], H[:, 3]
             o = out[:, :, sl]
             o[0] = A[0] / B[0]
@@ -572,6 +571,218 @@ class NurbsCurve(_ControlNet):
                 o[2] = (A[2] - 2.0 * B[1] * o[1] - B[2] * o[0]) / B[0]
         return out
 
+
+    @staticmethod
+    def _sums(knots: np.ndarray, pw: np.ndarray, p: int, span: np.ndarray, first: np.ndarray,
+              u: np.ndarray, nderiv: int) -> np.ndarray:
+        """Homogeneous sums ``(nderiv+1, c, k)``: ``sum_a N^{(d)}_{s-p+a,p}(u) pw[:, first + a]``.
+
+        ``u (k,)`` in the knot spans ``span (k,)`` of ``knots`` (:func:`find_span`),
+        whose ``p + 1`` non-zero basis functions (:func:`_basis_soa`) weight the
+        columns ``first .. first + p`` of the homogeneous control points ``pw (c, n)``
+        (rows ``w P`` and ``w``).  One curve: ``first = span - p``; several curves
+        of degree ``p`` packed end to end (their knots concatenated, and their
+        columns): ``span`` indexes the concatenated knots, ``first`` the columns.
+        """
+        N = _basis_soa(knots, p, span, u, nderiv)  # (nd+1, p+1, k)
+        L = np.take(pw, first[None, :] + np.arange(p + 1)[:, None], axis=1)  # (c, p+1, k)
+        return np.einsum("dik,cik->dck", N, L)
+
+    @classmethod
+    def many(cls, degrees: Sequence[int], knots: Sequence[Any], control_points: Sequence[Any],
+             weights: Sequence[Any]) -> list[NurbsCurve]:
+        """``NurbsCurve(degrees[i], knots[i], control_points[i], weights[i])`` for every ``i``
+        (weights None: all 1), built together: the checks, the derived data and the ends
+        (closedness) of all curves at once (:class:`NurbsCurve.Packed`); the same curves to
+        the last bit.  A single curve is built by its constructor (packing costs more than
+        one curve's checks).
+
+        Raises:
+            NurbsError: the first invalid curve's (then built one by one).
+        """
+        pk = cls.Packed.checked(degrees, knots, control_points, weights) if len(degrees) > 1 else None
+        if pk is None:  # one curve, or an invalid (or unusual) one: each checks itself, in order
+            return [cls(p, k, P, np.ones(len(P)) if w is None else w)
+                    for p, k, P, w in zip(degrees, knots, control_points, weights, strict=True)]
+        ns = len(pk.p)
+        cs = np.arange(ns)
+        closed, size = pk.closed(cs)
+        P = pk.P if pk.P.shape[1] == 3 else np.concatenate([pk.P, np.zeros((len(pk.P), 1))], axis=1)
+        W = pk.W if pk.P.shape[1] == 3 else np.concatenate([pk.W[:2], np.zeros((1, len(pk.P))), pk.W[2:]])
+        spans, soff = pk.span_tables()
+        ko, po = pk.koff.tolist(), pk.poff.tolist()
+        out = []
+        for i, (p, c, sz) in enumerate(zip(pk.p.tolist(), closed.tolist(), size.tolist(), strict=True)):  # objects
+            obj = cls.__new__(cls)
+            object.__setattr__(obj, "degree", p)
+            _freeze(obj, "knots", pk.K[ko[i]:ko[i + 1]])
+            _freeze(obj, "control_points", P[po[i]:po[i + 1]])
+            _freeze(obj, "weights", pk.w[po[i]:po[i + 1]])
+            _freeze(obj, "_pwT", W[:, po[i]:po[i + 1]])
+            _freeze(obj, "_spans", spans[soff[i]:soff[i + 1]])
+            object.__setattr__(obj, "_size", sz)
+            object.__setattr__(obj, "is_closed", c)
+            out.append(obj)
+        return out
+
+    class Packed:
+        """Many NURBS curves packed end to end and evaluated together (no object per curve).
+
+        Curve ``c`` has degree ``p[c]``, knots ``K[koff[c]:koff[c + 1]]``, control
+        points ``P[poff[c]:poff[c + 1]]`` (``(N, d)``, ``d`` 2 or 3) with weights ``w``
+        (the homogeneous ``W (d + 1, N)``: rows ``w P``, ``w``) and the domain ``[lo[c],
+        hi[c]]``.  :meth:`points` evaluates points of all curves as
+        :meth:`NurbsCurve._eval_soa` evaluates each, to the last bit: the knot span of a
+        point found as :func:`find_span` finds it (the knots of its curve up to it,
+        counted by two sorted searches over all curves: one over the distinct knot
+        values, a rank, one over the knots' ``(curve, rank)`` keys), the kernel
+        :meth:`NurbsCurve._sums` once per distinct degree.
+
+        Args:
+            p: ``(n_curves,)`` degrees ``p >= 1``.
+            m: ``(n_curves,)`` number of knots of each curve (``n + p + 1``).
+            K: the curves' knots, concatenated.
+            P: ``(N, d)`` the curves' control points, concatenated.
+            w: ``(N,)`` their weights.
+
+        The data is taken as valid (see :meth:`checked`; :meth:`of` packs curve objects).
+        """
+
+        def __init__(self, p: np.ndarray, m: np.ndarray, K: np.ndarray, P: np.ndarray, w: np.ndarray):
+            self.p, self.n = p, m - p - 1
+            self.koff = np.zeros(len(m) + 1, dtype=np.int64)
+            np.cumsum(m, out=self.koff[1:])
+            self.poff = np.zeros(len(m) + 1, dtype=np.int64)
+            np.cumsum(self.n, out=self.poff[1:])
+            self.K, self.P, self.w = K, P, w
+            self.W = np.empty((P.shape[1] + 1, len(P)))  # rows w P, w
+            np.multiply(P.T, w, out=self.W[:-1])
+            self.W[-1] = w
+            #: curve of every knot
+            self.ck = np.repeat(np.arange(len(m)), m)
+            start = self.koff[:-1]
+            self.lo, self.hi = K[start + p], K[start + self.n]
+            # span table (_span_table of every curve): the last non-empty span s <= i with
+            # p <= s <= n - 1, else the first non-empty one
+            i = np.arange(len(K)) - start[self.ck]
+            ok = (i >= p[self.ck]) & (i < self.n[self.ck])
+            ok[:-1] &= K[:-1] < K[1:]
+            g = np.where(ok, np.arange(len(K)), -1)
+            last = np.maximum.accumulate(g)
+            g[~ok] = len(K)
+            first = np.minimum.reduceat(g, start)
+            #: global knot index of the span of each (clipped) ``searchsorted`` result
+            self.table = np.where(last >= start[self.ck], last, first[self.ck])
+            #: distinct knot values, and the ``(curve, rank)`` key of every knot
+            self.U = np.unique(K)
+            self.base = len(self.U) + 1
+            self.key = self.ck * self.base + np.searchsorted(self.U, K, side="right")
+            self.degrees = sorted(set(p.tolist()))
+
+        @classmethod
+        def of(cls, curves: Sequence[NurbsCurve]) -> NurbsCurve.Packed:
+            """The curves ``curves`` packed."""
+            return cls(np.array([c.degree for c in curves]), np.array([len(c.knots) for c in curves]),
+                       np.concatenate([c.knots for c in curves]), np.concatenate([c.control_points for c in curves]),
+                       np.concatenate([c.weights for c in curves]))
+
+        @classmethod
+        def checked(cls, degrees: Sequence, knots: Sequence, poles: Sequence,
+                    weights: Sequence) -> NurbsCurve.Packed | None:
+            """The curves packed if every one passes :class:`NurbsCurve`'s checks (done here
+            together: an integer degree ``p >= 1``, ``n > p`` finite control points of one
+            width 2 or 3 for all, ``n + p + 1`` finite non-decreasing knots of multiplicity
+            at most ``p + 1``, a non-empty domain, positive finite weights or None); else
+            None (the constructor then decides, curve by curve)."""
+            ps: list[int] = []
+            ks: list[np.ndarray] = []
+            Ps: list[np.ndarray] = []
+            rational: list[tuple[int, np.ndarray]] = []
+            try:
+                for p, k, P, w in zip(degrees, knots, poles, weights, strict=True):  # loop over curves (sizes)
+                    k, P = np.asarray(k, dtype=float), np.asarray(P, dtype=float)
+                    if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1 or k.ndim != 1 or \
+                            P.ndim != 2 or P.shape[1] not in (2, 3) or len(k) != len(P) + p + 1 or len(P) <= p:
+                        return None
+                    if w is not None:
+                        w = np.asarray(w, dtype=float)
+                        if w.shape != (len(P),):
+                            return None
+                        rational.append((len(Ps), w))
+                    ps.append(int(p))
+                    ks.append(k)
+                    Ps.append(P)
+            except (TypeError, ValueError):
+                return None
+            if not ps or len({P.shape[1] for P in Ps}) != 1:
+                return None
+            P = np.concatenate(Ps)
+            p, n = np.array(ps), np.array([len(a) for a in Ps])
+            w = np.ones(len(P))
+            if rational:
+                poff = np.concatenate([[0], np.cumsum(n)])
+                for j, wj in rational:  # loop over rational curves (their weights)
+                    w[poff[j]:poff[j + 1]] = wj
+            K = np.concatenate(ks)
+            m = n + p + 1
+            koff = np.concatenate([[0], np.cumsum(m)])
+            i = np.arange(len(P)) + np.repeat(koff[:-1] + n - np.cumsum(n), n)  # each support's first knot
+            dK = K[1:] - K[:-1]
+            dK[koff[1:-1] - 1] = 0.0  # across curves
+            ok = (np.isfinite(K).all() and np.isfinite(P).all() and ((w > 0) & (w < np.inf)).all()
+                  and (dK >= 0).all() and (K[i + np.repeat(p, n) + 1] > K[i]).all()
+                  and (K[koff[:-1] + p] < K[koff[:-1] + n]).all())
+            return cls(p, m, K, P, w) if ok else None
+
+        def span_tables(self) -> tuple[np.ndarray, list[int]]:
+            """``(tables, offsets)``: every curve's :func:`_span_table` (``m + 1`` entries: the
+            span of a parameter by its ``searchsorted`` index ``i``, the last non-empty span
+            ``s <= clip(i - 1, p, n - 1)``), concatenated; curve ``c``'s from ``offsets[c]``."""
+            m = self.n + self.p + 1
+            c = np.repeat(np.arange(len(m)), m + 1)
+            i = np.arange(len(c)) - np.repeat(np.cumsum(m + 1) - m - 1, m + 1)  # 0..m per curve
+            start = self.koff[c]
+            tables = self.table[start + np.minimum(np.maximum(i - 1, self.p[c]), self.n[c] - 1)] - start
+            return tables, np.concatenate([[0], np.cumsum(m + 1)]).tolist()
+
+        def points(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
+            """``(k, d)`` points at ``t (k,)`` (inside the domains) of curves ``c (k,)`` (grouped
+            by curve, in curve order), as each curve's :meth:`NurbsCurve._eval_soa` gives them."""
+            q = np.searchsorted(self.U, t, side="right")
+            start, pc = self.koff[c], self.p[c]
+            cnt = np.searchsorted(self.key, c * self.base + q, side="right") - start  # knots <= t
+            span = self.table[start + np.minimum(np.maximum(cnt - 1, pc), self.n[c] - 1)]
+            first = span - start + self.poff[c] - pc
+            d = self.P.shape[1]
+            out = np.empty((len(t), d))
+            for p in self.degrees:  # loop over the distinct degrees
+                sel = slice(None) if len(self.degrees) == 1 else np.flatnonzero(pc == p)
+                H = NurbsCurve._sums(self.K, self.W, p, span[sel], first[sel], t[sel], 0)[0]
+                out[sel] = (H[:d] / H[d]).T
+            # _eval_soa sums a chunk of one point (a curve's only point, or the last of its
+            # points past a multiple of CHUNK) with einsum's single-point kernel, whose
+            # rounding differs: those points again, alone
+            count = np.bincount(c, minlength=len(self.p)) % CHUNK  # points per curve past the chunks
+            if len(t) > 1 and (count == 1).any():
+                last = np.flatnonzero(np.append(c[1:] != c[:-1], True))  # each curve's last point
+                for j in last[count[c[last]] == 1].tolist():  # loop over such points (rare)
+                    sl = slice(j, j + 1)
+                    H = NurbsCurve._sums(self.K, self.W, int(pc[j]), span[sl], first[sl], t[sl], 0)[0]
+                    out[j] = H[:d, 0] / H[d, 0]
+            return out
+
+        def closed(self, cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """``(closed, size)`` of curves ``cs (k,)`` (sorted), as :attr:`NurbsCurve.is_closed`
+            and :attr:`NurbsCurve.bbox_size`: both ends within :data:`CLOSED_RTOL` of the
+            control points' box diagonal ``size``."""
+            d = self.P.shape[1]
+            ends = self.points(np.stack([self.lo[cs], self.hi[cs]], axis=1).ravel(), np.repeat(cs, 2))
+            gap, box = np.zeros((len(cs), 3)), np.zeros((len(cs), 3))  # 3-vectors (z = 0 for 2D)
+            gap[:, :d] = ends[0::2] - ends[1::2]
+            first = self.poff[:-1]
+            box[:, :d] = (np.maximum.reduceat(self.P, first) - np.minimum.reduceat(self.P, first))[cs]
+            size = np.sqrt(np.vecdot(box, box))
+            return np.sqrt(np.vecdot(gap, gap)) <= CLOSED_RTOL * np.maximum(size, 1e-300), size
 
     def __repr__(self) -> str:
         return (

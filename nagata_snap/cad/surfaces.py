@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from itertools import pairwise
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -45,7 +46,7 @@ import numpy.typing as npt
 from nagata_snap.mesh.arrays import linspaces, norms
 
 __all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface",
-           "fill_boxes"]
+           "analytic_surfaces", "fill_boxes"]
 
 TWO_PI = 2.0 * np.pi
 #: samples per direction of the grid whose box (plus its sagitta) is a curved face's bounding box
@@ -57,17 +58,6 @@ def _positive(value, what: str) -> float:
     if not (np.isfinite(v) and v > 0):
         raise ValueError(f"{what} must be positive, got {value}")
     return v
-
-
-def _units(vectors: Sequence[npt.ArrayLike], names: str) -> np.ndarray:
-    """``(k, 3)``: the 3-vectors ``vectors`` normalised (``names[i]`` names vector ``i`` in the error)."""
-    a = np.stack([np.asarray(v, dtype=float).reshape(3) for v in vectors])
-    n = norms(a)
-    bad = ~np.isfinite(n) | (n == 0.0)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise ValueError(f"{names[i]} must be a finite non-zero vector, got {a[i].tolist()}")
-    return a / n[:, None]
 
 
 def _norm2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -98,6 +88,9 @@ def _wrap(t: np.ndarray, lo: float, top: float = np.pi) -> np.ndarray:
     t += lo
     return t
 
+
+#: the periods of the surfaces by their closedness (``AnalyticSurface.periods``)
+_PERIODS: dict[tuple[bool, bool], np.ndarray] = {}
 
 #: rows per block of :func:`_add_rows`
 _ROW_BLOCK = 256
@@ -133,31 +126,82 @@ class AnalyticSurface:
     can_degenerate = True
     #: hard parameter limits (``normalize_params`` clamps there), ``(2, 2)``
     limits = np.array([[-np.inf, np.inf], [-np.inf, np.inf]])
+    # set by :meth:`_place`: the placement and the face's ``(2, 2)`` parameter box
+    origin: np.ndarray
+    X: np.ndarray
+    Y: np.ndarray
+    Z: np.ndarray
+    bounds: np.ndarray
+    #: +1 for a right-handed frame, -1 for a left-handed one
+    hand: float
+    # the local frame of :meth:`_coords`: its angle origin, rows and origin in it
+    _shift: float
+    _frame: np.ndarray
+    _o_local: np.ndarray
+    _frame4: np.ndarray
+    #: ``(lo, hi, diagonal)`` of :attr:`bbox`, computed on first use (:func:`fill_boxes`)
+    _box: tuple[np.ndarray, np.ndarray, float] | None
 
     def __init__(self, origin, x, y, z, bounds):
-        self.origin = np.asarray(origin, dtype=float).reshape(3)
-        axes = _units((x, y, z), "xyz")
-        self.X, self.Y, self.Z = axes
-        if not np.isfinite(self.origin).all():
-            raise ValueError(f"origin must be finite, got {self.origin.tolist()}")
-        #: +1 for a right-handed frame, -1 for a left-handed one
-        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = axes.tolist()
+        AnalyticSurface._place([self], [origin], [(x, y, z)], [bounds])
+
+    def _shape(self, shape: Sequence, bounds: npt.ArrayLike) -> None:
+        """Set (and check) the shape fields of the class from their values ``shape`` (the
+        arguments between the frame and the bounds; none for a plane)."""
+
+    @staticmethod
+    def _place(surfaces: Sequence[AnalyticSurface], origins: Sequence, axes: Sequence,
+               bounds: Sequence | np.ndarray) -> None:
+        """Set the placement, bounds and local frame of ``k`` surfaces (any classes, their
+        shape fields set, :meth:`_shape`), and the planes' projection data, computed for all
+        of them at once.
+
+        Args:
+            surfaces: the surfaces.
+            origins: per surface its origin (3,).
+            axes: per surface its directions ``(x, y, z)`` (3, 3) (normalised here).
+            bounds: per surface its ``(2, 2)`` face parameter box.
+
+        Raises:
+            ValueError: a zero or non-finite direction, a non-finite origin, bounds not finite
+                or not ordered (the first such surface of the first failing check).
+        """
+        k = len(surfaces)
+        O = np.array([np.asarray(o, dtype=float).reshape(3) for o in origins]).reshape(k, 3)
+        A = np.array(axes, dtype=float).reshape(k, 3, 3)
+        n = norms(A)
+        bad = ~np.isfinite(n) | (n == 0.0)
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            raise ValueError(f"{'xyz'[j]} must be a finite non-zero vector, got {A[i, j].tolist()}")
+        A = A / n[..., None]
+        X, Y, Z = A[:, 0], A[:, 1], A[:, 2]
+        bad = ~np.isfinite(O).all(axis=1)
+        if bad.any():
+            raise ValueError(f"origin must be finite, got {O[np.argmax(bad)].tolist()}")
+        (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = X.T, Y.T, Z.T
         triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
-        self.hand = 1.0 if triple > 0 else -1.0
-        b = np.asarray(bounds, dtype=float).reshape(2, 2)
-        if not np.isfinite(b).all() or (b[:, 1] < b[:, 0]).any():
-            raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {b.tolist()}")
-        self.bounds = b
-        #: closest points measure the angle from e(u0 + pi): atan2 then lands in
-        #: [u0, u0 + 2 pi] with one addition, no wrapping
-        self._shift = float(b[0, 0] + np.pi) if self.closed[0] else 0.0
-        c, sn = np.cos(self._shift), np.sin(self._shift)
+        B = np.array([np.asarray(b, dtype=float).reshape(2, 2) for b in bounds]).reshape(k, 2, 2)
+        bad = ~np.isfinite(B).all(axis=(1, 2)) | (B[:, :, 1] < B[:, :, 0]).any(axis=1)
+        if bad.any():
+            raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {B[np.argmax(bad)].tolist()}")
+        # closest points measure the angle from e(u0 + pi): atan2 then lands in
+        # [u0, u0 + 2 pi] with one addition, no wrapping
+        shift = np.where([sf.closed[0] for sf in surfaces], B[:, 0, 0] + np.pi, 0.0)
+        c, sn = np.cos(shift)[:, None], np.sin(shift)[:, None]
         # (3, 3) rows e(shift), e'(shift), Z: the local frame of :meth:`_coords`
-        self._frame = np.stack([c * self.X + sn * self.Y, c * self.Y - sn * self.X, self.Z])
-        self._o_local = self._frame @ self.origin
-        self._frame4 = np.concatenate([self._frame, self.origin[None]])  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
-        #: ``(lo, hi, diagonal)`` of :attr:`bbox`, computed on first use (:func:`fill_boxes`)
-        self._box: tuple[np.ndarray, np.ndarray, float] | None = None
+        frame = np.stack([c * X + sn * Y, c * Y - sn * X, Z], axis=1)
+        o_local = np.matmul(frame, O[:, :, None])[:, :, 0]
+        frame4 = np.concatenate([frame, O[:, None]], axis=1)  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
+        hand = np.where(triple > 0, 1.0, -1.0).tolist()
+        for i, sf in enumerate(surfaces):  # loop over surfaces (their fields)
+            sf.origin, sf.X, sf.Y, sf.Z, sf.bounds = O[i], X[i], Y[i], Z[i], B[i]
+            sf.hand, sf._shift = hand[i], float(shift[i])
+            sf._frame, sf._o_local, sf._frame4 = frame[i], o_local[i], frame4[i]
+            sf._box = None
+        planes = [i for i, sf in enumerate(surfaces) if isinstance(sf, Plane)]
+        if planes:
+            Plane._axes([cast(Plane, surfaces[i]) for i in planes], O[planes], A[planes])
 
     @property
     def bbox(self) -> tuple[np.ndarray, np.ndarray]:
@@ -180,8 +224,13 @@ class AnalyticSurface:
 
     @property
     def periods(self) -> np.ndarray:
-        """``(2,)`` period per direction (NaN where open)."""
-        return np.array([TWO_PI if c else np.nan for c in self.closed])
+        """``(2,)`` period per direction (NaN where open); read-only, shared by the surfaces
+        closed alike."""
+        per = _PERIODS.get(self.closed)
+        if per is None:
+            per = _PERIODS[self.closed] = np.array([TWO_PI if c else np.nan for c in self.closed])
+            per.flags.writeable = False
+        return per
 
     @property
     def distinct_knots_u(self) -> np.ndarray:
@@ -218,7 +267,7 @@ class AnalyticSurface:
         B = np.array([sf.bounds for sf in surfaces])
         u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
         U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
-        c, sn = np.cos(U), np.sin(U)
+        c, sn = np.repeat(np.cos(u), g, axis=1).ravel(), np.repeat(np.sin(u), g, axis=1).ravel()  # of U
         local = np.empty((1, 3, k * g * g))
         cls = [type(sf) for sf in surfaces]
         first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
@@ -228,9 +277,9 @@ class AnalyticSurface:
                 setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g * g))
             sl = slice(i0 * g * g, i1 * g * g)
             local[:, :, sl] = stack._local(U[sl], V[sl], c[sl], sn[sl], 0)
-        frame = (np.repeat(np.array([getattr(sf, a) for sf in surfaces]).T, g * g, axis=1)  # (3, k g^2)
-                 for a in ("X", "Y", "Z", "origin"))
-        S = _to_global(local, c, sn, *frame)[0].reshape(3, k, g * g)
+        F = np.repeat(np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0), g * g,
+                      axis=2)  # (4, 3, k g^2): X, Y, Z, origin of every point's surface
+        S = _to_global(local, c, sn, F[0], F[1], F[2], F[3])[0].reshape(3, k, g * g)
         pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
                         zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
         return S.min(axis=2).T - pad, S.max(axis=2).T + pad
@@ -362,6 +411,12 @@ class Plane(AnalyticSurface):
 
     kind = "plane"
     can_degenerate = False
+    # set by :meth:`_place`: ``(2, 3)`` rows X, Y, their ``(3, 2)`` transpose, the origin's
+    # coordinates along them and along Z
+    _uv_axes: np.ndarray
+    _uv_cols: np.ndarray
+    _uv_origin: np.ndarray
+    _z_origin: float
 
     def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
         u, v = params[0], params[1]
@@ -387,18 +442,22 @@ class Plane(AnalyticSurface):
         _add_rows(S, self.origin)
         return uv, S, np.abs(dist, out=dist)
 
-    def __init__(self, origin, x, y, z, bounds):
-        super().__init__(origin, x, y, z, bounds)
-        self._uv_axes = np.stack([self.X, self.Y])  # (2, 3)
-        self._uv_cols = np.ascontiguousarray(self._uv_axes.T)  # (3, 2): contiguous for BLAS
-        self._uv_origin = self._uv_axes @ self.origin
-        self._z_origin = float(self.Z @ self.origin)
+    @staticmethod
+    def _axes(planes: Sequence[Plane], O: np.ndarray, A: np.ndarray) -> None:
+        """Set the projection data of ``planes`` from their origins ``O (k, 3)`` and unit
+        directions ``A (k, 3, 3)`` (:meth:`AnalyticSurface._place`), all at once."""
+        uv_axes = A[:, :2]  # (k, 2, 3): X, Y
+        uv_cols = np.ascontiguousarray(uv_axes.transpose(0, 2, 1))  # (k, 3, 2): contiguous for BLAS
+        uv_origin = np.matmul(uv_axes, O[:, :, None])[:, :, 0]
+        z_origin = np.vecdot(A[:, 2], O).tolist()
+        for i, sf in enumerate(planes):  # loop over planes (their fields)
+            sf._uv_axes, sf._uv_cols, sf._uv_origin, sf._z_origin = uv_axes[i], uv_cols[i], uv_origin[i], z_origin[i]
 
     @property
     def affine(self) -> tuple[np.ndarray, np.ndarray]:
         """``(origin (3,), axes (2, 3))``: ``S = origin + params @ axes``, orthonormal axes
         (projections onto many planes at once: :class:`nagata_snap.cad.projection.AffineBatch`)."""
-        return self.origin, np.stack([self.X, self.Y])
+        return self.origin, self._uv_axes
 
     @staticmethod
     def _sample_boxes(surfaces: Sequence[AnalyticSurface]) -> tuple[np.ndarray, np.ndarray]:
@@ -426,8 +485,11 @@ class Cylinder(AnalyticSurface):
     _shape_fields = ("radius",)
 
     def __init__(self, origin, x, y, z, radius, bounds):
-        self.radius = _positive(radius, "cylinder radius")
+        self._shape((radius,), bounds)
         super().__init__(origin, x, y, z, bounds)
+
+    def _shape(self, shape, bounds) -> None:
+        self.radius = _positive(shape[0], "cylinder radius")
 
     def _sagitta(self, du, dv):
         return self.radius * (1 - np.cos(du / 2))
@@ -465,6 +527,11 @@ class Cone(AnalyticSurface):
     _shape_fields = ("radius", "sin", "cos")
 
     def __init__(self, origin, x, y, z, radius, semi_angle, bounds):
+        self._shape((radius, semi_angle), bounds)
+        super().__init__(origin, x, y, z, bounds)
+
+    def _shape(self, shape, bounds) -> None:
+        radius, semi_angle = shape
         self.radius = float(radius)
         self.semi_angle = float(semi_angle)
         if not (np.isfinite(self.radius) and self.radius >= 0):
@@ -479,7 +546,6 @@ class Cone(AnalyticSurface):
         self.nappe = 1.0 if b[1].mean() >= self.v_apex else -1.0
         lo, hi = (self.v_apex, np.inf) if self.nappe > 0 else (-np.inf, self.v_apex)
         self.limits = np.array([[-np.inf, np.inf], [lo, hi]])
-        super().__init__(origin, x, y, z, bounds)
 
     def _sagitta(self, du, dv):
         r = np.max(np.abs(self.radius + self.bounds[1] * self.sin))
@@ -561,8 +627,11 @@ class Sphere(AnalyticSurface):
     limits = np.array([[-np.inf, np.inf], [-np.pi / 2, np.pi / 2]])
 
     def __init__(self, origin, x, y, z, radius, bounds):
-        self.radius = _positive(radius, "sphere radius")
+        self._shape((radius,), bounds)
         super().__init__(origin, x, y, z, bounds)
+
+    def _shape(self, shape, bounds) -> None:
+        self.radius = _positive(shape[0], "sphere radius")
 
     def _sagitta(self, du, dv):
         return self.radius * (1 - np.cos(max(du, dv) / 2))
@@ -618,11 +687,14 @@ class Torus(AnalyticSurface):
     _shape_fields = ("major", "minor")
 
     def __init__(self, origin, x, y, z, major, minor, bounds):
-        self.major = _positive(major, "torus major radius")
-        self.minor = _positive(minor, "torus minor radius")
+        self._shape((major, minor), bounds)
+        super().__init__(origin, x, y, z, bounds)
+
+    def _shape(self, shape, bounds) -> None:
+        self.major = _positive(shape[0], "torus major radius")
+        self.minor = _positive(shape[1], "torus minor radius")
         #: S_u = (R + r cos v) e'(u) vanishes only on a horn or spindle torus (r >= R)
         self.can_degenerate = self.minor >= self.major
-        super().__init__(origin, x, y, z, bounds)
 
     def _sagitta(self, du, dv):
         return (self.major + self.minor) * (1 - np.cos(du / 2)) + self.minor * (1 - np.cos(dv / 2))
@@ -702,18 +774,37 @@ def fill_boxes(surfaces: Sequence) -> None:
             sf._box = (a, b, d)
 
 
+#: per surface type of :func:`nagata_snap.cad.read.read_shape`: its class and the
+#: description fields of its shape (the arguments between the frame and the bounds)
+_SURFACES: dict[str, tuple[Any, tuple[str, ...]]] = {
+    "plane": (Plane, ()), "cylinder": (Cylinder, ("radius",)), "cone": (Cone, ("radius", "semi_angle")),
+    "sphere": (Sphere, ("radius",)), "torus": (Torus, ("major", "minor"))}
+
+
 def analytic_surface(desc: dict, bounds) -> AnalyticSurface:
     """The surface of a face description of :func:`nagata_snap.cad.read.read_shape`."""
-    kind = desc["type"]
-    frame = (desc["origin"], desc["x"], desc["y"], desc["z"])
-    if kind == "plane":
-        return Plane(*frame, bounds)
-    if kind == "cylinder":
-        return Cylinder(*frame, desc["radius"], bounds)
-    if kind == "cone":
-        return Cone(*frame, desc["radius"], desc["semi_angle"], bounds)
-    if kind == "sphere":
-        return Sphere(*frame, desc["radius"], bounds)
-    if kind == "torus":
-        return Torus(*frame, desc["major"], desc["minor"], bounds)
-    raise ValueError(f"not an analytic surface type: {kind!r}")
+    if desc["type"] not in _SURFACES:
+        raise ValueError(f"not an analytic surface type: {desc['type']!r}")
+    cls, fields = _SURFACES[desc["type"]]
+    return cls(desc["origin"], desc["x"], desc["y"], desc["z"], *(desc[f] for f in fields), bounds)
+
+
+def analytic_surfaces(descs: Sequence[dict], bounds: Sequence | np.ndarray) -> list[AnalyticSurface]:
+    """:func:`analytic_surface` of every description (analytic types only) with its ``(2, 2)``
+    bounds, the frames of all surfaces computed together (:meth:`AnalyticSurface._place`);
+    only the shape fields are set surface by surface.
+
+    Raises:
+        ValueError: an invalid description (with several invalid ones, the first of the
+            first failing check).
+    """
+    out = []
+    for d, b in zip(descs, bounds, strict=True):  # loop over the surfaces (their shape fields)
+        if d["type"] not in _SURFACES:
+            raise ValueError(f"not an analytic surface type: {d['type']!r}")
+        cls, fields = _SURFACES[d["type"]]
+        sf = cls.__new__(cls)
+        sf._shape([d[f] for f in fields], b)
+        out.append(sf)
+    AnalyticSurface._place(out, [d["origin"] for d in descs], [(d["x"], d["y"], d["z"]) for d in descs], bounds)
+    return out

@@ -21,18 +21,35 @@
   period.
 * the adjacency: the faces of every edge and the (non-degenerate, non-seam)
   edges of every face, the vertices of every edge.
+
+The per-file, per-face and per-edge Python cost is kept down by building
+things of a kind together: the analytic surfaces of all faces
+(:func:`~nagata_snap.cad.surfaces.analytic_surfaces`), the lines and circles
+of all edges (:func:`~nagata_snap.cad.curves.analytic_curves`), the B-spline
+edges (:meth:`NurbsCurve.many <nagata_snap.cad.nurbs.NurbsCurve.many>`) and
+the p-curves of all uses of all faces: lines and circles from per-use
+coefficient arrays, B-splines packed end to end and evaluated together
+(:class:`_Splines`, :class:`NurbsCurve.Packed <nagata_snap.cad.nurbs.NurbsCurve.Packed>`),
+their checks done together and repeated one by one only to name an invalid
+one.  Everything built so is the same, to the last bit, as built one by one.
+
+A planar 2D model (every face a plane in ``z = 0``,
+:meth:`CadModel.is_planar_2d`) is meshed and snapped onto its edge curves,
+which need only the wires' edge uses and senses: its loop polygons are
+sampled when first read (:class:`Loop`), for all faces at once.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
-from nagata_snap.cad.surfaces import AnalyticSurface, Plane, analytic_surface, fill_boxes
+from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
 from nagata_snap.mesh.arrays import ramp
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
@@ -48,7 +65,6 @@ SAMPLE_RTOL = 1e-5
 MAX_REFINE = 10
 
 
-@dataclass
 class Loop:
     """A closed trimming polygon in a face's ``(u, v)`` plane.
 
@@ -61,13 +77,53 @@ class Loop:
         senses: ``(m,)`` +1 where the wire runs along its edge's 3D curve,
             -1 where against it (the edge is used reversed).
         outer: the face's outer wire (``BRepTools::OuterWire``).
+        uses: ``(k,)`` the edge of each edge use of the wire, in wire order
+            (default: :attr:`edges`, one use per segment).
+        use_senses: ``(k,)`` the sense of each use (default: :attr:`senses`).
+
+    The polygon (:attr:`points`, :attr:`edges`, :attr:`band`, :attr:`senses`)
+    of a planar 2D model's faces is sampled when one of them is first read,
+    for all faces of the model at once (:meth:`CadModel.from_data`: a 2D
+    geometry snaps onto the edge curves and needs only the uses).
     """
 
-    points: np.ndarray
-    edges: np.ndarray
-    band: np.ndarray
-    senses: np.ndarray
-    outer: bool = False
+    def __init__(self, points: np.ndarray | None, edges: np.ndarray | None, band: np.ndarray | None,
+                 senses: np.ndarray | None, outer: bool = False, uses: np.ndarray | None = None,
+                 use_senses: np.ndarray | None = None):
+        self._polygon = None if points is None else (points, edges, band, senses)
+        self.outer = outer
+        uses, use_senses = edges if uses is None else uses, senses if use_senses is None else use_senses
+        assert uses is not None and use_senses is not None, "a loop without a polygon has its uses"
+        self.uses, self.use_senses = uses, use_senses
+        #: samples the polygons of all loops of the model when one is first read (lazy loops)
+        self._sampler: _LazyLoops | None = None
+
+    def _sampled(self) -> tuple:
+        if self._polygon is None:
+            assert self._sampler is not None, "a loop without a polygon has a sampler"
+            self._sampler.fill()
+        assert self._polygon is not None
+        return self._polygon
+
+    @property
+    def points(self) -> np.ndarray:
+        return self._sampled()[0]
+
+    @property
+    def edges(self) -> np.ndarray:
+        return self._sampled()[1]
+
+    @property
+    def band(self) -> np.ndarray:
+        return self._sampled()[2]
+
+    @property
+    def senses(self) -> np.ndarray:
+        return self._sampled()[3]
+
+    def __repr__(self) -> str:
+        what = "not sampled" if self._polygon is None else f"{len(self.points)} points"
+        return f"Loop({'outer' if self.outer else 'inner'}, {len(self.uses)} uses, {what})"
 
 
 @dataclass
@@ -145,11 +201,94 @@ class _FaceError(ValueError):
         self.face = face
 
 
+class _Splines:
+    """B-spline p-curves packed end to end and evaluated together (no object per curve).
+
+    The curves are a :class:`NurbsCurve.Packed <nagata_snap.cad.nurbs.NurbsCurve.Packed>`,
+    whose points are :meth:`NurbsCurve.evaluate <nagata_snap.cad.nurbs.NurbsCurve.evaluate>`'s
+    to the last bit, with its parameter wrapping: a parameter beyond a curve's domain
+    wraps (closed curve) or is clamped; the closedness, which decides only that, is
+    computed for the curves evaluated there, when they are.
+
+    Args:
+        descs: per curve its description (``read_shape``'s ``"pcurve"`` of type ``bspline``).
+        face: ``(n,)`` face of each curve (named in the error).
+
+    Raises:
+        _FaceError: the first invalid description (the checks are done together;
+            if one fails, :func:`nurbs_curve` builds the curves one by one and names
+            the error).
+    """
+
+    def __init__(self, descs: Sequence[dict], face: np.ndarray):
+        fields = ([d["degree"] for d in descs], [d["knots"] for d in descs], [d["poles"] for d in descs],
+                  [d.get("weights") for d in descs])
+        packed = NurbsCurve.Packed.checked(*fields)
+        closed = None
+        if packed is None:  # an invalid (or unusual) description: NurbsCurve checks each
+            curves = []
+            for j, d in enumerate(descs):  # loop over p-curves (error path)
+                try:
+                    curves.append(nurbs_curve(d))
+                except (ValueError, NurbsError) as err:
+                    raise _FaceError(int(face[j]), str(err)) from None
+            packed = NurbsCurve.Packed.of(curves)
+            closed = np.array([c.is_closed for c in curves], dtype=np.int8)
+        self.packed = pk = packed
+        #: per curve: 1 closed, 0 open, -1 not known yet
+        self.closed = np.full(len(pk.p), -1, dtype=np.int8) if closed is None else closed
+
+    def __call__(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """``(k, 2)`` points at ``t (k,)`` of curves ``c (k,)`` (grouped by curve, in curve order)."""
+        pk = self.packed
+        out = np.flatnonzero((t < pk.lo[c]) | (t > pk.hi[c]))
+        if out.size:
+            t = self._wrap(t, c, out)
+        return pk.points(t, c)[:, :2]
+
+    def _wrap(self, t: np.ndarray, c: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``t`` with the rows ``out`` brought into their curve's domain, as ``NurbsCurve.wrap``."""
+        pk, co = self.packed, c[out]
+        todo = np.unique(co[self.closed[co] < 0])
+        if todo.size:
+            self.closed[todo] = pk.closed(todo)[0]
+        lo, hi, to = pk.lo[co], pk.hi[co], t[out]
+        t = t.copy()
+        t[out] = np.where(self.closed[co] == 1, lo + np.mod(to - lo, hi - lo), np.clip(to, lo, hi))
+        return t
+
+    def first_samples(self, t0: np.ndarray, t1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(counts (n,), t)``: per curve the distinct knots inside its range ``[t0, t1]`` and
+        its ends, :data:`SPLINE_SAMPLES` samples per interval between them, then ``t1``;
+        ``t`` all curves' samples, concatenated."""
+        pk = self.packed
+        ns, knots, ck = len(pk.p), pk.K, pk.ck
+        inside = (knots >= t0[ck]) & (knots <= t1[ck])
+        cs = np.arange(ns)
+        v = np.concatenate([np.minimum(t0, t1), knots[inside], np.maximum(t0, t1)])
+        grp = np.concatenate([cs, ck[inside], cs])
+        order = np.argsort(grp, kind="stable")  # per curve: its start, its knots, its end
+        v, grp = v[order], grp[order]
+        keep = np.ones(len(v), dtype=bool)
+        keep[1:] = (v[1:] != v[:-1]) | (grp[1:] != grp[:-1])
+        v, grp = v[keep], grp[keep]
+        iv = np.flatnonzero(grp[1:] == grp[:-1])  # intervals: first point
+        s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
+        counts = np.bincount(grp[iv], minlength=ns) * SPLINE_SAMPLES + 1
+        end = np.cumsum(counts) - 1
+        t = np.empty(int(end[-1]) + 1 if ns else 0)
+        spans = np.ones(len(t), dtype=bool)
+        spans[end] = False
+        t[spans] = (v[iv, None] + np.outer(v[iv + 1] - v[iv], s)).ravel()
+        t[end] = t1
+        return counts, t
+
+
 class _PCurves:
     """The p-curves of many edge uses (of many faces), evaluated together.
 
     Lines and circles are evaluated for all uses at once from per-use
-    coefficient arrays; B-spline p-curves one by one (each its own knots).
+    coefficient arrays, B-spline p-curves together by :class:`_Splines`.
     Points are mapped by their face's ``uv_map`` (identity where None).
 
     Args:
@@ -164,7 +303,6 @@ class _PCurves:
         self.kind = np.array(kinds, dtype=np.int64)
         self.A, self.B, self.C = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros((n, 2))
         self.R = np.zeros(n)
-        self.splines: dict[int, NurbsCurve] = {}
         self.face = np.asarray(face, dtype=np.int64)
         for kind, names in ((0, ("origin", "direction")), (1, ("center", "x", "y"))):
             sel = [j for j, k in enumerate(kinds) if k == kind]
@@ -173,45 +311,46 @@ class _PCurves:
                     arr[sel] = [descs[j][name] for j in sel]
                 if kind == 1:
                     self.R[sel] = [descs[j]["radius"] for j in sel]
-        for j, k in enumerate(kinds):  # loop over edge uses (B-spline p-curves)
-            if k == 2:
-                try:
-                    self.splines[j] = nurbs_curve(descs[j])
-                except (ValueError, NurbsError) as err:
-                    raise _FaceError(int(self.face[j]), str(err)) from None
+        #: the B-spline uses, and the spline (of :attr:`splines`) of every use (-1: none)
+        self.spline_uses = np.flatnonzero(self.kind == 2)
+        self.spline_of = np.full(n, -1, dtype=np.int64)
+        self.spline_of[self.spline_uses] = np.arange(self.spline_uses.size)
+        self.splines = (_Splines([descs[j] for j in self.spline_uses.tolist()], self.face[self.spline_uses])
+                        if self.spline_uses.size else None)
         maps = [np.eye(3)[:, :2] if m is None else np.asarray(m, dtype=float) for m in uv_maps]
         self.M = np.array(maps).reshape(-1, 3, 2)
         self.mapped = np.array([m is not None for m in uv_maps] + [False], dtype=bool)[self.face]
 
     def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
-        :data:`SPLINE_SAMPLES` per knot span (B-spline)."""
+        :data:`SPLINE_SAMPLES` per knot span (B-spline, :meth:`_Splines.first_samples`)."""
         rng = np.array([d["range"] for d in descs], dtype=float).reshape(-1, 2)
         steps = np.ones(len(descs), dtype=np.int64)
         c = self.kind == 1
         steps[c] = np.maximum(2, np.ceil(np.abs(rng[c, 1] - rng[c, 0]) / CIRCLE_STEP).astype(np.int64))
-        splines = {}
-        for j, curve in self.splines.items():  # loop over B-spline p-curves
-            t0, t1 = rng[j]
-            k = np.unique(curve.knots)
-            k = np.unique(np.concatenate([[t0, t1], k[(k >= t0) & (k <= t1)]]))
-            s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
-            splines[j] = np.concatenate([(k[:-1, None] + np.outer(np.diff(k), s)).ravel(), [t1]])
-        return _Samples(rng, steps, splines)
+        su = self.spline_uses
+        if self.splines is None:
+            return _Samples(rng, steps, su, np.zeros(0, dtype=np.int64), np.zeros(0))
+        counts, t = self.splines.first_samples(rng[su, 0], rng[su, 1])
+        return _Samples(rng, steps, su, counts, t)
 
     def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
         kind = self.kind[use]
-        P = self.A[use] + t[:, None] * self.B[use]  # lines
+        P = np.empty((len(t), 2))
+        ln = np.flatnonzero(kind == 0)
+        if ln.size:
+            ul = use[ln]
+            P[ln] = self.A[ul] + t[ln, None] * self.B[ul]
         c = np.flatnonzero(kind == 1)
         if c.size:
             uc, tc = use[c], t[c]
             P[c] = self.A[uc] + self.R[uc, None] * (np.cos(tc)[:, None] * self.B[uc] +
                                                     np.sin(tc)[:, None] * self.C[uc])
-        for j, curve in self.splines.items():  # loop over B-spline p-curves
-            lo, hi = np.searchsorted(use, [j, j + 1])
-            if hi > lo:
-                P[lo:hi] = curve.evaluate(t[lo:hi])[0][:, :2]
+        if self.splines is not None:
+            s = np.flatnonzero(kind == 2)
+            if s.size:
+                P[s] = self.splines(t[s], self.spline_of[use[s]])
         m = np.flatnonzero(self.mapped[use])
         if m.size:
             M = self.M[self.face[use[m]]]
@@ -226,19 +365,21 @@ _KINDS = {"line": 0, "circle": 1}
 @dataclass
 class _Samples:
     """First samples of edge uses: ``steps[j]`` uniform steps over ``range[j] (2,)`` (lines and
-    circles; as ``np.linspace(*range[j], steps[j] + 1)``), or, for B-spline uses, ``splines[j]``."""
+    circles; as ``np.linspace(*range[j], steps[j] + 1)``), or, for the B-spline uses
+    ``spline_uses (s,)`` (sorted), ``spline_counts (s,)`` samples each, concatenated in ``spline_t``."""
 
     range: np.ndarray
     steps: np.ndarray
-    splines: dict[int, np.ndarray]
+    spline_uses: np.ndarray
+    spline_counts: np.ndarray
+    spline_t: np.ndarray
 
     def flat(self, reverses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(t (N,), use (N,))``: every use's samples, grouped by use, each in traversal order
         (backwards where ``reverses``); the uniform ones all at once, to the last bit
         ``linspace``'s (``i step + t0``, the last ``t1``; a line's ends are its range)."""
         cnt = self.steps + 1
-        for j, t in self.splines.items():  # loop over B-spline uses (their counts)
-            cnt[j] = len(t)
+        cnt[self.spline_uses] = self.spline_counts
         use = np.repeat(np.arange(len(cnt)), cnt)
         i = ramp(cnt)
         t0, t1 = self.range[:, 0], self.range[:, 1]
@@ -247,8 +388,10 @@ class _Samples:
         t[end - 1] = t1
         line = self.steps == 1
         t[(end - cnt)[line]] = t0[line]
-        for j, tj in self.splines.items():  # loop over B-spline uses (their samples)
-            t[end[j] - cnt[j]:end[j]] = tj
+        if self.spline_uses.size:
+            spline = np.zeros(len(cnt), dtype=bool)
+            spline[self.spline_uses] = True
+            t[spline[use]] = self.spline_t
         r = reverses[use]
         pos = np.arange(len(t))
         pos[r] = (2 * (end - cnt) + cnt - 1)[use[r]] - pos[r]  # start + (count - 1 - i)
@@ -389,16 +532,25 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
 def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np.ndarray,
            tm: np.ndarray, Pm: np.ndarray) -> tuple[np.ndarray, ...]:
     """Insert the midpoints ``tm (n,)``, ``Pm (n, 2)`` of the segments starting at ``k (n,)``
-    (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions."""
-    at = k + 1
-    t, use = np.insert(t, at, tm), np.insert(use, at, use[k])
-    P, dev = np.insert(P, at, Pm, axis=0), np.insert(dev, at, 0.0)
-    return t, use, P, dev, at + np.arange(len(at))
+    (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions.
+
+    One scatter per array (the old rows by a mask, the midpoints by their positions)."""
+    n, m = len(t), len(k)
+    at = k + np.arange(1, m + 1)
+    old = np.ones(n + m, dtype=bool)
+    old[at] = False
+    t2, use2, P2, dev2 = np.empty(n + m), np.empty(n + m, dtype=use.dtype), np.empty((n + m, 2)), np.zeros(n + m)
+    t2[old], t2[at] = t, tm
+    use2[old], use2[at] = use, use[k]
+    P2[old], P2[at] = P, Pm
+    dev2[old] = dev
+    return t2, use2, P2, dev2, at
 
 
 def _edge_curves(edges: Sequence[dict], path: str) -> list:
     """The 3D curve of every edge description (None for degenerate edges): lines and circles
-    built together (:func:`~nagata_snap.cad.curves.analytic_curves`), B-splines one by one.
+    built together (:func:`~nagata_snap.cad.curves.analytic_curves`), B-splines together
+    (:meth:`NurbsCurve.many <nagata_snap.cad.nurbs.NurbsCurve.many>`).
 
     Raises:
         ValueError: naming the first edge (in edge order) whose curve is invalid.
@@ -409,9 +561,13 @@ def _edge_curves(edges: Sequence[dict], path: str) -> list:
     try:
         for i, c in zip(ana, analytic_curves([descs[i] for i in ana]), strict=True):
             out[i] = c
-        for i, c in enumerate(descs):  # loop over B-spline edges
-            if c is not None and out[i] is None:
-                out[i] = nurbs_curve(c)
+        spl = [i for i, c in enumerate(descs) if c is not None and out[i] is None]
+        if spl:
+            b = [descs[i] for i in spl]
+            built = NurbsCurve.many([d["degree"] for d in b], [d["knots"] for d in b], [d["poles"] for d in b],
+                                    [d.get("weights") for d in b])
+            for i, c in zip(spl, built, strict=True):
+                out[i] = c
     except (ValueError, NurbsError):  # the first invalid edge, built alone, names the error
         for i, c in enumerate(descs):  # loop over edges (error path)
             try:
@@ -422,11 +578,44 @@ def _edge_curves(edges: Sequence[dict], path: str) -> list:
     return out
 
 
+def _analytic_faces(faces: Sequence[dict]) -> dict[int, tuple[AnalyticSurface, np.ndarray | None]]:
+    """:func:`_surface` of the analytic faces, by face index, their surfaces built together
+    (:func:`~nagata_snap.cad.surfaces.analytic_surfaces`; the bounds of the recognised ones
+    mapped together); empty if one of them is invalid (:func:`_surface` then names it, face
+    by face)."""
+    sel = [i for i, f in enumerate(faces) if f["surface"]["type"] in _SURFACES]
+    try:
+        box = np.array([faces[i]["uv"] for i in sel], dtype=float).reshape(-1, 2, 2)
+        maps = [faces[i]["surface"].get("uv_map") for i in sel]
+        rec = [j for j, M in enumerate(maps) if M is not None]
+        if rec:
+            M = np.array([maps[j] for j in rec], dtype=float).reshape(-1, 3, 2)
+            _map_boxes(box, rec, M)
+            for j, Mj in zip(rec, M, strict=True):  # loop over recognised faces (their maps)
+                maps[j] = Mj
+        built = analytic_surfaces([faces[i]["surface"] for i in sel], box)
+    except (ValueError, TypeError, KeyError, IndexError):
+        return {}
+    return {i: (sf, M) for i, sf, M in zip(sel, built, maps, strict=True)}
+
+
+def _map_boxes(box: np.ndarray, rows: Sequence[int], M: np.ndarray) -> None:
+    """The images of the ``(u, v)`` boxes ``box[rows]`` (``(k, 2, 2)``) under their faces' maps
+    ``(u', v') = [u, v, 1] M`` (``M (k, 3, 2)``): the boxes of their corners' images, in place."""
+    b = box[rows]
+    corners = np.ones((len(rows), 4, 3))
+    corners[:, :, 0] = b[:, 0, [0, 0, 1, 1]]
+    corners[:, :, 1] = b[:, 1, [0, 1, 0, 1]]
+    img = np.matmul(corners, M)  # (k, 4, 2)
+    box[rows] = np.stack([img.min(axis=1), img.max(axis=1)], axis=2)
+
+
 def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray | None]:
     """The face's surface, and the map of the file's ``(u, v)`` to its parameters (or None).
 
     A face recognised as analytic (``desc["uv_map"]``, ``(3, 2)``: ``(u', v') = [u, v, 1] M``,
-    from :mod:`~nagata_snap.cad.read`) gets the image of its ``(u, v)`` box as its bounds.
+    from :mod:`~nagata_snap.cad.read`) gets the image of its ``(u, v)`` box as its bounds
+    (:func:`_map_boxes`).
     """
     box = np.array([[uv[0], uv[1]], [uv[2], uv[3]]], dtype=float)
     if desc["type"] == "bspline":
@@ -435,13 +624,77 @@ def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray
     if M is None:
         return analytic_surface(desc, box), None
     M = np.asarray(M, dtype=float).reshape(3, 2)
-    corners = np.c_[np.array([[a, b] for a in box[0] for b in box[1]]), np.ones(4)] @ M
-    return analytic_surface(desc, np.stack([corners.min(axis=0), corners.max(axis=0)], axis=1)), M
+    boxes = box[None]
+    _map_boxes(boxes, [0], M[None])
+    return analytic_surface(desc, boxes[0]), M
 
 
-def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.ndarray | None],
-               tolerances: np.ndarray) -> list[list[Loop]]:
-    """Closed polygons of every face's wires: their edge uses' p-curve samples, joined.
+@dataclass
+class _Wires:
+    """The edge uses of every face's wires, gathered (uses sorted by face, then wire).
+
+    Attributes:
+        descs: per use its p-curve description.
+        face, wire, edge: ``(n,)`` face, wire and edge of each use.
+        reverses: ``(n,)`` the use traverses its p-curve backwards.
+        opposed: ``(n,)`` its p-curve is parametrised against the edge's 3D curve (a joined
+            copy: :mod:`nagata_snap.cad.sewing`).
+        wires: per wire ``(face, outer)``.
+    """
+
+    descs: list[dict]
+    face: np.ndarray
+    wire: np.ndarray
+    edge: np.ndarray
+    reverses: np.ndarray
+    opposed: np.ndarray
+    wires: list[tuple[int, bool]]
+
+    @classmethod
+    def gather(cls, faces: Sequence[dict]) -> _Wires:
+        """The uses of the wires of ``faces`` (``read_shape``'s face descriptions); empty wires skipped."""
+        descs: list[dict] = []
+        face, wire, edge = [], [], []
+        rev: list[bool] = []
+        opp: list[bool] = []
+        wires: list[tuple[int, bool]] = []
+        for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
+            for w in fd["wires"]:
+                if not w["uses"]:
+                    continue
+                for u in w["uses"]:
+                    descs.append(u["pcurve"])
+                    face.append(i)
+                    wire.append(len(wires))
+                    edge.append(u["edge"])
+                    rev.append(bool(u["reversed"]))
+                    opp.append(bool(u.get("opposed", False)))
+                wires.append((i, bool(w["outer"])))
+        return cls(descs, np.array(face, dtype=np.int64), np.array(wire, dtype=np.int64),
+                   np.array(edge, dtype=np.int64), np.array(rev, dtype=bool), np.array(opp, dtype=bool), wires)
+
+    @property
+    def senses(self) -> np.ndarray:
+        """``(n,)`` -1 where a use runs against its edge's 3D curve (it traverses its p-curve
+        backwards, or its p-curve is parametrised against the curve), else +1."""
+        return np.where(self.reverses ^ self.opposed, -1.0, 1.0)
+
+    def loops(self, n_faces: int, polygons: list[tuple] | None = None) -> list[list[Loop]]:
+        """Per face its :class:`Loop` objects, with their uses and, if given, per wire its
+        polygon ``(points, edges, band, senses)``."""
+        ends = np.searchsorted(self.wire, np.arange(len(self.wires) + 1)).tolist()
+        senses = self.senses
+        loops: list[list[Loop]] = [[] for _ in range(n_faces)]
+        for w, (i, outer) in enumerate(self.wires):  # loop over wires (Loop objects)
+            sl = slice(ends[w], ends[w + 1])
+            P, E, band, S = (None, None, None, None) if polygons is None else polygons[w]
+            loops[i].append(Loop(P, E, band, S, outer, self.edge[sl], senses[sl]))
+        return loops
+
+
+def _polygons(wires: _Wires, surfaces: Sequence, uv_maps: Sequence[np.ndarray | None],
+              tolerances: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Closed polygons of all wires: their edge uses' p-curve samples, joined.
 
     All p-curves of all faces are sampled together (:func:`_refine`, to
     :data:`SAMPLE_RTOL` of each face's size).  Each segment's band is twice
@@ -449,53 +702,71 @@ def _all_loops(faces: Sequence[dict], surfaces: Sequence, uv_maps: Sequence[np.n
     (``tolerances (n_edges,)``).  ``uv_maps``: per face ``(3, 2)`` map of the
     file's parameters to the surface's, or None.
 
+    Returns:
+        per wire ``(points (m, 2), edges (m,), band (m,), senses (m,))`` (:class:`Loop`).
+
     Raises:
         _FaceError: a p-curve that is not a valid B-spline, or a wire with
             fewer than 3 distinct finite points.
     """
-    descs: list[dict] = []
-    face, wire, edge = [], [], []
-    rev: list[bool] = []
-    opp: list[bool] = []
-    wires: list[tuple[int, bool]] = []
-    for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
-        for w in fd["wires"]:
-            if not w["uses"]:
-                continue
-            for u in w["uses"]:
-                descs.append(u["pcurve"])
-                face.append(i)
-                wire.append(len(wires))
-                edge.append(u["edge"])
-                rev.append(bool(u["reversed"]))
-                opp.append(bool(u.get("opposed", False)))
-            wires.append((i, bool(w["outer"])))
-    face_a = np.array(face, dtype=np.int64)
-    f = _PCurves(descs, face_a, uv_maps)
+    f = _PCurves(wires.descs, wires.face, uv_maps)
     fill_boxes(surfaces)  # the analytic faces' boxes, those of a kind together
     tols = SAMPLE_RTOL * np.array([s.bbox_size for s in surfaces])
-    P, use, dev = _refine(f, f.initial(descs), np.array(rev, dtype=bool), surfaces, tols)
+    P, use, dev = _refine(f, f.initial(wires.descs), wires.reverses, surfaces, tols)
     keep = np.zeros(len(use), dtype=bool)  # a use's last point starts the next use
     keep[:-1] = use[1:] == use[:-1]
     P, use, dev = P[keep], use[keep], dev[keep]
-    E = np.array(edge, dtype=np.int64)[use]
-    # a use runs against its edge's 3D curve where it traverses its p-curve backwards, or its
-    # p-curve is parametrised against the curve (a joined copy: nagata_snap.cad.sewing)
-    S = np.where((np.array(rev, dtype=bool) ^ np.array(opp, dtype=bool))[use], -1.0, 1.0)
-    ends = np.searchsorted(np.array(wire, dtype=np.int64)[use], np.arange(len(wires) + 1))
-    _check_wires(P, ends, [i for i, _ in wires])
+    E = wires.edge[use]
+    S = wires.senses[use]
+    ends = np.searchsorted(wires.wire[use], np.arange(len(wires.wires) + 1))
+    _check_wires(P, ends, [i for i, _ in wires.wires])
     band = 2.0 * dev + tolerances[E]
-    loops: list[list[Loop]] = [[] for _ in faces]
-    for w, (i, outer) in enumerate(wires):  # loop over wires (Loop objects)
-        sl = slice(ends[w], ends[w + 1])
-        loops[i].append(Loop(P[sl], E[sl], band[sl], S[sl], outer))
-    return loops
+    return [(P[i:j], E[i:j], band[i:j], S[i:j]) for i, j in pairwise(ends.tolist())]
+
+
+class _LazyLoops:
+    """The polygons of a model's loops (:func:`_polygons`), sampled when one is first read.
+
+    Args:
+        loops: per face its loops (without polygons).
+        wires: their uses.
+        surfaces, uv_maps, tolerances: as :func:`_polygons`.
+        path, faces: the file and its face descriptions (to name an invalid face).
+    """
+
+    def __init__(self, loops: list[list[Loop]], wires: _Wires, surfaces: Sequence,
+                 uv_maps: Sequence[np.ndarray | None], tolerances: np.ndarray, path: str, faces: Sequence[dict]):
+        self._loops = [lp for face in loops for lp in face]
+        self._args = (wires, surfaces, uv_maps, tolerances)
+        self._path, self._faces = path, faces
+        for lp in self._loops:
+            lp._sampler = self
+
+    def fill(self) -> None:
+        """Sample the polygons of all loops.
+
+        Raises:
+            ValueError: naming the face, as :meth:`CadModel.from_data` does.
+        """
+        try:
+            polygons = _polygons(*self._args)
+        except _FaceError as err:
+            raise ValueError(_face_message(self._path, self._faces, err)) from None
+        for lp, poly in zip(self._loops, polygons, strict=True):  # the loops in wire order
+            lp._polygon, lp._sampler = poly, None
+
+
+def _face_message(path: str, faces: Sequence[dict], err: _FaceError) -> str:
+    """The message of a :class:`_FaceError`, naming the file, the face and its surface type."""
+    return f"{path}: face {err.face} ({faces[err.face]['surface']['type']} surface): {err}"
 
 
 def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
     """Every wire (rows ``ends[w]:ends[w + 1]`` of ``P (m, 2)``) has 3 distinct finite points.
 
-    Points are compared rounded to 1e-12 of the wire's extent.
+    Points are compared rounded to 1e-12 of the wire's extent.  A quick sufficient test
+    first (finite points, and three of each wire distinct: its first, and those a third and
+    two thirds along it); the full test where that fails.
 
     Raises:
         _FaceError: naming the face (``face[w]``) of the first wire that has not.
@@ -503,11 +774,21 @@ def _check_wires(P: np.ndarray, ends: np.ndarray, face: Sequence[int]) -> None:
     if len(ends) < 2:
         return
     start = ends[:-1]
+    if len(P) and np.isfinite(P).all():
+        x, y = P[:, 0], P[:, 1]
+        scale = np.maximum(np.maximum.reduceat(np.maximum(x, y), start) - np.minimum.reduceat(np.minimum(x, y), start),
+                           1e-300)
+        rows = start[:, None] + (np.diff(ends)[:, None] * np.arange(3)) // 3  # (w, 3)
+        R = np.round(P[rows] / scale[:, None, None], 12)
+        if ((R[:, 0] != R[:, 1]).any(axis=1) & (R[:, 0] != R[:, 2]).any(axis=1)
+                & (R[:, 1] != R[:, 2]).any(axis=1)).all():
+            return
     finite = np.isfinite(P).all(axis=1)
     ok = np.bincount(np.repeat(np.arange(len(start)), np.diff(ends))[~finite], minlength=len(start)) == 0
     if len(P):
-        lo = np.minimum.reduceat(np.where(finite, P.min(axis=1), np.inf), start)
-        hi = np.maximum.reduceat(np.where(finite, P.max(axis=1), -np.inf), start)
+        x, y = P[:, 0], P[:, 1]
+        lo = np.minimum.reduceat(np.where(finite, np.minimum(x, y), np.inf), start)
+        hi = np.maximum.reduceat(np.where(finite, np.maximum(x, y), -np.inf), start)
         scale = np.maximum(hi - lo, 1e-300)
         grp = np.repeat(np.arange(len(start)), np.diff(ends))
         with np.errstate(invalid="ignore"):
@@ -548,6 +829,16 @@ def _tangents(surface, params: np.ndarray) -> np.ndarray:
 
     _, T = evaluate_params(surface, normalize_params(surface, params), 1)
     return T
+
+
+def _planar_2d(surfaces: Sequence, size: float, rtol: float = 1e-9) -> bool:
+    """Every surface is a plane in ``z = 0``: origin within ``rtol x size`` of it, normal
+    within ``rtol`` of ``z`` (:meth:`CadModel.is_planar_2d`)."""
+    tol = rtol * max(size, 1e-300)
+    for s in surfaces:
+        if getattr(s, "kind", "") != "plane" or abs(s.origin[2]) > tol or abs(abs(s.Z[2]) - 1.0) > rtol:
+            return False
+    return True
 
 
 class CadModel:
@@ -596,21 +887,27 @@ class CadModel:
         fdata = data["faces"]
         surfaces, maps = [], []
         bad = None
+        built = _analytic_faces(fdata)
         for i, f in enumerate(fdata):  # loop over faces (surfaces)
             try:
-                surface, uv_map = _surface(f["surface"], f["uv"])
+                surface, uv_map = built[i] if i in built else _surface(f["surface"], f["uv"])
             except (ValueError, NurbsError) as err:
                 bad = _FaceError(i, str(err))
                 break
             surfaces.append(surface)
             maps.append(uv_map)
-        try:  # the loops of the faces before a bad surface: their errors come first
-            loops = _all_loops(fdata[:len(surfaces)], surfaces, maps, tol)
-            if bad is not None:
-                raise bad
-        except _FaceError as err:
-            raise ValueError(f"{path}: face {err.face} ({fdata[err.face]['surface']['type']} surface): "
-                             f"{err}") from None
+        wires = _Wires.gather(fdata[:len(surfaces)])
+        if bad is None and surfaces and _planar_2d(surfaces, float(data.get("size", 0.0))):
+            # a 2D geometry snaps onto the edge curves: the polygons when first read
+            loops = wires.loops(len(surfaces))
+            _LazyLoops(loops, wires, surfaces, maps, tol, path, fdata)
+        else:
+            try:  # the loops of the faces before a bad surface: their errors come first
+                loops = wires.loops(len(surfaces), _polygons(wires, surfaces, maps, tol))
+                if bad is not None:
+                    raise bad
+            except _FaceError as err:
+                raise ValueError(_face_message(path, fdata, err)) from None
         faces = []
         face_edges: list[set] = []
         for f, surface, uv_map, lp in zip(fdata, surfaces, maps, loops, strict=True):
@@ -643,13 +940,7 @@ class CadModel:
         """All faces are planes in ``z = 0`` (a profile for 2D meshes), or there are no faces."""
         if not self.faces:
             return len(self.curve_edges()) > 0
-        tol = rtol * max(self.size, 1e-300)
-        for f in self.faces:
-            s = f.surface
-            if getattr(s, "kind", "") != "plane" or abs(s.origin[2]) > tol or \
-                    abs(abs(s.Z[2]) - 1.0) > rtol:
-                return False
-        return True
+        return _planar_2d([f.surface for f in self.faces], self.size, rtol)
 
     def summary(self) -> str:
         kinds: dict[str, int] = {}

@@ -26,6 +26,7 @@ period, the seam edge being used twice).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
@@ -97,10 +98,13 @@ class _Slabs:
         but the slicing of the result)."""
         if not polys:
             return []
-        m = np.array([len(P) for P in polys])
+        return cls._many(np.concatenate(polys), np.array([len(P) for P in polys]))
+
+    @classmethod
+    def _many(cls, P: np.ndarray, m: np.ndarray) -> list[_Slabs]:
+        """:meth:`many` of the polygons ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows."""
         off = np.concatenate([[0], np.cumsum(m)])
-        P = np.concatenate(polys)
-        lid = np.repeat(np.arange(len(polys)), m)
+        lid = np.repeat(np.arange(len(m)), m)
         nxt = np.arange(len(P)) + 1
         nxt[off[1:] - 1] = off[:-1]  # each polygon closes on its first vertex
         lo, hi = np.minimum(P[:, 1], P[nxt, 1]), np.maximum(P[:, 1], P[nxt, 1])
@@ -116,11 +120,11 @@ class _Slabs:
         seg = seg[np.argsort(slab, kind="stable")]
         ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=int(first[-1])))])
         out = []
-        for i in range(len(polys)):  # loop over polygons (slicing the shared arrays)
+        f, s0 = first.tolist(), ptr[first].tolist()
+        for i, (a, b, c) in enumerate(zip(y0.tolist(), n.tolist(), dy.tolist(), strict=True)):  # loop over polygons
             sl = cls.__new__(cls)
-            sl.y0, sl.n, sl.dy = float(y0[i]), int(n[i]), float(dy[i])
-            p = ptr[first[i]:first[i + 1] + 1]
-            sl.seg, sl.ptr = seg[p[0]:p[-1]], p - p[0]
+            sl.y0, sl.n, sl.dy = a, b, c
+            sl.seg, sl.ptr = seg[s0[i]:s0[i + 1]], ptr[f[i]:f[i + 1] + 1] - s0[i]
             out.append(sl)
         return out
 
@@ -135,17 +139,14 @@ class _Slabs:
         return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
 
 
-def _segments(polys: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Per closed polygon ``(k_i, 2)`` its edge vectors ``P[(j + 1) % k_i] - P[j]``, computed for all
-    polygons at once."""
-    if not polys:
-        return []
-    m = np.array([len(P) for P in polys])
+def _segments(P: np.ndarray, m: np.ndarray) -> list[np.ndarray]:
+    """Per closed polygon its edge vectors ``P[(j + 1) % k_i] - P[j]``, computed for all polygons
+    at once: ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows."""
     off = np.concatenate([[0], np.cumsum(m)])
-    P = np.concatenate(polys)
     nxt = np.arange(len(P)) + 1
     nxt[off[1:] - 1] = off[:-1]  # each polygon closes on its first vertex
-    return np.split(P[nxt] - P, off[1:-1])
+    d = P[nxt] - P
+    return [d[a:b] for a, b in pairwise(off.tolist())]
 
 
 def _user_band(P: np.ndarray) -> np.ndarray:
@@ -188,8 +189,28 @@ class TrimLoops:
             raise ValueError(f"{len(loops)} loop lists for {n} entities")
         self.entities = list(entities)
         self.rtol = float(rtol)
+        fast = self._checked_together(loops, bands)
+        checked, m, P = self._checked(loops, bands) if fast is None else fast
+        slabs = _Slabs._many(P, m)
+        segs = _segments(P, m)
+        self._loops: list[list[tuple]] = [[] for _ in range(n)]
+        for (e, P, band), seg, sl in zip(checked, segs, slabs, strict=True):  # loop over loops (their records)
+            self._loops[e].append((P, seg, band, sl))
+        self.trimmed = np.array([bool(lp) for lp in self._loops])
+        self._period = np.array([entity_periods(ent) for ent in self.entities])
+
+    def _checked(self, loops: Sequence[Sequence[np.ndarray]], bands: Sequence[Sequence[np.ndarray]] | None
+                 ) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], np.ndarray, np.ndarray]:
+        """``(checked, m, P)``: per loop ``(entity, polygon (k, 2), band (k,))`` (a repeated first
+        vertex dropped; the band plus the absolute tolerance), loop by loop; the polygons'
+        sizes and their vertices, concatenated.
+
+        Raises:
+            ValueError: naming the first loop that is not a finite ``(k, 2)`` polygon of at
+                least 2 vertices.
+        """
         checked: list[tuple[int, np.ndarray, np.ndarray]] = []
-        for e in range(n):  # loop over entities (checks and bands)
+        for e in range(len(loops)):  # loop over entities (checks and bands)
             for k, poly in enumerate(loops[e] or []):
                 P = np.asarray(poly, dtype=float)
                 if P.ndim != 2 or P.shape[1] != 2 or not np.isfinite(P).all():
@@ -203,14 +224,49 @@ class TrimLoops:
                 else:
                     band = np.asarray(bands[e][k], dtype=float).reshape(len(P))
                 checked.append((e, P, band + self.rtol * self.entities[e].bbox_size))
-        polys = [P for _, P, _ in checked]
-        slabs = _Slabs.many(polys)
-        segs = _segments(polys)
-        self._loops: list[list[tuple]] = [[] for _ in range(n)]
-        for (e, P, band), seg, sl in zip(checked, segs, slabs, strict=True):  # loop over loops (their records)
-            self._loops[e].append((P, seg, band, sl))
-        self.trimmed = np.array([bool(lp) for lp in self._loops])
-        self._period = np.array([entity_periods(ent) for ent in self.entities])
+        m = np.array([len(P) for _, P, _ in checked], dtype=np.int64)
+        return checked, m, np.concatenate([P for _, P, _ in checked] + [np.zeros((0, 2))])
+
+    def _checked_together(self, loops: Sequence[Sequence[np.ndarray]],
+                          bands: Sequence[Sequence[np.ndarray]] | None
+                          ) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], np.ndarray, np.ndarray] | None:
+        """:meth:`_checked` for loops that all have their bands (a model's), the checks and the
+        tolerances of all loops done together; None if one is not as expected (then
+        :meth:`_checked` decides, loop by loop)."""
+        if bands is None:
+            return None
+        ent, polys, bs = [], [], []
+        for e, lps in enumerate(loops):  # loop over entities and their loops (gathering them)
+            if not lps:
+                continue
+            be = bands[e]
+            if be is None or len(be) != len(lps):
+                return None
+            for poly, b in zip(lps, be, strict=True):
+                P, band = np.asarray(poly, dtype=float), np.asarray(b, dtype=float)
+                if P.ndim != 2 or P.shape[1] != 2 or band.ndim != 1:
+                    return None
+                ent.append(e)
+                polys.append(P)
+                bs.append(band)
+        if not polys:
+            return [], np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+        m = np.array([len(P) for P in polys], dtype=np.int64)
+        P = np.concatenate(polys)
+        end = np.cumsum(m)
+        closed = (m > 1) & (P[end - m] == P[end - 1]).all(axis=1)  # closed on its first vertex
+        m -= closed
+        if not np.isfinite(P).all() or (m < 2).any() or [len(b) for b in bs] != m.tolist():
+            return None
+        if closed.any():
+            keep = np.ones(len(P), dtype=bool)
+            keep[(end - 1)[closed]] = False
+            P = P[keep]
+        tol = self.rtol * np.array([self.entities[e].bbox_size for e in ent])
+        band = np.concatenate(bs) + np.repeat(tol, m)
+        off = np.concatenate([[0], np.cumsum(m)]).tolist()
+        checked = [(e, P[a:b], band[a:b]) for e, a, b in zip(ent, off[:-1], off[1:], strict=True)]
+        return checked, m, P
 
     @classmethod
     def from_outer_holes(cls, entities, outer=None, holes=None, rtol: float = TRIM_RTOL) -> TrimLoops:
