@@ -39,19 +39,17 @@ ROOT = os.path.dirname(HERE)
 
 
 def main() -> None:
+    sys.path[:0] = [HERE, ROOT, os.path.join(ROOT, "meshes")]
+    from read_vs_ref import add_part_options, export_ref
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--ref", default="main", help="git revision to compare with (default main)")
-    ap.add_argument("--parts", default="box_fillet_chamfer,plate,revolved,extruded_bspline,lofted_blade,"
-                                       "crossing_cylinders,seamed,assembly,profile_2d,plate_holes_2d")
-    ap.add_argument("--formats", default="step,iges", help="step, iges (faces-only or B-rep, as the part is written)")
+    add_part_options(ap)
     ap.add_argument("--mesh", default="", help="name:size_factor:curvature,... overriding cad_parts.MESH")
     ap.add_argument("--rounds", type=int, default=20)
     ap.add_argument("--calls", type=int, default=5, help="calls per version and round")
     ap.add_argument("--search", action="store_true", help="time the global-search attach too (best of --rounds)")
     args = ap.parse_args()
-    sys.path[:0] = [HERE, ROOT, os.path.join(ROOT, "meshes")]
-    from read_vs_ref import export_ref
-
     sys.path.insert(0, export_ref(args.ref))
     out = os.fdopen(os.dup(1), "w")
     os.dup2(os.open(os.devnull, os.O_WRONLY), 1)  # OpenCASCADE's and gmsh's messages

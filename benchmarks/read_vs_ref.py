@@ -46,12 +46,17 @@ def export_ref(ref: str) -> str:
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--ref", default="main", help="git revision to compare with (default main)")
+def add_part_options(ap: argparse.ArgumentParser) -> None:
+    """``--parts`` (the parts of benchmarks/cad_parts.py) and ``--formats``, shared with attach_vs_ref."""
     ap.add_argument("--parts", default="box_fillet_chamfer,plate,revolved,extruded_bspline,lofted_blade,"
                                        "crossing_cylinders,seamed,assembly,profile_2d,plate_holes_2d")
     ap.add_argument("--formats", default="step,iges", help="step, iges (faces-only or B-rep, as the part is written)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--ref", default="main", help="git revision to compare with (default main)")
+    add_part_options(ap)
     ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--wall", action="store_true", help="wall time instead of CPU time")
     args = ap.parse_args()
