@@ -403,7 +403,7 @@ def _pairs(us: Sequence[float], vs: Sequence[float]) -> list[tuple[float, float]
     return [(u, v) for u in us for v in vs]
 
 
-def _recognised(face, size: float) -> dict | None:
+def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
     """An analytic twin of a face's other surface (surface of revolution or extrusion, ...).
 
     ``GeomConvert_SurfToAnaSurf`` finds the plane, cylinder, cone, sphere or
@@ -417,7 +417,8 @@ def _recognised(face, size: float) -> dict | None:
     :data:`MAP_SAMPLES` x :data:`MAP_SAMPLES` grid over the box onto the
     surface's points within 1e-9 of the model size; else None (a plane swept
     by a radial line has polar parameters: no affine map).  A handful of
-    numbers per face: plain floats, not numpy.
+    numbers per face: plain floats, not numpy.  ``uv``: the face's ``(u0, u1, v0, v1)``
+    box (``BRepTools::UVBounds``).
     """
     from OCP.ElSLib import ElSLib
     from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
@@ -434,7 +435,7 @@ def _recognised(face, size: float) -> dict | None:
         return None
     accessor, periodic = _PRIMITIVES[desc["type"]]
     prim = getattr(ana, accessor)()
-    u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
+    u0, u1, v0, v1 = uv
     du, dv = 0.25 * (u1 - u0), 0.25 * (v1 - v0)
     if not (du > 0 and dv > 0):
         return None
@@ -450,9 +451,9 @@ def _recognised(face, size: float) -> dict | None:
     for a in periodic:  # whole turns: the image of the box's corner (u0, v0) in [0, 2 pi) (to 1e-9)
         off[a] -= TWO_PI * math.floor((u0 * lin[0][a] + v0 * lin[1][a] + off[a]) / TWO_PI + 1e-9)
     g = [i / (MAP_SAMPLES - 1) for i in range(MAP_SAMPLES)]
-    uv = _pairs([u0 + t * (u1 - u0) for t in g], [v0 + t * (v1 - v0) for t in g])
-    image = [(u * lin[0][0] + v * lin[1][0] + off[0], u * lin[0][1] + v * lin[1][1] + off[1]) for u, v in uv]
-    if not (all(map(math.isfinite, lin[0] + lin[1] + off)) and _max_gap(geo, ana, uv, image) <= 1e-9 * size):
+    samples = _pairs([u0 + t * (u1 - u0) for t in g], [v0 + t * (v1 - v0) for t in g])
+    image = [(u * lin[0][0] + v * lin[1][0] + off[0], u * lin[0][1] + v * lin[1][1] + off[1]) for u, v in samples]
+    if not (all(map(math.isfinite, lin[0] + lin[1] + off)) and _max_gap(geo, ana, samples, image) <= 1e-9 * size):
         return None
     desc["uv_map"] = np.array([lin[0], lin[1], off])
     return desc
@@ -462,24 +463,23 @@ def _recognised(face, size: float) -> dict | None:
 TWIN_SAMPLES = 3
 
 
-def _bspline_twin(face, size: float) -> dict | None:
+def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
     """The face's surface as a B-spline with the same parameters, or None.
 
     ``GeomConvert::SurfaceToBSplineSurface`` of the surface restricted to the
-    face's ``(u, v)`` box is exact for some surfaces (a linear extrusion of a
-    B-spline curve) and reparametrises others (the rational circles of a
-    surface of revolution).  It is kept if it reproduces the surface within
-    1e-9 of the model size at :data:`TWIN_SAMPLES` points inside every knot
-    span in both directions, since a reparametrisation agrees at the spans'
-    ends and differs inside them.
+    face's ``(u, v)`` box ``uv`` (``(u0, u1, v0, v1)``) is exact for some surfaces
+    (a linear extrusion of a B-spline curve) and reparametrises others (the
+    rational circles of a surface of revolution).  It is kept if it reproduces
+    the surface within 1e-9 of the model size at :data:`TWIN_SAMPLES` points
+    inside every knot span in both directions, since a reparametrisation agrees
+    at the spans' ends and differs inside them.
     """
     from OCP.Geom import Geom_RectangularTrimmedSurface
 
     o = _occ()
     geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
-    u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
     try:
-        twin = o.GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geo, u0, u1, v0, v1))
+        twin = o.GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geo, *uv))
         desc = _bspline_surface(twin)
     except Exception:  # OpenCASCADE's construction and domain errors: not convertible this way
         return None
@@ -488,12 +488,14 @@ def _bspline_twin(face, size: float) -> dict | None:
     for knots in (desc["knots_u"], desc["knots_v"]):
         k = np.unique(knots).tolist()
         grids.append(k + [a + t * (b - a) for a, b in itertools.pairwise(k) for t in inside])
-    uv = _pairs(*grids)
-    return desc if _max_gap(geo, twin, uv, uv) <= 1e-9 * size else None
+    samples = _pairs(*grids)
+    return desc if _max_gap(geo, twin, samples, samples) <= 1e-9 * size else None
 
 
-def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
-    """Description of a face's surface; ``(desc, needs NurbsConvert)``."""
+def _surface(face, size: float = 1.0, uv: Sequence[float] | None = None) -> tuple[dict, bool]:
+    """Description of a face's surface; ``(desc, needs NurbsConvert)``.  ``uv``: the face's
+    ``(u0, u1, v0, v1)`` box if known (``BRepTools::UVBounds``, which costs a pass over the
+    face's p-curves), else found where needed."""
     o = _occ()
     a = o.BRepAdaptor_Surface(face, False)
     t = int(a.GetType())
@@ -505,7 +507,9 @@ def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
     if t == o.BEZIER_SURFACE:
         return _bspline_surface(o.GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
     name = o.SurfaceType(t).name.replace("GeomAbs_", "")
-    desc = _recognised(face, size) or _bspline_twin(face, size)
+    if uv is None:
+        uv = o.BRepTools.UVBounds_s(face)
+    desc = _recognised(face, size, uv) or _bspline_twin(face, size, uv)
     if desc is not None:
         desc["source"] = name
         return desc, False
@@ -596,7 +600,8 @@ def _wires(face, pface, edge_map, edge_of) -> list[dict]:
 def _face(face, index: int, edge_map, size: float) -> dict:
     """Surface, bounds, orientation and wires of one face (converting it if needed)."""
     o = _occ()
-    surface, convert = _surface(face, size)
+    uv = o.BRepTools.UVBounds_s(face)
+    surface, convert = _surface(face, size, uv)
     pface, edge_of = face, (lambda e: e)
     if convert:  # (rare: the class is imported here)
         from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
@@ -616,7 +621,7 @@ def _face(face, index: int, edge_map, size: float) -> dict:
 
         def edge_of(e, conv=conv):  # the converted edge, used as the original (seams!)
             return o.TopoDS.Edge(conv.ModifiedShape(e).Oriented(e.Orientation()))
-    uv = o.BRepTools.UVBounds_s(pface)
+        uv = o.BRepTools.UVBounds_s(pface)
     return {
         "surface": surface,
         "uv": tuple(uv),
