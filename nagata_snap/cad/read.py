@@ -459,8 +459,10 @@ def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
     return desc
 
 
-#: points per knot span (each direction) where a B-spline twin is compared with its surface
-TWIN_SAMPLES = 3
+#: where inside every knot span (fractions of the span, in each direction) a B-spline twin
+#: is compared with its surface: off the span's middle, where the reparametrisation of a
+#: symmetric arc (a rational circle) agrees with the arc as it does at the span's ends
+TWIN_AT = (1.0 / 3.0, 2.0 / 3.0)
 
 
 def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
@@ -470,9 +472,10 @@ def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
     face's ``(u, v)`` box ``uv`` (``(u0, u1, v0, v1)``) is exact for some surfaces
     (a linear extrusion of a B-spline curve) and reparametrises others (the
     rational circles of a surface of revolution).  It is kept if it reproduces
-    the surface within 1e-9 of the model size at :data:`TWIN_SAMPLES` points
-    inside every knot span in both directions, since a reparametrisation agrees
-    at the spans' ends and differs inside them.
+    the surface within 1e-9 of the model size on the grid of the points
+    :data:`TWIN_AT` inside every knot span in both directions: a
+    reparametrisation agrees at the spans' ends (and, for a symmetric arc, at
+    their middles) and differs elsewhere inside them.
     """
     from OCP.Geom import Geom_RectangularTrimmedSurface
 
@@ -483,11 +486,9 @@ def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
         desc = _bspline_surface(twin)
     except Exception:  # OpenCASCADE's construction and domain errors: not convertible this way
         return None
-    inside = [(i + 1) / (TWIN_SAMPLES + 1) for i in range(TWIN_SAMPLES)]
-    grids = []
-    for knots in (desc["knots_u"], desc["knots_v"]):
-        k = np.unique(knots).tolist()
-        grids.append(k + [a + t * (b - a) for a, b in itertools.pairwise(k) for t in inside])
+    # the non-empty spans of the flat knots (sorted: a repeated knot spans nothing)
+    grids = [[a + t * (b - a) for a, b in itertools.pairwise(knots.tolist()) if b > a for t in TWIN_AT]
+             for knots in (desc["knots_u"], desc["knots_v"])]
     samples = _pairs(*grids)
     return desc if _max_gap(geo, twin, samples, samples) <= 1e-9 * size else None
 
