@@ -545,10 +545,11 @@ def _described(a, dim: int, other) -> dict:
 
 
 def _curve3d(edge, adaptor=None) -> dict | None:
-    """Description of an edge's 3D curve (None for degenerate edges); ``adaptor``: the edge's
-    ``BRepAdaptor_Curve`` if there is one already."""
+    """Description of an edge's 3D curve (None for degenerate edges and edges without one);
+    ``adaptor``: the edge's ``BRepAdaptor_Curve`` if there is one already (the edge then has
+    a 3D curve and is not degenerate)."""
     o = _occ()
-    if o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge):
+    if adaptor is None and (o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge)):
         return None
 
     def other(t0, t1):  # with the edge's location applied
@@ -572,8 +573,15 @@ def _curve2d(edge, face) -> dict:
 # ----------------------------------------------------------------------
 # topology
 # ----------------------------------------------------------------------
-def _wires(face, pface, edge_map, edge_of) -> list[dict]:
-    """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin)."""
+def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = None) -> list[dict]:
+    """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
+
+    ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
+    faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
+    OpenCASCADE again, and a use's ``seam`` is left False for
+    :func:`~nagata_snap.cad.sewing.relabel` to set, but on a degenerate edge (which
+    stays with its face).
+    """
     o = _occ()
     tool = o.BRep_Tool
     outer = o.BRepTools.OuterWire_s(face)
@@ -585,11 +593,13 @@ def _wires(face, pface, edge_map, edge_of) -> list[dict]:
         we = o.BRepTools_WireExplorer(w, face)
         while we.More():
             e = we.Current()
+            i = edge_map.FindIndex(e) - 1
+            deg = tool.Degenerated_s(e) if degenerate is None else degenerate[i]
             uses.append({
-                "edge": edge_map.FindIndex(e) - 1,
+                "edge": i,
                 "reversed": int(e.Orientation()) == o.REVERSED,
-                "seam": tool.IsClosed_s(e, face),
-                "degenerate": tool.Degenerated_s(e),
+                "seam": tool.IsClosed_s(e, face) if degenerate is None or deg else False,
+                "degenerate": deg,
                 "pcurve": _curve2d(edge_of(e), pface),
             })
             we.Next()
@@ -598,8 +608,9 @@ def _wires(face, pface, edge_map, edge_of) -> list[dict]:
     return wires
 
 
-def _face(face, index: int, edge_map, size: float) -> dict:
-    """Surface, bounds, orientation and wires of one face (converting it if needed)."""
+def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | None = None) -> dict:
+    """Surface, bounds, orientation and wires of one face (converting it if needed);
+    ``degenerate``: see :func:`_wires`."""
     o = _occ()
     uv = o.BRepTools.UVBounds_s(face)
     surface, convert = _surface(face, size, uv)
@@ -628,7 +639,7 @@ def _face(face, index: int, edge_map, size: float) -> dict:
         "uv": tuple(uv),
         "reversed": int(face.Orientation()) == o.REVERSED,
         "converted": convert,
-        "wires": _wires(face, pface, edge_map, edge_of),
+        "wires": _wires(face, pface, edge_map, edge_of, degenerate),
     }
 
 
@@ -824,7 +835,7 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
         kinds.append(int(a.GetType()))
     if rows:
         mid[rows], tangent[rows], quarters[rows] = pts, tans, quads
-        curved[rows] = ~np.isin(kinds, (o.LINE, o.CIRCLE))
+        curved[rows] = [k != o.LINE and k != o.CIRCLE for k in kinds]  # (np.isin on a few ints costs more)
     copies = _sewing().EdgeCopies(
         points, vtol, np.array(_ends(edges, vmap), dtype=np.int64).reshape(-1, 2),
         np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent,
@@ -832,9 +843,10 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     return copies, edges, adaptors
 
 
-def _face_uses(faces: list[dict], fmap) -> Any:
-    """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape: their
-    uses (as walked), and from OpenCASCADE each face's plane (if it is one) and bounding box."""
+def _face_uses(faces: list[dict], occ_faces: list) -> Any:
+    """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape
+    (``occ_faces``: their ``TopoDS_Face``): their uses (as walked), and from OpenCASCADE each
+    face's plane (if it is one) and bounding box."""
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
 
@@ -846,15 +858,15 @@ def _face_uses(faces: list[dict], fmap) -> Any:
     plane = np.zeros(nf, dtype=bool)
     origin, normal = np.zeros((nf, 3)), np.zeros((nf, 3))
     box = np.full((nf, 2, 3), np.nan)
-    for i in range(nf):  # loop over faces (plane, bounding box)
-        face = o.TopoDS.Face(fmap.FindKey(i + 1))
+    for i, face in enumerate(occ_faces):  # loop over faces (plane, bounding box)
         a = o.BRepAdaptor_Surface(face, False)
         if int(a.GetType()) == plane_type:  # S_u x S_v = X x Y, negated for a reversed face
             ax = a.Plane().Position()
             plane[i] = True
             origin[i] = ax.Location().Coord()
-            n = np.cross(ax.XDirection().Coord(), ax.YDirection().Coord())
-            normal[i] = -n if int(face.Orientation()) == o.REVERSED else n
+            (x0, x1, x2), (y0, y1, y2) = ax.XDirection().Coord(), ax.YDirection().Coord()
+            n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
+            normal[i] = (-n[0], -n[1], -n[2]) if int(face.Orientation()) == o.REVERSED else n
         b = Bnd_Box()
         BRepBndLib.Add_s(face, b)
         if not b.IsVoid():
@@ -888,9 +900,11 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
     times["heal"] += t1 - t0
     if joined is None:
         return None, {"join": "; ".join(why)}
-    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size) for i in range(1, fmap.Extent() + 1)]
+    occ_faces = [TopoDS.Face(fmap.FindKey(i)) for i in range(1, fmap.Extent() + 1)]
+    degenerate = copies.degenerate.tolist()
+    faces = [_face(f, i, emap, size, degenerate) for i, f in enumerate(occ_faces)]
     t2 = time.perf_counter()
-    j = sewing.join_faces(joined, _face_uses(faces, fmap), ~copies.degenerate)
+    j = sewing.join_faces(joined, _face_uses(faces, occ_faces), ~copies.degenerate)
     t3 = time.perf_counter()
     times["heal"] += t3 - t2
     if isinstance(j, str):
@@ -900,10 +914,10 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
     out = []
     for m, src in enumerate(j.source.tolist()):  # loop over the joined edges (their 3D curves)
         out.append({
-            "curve": _curve3d(edges[src], adaptors[src]),
+            "curve": None if degenerate[src] else _curve3d(edges[src], adaptors[src]),
             "vertices": (int(j.ends[m, 0]), int(j.ends[m, 1])),
             "tolerance": float(j.edge_tolerance[m]),
-            "degenerate": bool(copies.degenerate[src]),
+            "degenerate": degenerate[src],
             "source": src,
         })
     times["convert"] += t2 - t1 + time.perf_counter() - t3
