@@ -362,6 +362,9 @@ def test_join_of_made_up_copies():
     # two half-circles and a third copy of one of them
     ([[1, 0, 0], [-1, 0, 0]] * 3, [[0, 1], [2, 3], [4, 5]], [[0, 1, 0]] * 3, [[-1, 0, 0]] * 3,
      "more than two copies"),
+    # two pairs of copies between the same vertices, their middle points 1.5 tol apart: a near miss
+    ([[0, 0, 0], [1, 0, 0]] * 4, [[0, 1], [2, 3], [4, 5], [6, 7]], [[0.5, 0, 0]] * 2 + [[0.5, 1.5e-3, 0]] * 2,
+     [[1, 0, 0]] * 4, "copies of different edges within twice the tolerance"),
     # copies running the same way by their vertices, the other way by their tangents
     ([[0, 0, 0], [1, 0, 0]] * 2, [[0, 1], [2, 3]], [[0.5, 0, 0]] * 2, [[1, 0, 0], [-1, 0, 0]],
      "directions disagree"),

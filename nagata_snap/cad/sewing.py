@@ -269,14 +269,24 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     closed = first == ends[:, 1]
     if (curve & closed & (_length(w.mid - points[first]) <= tol)).any():
         return "an edge shorter than the tolerance (its vertices merge)"
-    # copies: same merged end vertices (either order), middle points within tol
+    # copies: same merged end vertices (either order), middle points within tol; candidates:
+    # the pairs of copies with the same vertices (runs of the copies sorted by them)
     nd = curve.nonzero()[0]
     key = np.sort(ends[nd], axis=1)
-    mid = w.mid[nd]
-    near = cKDTree(mid).query_pairs(2.0 * tol, output_type="ndarray")
-    near = near[(key[near[:, 0]] == key[near[:, 1]]).all(axis=1)]
-    a, b = nd[near[:, 0]], nd[near[:, 1]]
-    lab = _components(ne, np.stack([a, b], axis=1)[_length(w.mid[a] - w.mid[b]) <= tol])
+    key = key[:, 0] * len(points) + key[:, 1]
+    srt = np.argsort(key, kind="stable")
+    order, key = nd[srt], key[srt]
+    runs = []
+    for s in range(1, len(key)):  # pairs s apart in a run (runs are short: a pass per run length)
+        i = (key[s:] == key[:-s]).nonzero()[0]
+        if len(i) == 0:
+            break
+        runs.append(np.stack([order[i], order[i + s]], axis=1))
+    cand = np.concatenate(runs) if runs else np.zeros((0, 2), dtype=np.int64)
+    d = _length(w.mid[cand[:, 0]] - w.mid[cand[:, 1]])
+    near = cand[d <= 2.0 * tol]
+    a, b = near[:, 0], near[:, 1]
+    lab = _components(ne, cand[d <= tol])
     size = np.bincount(lab)
     if (size > 2).any():
         return f"{int((size > 2).sum())} edges with more than two copies (more than two faces)"
