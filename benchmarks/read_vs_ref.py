@@ -9,9 +9,12 @@ this checkout's are timed interleaved, ``--rounds`` rounds, and the best time of
 the ratios comparable on a shared machine, where one run of each at different moments is not.
 
     python benchmarks/read_vs_ref.py [--ref main] [--parts a,b] [--formats step,iges] [--rounds 15] [--wall]
+                                     [--stages]
 
 Printed per part and format: the three times [ms] and the ratios of the revision and of this
-checkout to OpenCASCADE's import.
+checkout to OpenCASCADE's import.  ``--stages``: also ``read_shape`` of the revision and of this
+checkout, interleaved likewise, and the best time of each of its stages (``times``: ``read``,
+``heal``, ``convert``; measured with the same clock) and of the whole call.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from types import SimpleNamespace
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -59,6 +63,8 @@ def main() -> None:
     add_part_options(ap)
     ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--wall", action="store_true", help="wall time instead of CPU time")
+    ap.add_argument("--stages", action="store_true",
+                    help="also read_shape's stage times, the revision's and this checkout's")
     args = ap.parse_args()
     sys.path[:0] = [export_ref(args.ref), ROOT, os.path.join(ROOT, "meshes")]
     out = os.fdopen(os.dup(1), "w")
@@ -70,6 +76,8 @@ def main() -> None:
     from OCP.STEPControl import STEPControl_Reader
 
     import nagata_snap.cad as new
+    import nagata_snap.cad.read as new_read
+    import nagata_snap_ref.cad.read as ref_read
 
     def occ(path: str) -> None:
         r = STEPControl_Reader() if path.endswith(".step") else IGESControl_Reader()
@@ -78,6 +86,10 @@ def main() -> None:
         r.OneShape()
 
     clock = time.perf_counter if args.wall else time.process_time
+    if args.stages:  # read_shape times its stages with time.perf_counter: the clock chosen instead
+        for mod in (ref_read, new_read):
+            mod.time = SimpleNamespace(perf_counter=clock)
+    stages = ("read", "heal", "convert", "total")
     tmp = tempfile.mkdtemp(prefix="read_vs_ref_parts_")
     print(f"{'part':20s} {'format':9s} {'OCC':>7s} {args.ref:>7s} {'this':>7s}   ratio {args.ref:>5s} {'this':>5s}"
           f"   ({'wall' if args.wall else 'CPU'} ms, best of {args.rounds})", file=out, flush=True)
@@ -98,6 +110,18 @@ def main() -> None:
             o = best["occ"]
             print(f"{name:20s} {f:9s} {1e3 * o:7.2f} {1e3 * best['ref']:7.2f} {1e3 * best['this']:7.2f}   "
                   f"      {best['ref'] / o:5.2f} {best['this'] / o:5.2f}", file=out, flush=True)
+            if args.stages:
+                reads = {"ref": lambda p=path: ref_read.read_shape(p), "this": lambda p=path: new_read.read_shape(p)}
+                st = {k: dict.fromkeys(stages, float("inf")) for k in reads}
+                for _ in range(args.rounds):
+                    for k, g in reads.items():
+                        t0 = clock()
+                        times = {**g()["times"], "total": -t0}
+                        times["total"] += clock()
+                        for s in stages:
+                            st[k][s] = min(st[k][s], times[s])
+                print(f"{'':20s} {'read_shape':9s} " + "  ".join(
+                    f"{s} {1e3 * st['ref'][s]:.2f} -> {1e3 * st['this'][s]:.2f}" for s in stages), file=out, flush=True)
 
 
 if __name__ == "__main__":

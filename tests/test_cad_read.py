@@ -176,8 +176,8 @@ def test_face_that_cannot_be_converted_is_named(sources, monkeypatch):
 
     real = cad_read._surface
 
-    def odd(face, size=1.0):
-        d, _ = real(face, size)
+    def odd(face, *args):
+        d, _ = real(face, *args)
         if d["type"] == "cylinder":
             return {"type": "OtherSurface"}, True
         return d, False

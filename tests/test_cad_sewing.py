@@ -362,6 +362,9 @@ def test_join_of_made_up_copies():
     # two half-circles and a third copy of one of them
     ([[1, 0, 0], [-1, 0, 0]] * 3, [[0, 1], [2, 3], [4, 5]], [[0, 1, 0]] * 3, [[-1, 0, 0]] * 3,
      "more than two copies"),
+    # two pairs of copies between the same vertices, their middle points 1.5 tol apart: a near miss
+    ([[0, 0, 0], [1, 0, 0]] * 4, [[0, 1], [2, 3], [4, 5], [6, 7]], [[0.5, 0, 0]] * 2 + [[0.5, 1.5e-3, 0]] * 2,
+     [[1, 0, 0]] * 4, "copies of different edges within twice the tolerance"),
     # copies running the same way by their vertices, the other way by their tangents
     ([[0, 0, 0], [1, 0, 0]] * 2, [[0, 1], [2, 3]], [[0.5, 0, 0]] * 2, [[1, 0, 0], [-1, 0, 0]],
      "directions disagree"),
@@ -419,3 +422,12 @@ def test_components_are_scipys():
         rank = np.empty(len(first), dtype=np.int64)
         rank[np.argsort(first)] = np.arange(len(first))
         assert np.array_equal(sewing._components(n, pairs), rank[ref])
+
+
+def test_lengths_are_numpys_norm():
+    """The join's vector lengths are np.linalg.norm's, to the last bit (the decisions at the
+    tolerances stay those of the norm), over many magnitudes and shapes."""
+    rng = np.random.default_rng(1)
+    for shape in [(0, 3), (1, 3), (17, 3), (9, 2, 3)]:
+        d = rng.normal(size=shape) * 10.0 ** rng.integers(-150, 150, size=shape)
+        assert np.array_equal(sewing._length(d), np.linalg.norm(d, axis=-1))

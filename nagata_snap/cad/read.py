@@ -403,7 +403,7 @@ def _pairs(us: Sequence[float], vs: Sequence[float]) -> list[tuple[float, float]
     return [(u, v) for u in us for v in vs]
 
 
-def _recognised(face, size: float) -> dict | None:
+def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
     """An analytic twin of a face's other surface (surface of revolution or extrusion, ...).
 
     ``GeomConvert_SurfToAnaSurf`` finds the plane, cylinder, cone, sphere or
@@ -417,7 +417,8 @@ def _recognised(face, size: float) -> dict | None:
     :data:`MAP_SAMPLES` x :data:`MAP_SAMPLES` grid over the box onto the
     surface's points within 1e-9 of the model size; else None (a plane swept
     by a radial line has polar parameters: no affine map).  A handful of
-    numbers per face: plain floats, not numpy.
+    numbers per face: plain floats, not numpy.  ``uv``: the face's ``(u0, u1, v0, v1)``
+    box (``BRepTools::UVBounds``).
     """
     from OCP.ElSLib import ElSLib
     from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
@@ -434,7 +435,7 @@ def _recognised(face, size: float) -> dict | None:
         return None
     accessor, periodic = _PRIMITIVES[desc["type"]]
     prim = getattr(ana, accessor)()
-    u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
+    u0, u1, v0, v1 = uv
     du, dv = 0.25 * (u1 - u0), 0.25 * (v1 - v0)
     if not (du > 0 and dv > 0):
         return None
@@ -450,50 +451,52 @@ def _recognised(face, size: float) -> dict | None:
     for a in periodic:  # whole turns: the image of the box's corner (u0, v0) in [0, 2 pi) (to 1e-9)
         off[a] -= TWO_PI * math.floor((u0 * lin[0][a] + v0 * lin[1][a] + off[a]) / TWO_PI + 1e-9)
     g = [i / (MAP_SAMPLES - 1) for i in range(MAP_SAMPLES)]
-    uv = _pairs([u0 + t * (u1 - u0) for t in g], [v0 + t * (v1 - v0) for t in g])
-    image = [(u * lin[0][0] + v * lin[1][0] + off[0], u * lin[0][1] + v * lin[1][1] + off[1]) for u, v in uv]
-    if not (all(map(math.isfinite, lin[0] + lin[1] + off)) and _max_gap(geo, ana, uv, image) <= 1e-9 * size):
+    samples = _pairs([u0 + t * (u1 - u0) for t in g], [v0 + t * (v1 - v0) for t in g])
+    image = [(u * lin[0][0] + v * lin[1][0] + off[0], u * lin[0][1] + v * lin[1][1] + off[1]) for u, v in samples]
+    if not (all(map(math.isfinite, lin[0] + lin[1] + off)) and _max_gap(geo, ana, samples, image) <= 1e-9 * size):
         return None
     desc["uv_map"] = np.array([lin[0], lin[1], off])
     return desc
 
 
-#: points per knot span (each direction) where a B-spline twin is compared with its surface
-TWIN_SAMPLES = 3
+#: where inside every knot span (fractions of the span, in each direction) a B-spline twin
+#: is compared with its surface: off the span's middle, where the reparametrisation of a
+#: symmetric arc (a rational circle) agrees with the arc as it does at the span's ends
+TWIN_AT = (1.0 / 3.0, 2.0 / 3.0)
 
 
-def _bspline_twin(face, size: float) -> dict | None:
+def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
     """The face's surface as a B-spline with the same parameters, or None.
 
     ``GeomConvert::SurfaceToBSplineSurface`` of the surface restricted to the
-    face's ``(u, v)`` box is exact for some surfaces (a linear extrusion of a
-    B-spline curve) and reparametrises others (the rational circles of a
-    surface of revolution).  It is kept if it reproduces the surface within
-    1e-9 of the model size at :data:`TWIN_SAMPLES` points inside every knot
-    span in both directions, since a reparametrisation agrees at the spans'
-    ends and differs inside them.
+    face's ``(u, v)`` box ``uv`` (``(u0, u1, v0, v1)``) is exact for some surfaces
+    (a linear extrusion of a B-spline curve) and reparametrises others (the
+    rational circles of a surface of revolution).  It is kept if it reproduces
+    the surface within 1e-9 of the model size on the grid of the points
+    :data:`TWIN_AT` inside every knot span in both directions: a
+    reparametrisation agrees at the spans' ends (and, for a symmetric arc, at
+    their middles) and differs elsewhere inside them.
     """
     from OCP.Geom import Geom_RectangularTrimmedSurface
 
     o = _occ()
     geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
-    u0, u1, v0, v1 = o.BRepTools.UVBounds_s(face)
     try:
-        twin = o.GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geo, u0, u1, v0, v1))
+        twin = o.GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geo, *uv))
         desc = _bspline_surface(twin)
     except Exception:  # OpenCASCADE's construction and domain errors: not convertible this way
         return None
-    inside = [(i + 1) / (TWIN_SAMPLES + 1) for i in range(TWIN_SAMPLES)]
-    grids = []
-    for knots in (desc["knots_u"], desc["knots_v"]):
-        k = np.unique(knots).tolist()
-        grids.append(k + [a + t * (b - a) for a, b in itertools.pairwise(k) for t in inside])
-    uv = _pairs(*grids)
-    return desc if _max_gap(geo, twin, uv, uv) <= 1e-9 * size else None
+    # the non-empty spans of the flat knots (sorted: a repeated knot spans nothing)
+    grids = [[a + t * (b - a) for a, b in itertools.pairwise(knots.tolist()) if b > a for t in TWIN_AT]
+             for knots in (desc["knots_u"], desc["knots_v"])]
+    samples = _pairs(*grids)
+    return desc if _max_gap(geo, twin, samples, samples) <= 1e-9 * size else None
 
 
-def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
-    """Description of a face's surface; ``(desc, needs NurbsConvert)``."""
+def _surface(face, size: float = 1.0, uv: Sequence[float] | None = None) -> tuple[dict, bool]:
+    """Description of a face's surface; ``(desc, needs NurbsConvert)``.  ``uv``: the face's
+    ``(u0, u1, v0, v1)`` box if known (``BRepTools::UVBounds``, which costs a pass over the
+    face's p-curves), else found where needed."""
     o = _occ()
     a = o.BRepAdaptor_Surface(face, False)
     t = int(a.GetType())
@@ -505,7 +508,9 @@ def _surface(face, size: float = 1.0) -> tuple[dict, bool]:
     if t == o.BEZIER_SURFACE:
         return _bspline_surface(o.GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
     name = o.SurfaceType(t).name.replace("GeomAbs_", "")
-    desc = _recognised(face, size) or _bspline_twin(face, size)
+    if uv is None:
+        uv = o.BRepTools.UVBounds_s(face)
+    desc = _recognised(face, size, uv) or _bspline_twin(face, size, uv)
     if desc is not None:
         desc["source"] = name
         return desc, False
@@ -540,10 +545,11 @@ def _described(a, dim: int, other) -> dict:
 
 
 def _curve3d(edge, adaptor=None) -> dict | None:
-    """Description of an edge's 3D curve (None for degenerate edges); ``adaptor``: the edge's
-    ``BRepAdaptor_Curve`` if there is one already."""
+    """Description of an edge's 3D curve (None for degenerate edges and edges without one);
+    ``adaptor``: the edge's ``BRepAdaptor_Curve`` if there is one already (the edge then has
+    a 3D curve and is not degenerate)."""
     o = _occ()
-    if o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge):
+    if adaptor is None and (o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge)):
         return None
 
     def other(t0, t1):  # with the edge's location applied
@@ -567,8 +573,15 @@ def _curve2d(edge, face) -> dict:
 # ----------------------------------------------------------------------
 # topology
 # ----------------------------------------------------------------------
-def _wires(face, pface, edge_map, edge_of) -> list[dict]:
-    """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin)."""
+def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = None) -> list[dict]:
+    """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
+
+    ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
+    faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
+    OpenCASCADE again, and a use's ``seam`` is left False for
+    :func:`~nagata_snap.cad.sewing.relabel` to set, but on a degenerate edge (which
+    stays with its face).
+    """
     o = _occ()
     tool = o.BRep_Tool
     outer = o.BRepTools.OuterWire_s(face)
@@ -580,11 +593,13 @@ def _wires(face, pface, edge_map, edge_of) -> list[dict]:
         we = o.BRepTools_WireExplorer(w, face)
         while we.More():
             e = we.Current()
+            i = edge_map.FindIndex(e) - 1
+            deg = tool.Degenerated_s(e) if degenerate is None else degenerate[i]
             uses.append({
-                "edge": edge_map.FindIndex(e) - 1,
+                "edge": i,
                 "reversed": int(e.Orientation()) == o.REVERSED,
-                "seam": tool.IsClosed_s(e, face),
-                "degenerate": tool.Degenerated_s(e),
+                "seam": tool.IsClosed_s(e, face) if degenerate is None or deg else False,
+                "degenerate": deg,
                 "pcurve": _curve2d(edge_of(e), pface),
             })
             we.Next()
@@ -593,10 +608,12 @@ def _wires(face, pface, edge_map, edge_of) -> list[dict]:
     return wires
 
 
-def _face(face, index: int, edge_map, size: float) -> dict:
-    """Surface, bounds, orientation and wires of one face (converting it if needed)."""
+def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | None = None) -> dict:
+    """Surface, bounds, orientation and wires of one face (converting it if needed);
+    ``degenerate``: see :func:`_wires`."""
     o = _occ()
-    surface, convert = _surface(face, size)
+    uv = o.BRepTools.UVBounds_s(face)
+    surface, convert = _surface(face, size, uv)
     pface, edge_of = face, (lambda e: e)
     if convert:  # (rare: the class is imported here)
         from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
@@ -616,13 +633,13 @@ def _face(face, index: int, edge_map, size: float) -> dict:
 
         def edge_of(e, conv=conv):  # the converted edge, used as the original (seams!)
             return o.TopoDS.Edge(conv.ModifiedShape(e).Oriented(e.Orientation()))
-    uv = o.BRepTools.UVBounds_s(pface)
+        uv = o.BRepTools.UVBounds_s(pface)
     return {
         "surface": surface,
         "uv": tuple(uv),
         "reversed": int(face.Orientation()) == o.REVERSED,
         "converted": convert,
-        "wires": _wires(face, pface, edge_map, edge_of),
+        "wires": _wires(face, pface, edge_map, edge_of, degenerate),
     }
 
 
@@ -804,7 +821,9 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     quarters = np.full((n, 2, 3), np.nan)
     curved = np.zeros(n, dtype=bool)
     p, v = gp_Pnt(), gp_Vec()
-    rows, pts, tans, quads, kinds = [], [], [], [], []
+    rows: list[int] = []
+    kinds: list[int] = []
+    xyz: list[float] = []  # per edge: middle point, tangent, quarter points (flat: numpy reads it faster)
     for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
         if degenerate[i] or not tool.IsGeometric_s(e):
             continue
@@ -812,13 +831,15 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
         t0, t1 = a.FirstParameter(), a.LastParameter()
         a.D1(0.5 * (t0 + t1), p, v)
         rows.append(i)
-        pts.append(p.Coord())
-        tans.append(v.Coord())
-        quads.append((a.Value(0.75 * t0 + 0.25 * t1).Coord(), a.Value(0.25 * t0 + 0.75 * t1).Coord()))
+        xyz += p.Coord()
+        xyz += v.Coord()
+        xyz += a.Value(0.75 * t0 + 0.25 * t1).Coord()
+        xyz += a.Value(0.25 * t0 + 0.75 * t1).Coord()
         kinds.append(int(a.GetType()))
     if rows:
-        mid[rows], tangent[rows], quarters[rows] = pts, tans, quads
-        curved[rows] = ~np.isin(kinds, (o.LINE, o.CIRCLE))
+        g = np.array(xyz).reshape(-1, 4, 3)
+        mid[rows], tangent[rows], quarters[rows] = g[:, 0], g[:, 1], g[:, 2:]
+        curved[rows] = [k != o.LINE and k != o.CIRCLE for k in kinds]  # (np.isin on a few ints costs more)
     copies = _sewing().EdgeCopies(
         points, vtol, np.array(_ends(edges, vmap), dtype=np.int64).reshape(-1, 2),
         np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent,
@@ -826,9 +847,10 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     return copies, edges, adaptors
 
 
-def _face_uses(faces: list[dict], fmap) -> Any:
-    """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape: their
-    uses (as walked), and from OpenCASCADE each face's plane (if it is one) and bounding box."""
+def _face_uses(faces: list[dict], occ_faces: list) -> Any:
+    """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape
+    (``occ_faces``: their ``TopoDS_Face``): their uses (as walked), and from OpenCASCADE each
+    face's plane (if it is one) and bounding box."""
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
 
@@ -840,15 +862,15 @@ def _face_uses(faces: list[dict], fmap) -> Any:
     plane = np.zeros(nf, dtype=bool)
     origin, normal = np.zeros((nf, 3)), np.zeros((nf, 3))
     box = np.full((nf, 2, 3), np.nan)
-    for i in range(nf):  # loop over faces (plane, bounding box)
-        face = o.TopoDS.Face(fmap.FindKey(i + 1))
+    for i, face in enumerate(occ_faces):  # loop over faces (plane, bounding box)
         a = o.BRepAdaptor_Surface(face, False)
         if int(a.GetType()) == plane_type:  # S_u x S_v = X x Y, negated for a reversed face
             ax = a.Plane().Position()
             plane[i] = True
             origin[i] = ax.Location().Coord()
-            n = np.cross(ax.XDirection().Coord(), ax.YDirection().Coord())
-            normal[i] = -n if int(face.Orientation()) == o.REVERSED else n
+            (x0, x1, x2), (y0, y1, y2) = ax.XDirection().Coord(), ax.YDirection().Coord()
+            n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
+            normal[i] = (-n[0], -n[1], -n[2]) if int(face.Orientation()) == o.REVERSED else n
         b = Bnd_Box()
         BRepBndLib.Add_s(face, b)
         if not b.IsVoid():
@@ -882,9 +904,11 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
     times["heal"] += t1 - t0
     if joined is None:
         return None, {"join": "; ".join(why)}
-    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size) for i in range(1, fmap.Extent() + 1)]
+    occ_faces = [TopoDS.Face(fmap.FindKey(i)) for i in range(1, fmap.Extent() + 1)]
+    degenerate = copies.degenerate.tolist()
+    faces = [_face(f, i, emap, size, degenerate) for i, f in enumerate(occ_faces)]
     t2 = time.perf_counter()
-    j = sewing.join_faces(joined, _face_uses(faces, fmap), ~copies.degenerate)
+    j = sewing.join_faces(joined, _face_uses(faces, occ_faces), ~copies.degenerate)
     t3 = time.perf_counter()
     times["heal"] += t3 - t2
     if isinstance(j, str):
@@ -894,10 +918,10 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
     out = []
     for m, src in enumerate(j.source.tolist()):  # loop over the joined edges (their 3D curves)
         out.append({
-            "curve": _curve3d(edges[src], adaptors[src]),
+            "curve": None if degenerate[src] else _curve3d(edges[src], adaptors[src]),
             "vertices": (int(j.ends[m, 0]), int(j.ends[m, 1])),
             "tolerance": float(j.edge_tolerance[m]),
-            "degenerate": bool(copies.degenerate[src]),
+            "degenerate": degenerate[src],
             "source": src,
         })
     times["convert"] += t2 - t1 + time.perf_counter() - t3

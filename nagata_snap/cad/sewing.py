@@ -182,29 +182,36 @@ class Joined:
     num_solids: int = 0
 
 
+def _length(d: np.ndarray) -> np.ndarray:
+    """Euclidean lengths of the vectors along the last axis of ``d`` (``(..., 3)`` -> ``(...)``,
+    length units): ``np.linalg.norm(d, axis=-1)`` to the last bit, without its dispatch (the
+    arrays here are small: the calls' overhead is their cost)."""
+    return np.sqrt((d * d).sum(axis=-1))
+
+
 def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     """``(n,)`` component label of each of ``n`` nodes joined by ``pairs (k, 2)``, numbered
     in the order of their lowest node.
 
-    Every node takes the lowest label among its pairs, then the label of its label
-    (pointer jumping), until nothing changes: a few passes over the pairs (the graphs
-    here are small: vertex clusters, edge copies, faces).
+    Every node takes the lowest label among its neighbours' and its own, then the label of
+    its label (pointer jumping), until nothing changes: a few passes over the pairs (the
+    graphs here are small: vertex clusters, edge copies, faces).  A pair of a node with
+    itself is allowed (it joins nothing).
     """
-    lab = np.arange(n)
+    ids = np.arange(n)
     if len(pairs) == 0:
-        return lab
-    i, j = pairs[:, 0], pairs[:, 1]
+        return ids
+    src, dst = pairs.ravel(), pairs[:, ::-1].ravel()  # every pair both ways
+    lab = ids
     while True:  # a few passes (until the labels are settled)
-        low = np.minimum(lab[i], lab[j])
         new = lab.copy()
-        np.minimum.at(new, i, low)
-        np.minimum.at(new, j, low)
+        np.minimum.at(new, src, lab[dst])
         new = new[new]
-        if np.array_equal(new, lab):
+        if (new == lab).all():
             break
         lab = new
     # settled: every node's label is the lowest node of its component (labelled itself)
-    return (np.cumsum(lab == np.arange(n)) - 1)[lab]
+    return ((lab == ids).cumsum() - 1)[lab]
 
 
 def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray,
@@ -217,23 +224,22 @@ def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.nda
     """
     n = len(P)
     near = cKDTree(P).query_pairs(2.0 * tol, output_type="ndarray")
-    close = near[np.linalg.norm(P[near[:, 0]] - P[near[:, 1]], axis=1) <= tol]
-    lab = _components(n, close)
+    a, b = near[:, 0], near[:, 1]
+    lab = _components(n, near[_length(P[a] - P[b]) <= tol])
     m = int(lab.max()) + 1 if n else 0
     lo, hi = np.full((m, 3), np.inf), np.full((m, 3), -np.inf)
     np.minimum.at(lo, lab, P)
     np.maximum.at(hi, lab, P)
-    wide = np.linalg.norm(hi - lo, axis=1) > tol
+    wide = _length(hi - lo) > tol
     if wide.any():
         return f"{int(wide.sum())} vertex clusters wider than the tolerance (chained vertices)"
-    if np.any(lab[near[:, 0]] != lab[near[:, 1]]):
+    if (lab[a] != lab[b]).any():
         return "vertices of different clusters within twice the tolerance"
-    count = np.bincount(lab, minlength=m)[:, None]
     mean = np.zeros((m, 3))
     np.add.at(mean, lab, P)
-    mean /= count
+    mean /= np.bincount(lab, minlength=m)[:, None]
     vt = np.zeros(m)
-    np.maximum.at(vt, lab, np.linalg.norm(P - mean[lab], axis=1) + vtol)
+    np.maximum.at(vt, lab, _length(P - mean[lab]) + vtol)
     return lab, mean, vt
 
 
@@ -254,59 +260,64 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     vlab, points, vtol = merged
     ne = len(w.ends)
     curve = ~w.degenerate
-    if np.any(curve & ~np.isfinite(w.mid).all(axis=1)):
+    if (curve & ~np.isfinite(w.mid).all(axis=1)).any():
         return "an edge without a 3D curve"
-    if np.any(w.ends < 0):
+    if (w.ends < 0).any():
         return "an edge without vertices"
     ends = vlab[w.ends]
-    closed = ends[:, 0] == ends[:, 1]
-    to_end = np.linalg.norm(w.mid - points[ends[:, 0]], axis=1)
-    if np.any(curve & closed & (to_end <= tol)):
+    first = ends[:, 0]
+    closed = first == ends[:, 1]
+    if (curve & closed & (_length(w.mid - points[first]) <= tol)).any():
         return "an edge shorter than the tolerance (its vertices merge)"
-    # copies: same merged end vertices (either order), middle points within tol
-    nd = np.flatnonzero(curve)
+    # copies: same merged end vertices (either order), middle points within tol; candidates:
+    # the pairs of copies with the same vertices (runs of the copies sorted by them)
+    nd = curve.nonzero()[0]
     key = np.sort(ends[nd], axis=1)
-    mid = w.mid[nd]
-    near = cKDTree(mid).query_pairs(2.0 * tol, output_type="ndarray")
-    near = near[np.all(key[near[:, 0]] == key[near[:, 1]], axis=1)]
-    pairs = near[np.linalg.norm(mid[near[:, 0]] - mid[near[:, 1]], axis=1) <= tol]
-    lab = _components(ne, nd[pairs])
+    key = key[:, 0] * len(points) + key[:, 1]
+    srt = np.argsort(key, kind="stable")
+    order, key = nd[srt], key[srt]
+    runs = []
+    for s in range(1, len(key)):  # pairs s apart in a run (runs are short: a pass per run length)
+        i = (key[s:] == key[:-s]).nonzero()[0]
+        if len(i) == 0:
+            break
+        runs.append(np.stack([order[i], order[i + s]], axis=1))
+    cand = np.concatenate(runs) if runs else np.zeros((0, 2), dtype=np.int64)
+    d = _length(w.mid[cand[:, 0]] - w.mid[cand[:, 1]])
+    near = cand[d <= 2.0 * tol]
+    a, b = near[:, 0], near[:, 1]
+    lab = _components(ne, cand[d <= tol])
     size = np.bincount(lab)
-    if np.any(size > 2):
-        return f"{int(np.sum(size > 2))} edges with more than two copies (more than two faces)"
+    if (size > 2).any():
+        return f"{int((size > 2).sum())} edges with more than two copies (more than two faces)"
     single = curve & (size[lab] == 1)
     if single.any():
         return f"{int(single.sum())} free edges (an open shell)"
-    if np.any(lab[nd[near[:, 0]]] != lab[nd[near[:, 1]]]):
+    if (lab[a] != lab[b]).any():
         return "copies of different edges within twice the tolerance"
     # the kept copy: a line or circle rather than another curve, else the first
     m = len(size)
-    score = np.where(w.curved, 1, 0) * ne + np.arange(ne)
     best = np.full(m, 2 * ne + 1)
-    np.minimum.at(best, lab, score)
+    np.minimum.at(best, lab, w.curved * ne + np.arange(ne))
     source = best % ne
     keep = source[lab]
     # directions of the copies against the kept one: by their vertices, or (closed edges)
     # by their tangents, which must agree in any case
-    opposed = np.where(closed[keep], False, ends[:, 0] != ends[keep, 0])
-    t, tk = w.tangent, w.tangent[keep]
+    t, nt = w.tangent, _length(w.tangent)
     with np.errstate(invalid="ignore", divide="ignore"):
-        cos = np.sum(t * tk, axis=1) / (np.linalg.norm(t, axis=1) * np.linalg.norm(tk, axis=1))
-    opposed = np.where(closed[keep], cos < 0, opposed)
-    agree = np.where(opposed, cos <= -TANGENT_COS, cos >= TANGENT_COS)
-    if np.any(curve & ~agree):
+        cos = (t * t[keep]).sum(axis=1) / (nt * nt[keep])
+    opposed = np.where(closed[keep], cos < 0, first != first[keep])
+    if (curve & ~(np.where(opposed, -cos, cos) >= TANGENT_COS)).any():
         return "copies of an edge whose directions disagree"
     # the gap between copies: at their middle and quarter points (an opposed copy's quarters
     # swapped), which must correspond (copies parametrised alike, or reversed)
     q = w.quarters[keep]
     q = np.where(opposed[:, None, None], q[:, ::-1], q)
-    gap = np.maximum(np.linalg.norm(w.mid - w.mid[keep], axis=1),
-                     np.linalg.norm(w.quarters - q, axis=2).max(axis=1))
-    if np.any(curve & ~(gap <= tol)):
+    gap = np.maximum(_length(w.mid - w.mid[keep]), _length(w.quarters - q).max(axis=1))
+    if (curve & ~(gap <= tol)).any():
         return "copies of an edge that differ away from their middle points (parametrised differently)"
     etol = np.zeros(m)
-    np.maximum.at(etol, lab, w.tolerance)
-    np.maximum.at(etol, lab, np.where(curve, gap, 0.0))
+    np.maximum.at(etol, lab, np.maximum(w.tolerance, np.where(curve, gap, 0.0)))
     return Joined(tol, vlab, points, vtol, lab, source, ends[source], etol, opposed & curve)
 
 
@@ -323,23 +334,24 @@ def join_faces(j: Joined, u: FaceUses, curve: np.ndarray) -> Joined | str:
         outward oriented shells.
     """
     nf = u.num_faces
-    if np.any(np.bincount(u.face, minlength=nf) == 0):
+    if (np.bincount(u.face, minlength=nf) == 0).any():
         return "a face without edges"
     m = j.edge[u.edge]
     sense = u.reversed ^ j.opposed[u.edge]  # against the joined edge's 3D curve
-    shared = np.flatnonzero(curve[u.edge])
-    uses = np.bincount(m[shared], minlength=len(j.source))
-    if np.any(uses[curve[j.source]] != 2):
+    shared = curve[u.edge].nonzero()[0]
+    ms = m[shared]
+    if (np.bincount(ms, minlength=len(j.source))[curve[j.source]] != 2).any():
         return "a joined edge not used exactly twice"
-    order = shared[np.argsort(m[shared], kind="stable")]
+    order = shared[np.argsort(ms, kind="stable")]
     a, b = order[0::2], order[1::2]
-    if np.any(sense[a] == sense[b]):
-        return f"{int(np.sum(sense[a] == sense[b]))} edges used twice in the same sense (inconsistent orientation)"
+    same = sense[a] == sense[b]
+    if same.any():
+        return f"{int(same.sum())} edges used twice in the same sense (inconsistent orientation)"
+    fa, fb = u.face[a], u.face[b]
+    twice = fa == fb
     seam = np.zeros(len(m), dtype=bool)
-    twice = u.face[a] == u.face[b]
     seam[a[twice]] = seam[b[twice]] = True
-    link = np.stack([u.face[a[~twice]], u.face[b[~twice]]], axis=1)
-    shell = _components(nf, link)
+    shell = _components(nf, np.stack([fa, fb], axis=1))  # (a seam's pair joins its face to itself)
     side = _outside(u, shell, j.tolerance)
     if isinstance(side, str):
         return side
@@ -355,27 +367,27 @@ def _outside(u: FaceUses, shell: np.ndarray, tol: float) -> str | None:
     on the side its oriented normal points away from.  Every deciding face
     must agree.
     """
-    ok = np.isfinite(u.box).all(axis=(1, 2))
-    if not ok.all():
+    if not np.isfinite(u.box).all():
         return "a face without a bounding box"
-    c, h = u.box.mean(axis=1), 0.5 * (u.box[:, 1] - u.box[:, 0])
-    p = np.flatnonzero(u.plane)
-    n = u.normal[p] / np.linalg.norm(u.normal[p], axis=1, keepdims=True)
+    c, h = u.box.sum(axis=1) * 0.5, 0.5 * (u.box[:, 1] - u.box[:, 0])  # (the sum: the boxes' mean)
+    p = u.plane.nonzero()[0]
+    n = u.normal[p]
+    n = n / _length(n)[:, None]
     # (np, nf): the extent of every face's box along each plane's normal, from the plane
-    centre = n @ c.T - np.sum(n * u.origin[p], axis=1)[:, None]
+    centre = n @ c.T - (n * u.origin[p]).sum(axis=1)[:, None]
     reach = np.abs(n) @ h.T
-    same = shell[p][:, None] == shell[None, :]
-    below = np.all(~same | (centre + reach <= tol), axis=1)   # all on the side -n: outward
-    above = np.all(~same | (centre - reach >= -tol), axis=1)  # all on the side +n: inward
-    out = np.zeros(int(shell.max()) + 1, dtype=np.int64)
-    inw = np.zeros_like(out)
-    np.add.at(out, shell[p], below & ~above)
-    np.add.at(inw, shell[p], above & ~below)
-    if np.any((out > 0) & (inw > 0)):
+    sp = shell[p]
+    other = sp[:, None] != shell[None, :]
+    below = (other | (centre + reach <= tol)).all(axis=1)   # all on the side -n: outward
+    above = (other | (centre - reach >= -tol)).all(axis=1)  # all on the side +n: inward
+    ns = int(shell.max()) + 1
+    out = np.bincount(sp[below & ~above], minlength=ns)
+    inw = np.bincount(sp[above & ~below], minlength=ns)
+    if ((out > 0) & (inw > 0)).any():
         return "planar faces disagree on which side of a shell is outside"
-    if np.any(inw > 0):
+    if (inw > 0).any():
         return f"shell {int(np.argmax(inw > 0))} is oriented inward (OpenCASCADE reverses it)"
-    if np.any(out == 0):
+    if (out == 0).any():
         return f"no planar face decides which side of shell {int(np.argmin(out > 0))} is outside"
     return None
 
