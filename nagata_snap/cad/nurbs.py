@@ -41,6 +41,14 @@ Parameters outside the domain are wrapped modulo the period in closed
 directions and clamped in open ones (Kadir, Appendix B.1, last paragraph).
 The end of the knot range is evaluated with the last non-empty span, so
 ``C(u_max)`` is the exact one-sided (left) limit.
+
+Closedness (a curve's two ends, a surface's two boundary curves of a
+direction, within :data:`CLOSED_RTOL` of the control net's size) is decided
+from the control net where the knots are clamped and the net leaves no
+doubt (rows far within or corners far beyond the tolerance, compared with a
+bound on the evaluation's rounding: :func:`_closed_by_net`), else by
+evaluating the ends (curves) or sampling the boundary curves (surfaces); the
+outcome is the evaluation's in both cases.
 """
 
 from __future__ import annotations
@@ -53,6 +61,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+from nagata_snap.mesh.arrays import ramp
 
 __all__ = [
     "NurbsError",
@@ -328,6 +338,58 @@ def _bbox_size(points: np.ndarray) -> float:
     return float(np.sqrt(d @ d))  # np.linalg.norm(d), to the last bit
 
 
+#: bound on the rounding of a point evaluated at clamped ends of its knot vectors, in
+#: units of the machine epsilon times the largest control-point coordinate and per
+#: degree (+ 1) summed over the directions (:func:`_closed_by_net`)
+_END_ROUNDING = 64.0
+
+
+def _clamped_ends(knots: np.ndarray, p: int, n: int) -> tuple[bool, bool]:
+    """Are the knots ``knots[1..p]`` all ``knots[p]`` (the start), ``knots[n..n+p-1]`` all
+    ``knots[n]`` (the end)?  There the evaluation's basis is one function, the others
+    exactly 0 (:func:`_closed_by_net`)."""
+    return bool((knots[1:p + 1] == knots[p]).all()), bool((knots[n:n + p] == knots[n]).all())
+
+
+def _closed_by_net(rows_gap: npt.ArrayLike, ends_gap: npt.ArrayLike, scale: npt.ArrayLike,
+                   degrees: npt.ArrayLike, size: npt.ArrayLike) -> np.ndarray:
+    """Closedness decided from the control net where the sampling test's outcome is certain.
+
+    At a clamped end (:func:`_clamped_ends`) of a knot vector the computed basis is one
+    function (within a few roundings of 1), the others exactly 0: a curve's computed end
+    point is its end control point, a surface's computed boundary curve the B-spline of
+    the net's end row (column), each within ``_END_ROUNDING (degrees + 1) eps scale``
+    (length units) of the exact value.  Two boundary rows with equal weights are
+    curves with one rational basis, so the boundary curves are at most the rows'
+    largest control-point distance apart; two corner points the test evaluates
+    (both directions clamped there) are their control points.  So where the rows are
+    within the tolerance by more than the rounding bound, every sampled distance is
+    (closed), and where corner points are beyond it by more than that bound, one
+    sampled distance is (open); the rest is left to the sampling test.
+
+    Args:
+        rows_gap: ``(k,)`` largest distance (length units) between the matching control
+            points of the two boundary rows (a curve: its two end points); ``inf`` where
+            an end is not clamped or the rows' weights differ.
+        ends_gap: ``(k,)`` distance between two matching corner points of the rows
+            that the test evaluates, at clamped ends (a curve: its end points); NaN
+            where there are none.
+        scale: ``(k,)`` largest absolute control-point coordinate (length units).
+        degrees: ``(k,)`` sum of the degrees.
+        size: ``(k,)`` control points' bounding-box diagonal (the tolerance is
+            :data:`CLOSED_RTOL` of it).
+
+    Returns:
+        ``(k,)`` int8: 1 closed, 0 open, -1 for the sampling test to decide.
+    """
+    rows_gap, ends_gap, scale, degrees = (np.asarray(a) for a in (rows_gap, ends_gap, scale, degrees))
+    tol = CLOSED_RTOL * np.maximum(size, 1e-300)
+    margin = _END_ROUNDING * (degrees + 1) * np.finfo(float).eps * scale
+    with np.errstate(invalid="ignore"):
+        opened = ends_gap * (1.0 - 1e-12) - margin > tol * (1.0 + 1e-12)
+    return np.where(rows_gap * (1.0 + 1e-12) + margin <= tol, 1, np.where(opened, 0, -1)).astype(np.int8)
+
+
 def _control_points(a: npt.ArrayLike, shape_prefix: tuple, what: str) -> np.ndarray:
     cp = _as_float(a, f"{what}: control_points")
     if cp.shape[:-1] != shape_prefix or cp.shape[-1] not in (2, 3):
@@ -480,11 +542,17 @@ class NurbsCurve(_ControlNet):
         _freeze(self, "_pwT", np.concatenate([cp * w[:, None], w[:, None]], axis=1).T)
         _freeze(self, "_spans", _span_table(knots, self.degree, n))
         object.__setattr__(self, "_size", _bbox_size(cp))
-        u0, u1 = self.domain
-        ends = self._eval_soa(np.array([[u0, u1]]), 0)[0]  # (3, 2)
-        gap = ends[:, 0] - ends[:, 1]
-        closed = bool(np.sqrt(gap @ gap) <= CLOSED_RTOL * max(self._size, 1e-300))
-        object.__setattr__(self, "is_closed", closed)
+        known = -1
+        if all(_clamped_ends(knots, self.degree, n)):  # the ends are the end control points
+            d = cp[0] - cp[-1]
+            gap = np.sqrt(d @ d)
+            known = int(_closed_by_net(gap, gap, np.abs(cp).max(), self.degree, self._size))
+        if known < 0:
+            u0, u1 = self.domain
+            ends = self._eval_soa(np.array([[u0, u1]]), 0)[0]  # (3, 2)
+            gap = ends[:, 0] - ends[:, 1]
+            known = int(np.sqrt(gap @ gap) <= CLOSED_RTOL * max(self._size, 1e-300))
+        object.__setattr__(self, "is_closed", bool(known))
 
     # -- properties ----------------------------------------------------
     @property
@@ -774,15 +842,31 @@ class NurbsCurve(_ControlNet):
         def closed(self, cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             """``(closed, size)`` of curves ``cs (k,)`` (sorted), as :attr:`NurbsCurve.is_closed`
             and :attr:`NurbsCurve.bbox_size`: both ends within :data:`CLOSED_RTOL` of the
-            control points' box diagonal ``size``."""
+            control points' box diagonal ``size``; decided from the end control points where
+            the knots are clamped (:func:`_closed_by_net`), else from the evaluated ends."""
             d = self.P.shape[1]
-            ends = self.points(np.stack([self.lo[cs], self.hi[cs]], axis=1).ravel(), np.repeat(cs, 2))
-            gap, box = np.zeros((len(cs), 3)), np.zeros((len(cs), 3))  # 3-vectors (z = 0 for 2D)
-            gap[:, :d] = ends[0::2] - ends[1::2]
-            first = self.poff[:-1]
+            first, last = self.poff[:-1], self.poff[1:] - 1
+            box = np.zeros((len(cs), 3))  # 3-vectors (z = 0 for 2D)
             box[:, :d] = (np.maximum.reduceat(self.P, first) - np.minimum.reduceat(self.P, first))[cs]
             size = np.sqrt(np.vecdot(box, box))
-            return np.sqrt(np.vecdot(gap, gap)) <= CLOSED_RTOL * np.maximum(size, 1e-300), size
+            p, start = self.p[cs], self.koff[cs]
+            rep = np.repeat(np.arange(len(cs)), p)
+            i = ramp(p) + 1  # knots 1..p after the start, and from the end's on
+            off = np.concatenate([self.K[start[rep] + i] != self.K[(start + p)[rep]],
+                                  self.K[(start + self.n[cs])[rep] + i - 1] != self.K[(start + self.n[cs])[rep]]])
+            clamped = np.bincount(np.tile(rep, 2)[off], minlength=len(cs)) == 0
+            e = self.P[first[cs]] - self.P[last[cs]]  # end control points (the ends, if clamped)
+            gap = np.sqrt(np.vecdot(e, e))
+            scale = np.maximum.reduceat(np.abs(self.P).max(axis=1), first)[cs]
+            known = _closed_by_net(np.where(clamped, gap, np.inf), np.where(clamped, gap, np.nan), scale, p, size)
+            todo = np.flatnonzero(known < 0)
+            if todo.size:  # the ends evaluated
+                ct = cs[todo]
+                ends = self.points(np.stack([self.lo[ct], self.hi[ct]], axis=1).ravel(), np.repeat(ct, 2))
+                g = np.zeros((len(ct), 3))
+                g[:, :d] = ends[0::2] - ends[1::2]
+                known[todo] = np.sqrt(np.vecdot(g, g)) <= CLOSED_RTOL * np.maximum(size[todo], 1e-300)
+            return known == 1, size
 
     def __repr__(self) -> str:
         return (
@@ -864,14 +948,38 @@ class NurbsSurface(_ControlNet):
         _freeze(self, "_spans_u", _span_table(ku, self.degree_u, nu))
         _freeze(self, "_spans_v", _span_table(kv, self.degree_v, nv))
         object.__setattr__(self, "_size", _bbox_size(cp))
-        object.__setattr__(self, "closed_u", self._boundaries_coincide(0))
-        object.__setattr__(self, "closed_v", self._boundaries_coincide(1))
+        known = self._closed_by_net()
+        object.__setattr__(self, "closed_u", self._boundaries_coincide(0) if known[0] < 0 else bool(known[0]))
+        object.__setattr__(self, "closed_v", self._boundaries_coincide(1) if known[1] < 0 else bool(known[1]))
+
+    def _closed_by_net(self) -> np.ndarray:
+        """``(2,)`` int8 per direction: the outcome of :meth:`_boundaries_coincide` where the
+        control net decides it (:func:`_closed_by_net`: 1 closed, 0 open), else -1."""
+        cp, w = self.control_points, self.weights
+        nu, nv = cp.shape[:2]
+        u0, u1 = _clamped_ends(self.knots_u, self.degree_u, nu)
+        v0, v1 = _clamped_ends(self.knots_v, self.degree_v, nv)
+        rows, ends = np.full(2, np.inf), np.full(2, np.nan)
+        for a, (lo, hi, first, last, wa, wb, c0, c1) in enumerate((  # the two directions
+                (u0, u1, cp[0], cp[-1], w[0], w[-1], v0, v1),
+                (v0, v1, cp[:, 0], cp[:, -1], w[:, 0], w[:, -1], u0, u1))):
+            if not (lo and hi):
+                continue
+            d = first - last
+            gap = np.sqrt(np.vecdot(d, d))  # (rows,) control-point distances
+            if (wa == wb).all():
+                rows[a] = gap.max()
+            corners = gap[[0, -1]][[c0, c1]]
+            if corners.size:
+                ends[a] = corners.max()
+        return _closed_by_net(rows, ends, np.abs(cp).max(), self.degree_u + self.degree_v, self._size)
 
     def _boundaries_coincide(self, direction: int) -> bool:
         """Do the boundary curves at both ends of ``direction`` coincide?
 
         Compared at the distinct knots of the other direction and at 7 points
         inside each of its spans (a sampling test, exact for identical rows).
+        :meth:`_closed_by_net` decides most surfaces as this does, from the net.
         """
         (u0, u1), (v0, v1) = self.domain_u, self.domain_v
         other = self.knots_v if direction == 0 else self.knots_u
