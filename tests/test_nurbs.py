@@ -230,7 +230,9 @@ def _curve_args(rng, dim: int, closed: bool) -> tuple:
     inner = np.sort(rng.uniform(0.0, 1.0, int(rng.integers(0, 9))))
     if inner.size and p > 1:
         inner = np.sort(np.r_[inner, inner[:1]])  # a double knot
-    knots = np.r_[[0.0] * (p + 1), inner, [1.0] * (p + 1)] * rng.uniform(0.5, 3.0) - rng.uniform(0, 2)
+    ends = ([0.0] * (p + 1), [1.0] * (p + 1)) if closed or rng.random() < 0.7 else (  # clamped, or not
+        np.linspace(-0.2, 0.0, p + 1), np.linspace(1.0, 1.2, p + 1))
+    knots = np.r_[ends[0], inner, ends[1]] * rng.uniform(0.5, 3.0) - rng.uniform(0, 2)
     n = len(knots) - p - 1
     P = rng.normal(size=(n, dim))
     if closed:

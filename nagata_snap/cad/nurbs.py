@@ -62,8 +62,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.mesh.arrays import ramp
-
 __all__ = [
     "NurbsError",
     "NurbsCurve",
@@ -143,15 +141,16 @@ def _span_table(knots: np.ndarray, degree: int, n_ctrl: int) -> np.ndarray:
     One gather after the ``searchsorted`` then gives the span (:func:`find_span`), and
     the top end of the domain gets the correct one-sided span.
     """
-    m = knots.shape[0]
-    table = np.empty(m, dtype=np.int64)
-    nonempty = [s for s in range(degree, n_ctrl) if knots[s] < knots[s + 1]]
-    last = nonempty[0]  # exists: the domain is non-empty (checked before)
-    for i in range(m):  # loop over knots (tiny), not over points
-        if degree <= i <= n_ctrl - 1 and knots[i] < knots[i + 1]:
+    k = knots.tolist()
+    # spans[i - p]: the last non-empty span s <= i for p <= i <= n - 1, else the first one
+    last = next(s for s in range(degree, n_ctrl) if k[s] < k[s + 1])  # exists: the domain is non-empty
+    spans = []
+    for i in range(degree, n_ctrl):  # loop over knots (tiny), not over points
+        if k[i] < k[i + 1]:
             last = i
-        table[i] = last
-    return table[np.clip(np.arange(-1, m), degree, n_ctrl - 1)]
+        spans.append(last)
+    # clip(i - 1, p, n - 1) - p for i = 0 .. m: p + 2 times 0, then 1 .. n - 1 - p, then m - n times n - 1 - p
+    return np.array([spans[0]] * (degree + 2) + spans[1:] + [spans[-1]] * (len(k) - n_ctrl), dtype=np.int64)
 
 
 def find_span(
@@ -342,13 +341,14 @@ def _bbox_size(points: np.ndarray) -> float:
 #: units of the machine epsilon times the largest control-point coordinate and per
 #: degree (+ 1) summed over the directions (:func:`_closed_by_net`)
 _END_ROUNDING = 64.0
+_EPS = float(np.finfo(float).eps)
 
 
 def _clamped_ends(knots: np.ndarray, p: int, n: int) -> tuple[bool, bool]:
-    """Are the knots ``knots[1..p]`` all ``knots[p]`` (the start), ``knots[n..n+p-1]`` all
-    ``knots[n]`` (the end)?  There the evaluation's basis is one function, the others
-    exactly 0 (:func:`_closed_by_net`)."""
-    return bool((knots[1:p + 1] == knots[p]).all()), bool((knots[n:n + p] == knots[n]).all())
+    """Are the (non-decreasing) knots ``knots[1..p]`` all ``knots[p]`` (the start),
+    ``knots[n..n+p-1]`` all ``knots[n]`` (the end)?  There the evaluation's basis is one
+    function, the others exactly 0 (:func:`_closed_by_net`)."""
+    return bool(knots[1] == knots[p]), bool(knots[n] == knots[n + p - 1])
 
 
 def _closed_by_net(rows_gap: npt.ArrayLike, ends_gap: npt.ArrayLike, scale: npt.ArrayLike,
@@ -382,12 +382,11 @@ def _closed_by_net(rows_gap: npt.ArrayLike, ends_gap: npt.ArrayLike, scale: npt.
     Returns:
         ``(k,)`` int8: 1 closed, 0 open, -1 for the sampling test to decide.
     """
-    rows_gap, ends_gap, scale, degrees = (np.asarray(a) for a in (rows_gap, ends_gap, scale, degrees))
     tol = CLOSED_RTOL * np.maximum(size, 1e-300)
-    margin = _END_ROUNDING * (degrees + 1) * np.finfo(float).eps * scale
-    with np.errstate(invalid="ignore"):
-        opened = ends_gap * (1.0 - 1e-12) - margin > tol * (1.0 + 1e-12)
-    return np.where(rows_gap * (1.0 + 1e-12) + margin <= tol, 1, np.where(opened, 0, -1)).astype(np.int8)
+    margin = np.multiply(_END_ROUNDING * _EPS, np.add(degrees, 1)) * scale
+    closed = np.multiply(rows_gap, 1.0 + 1e-12) + margin <= tol
+    opened = np.multiply(ends_gap, 1.0 - 1e-12) - margin > tol * (1.0 + 1e-12)  # False where NaN
+    return (2 * closed + opened - 1).astype(np.int8)  # exclusive: the rows' gap bounds the corners' gap
 
 
 def _control_points(a: npt.ArrayLike, shape_prefix: tuple, what: str) -> np.ndarray:
@@ -741,11 +740,16 @@ class NurbsCurve(_ControlNet):
             first = np.minimum.reduceat(g, start)
             #: global knot index of the span of each (clipped) ``searchsorted`` result
             self.table = np.where(last >= start[self.ck], last, first[self.ck])
-            #: distinct knot values, and the ``(curve, rank)`` key of every knot
-            self.U = np.unique(K)
-            self.base = len(self.U) + 1
-            self.key = self.ck * self.base + np.searchsorted(self.U, K, side="right")
             self.degrees = sorted(set(p.tolist()))
+
+        @cached_property
+        def _ranks(self) -> tuple[np.ndarray, int, np.ndarray]:
+            """``(U, base, key)``: the distinct knot values ``U``, and the ``(curve, rank)`` key
+            ``curve base + rank`` of every knot (its rank: the number of values ``<=`` it),
+            for :meth:`points` (computed when first evaluated)."""
+            U = np.unique(self.K)
+            base = len(U) + 1
+            return U, base, self.ck * base + U.searchsorted(self.K, side="right")
 
         @classmethod
         def of(cls, curves: Sequence[NurbsCurve]) -> NurbsCurve.Packed:
@@ -816,9 +820,10 @@ class NurbsCurve(_ControlNet):
         def points(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
             """``(k, d)`` points at ``t (k,)`` (inside the domains) of curves ``c (k,)`` (grouped
             by curve, in curve order), as each curve's :meth:`NurbsCurve._eval_soa` gives them."""
-            q = np.searchsorted(self.U, t, side="right")
+            U, base, key = self._ranks
+            q = U.searchsorted(t, side="right")
             start, pc = self.koff[c], self.p[c]
-            cnt = np.searchsorted(self.key, c * self.base + q, side="right") - start  # knots <= t
+            cnt = key.searchsorted(c * base + q, side="right") - start  # knots <= t
             span = self.table[start + np.minimum(np.maximum(cnt - 1, pc), self.n[c] - 1)]
             first = span - start + self.poff[c] - pc
             d = self.P.shape[1]
@@ -849,12 +854,9 @@ class NurbsCurve(_ControlNet):
             box = np.zeros((len(cs), 3))  # 3-vectors (z = 0 for 2D)
             box[:, :d] = (np.maximum.reduceat(self.P, first) - np.minimum.reduceat(self.P, first))[cs]
             size = np.sqrt(np.vecdot(box, box))
-            p, start = self.p[cs], self.koff[cs]
-            rep = np.repeat(np.arange(len(cs)), p)
-            i = ramp(p) + 1  # knots 1..p after the start, and from the end's on
-            off = np.concatenate([self.K[start[rep] + i] != self.K[(start + p)[rep]],
-                                  self.K[(start + self.n[cs])[rep] + i - 1] != self.K[(start + self.n[cs])[rep]]])
-            clamped = np.bincount(np.tile(rep, 2)[off], minlength=len(cs)) == 0
+            p, start, end = self.p[cs], self.koff[cs], self.koff[cs] + self.n[cs]
+            K = self.K
+            clamped = (K[start + 1] == K[start + p]) & (K[end] == K[end + p - 1])  # as _clamped_ends
             e = self.P[first[cs]] - self.P[last[cs]]  # end control points (the ends, if clamped)
             gap = np.sqrt(np.vecdot(e, e))
             scale = np.maximum.reduceat(np.abs(self.P).max(axis=1), first)[cs]
