@@ -291,6 +291,8 @@ def basis_functions(
 
 #: points per chunk in the evaluation kernels (keeps temporaries in cache)
 CHUNK = 4096
+#: :meth:`NurbsCurve.many` packs this many curves or more (fewer: one by one, which costs less)
+MANY_MIN = 4
 
 
 
@@ -661,14 +663,14 @@ class NurbsCurve(_ControlNet):
         """``NurbsCurve(degrees[i], knots[i], control_points[i], weights[i])`` for every ``i``
         (weights None: all 1), built together: the checks, the derived data and the ends
         (closedness) of all curves at once (:class:`NurbsCurve.Packed`); the same curves to
-        the last bit.  A single curve is built by its constructor (packing costs more than
-        one curve's checks).
+        the last bit.  Fewer than :data:`MANY_MIN` curves are built by their constructor
+        (packing costs more than their checks).
 
         Raises:
             NurbsError: the first invalid curve's (then built one by one).
         """
-        pk = cls.Packed.checked(degrees, knots, control_points, weights) if len(degrees) > 1 else None
-        if pk is None:  # one curve, or an invalid (or unusual) one: each checks itself, in order
+        pk = cls.Packed.checked(degrees, knots, control_points, weights) if len(degrees) >= MANY_MIN else None
+        if pk is None:  # few curves, or an invalid (or unusual) one: each checks itself, in order
             return [cls(p, k, P, np.ones(len(P)) if w is None else w)
                     for p, k, P, w in zip(degrees, knots, control_points, weights, strict=True)]
         ns = len(pk.p)
@@ -743,13 +745,17 @@ class NurbsCurve(_ControlNet):
             self.degrees = sorted(set(p.tolist()))
 
         @cached_property
-        def _ranks(self) -> tuple[np.ndarray, int, np.ndarray]:
-            """``(U, base, key)``: the distinct knot values ``U``, and the ``(curve, rank)`` key
-            ``curve base + rank`` of every knot (its rank: the number of values ``<=`` it),
-            for :meth:`points` (computed when first evaluated)."""
+        def _lookup(self) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            """``(U, base, key, lo, hi, shift)`` for :meth:`points` (computed when first
+            evaluated): the distinct knot values ``U``; the ``(curve, rank)`` key ``curve base +
+            rank`` of every knot (its rank: the number of values ``<=`` it); per curve the
+            global indices ``lo = koff + p``, ``hi = koff + n - 1`` of its first and last
+            span, and ``shift = poff - koff - p`` from its span to its first control point."""
             U = np.unique(self.K)
             base = len(U) + 1
-            return U, base, self.ck * base + U.searchsorted(self.K, side="right")
+            start = self.koff[:-1]
+            return (U, base, self.ck * base + U.searchsorted(self.K, side="right"), start + self.p,
+                    start + self.n - 1, self.poff[:-1] - start - self.p)
 
         @classmethod
         def of(cls, curves: Sequence[NurbsCurve]) -> NurbsCurve.Packed:
@@ -820,16 +826,16 @@ class NurbsCurve(_ControlNet):
         def points(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
             """``(k, d)`` points at ``t (k,)`` (inside the domains) of curves ``c (k,)`` (grouped
             by curve, in curve order), as each curve's :meth:`NurbsCurve._eval_soa` gives them."""
-            U, base, key = self._ranks
+            U, base, key, lo, hi, shift = self._lookup
             q = U.searchsorted(t, side="right")
-            start, pc = self.koff[c], self.p[c]
-            cnt = key.searchsorted(c * base + q, side="right") - start  # knots <= t
-            span = self.table[start + np.minimum(np.maximum(cnt - 1, pc), self.n[c] - 1)]
-            first = span - start + self.poff[c] - pc
+            cnt = key.searchsorted(c * base + q, side="right")  # knots <= t, and those of the curves before
+            span = self.table[np.minimum(np.maximum(cnt - 1, lo[c]), hi[c])]
+            first = span + shift[c]
             d = self.P.shape[1]
             out = np.empty((len(t), d))
+            pc = self.p[c] if len(self.degrees) > 1 else None
             for p in self.degrees:  # loop over the distinct degrees
-                sel = slice(None) if len(self.degrees) == 1 else np.flatnonzero(pc == p)
+                sel = slice(None) if pc is None else np.flatnonzero(pc == p)
                 H = NurbsCurve._sums(self.K, self.W, p, span[sel], first[sel], t[sel], 0)[0]
                 out[sel] = (H[:d] / H[d]).T
             # _eval_soa sums a chunk of one point (a curve's only point, or the last of its
@@ -840,7 +846,7 @@ class NurbsCurve(_ControlNet):
                 last = np.flatnonzero(np.append(c[1:] != c[:-1], True))  # each curve's last point
                 for j in last[count[c[last]] == 1].tolist():  # loop over such points (rare)
                     sl = slice(j, j + 1)
-                    H = NurbsCurve._sums(self.K, self.W, int(pc[j]), span[sl], first[sl], t[sl], 0)[0]
+                    H = NurbsCurve._sums(self.K, self.W, int(self.p[c[j]]), span[sl], first[sl], t[sl], 0)[0]
                     out[j] = H[:d, 0] / H[d, 0]
             return out
 
