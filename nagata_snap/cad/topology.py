@@ -50,7 +50,7 @@ import numpy as np
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
-from nagata_snap.mesh.arrays import ramp
+from nagata_snap.mesh.arrays import dot, ramp
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 
@@ -337,19 +337,21 @@ class _PCurves:
     def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
         kind = self.kind[use]
-        P = np.empty((len(t), 2))
-        ln = np.flatnonzero(kind == 0)
-        if ln.size:
-            ul = use[ln]
-            P[ln] = self.A[ul] + t[ln, None] * self.B[ul]
-        c = np.flatnonzero(kind == 1)
-        if c.size:
-            uc, tc = use[c], t[c]
-            P[c] = self.A[uc] + self.R[uc, None] * (np.cos(tc)[:, None] * self.B[uc] +
-                                                    np.sin(tc)[:, None] * self.C[uc])
-        if self.splines is not None:
-            s = np.flatnonzero(kind == 2)
-            if s.size:
+        s = np.flatnonzero(kind == 2)
+        if self.splines is not None and s.size == len(t) and s.size:  # B-splines only: no selection
+            P = self.splines(t, self.spline_of[use])
+        else:
+            P = np.empty((len(t), 2))
+            ln = np.flatnonzero(kind == 0)
+            if ln.size:
+                ul = use[ln]
+                P[ln] = self.A[ul] + t[ln, None] * self.B[ul]
+            c = np.flatnonzero(kind == 1)
+            if c.size:
+                uc, tc = use[c], t[c]
+                P[c] = self.A[uc] + self.R[uc, None] * (np.cos(tc)[:, None] * self.B[uc] +
+                                                        np.sin(tc)[:, None] * self.C[uc])
+            if s.size and self.splines is not None:
                 P[s] = self.splines(t[s], self.spline_of[use[s]])
         m = np.flatnonzero(self.mapped[use])
         if m.size:
@@ -409,26 +411,37 @@ class _Metric:
     def __init__(self, surfaces: Sequence):
         self.surfaces = surfaces
         self.plane = np.array([isinstance(s, Plane) for s in surfaces] + [False], dtype=bool)
-        self.X = np.array([s.X if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3)
-        self.Y = np.array([s.Y if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3)
+        #: ``(3, n_faces)`` the planes' axes by coordinate (0 for other faces)
+        self.X = np.array([s.X if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3).T.copy()
+        self.Y = np.array([s.Y if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3).T.copy()
 
     def __call__(self, off: np.ndarray, mid: np.ndarray, face: np.ndarray) -> np.ndarray:
         """``(k,)`` lengths of ``off (k, 2)`` at ``mid (k, 2)`` on ``face (k,)`` (sorted)."""
-        dev = np.empty(len(off))
         on_plane = self.plane[face]
+        if on_plane.all():  # planes only (the common case): no row selection
+            return _lengths(off[:, 0], off[:, 1], self.X[:, face], self.Y[:, face])
+        dev = np.empty(len(off))
         p = np.flatnonzero(on_plane)
         if p.size:
             fp = face[p]
-            dev[p] = np.linalg.norm(off[p, 0, None] * self.X[fp] + off[p, 1, None] * self.Y[fp], axis=1)
+            dev[p] = _lengths(off[p, 0], off[p, 1], self.X[:, fp], self.Y[:, fp])
         for f in np.unique(face[~on_plane]):  # loop over curved faces with curved p-curves
             lo, hi = np.searchsorted(face, [f, f + 1])
             if self.surfaces[f] is None:
                 dev[lo:hi] = np.linalg.norm(off[lo:hi], axis=1)
             else:
-                T = _tangents(self.surfaces[f], mid[lo:hi])
-                dev[lo:hi] = np.linalg.norm(off[lo:hi, 0, None] * T[:, 0] + off[lo:hi, 1, None] * T[:, 1],
-                                            axis=1)
+                dev[lo:hi] = _lengths(off[lo:hi, 0], off[lo:hi, 1], *_tangents(self.surfaces[f], mid[lo:hi]))
         return dev
+
+
+def _lengths(a: np.ndarray, b: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """``(k,)`` lengths ``|a U + b V|`` (length units) of ``a, b (k,)`` times the vectors
+    ``U, V (3, k)`` (by coordinate), coordinate by coordinate: to the last bit
+    ``np.linalg.norm(a[:, None] * U.T + b[:, None] * V.T, axis=1)`` (the same products, and
+    its sum of the squares in its order, :func:`~nagata_snap.mesh.arrays.dot`), without
+    the reduction over a 3-wide axis."""
+    v = [a * U[j] + b * V[j] for j in range(3)]
+    return np.sqrt(dot(v, v))
 
 
 def _circles_on_planes(f: _PCurves, first: _Samples, metric: _Metric, tols: np.ndarray) -> np.ndarray:
@@ -823,12 +836,14 @@ def _three_distinct_groups(R: np.ndarray, ends: np.ndarray) -> np.ndarray:
     return ok & (np.bincount(grp[third], minlength=len(size)) > 0)
 
 
-def _tangents(surface, params: np.ndarray) -> np.ndarray:
-    """``(k, 2, 3)`` first derivatives at parameters (wrapped/clamped for NURBS)."""
-    from nagata_snap.cad.projection import evaluate_params, normalize_params
+def _tangents(surface, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(S_u, S_v)``, each ``(3, k)`` by coordinate: the first derivatives at parameters
+    ``params (k, 2)`` (wrapped/clamped for NURBS), from the surface's kernel as
+    :func:`~nagata_snap.cad.projection.evaluate_params` evaluates them."""
+    from nagata_snap.cad.projection import normalize_params
 
-    _, T = evaluate_params(surface, normalize_params(surface, params), 1)
-    return T
+    D = surface._eval_soa(np.ascontiguousarray(normalize_params(surface, params).T), 1)
+    return D[1], D[2]
 
 
 def _planar_2d(surfaces: Sequence, size: float, rtol: float = 1e-9) -> bool:
