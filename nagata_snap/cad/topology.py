@@ -508,14 +508,23 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
         two = it < MAX_REFINE  # the halves' level is within the refinement limit
         um = use[k]
         fm = f.face[um]
-        Pa, Pb = P[k], P[k + 1]
-        tm = 0.5 * (t[k] + t[k + 1])
+        Pa, Pb = P.take(k, axis=0), P.take(k + 1, axis=0)
+        ta, tb = t[k], t[k + 1]
+        tm = 0.5 * (ta + tb)
         if two:  # midpoints, then the midpoints of both halves, interleaved (uses stay sorted)
-            tq = np.stack([tm, 0.5 * (t[k] + tm), 0.5 * (tm + t[k + 1])], axis=1)
-            Pq = f(tq.ravel(), np.repeat(um, 3)).reshape(-1, 3, 2)
+            tq = np.empty((len(k), 3))  # columns tm, 0.5 (ta + tm), 0.5 (tm + tb)
+            tq[:, 0] = tm
+            np.add(ta, tm, out=tq[:, 1])
+            np.add(tm, tb, out=tq[:, 2])
+            tq[:, 1:] *= 0.5
+            Pq = f(tq.ravel(), um.repeat(3)).reshape(-1, 3, 2)
             Pm = Pq[:, 0]
-            mids = np.stack([0.5 * (Pa + Pb), 0.5 * (Pa + Pm), 0.5 * (Pm + Pb)], axis=1)
-            dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), np.repeat(fm, 3)).reshape(-1, 3)
+            mids = np.empty((len(k), 3, 2))  # chords' midpoints: 0.5 (Pa + Pb), 0.5 (Pa + Pm), 0.5 (Pm + Pb)
+            np.add(Pa, Pb, out=mids[:, 0])
+            np.add(Pa, Pm, out=mids[:, 1])
+            np.add(Pm, Pb, out=mids[:, 2])
+            mids *= 0.5
+            dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), fm.repeat(3)).reshape(-1, 3)
             d = dq[:, 0]
         else:
             mid = 0.5 * (Pa + Pb)
@@ -529,7 +538,9 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
         t, use, P, dev, new = _split(t, use, P, dev, k[sel], tm[sel], Pm[sel])
         it += 1
         if two:  # the halves' tests, done: their deviations, then their splits
-            halves = np.stack([new - 1, new], axis=1)  # (n, 2) first points of both halves
+            halves = np.empty((len(new), 2), dtype=new.dtype)  # (n, 2) first points of both halves
+            halves[:, 1] = new
+            np.subtract(new, 1, out=halves[:, 0])
             dev[halves] = dq[sel, 1:]
             split2 = dq[sel, 1:] > tols[fm[sel], None]
             if it == MAX_REFINE or not split2.any():
@@ -547,11 +558,12 @@ def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np
     """Insert the midpoints ``tm (n,)``, ``Pm (n, 2)`` of the segments starting at ``k (n,)``
     (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions.
 
-    One scatter per array (the old rows by a mask, the midpoints by their positions)."""
+    One scatter per array (the old rows and the midpoints by their positions)."""
     n, m = len(t), len(k)
     at = k + np.arange(1, m + 1)
     old = np.ones(n + m, dtype=bool)
     old[at] = False
+    old = old.nonzero()[0]  # the old rows' positions, found once for the four arrays
     t2, use2, P2, dev2 = np.empty(n + m), np.empty(n + m, dtype=use.dtype), np.empty((n + m, 2)), np.zeros(n + m)
     t2[old], t2[at] = t, tm
     use2[old], use2[at] = use, use[k]
