@@ -119,7 +119,8 @@ class _Slabs:
         np.cumsum(n, out=first[1:])
         seg = np.repeat(np.arange(len(P)) - off[lid], cnt)
         slab = np.repeat(s0 + first[lid], cnt) + ramp(cnt)
-        seg = seg[np.argsort(slab, kind="stable")]
+        # by slab, stably (a radix sort where the slab numbers fit 16 bits: the same order)
+        seg = seg[(slab.astype(np.uint16) if first[-1] <= 0xFFFF else slab).argsort(kind="stable")]
         ptr = np.zeros(int(first[-1]) + 1, dtype=np.int64)
         np.cumsum(np.bincount(slab, minlength=int(first[-1])), out=ptr[1:])
         out = []
