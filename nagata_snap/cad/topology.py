@@ -347,10 +347,11 @@ class _PCurves:
                 ul = use[ln]
                 P[ln] = self.A[ul] + t[ln, None] * self.B[ul]
             c = np.flatnonzero(kind == 1)
-            if c.size:
+            if c.size:  # coordinate by coordinate (no (k, 1) x (k, 2) broadcasts), the same products
                 uc, tc = use[c], t[c]
-                P[c] = self.A[uc] + self.R[uc, None] * (np.cos(tc)[:, None] * self.B[uc] +
-                                                        np.sin(tc)[:, None] * self.C[uc])
+                co, si, r = np.cos(tc), np.sin(tc), self.R[uc]
+                for j in range(2):
+                    P[c, j] = self.A[uc, j] + r * (co * self.B[uc, j] + si * self.C[uc, j])
             if s.size and self.splines is not None:
                 P[s] = self.splines(t[s], self.spline_of[use[s]])
         m = np.flatnonzero(self.mapped[use])
