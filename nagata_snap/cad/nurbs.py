@@ -967,20 +967,20 @@ class NurbsSurface(_ControlNet):
         nu, nv = cp.shape[:2]
         u0, u1 = _clamped_ends(self.knots_u, self.degree_u, nu)
         v0, v1 = _clamped_ends(self.knots_v, self.degree_v, nv)
-        rows, ends = np.full(2, np.inf), np.full(2, np.nan)
-        for a, (lo, hi, first, last, wa, wb, c0, c1) in enumerate((  # the two directions
-                (u0, u1, cp[0], cp[-1], w[0], w[-1], v0, v1),
-                (v0, v1, cp[:, 0], cp[:, -1], w[:, 0], w[:, -1], u0, u1))):
-            if not (lo and hi):
+        rows, ends = [np.inf, np.inf], [np.nan, np.nan]
+        for a, (clamped, c0, c1) in enumerate(((u0 and u1, v0, v1), (v0 and v1, u0, u1))):  # the two directions
+            if not clamped:
                 continue
-            d = first - last
-            gap = np.sqrt(np.vecdot(d, d))  # (rows,) control-point distances
-            if (wa == wb).all():
-                rows[a] = gap.max()
-            corners = gap[[0, -1]][[c0, c1]]
-            if corners.size:
-                ends[a] = corners.max()
-        return _closed_by_net(rows, ends, np.abs(cp).max(), self.degree_u + self.degree_v, self._size)
+            lo, hi = (np.s_[0], np.s_[-1]) if a == 0 else (np.s_[:, 0], np.s_[:, -1])  # the boundary rows
+            d = cp[lo] - cp[hi]
+            gap = np.sqrt(np.vecdot(d, d))  # (row,) control-point distances
+            if not self._rational or (w[lo] == w[hi]).all():
+                rows[a] = float(gap.max())
+            corners = [g for g, c in ((gap[0], c0), (gap[-1], c1)) if c]
+            if corners:
+                ends[a] = float(max(corners))
+        return _closed_by_net(np.array(rows), np.array(ends), float(np.abs(cp).max()),
+                              self.degree_u + self.degree_v, self._size)
 
     def _boundaries_coincide(self, direction: int) -> bool:
         """Do the boundary curves at both ends of ``direction`` coincide?
