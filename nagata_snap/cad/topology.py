@@ -317,9 +317,13 @@ class _PCurves:
         self.spline_of[self.spline_uses] = np.arange(self.spline_uses.size)
         self.splines = (_Splines([descs[j] for j in self.spline_uses.tolist()], self.face[self.spline_uses])
                         if self.spline_uses.size else None)
-        maps = [np.eye(3)[:, :2] if m is None else np.asarray(m, dtype=float) for m in uv_maps]
-        self.M = np.array(maps).reshape(-1, 3, 2)
-        self.mapped = np.array([m is not None for m in uv_maps] + [False], dtype=bool)[self.face]
+        self.M = np.tile(np.eye(3)[:, :2], (len(uv_maps), 1, 1))  # per face its map (the identity: none)
+        mapped = [i for i, m in enumerate(uv_maps) if m is not None]
+        if mapped:
+            self.M[mapped] = [np.asarray(uv_maps[i], dtype=float) for i in mapped]
+        self.mapped = np.zeros(len(uv_maps) + 1, dtype=bool)
+        self.mapped[mapped] = True
+        self.mapped = self.mapped[self.face]
 
     def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
