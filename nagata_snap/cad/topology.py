@@ -58,6 +58,8 @@ __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 CIRCLE_STEP = np.pi / 16
 #: samples of a B-spline p-curve per knot span (before refinement)
 SPLINE_SAMPLES = 8
+#: their fractions of the span, ``np.linspace(0, 1, SPLINE_SAMPLES + 1)[:-1]``
+_SPAN_STEPS = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
 #: trimming polygons are refined until every chord is within this fraction of the
 #: face's size of its p-curve (``SAMPLE_RTOL x size``; at most :data:`MAX_REFINE`
 #: halvings of a segment)
@@ -273,13 +275,12 @@ class _Splines:
         keep[1:] = (v[1:] != v[:-1]) | (grp[1:] != grp[:-1])
         v, grp = v[keep], grp[keep]
         iv = np.flatnonzero(grp[1:] == grp[:-1])  # intervals: first point
-        s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
         counts = np.bincount(grp[iv], minlength=ns) * SPLINE_SAMPLES + 1
         end = np.cumsum(counts) - 1
         t = np.empty(int(end[-1]) + 1 if ns else 0)
         spans = np.ones(len(t), dtype=bool)
         spans[end] = False
-        t[spans] = (v[iv, None] + np.outer(v[iv + 1] - v[iv], s)).ravel()
+        t[spans] = (v[iv, None] + np.multiply.outer(v[iv + 1] - v[iv], _SPAN_STEPS)).ravel()
         t[end] = t1
         return counts, t
 
@@ -317,7 +318,8 @@ class _PCurves:
         self.spline_of[self.spline_uses] = np.arange(self.spline_uses.size)
         self.splines = (_Splines([descs[j] for j in self.spline_uses.tolist()], self.face[self.spline_uses])
                         if self.spline_uses.size else None)
-        self.M = np.tile(np.eye(3)[:, :2], (len(uv_maps), 1, 1))  # per face its map (the identity: none)
+        self.M = np.zeros((len(uv_maps), 3, 2))  # per face its map (the identity: none)
+        self.M[:, 0, 0] = self.M[:, 1, 1] = 1.0
         mapped = [i for i, m in enumerate(uv_maps) if m is not None]
         if mapped:
             self.M[mapped] = [np.asarray(uv_maps[i], dtype=float) for i in mapped]
