@@ -505,7 +505,7 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     done = _circles_on_planes(f, first, metric, tols)
     t, use = first.flat(reverses)
     P = f(t, use)
-    dev = np.nan_to_num(done, nan=0.0)[use]
+    dev = np.where(np.isnan(done), 0.0, done)[use]  # done: NaN or a (finite) sagitta
     fresh = ((f.kind != 0) & np.isnan(done))[use]  # segments (by their first point) to test
     it = 0  # refinement level of the segments tested
     while it <= MAX_REFINE:
