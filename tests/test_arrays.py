@@ -77,3 +77,21 @@ def test_linspaces_are_each_rows_linspace():
     for n in (2, 3, 17, 65):
         want = np.array([np.linspace(x, y, n) for x, y in zip(a, b, strict=True)])
         assert linspaces(a, b, n).tobytes() == want.tobytes()
+
+
+def test_ragged_rows_are_the_lists():
+    """``Ragged`` from lists of Python ints, integer arrays, tuples and empty rows: its rows
+    (``take``, in any order, repeated) are the lists given."""
+    from nagata_snap.mesh.arrays import Ragged
+
+    rng = np.random.default_rng(3)
+    lists = [rng.integers(-5, 50, rng.integers(0, 6)) for _ in range(40)]
+    rows = [a.tolist() if i % 3 == 0 else tuple(a.tolist()) if i % 3 == 1 else a for i, a in enumerate(lists)]
+    r = Ragged(rows)
+    assert r.flat.dtype == np.int64 and r.ptr.dtype == np.int64 and r.counts.tolist() == [len(a) for a in lists]
+    pick = rng.integers(0, 40, 60)
+    cnt, vals = r.take(pick)
+    assert cnt.tolist() == [len(lists[i]) for i in pick]
+    assert vals.tolist() == [v for i in pick for v in lists[i].tolist()]
+    empty = Ragged([])
+    assert empty.flat.shape == (0,) and empty.ptr.tolist() == [0]

@@ -163,15 +163,17 @@ def test_first_samples_of_all_uses_are_linspace_per_use():
     assert np.all(np.diff(use) >= 0)
 
 
-def _random_spline(rng, closed: bool) -> dict:
-    """A clamped B-spline p-curve description: degree 1-4, repeated interior knots, 2D poles,
-    weights or None; ``closed``: its first and last poles coincide."""
+def _random_spline(rng, closed: bool, clamped: bool = True) -> dict:
+    """A B-spline p-curve description: degree 1-4, repeated interior knots, 2D poles, weights
+    or None; ``closed``: its first and last poles coincide (its ends, if ``clamped``: knots of
+    multiplicity ``p + 1`` at both ends, else ``p`` knots beyond each end of the domain)."""
     p = int(rng.integers(1, 5))
     inner = np.sort(rng.uniform(-2.0, 3.0, int(rng.integers(0, 7))))
     if inner.size and p > 1:
         inner = np.sort(np.r_[inner, inner[:1]])  # a double knot
     a, b = -2.5 + rng.uniform(0, 0.1), 3.5
-    knots = np.r_[[a] * (p + 1), inner, [b] * (p + 1)]
+    ends = ([a] * (p + 1), [b] * (p + 1)) if clamped else (a - np.arange(p, -1, -1) * 0.3, b + np.arange(p + 1) * 0.3)
+    knots = np.r_[ends[0], inner, ends[1]]
     n = len(knots) - p - 1
     poles = rng.normal(size=(n, 2))
     if closed:
@@ -184,11 +186,11 @@ def test_packed_splines_evaluate_as_nurbs_curves():
     """``topology._Splines`` (all B-spline p-curves evaluated together) gives, to the last bit,
     what each curve's own :meth:`NurbsCurve.evaluate` gives on the same points: at knots,
     domain ends, inside, and beyond the domain (wrapped on closed curves, clamped on open
-    ones); a curve with a single point among many; mixed degrees."""
+    ones); a curve with a single point among many; mixed degrees; unclamped knots."""
     from nagata_snap.cad.topology import _FaceError, _Splines, nurbs_curve
 
     rng = np.random.default_rng(11)
-    descs = [_random_spline(rng, closed=bool(i % 3 == 0)) for i in range(25)]
+    descs = [_random_spline(rng, closed=bool(i % 3 == 0), clamped=i % 4 != 2) for i in range(25)]
     splines = _Splines(descs, np.arange(len(descs)))
     ts, cs = [], []
     for c, d in enumerate(descs):
@@ -210,6 +212,40 @@ def test_packed_splines_evaluate_as_nurbs_curves():
     with pytest.raises(_FaceError, match="non-decreasing") as info:
         _Splines([*descs[:7], bad], np.arange(8) + 100)
     assert info.value.face == 107
+
+
+def test_offset_lengths_are_numpys_norms():
+    """``topology._lengths`` (the refinement's metric, coordinate by coordinate) is, to the last
+    bit, ``np.linalg.norm`` of the same offsets, on planes' axes and on evaluated tangents."""
+    from nagata_snap.cad.projection import evaluate_params, normalize_params
+    from nagata_snap.cad.surfaces import analytic_surface
+    from nagata_snap.cad.topology import _lengths, _Metric, _tangents
+
+    rng = np.random.default_rng(13)
+    for k in (1, 2, 7, 1000):
+        a, b = rng.normal(size=k) * 10.0 ** rng.integers(-6, 4, k), rng.normal(size=k)
+        U, V = rng.normal(size=(3, k)), rng.normal(size=(3, k)) * 1e3
+        want = np.linalg.norm(a[:, None] * U.T + b[:, None] * V.T, axis=1)
+        assert _lengths(a, b, U, V).tobytes() == want.tobytes()
+    cyl = analytic_surface({"type": "cylinder", "origin": [1.0, 2.0, 3.0], "x": [1.0, 0.0, 0.0], "y": [0.0, 0.8, -0.6],
+                            "z": [0.0, 0.6, 0.8], "radius": 2.5}, np.array([[0.0, 6.0], [-1.0, 1.0]]))
+    mid = rng.uniform(-1.0, 1.0, (50, 2))
+    off = rng.normal(size=(50, 2)) * 1e-3
+    Su, Sv = _tangents(cyl, mid)
+    _, T = evaluate_params(cyl, normalize_params(cyl, mid), 1)
+    assert Su.T.tobytes() == T[:, 0].tobytes() and Sv.T.tobytes() == T[:, 1].tobytes()
+    got = _Metric([cyl])(off, mid, np.zeros(50, dtype=np.int64))
+    want = np.linalg.norm(off[:, :1] * T[:, 0] + off[:, 1:] * T[:, 1], axis=1)
+    assert got.tobytes() == want.tobytes()
+    plane = analytic_surface({"type": "plane", "origin": [0.0, 1.0, 2.0], "x": [0.6, 0.8, 0.0], "y": [-0.8, 0.6, 0.0],
+                              "z": [0.0, 0.0, 1.0]}, np.array([[-5.0, 5.0], [-5.0, 5.0]]))
+    face = np.repeat([0, 1], [20, 30])  # planes and a curved face in one call, then planes only
+    got = _Metric([plane, cyl])(off, mid, face)
+    on_plane = np.linalg.norm(off[:20, :1] * plane.X + off[:20, 1:] * plane.Y, axis=1)
+    _, T = evaluate_params(cyl, normalize_params(cyl, mid[20:]), 1)
+    curved = np.linalg.norm(off[20:, :1] * T[:, 0] + off[20:, 1:] * T[:, 1], axis=1)
+    assert got.tobytes() == np.r_[on_plane, curved].tobytes()
+    assert _Metric([plane])(off[:20], mid[:20], face[:20]).tobytes() == on_plane.tobytes()
 
 
 def test_packed_splines_first_samples_per_knot_span():

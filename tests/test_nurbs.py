@@ -230,7 +230,9 @@ def _curve_args(rng, dim: int, closed: bool) -> tuple:
     inner = np.sort(rng.uniform(0.0, 1.0, int(rng.integers(0, 9))))
     if inner.size and p > 1:
         inner = np.sort(np.r_[inner, inner[:1]])  # a double knot
-    knots = np.r_[[0.0] * (p + 1), inner, [1.0] * (p + 1)] * rng.uniform(0.5, 3.0) - rng.uniform(0, 2)
+    ends = ([0.0] * (p + 1), [1.0] * (p + 1)) if closed or rng.random() < 0.7 else (  # clamped, or not
+        np.linspace(-0.2, 0.0, p + 1), np.linspace(1.0, 1.2, p + 1))
+    knots = np.r_[ends[0], inner, ends[1]] * rng.uniform(0.5, 3.0) - rng.uniform(0, 2)
     n = len(knots) - p - 1
     P = rng.normal(size=(n, dim))
     if closed:
@@ -260,6 +262,59 @@ def test_many_curves_built_together_as_one_by_one():
     bad[1] = bad[1][::-1]
     with pytest.raises(NurbsError, match="non-decreasing"):
         NurbsCurve.many(*zip(*args[:3], bad, args[4], strict=True))
+
+
+def _clamped_knots(rng, p: int, clamped: bool = True) -> np.ndarray:
+    inner = np.sort(rng.uniform(0.1, 0.9, int(rng.integers(0, 4))))
+    ends = (([0.0] * (p + 1), [1.0] * (p + 1)) if clamped
+            else (np.linspace(-0.3, 0.0, p + 1), np.linspace(1.0, 1.3, p + 1)))
+    return np.r_[ends[0], inner, ends[1]]
+
+
+def test_closedness_from_the_net_is_the_sampling_tests():
+    """Where the control net decides a surface's closedness (clamped ends: rows within the
+    tolerance, or corners beyond it, by more than the rounding bound) it is the sampling
+    test's outcome; rows near the tolerance, unclamped ends, unequal weights or a net far
+    from the origin are left to the sampling test.  Curves: their evaluated ends decide."""
+    rng = np.random.default_rng(5)
+    decided = {0.0: 0, 1e6: 0}
+    for trial in range(300):
+        p, q = int(rng.integers(1, 5)), int(rng.integers(1, 5))
+        clamped = trial % 7 != 0
+        ku, kv = _clamped_knots(rng, p, clamped), _clamped_knots(rng, q, True)
+        nu, nv = len(ku) - p - 1, len(kv) - q - 1
+        shift = [0.0, 0.0, 1e2, 1e7][(trial // 8) % 4]
+        P = rng.normal(size=(nu, nv, 3)) + shift
+        W = [np.ones((nu, nv)), rng.uniform(0.5, 2.0, (nu, nv))][trial % 2]
+        a = trial % 2 if trial % 3 else 0  # the direction made (nearly) closed
+        lo, hi = (np.s_[0], np.s_[-1]) if a == 0 else (np.s_[:, 0], np.s_[:, -1])
+        W[hi] = W[lo] if trial % 5 else W[hi]
+        P[hi] = P[lo]
+        tol = 1e-9 * NurbsSurface(p, q, ku, kv, P, W).bbox_size
+        rel = [0.0, 0.3, 1 - 1e-3, 1 - 1e-9, 1 + 1e-9, 1.01, 3.0, 1e6][trial % 8]
+        d = rng.normal(size=P[hi].shape)
+        d *= rel * tol / np.linalg.norm(d, axis=-1).max()
+        P[hi] += d
+        s = NurbsSurface(p, q, ku, kv, P, W)
+        net = s._closed_by_net()
+        sampled = [s._boundaries_coincide(0), s._boundaries_coincide(1)]
+        assert [s.closed_u, s.closed_v] == sampled
+        for b in range(2):
+            assert net[b] in (-1, int(sampled[b])), (trial, b, net, sampled)
+        if clamped and shift == 0.0 and rel in decided and net[a] >= 0 and (rel > 0 or trial % 5):
+            decided[rel] += 1
+    assert min(decided.values()) >= 5  # the clear cases are decided from the net
+    for trial in range(200):
+        p = int(rng.integers(1, 5))
+        k = _clamped_knots(rng, p, trial % 6 != 0)
+        P = rng.normal(size=(len(k) - p - 1, 2 + trial % 2)) + [0.0, 0.0, 1e2, 1e7][(trial // 6) % 4]
+        rel = [0.0, 0.3, 1 - 1e-9, 1 + 1e-9, 1.01, 1e6][trial % 6]
+        c = NurbsCurve(p, k, P, np.ones(len(P)))
+        d = rng.normal(size=P.shape[1])
+        P[-1] = P[0] + d * rel * 1e-9 * c.bbox_size / np.linalg.norm(d)
+        c = NurbsCurve(p, k, P, rng.uniform(0.5, 2.0, len(P)))
+        ends = c.evaluate(list(c.domain))[0]
+        assert c.is_closed == bool(np.linalg.norm(ends[0] - ends[1]) <= 1e-9 * c.bbox_size), trial
 
 
 def test_surface_validation_and_immutability():

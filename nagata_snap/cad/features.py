@@ -63,28 +63,31 @@ class CadTopology:
 
     def __init__(self, model: CadModel):
         edges = model.edges
-        self.curve_of_edge = np.full(len(edges), -1, dtype=np.int64)
+        curve_of_edge = [-1] * len(edges)  # Python lists in the set-up loops (no numpy call per face)
         self.curves: list[Any] = []
         for i, e in enumerate(edges):
             if e.curve is not None:
-                self.curve_of_edge[i] = len(self.curves)
+                curve_of_edge[i] = len(self.curves)
                 self.curves.append(e.curve)
+        self.curve_of_edge = np.array(curve_of_edge, dtype=np.int64)
         self.points = model.vertices
+        ends = [e.vertices for e in edges]
         face_curves, face_vertices = [], []
         for f in model.faces:  # loop over CAD faces (set-up)
-            c = self.curve_of_edge[f.edges]
-            face_curves.append(c[c >= 0])
-            face_vertices.append(sorted({v for e in f.edges for v in edges[e].vertices if v >= 0}))
-        curve_faces = [edges[i].faces for i in np.flatnonzero(self.curve_of_edge >= 0)]
-        around: list[set[int]] = [set() for _ in range(len(self.points))]
-        for f, vs in enumerate(face_vertices):
+            own = f.edges.tolist()
+            face_curves.append([curve_of_edge[e] for e in own if curve_of_edge[e] >= 0])
+            face_vertices.append(sorted({v for e in own for v in ends[e] if v >= 0}))
+        curve_faces = [edges[i].faces for i, c in enumerate(curve_of_edge) if c >= 0]
+        around: list[list[int]] = [[] for _ in range(len(self.points))]
+        for f, vs in enumerate(face_vertices):  # faces in order, each vertex once: sorted lists
             for v in vs:
-                around[v].add(f)
+                around[v].append(f)
         self.face_curves, self.face_vertices = Ragged(face_curves), Ragged(face_vertices)
-        self.feature_faces = Ragged(curve_faces + [sorted(a) for a in around])
+        self.feature_faces = Ragged(curve_faces + around)
         self.searcher = GlobalSearcher(self.curves) if self.curves else None
-        self.lo = np.array([c.bbox[0] for c in self.curves]).reshape(-1, 3)
-        self.hi = np.array([c.bbox[1] for c in self.curves]).reshape(-1, 3)
+        # the curves' boxes, as the searcher has them
+        self.lo = np.zeros((0, 3)) if self.searcher is None else self.searcher.bbox_lo
+        self.hi = np.zeros((0, 3)) if self.searcher is None else self.searcher.bbox_hi
 
     def feature_rows(self, fid: np.ndarray) -> np.ndarray:
         """Rows of :attr:`feature_faces` of features ``fid`` (``c + 1``: curve ``c``, ``-(v + 1)``: vertex ``v``)."""

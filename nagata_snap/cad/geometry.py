@@ -206,7 +206,8 @@ class CadGeometry:
         self.searcher = GlobalSearcher(entities, per_span=per_span, k_seeds=k_seeds,
                                        sample_filter=filt, extra_samples=extra)
         self.size = self.searcher.size
-        self._period = np.array([entity_periods(e) for e in entities])
+        #: ``(n_entities, d)`` period of each parameter direction (NaN where open), as the trims have them
+        self._period = trims._period if trims is not None else np.array([entity_periods(e) for e in entities])
         #: ``(n_entities,)`` bool: closed-form projection (no seeds needed)
         self._analytic = np.array([is_analytic(e) for e in entities], dtype=bool)
         #: ``(n_entities,)`` bounding-box diagonal of each entity (length units)

@@ -41,6 +41,14 @@ Parameters outside the domain are wrapped modulo the period in closed
 directions and clamped in open ones (Kadir, Appendix B.1, last paragraph).
 The end of the knot range is evaluated with the last non-empty span, so
 ``C(u_max)`` is the exact one-sided (left) limit.
+
+Closedness (a curve's two ends, a surface's two boundary curves of a
+direction, within :data:`CLOSED_RTOL` of the control net's size) is decided
+from the control net where the knots are clamped and the net leaves no
+doubt (rows far within or corners far beyond the tolerance, compared with a
+bound on the evaluation's rounding: :func:`_closed_by_net`), else by
+evaluating the ends (curves) or sampling the boundary curves (surfaces); the
+outcome is the evaluation's in both cases.
 """
 
 from __future__ import annotations
@@ -133,15 +141,16 @@ def _span_table(knots: np.ndarray, degree: int, n_ctrl: int) -> np.ndarray:
     One gather after the ``searchsorted`` then gives the span (:func:`find_span`), and
     the top end of the domain gets the correct one-sided span.
     """
-    m = knots.shape[0]
-    table = np.empty(m, dtype=np.int64)
-    nonempty = [s for s in range(degree, n_ctrl) if knots[s] < knots[s + 1]]
-    last = nonempty[0]  # exists: the domain is non-empty (checked before)
-    for i in range(m):  # loop over knots (tiny), not over points
-        if degree <= i <= n_ctrl - 1 and knots[i] < knots[i + 1]:
+    k = knots.tolist()
+    # spans[i - p]: the last non-empty span s <= i for p <= i <= n - 1, else the first one
+    last = next(s for s in range(degree, n_ctrl) if k[s] < k[s + 1])  # exists: the domain is non-empty
+    spans = []
+    for i in range(degree, n_ctrl):  # loop over knots (tiny), not over points
+        if k[i] < k[i + 1]:
             last = i
-        table[i] = last
-    return table[np.clip(np.arange(-1, m), degree, n_ctrl - 1)]
+        spans.append(last)
+    # clip(i - 1, p, n - 1) - p for i = 0 .. m: p + 2 times 0, then 1 .. n - 1 - p, then m - n times n - 1 - p
+    return np.array([spans[0]] * (degree + 2) + spans[1:] + [spans[-1]] * (len(k) - n_ctrl), dtype=np.int64)
 
 
 def find_span(
@@ -282,6 +291,8 @@ def basis_functions(
 
 #: points per chunk in the evaluation kernels (keeps temporaries in cache)
 CHUNK = 4096
+#: :meth:`NurbsCurve.many` packs this many curves or more (fewer: one by one, which costs less)
+MANY_MIN = 4
 
 
 
@@ -326,6 +337,58 @@ def _bbox_size(points: np.ndarray) -> float:
     pts = points.reshape(-1, 3)
     d = pts.max(axis=0) - pts.min(axis=0)
     return float(np.sqrt(d @ d))  # np.linalg.norm(d), to the last bit
+
+
+#: bound on the rounding of a point evaluated at clamped ends of its knot vectors, in
+#: units of the machine epsilon times the largest control-point coordinate and per
+#: degree (+ 1) summed over the directions (:func:`_closed_by_net`)
+_END_ROUNDING = 64.0
+_EPS = float(np.finfo(float).eps)
+
+
+def _clamped_ends(knots: np.ndarray, p: int, n: int) -> tuple[bool, bool]:
+    """Are the (non-decreasing) knots ``knots[1..p]`` all ``knots[p]`` (the start),
+    ``knots[n..n+p-1]`` all ``knots[n]`` (the end)?  There the evaluation's basis is one
+    function, the others exactly 0 (:func:`_closed_by_net`)."""
+    return bool(knots[1] == knots[p]), bool(knots[n] == knots[n + p - 1])
+
+
+def _closed_by_net(rows_gap: npt.ArrayLike, ends_gap: npt.ArrayLike, scale: npt.ArrayLike,
+                   degrees: npt.ArrayLike, size: npt.ArrayLike) -> np.ndarray:
+    """Closedness decided from the control net where the sampling test's outcome is certain.
+
+    At a clamped end (:func:`_clamped_ends`) of a knot vector the computed basis is one
+    function (within a few roundings of 1), the others exactly 0: a curve's computed end
+    point is its end control point, a surface's computed boundary curve the B-spline of
+    the net's end row (column), each within ``_END_ROUNDING (degrees + 1) eps scale``
+    (length units) of the exact value.  Two boundary rows with equal weights are
+    curves with one rational basis, so the boundary curves are at most the rows'
+    largest control-point distance apart; two corner points the test evaluates
+    (both directions clamped there) are their control points.  So where the rows are
+    within the tolerance by more than the rounding bound, every sampled distance is
+    (closed), and where corner points are beyond it by more than that bound, one
+    sampled distance is (open); the rest is left to the sampling test.
+
+    Args:
+        rows_gap: ``(k,)`` largest distance (length units) between the matching control
+            points of the two boundary rows (a curve: its two end points); ``inf`` where
+            an end is not clamped or the rows' weights differ.
+        ends_gap: ``(k,)`` distance between two matching corner points of the rows
+            that the test evaluates, at clamped ends (a curve: its end points); NaN
+            where there are none.
+        scale: ``(k,)`` largest absolute control-point coordinate (length units).
+        degrees: ``(k,)`` sum of the degrees.
+        size: ``(k,)`` control points' bounding-box diagonal (the tolerance is
+            :data:`CLOSED_RTOL` of it).
+
+    Returns:
+        ``(k,)`` int8: 1 closed, 0 open, -1 for the sampling test to decide.
+    """
+    tol = CLOSED_RTOL * np.maximum(size, 1e-300)
+    margin = np.multiply(_END_ROUNDING * _EPS, np.add(degrees, 1)) * scale
+    closed = np.multiply(rows_gap, 1.0 + 1e-12) + margin <= tol
+    opened = np.multiply(ends_gap, 1.0 - 1e-12) - margin > tol * (1.0 + 1e-12)  # False where NaN
+    return (2 * closed + opened - 1).astype(np.int8)  # exclusive: the rows' gap bounds the corners' gap
 
 
 def _control_points(a: npt.ArrayLike, shape_prefix: tuple, what: str) -> np.ndarray:
@@ -480,11 +543,17 @@ class NurbsCurve(_ControlNet):
         _freeze(self, "_pwT", np.concatenate([cp * w[:, None], w[:, None]], axis=1).T)
         _freeze(self, "_spans", _span_table(knots, self.degree, n))
         object.__setattr__(self, "_size", _bbox_size(cp))
-        u0, u1 = self.domain
-        ends = self._eval_soa(np.array([[u0, u1]]), 0)[0]  # (3, 2)
-        gap = ends[:, 0] - ends[:, 1]
-        closed = bool(np.sqrt(gap @ gap) <= CLOSED_RTOL * max(self._size, 1e-300))
-        object.__setattr__(self, "is_closed", closed)
+        known = -1
+        if all(_clamped_ends(knots, self.degree, n)):  # the ends are the end control points
+            d = cp[0] - cp[-1]
+            gap = np.sqrt(d @ d)
+            known = int(_closed_by_net(gap, gap, np.abs(cp).max(), self.degree, self._size))
+        if known < 0:
+            u0, u1 = self.domain
+            ends = self._eval_soa(np.array([[u0, u1]]), 0)[0]  # (3, 2)
+            gap = ends[:, 0] - ends[:, 1]
+            known = int(np.sqrt(gap @ gap) <= CLOSED_RTOL * max(self._size, 1e-300))
+        object.__setattr__(self, "is_closed", bool(known))
 
     # -- properties ----------------------------------------------------
     @property
@@ -594,14 +663,14 @@ class NurbsCurve(_ControlNet):
         """``NurbsCurve(degrees[i], knots[i], control_points[i], weights[i])`` for every ``i``
         (weights None: all 1), built together: the checks, the derived data and the ends
         (closedness) of all curves at once (:class:`NurbsCurve.Packed`); the same curves to
-        the last bit.  A single curve is built by its constructor (packing costs more than
-        one curve's checks).
+        the last bit.  Fewer than :data:`MANY_MIN` curves are built by their constructor
+        (packing costs more than their checks).
 
         Raises:
             NurbsError: the first invalid curve's (then built one by one).
         """
-        pk = cls.Packed.checked(degrees, knots, control_points, weights) if len(degrees) > 1 else None
-        if pk is None:  # one curve, or an invalid (or unusual) one: each checks itself, in order
+        pk = cls.Packed.checked(degrees, knots, control_points, weights) if len(degrees) >= MANY_MIN else None
+        if pk is None:  # few curves, or an invalid (or unusual) one: each checks itself, in order
             return [cls(p, k, P, np.ones(len(P)) if w is None else w)
                     for p, k, P, w in zip(degrees, knots, control_points, weights, strict=True)]
         ns = len(pk.p)
@@ -673,11 +742,21 @@ class NurbsCurve(_ControlNet):
             first = np.minimum.reduceat(g, start)
             #: global knot index of the span of each (clipped) ``searchsorted`` result
             self.table = np.where(last >= start[self.ck], last, first[self.ck])
-            #: distinct knot values, and the ``(curve, rank)`` key of every knot
-            self.U = np.unique(K)
-            self.base = len(self.U) + 1
-            self.key = self.ck * self.base + np.searchsorted(self.U, K, side="right")
             self.degrees = sorted(set(p.tolist()))
+
+        @cached_property
+        def _lookup(self) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            """``(U, base, key, lo, hi, shift)`` for :meth:`points` (computed when first
+            evaluated): the distinct knot values ``U``; the ``(curve, rank)`` key ``curve base +
+            rank`` of every knot (its rank: the number of values ``<=`` it); per curve the
+            global indices ``lo = koff + p``, ``hi = koff + n - 1`` of its first and last
+            span, and ``shift = poff - koff - p`` from its span to its first control point."""
+            U = np.sort(self.K)  # np.unique's values (sorted, each once), with less overhead
+            U = U[np.concatenate([[True], U[1:] != U[:-1]])]
+            base = len(U) + 1
+            start = self.koff[:-1]
+            return (U, base, self.ck * base + U.searchsorted(self.K, side="right"), start + self.p,
+                    start + self.n - 1, self.poff[:-1] - start - self.p)
 
         @classmethod
         def of(cls, curves: Sequence[NurbsCurve]) -> NurbsCurve.Packed:
@@ -748,15 +827,16 @@ class NurbsCurve(_ControlNet):
         def points(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
             """``(k, d)`` points at ``t (k,)`` (inside the domains) of curves ``c (k,)`` (grouped
             by curve, in curve order), as each curve's :meth:`NurbsCurve._eval_soa` gives them."""
-            q = np.searchsorted(self.U, t, side="right")
-            start, pc = self.koff[c], self.p[c]
-            cnt = np.searchsorted(self.key, c * self.base + q, side="right") - start  # knots <= t
-            span = self.table[start + np.minimum(np.maximum(cnt - 1, pc), self.n[c] - 1)]
-            first = span - start + self.poff[c] - pc
+            U, base, key, lo, hi, shift = self._lookup
+            q = U.searchsorted(t, side="right")
+            cnt = key.searchsorted(c * base + q, side="right")  # knots <= t, and those of the curves before
+            span = self.table[np.minimum(np.maximum(cnt - 1, lo[c]), hi[c])]
+            first = span + shift[c]
             d = self.P.shape[1]
             out = np.empty((len(t), d))
+            pc = self.p[c] if len(self.degrees) > 1 else None
             for p in self.degrees:  # loop over the distinct degrees
-                sel = slice(None) if len(self.degrees) == 1 else np.flatnonzero(pc == p)
+                sel = slice(None) if pc is None else np.flatnonzero(pc == p)
                 H = NurbsCurve._sums(self.K, self.W, p, span[sel], first[sel], t[sel], 0)[0]
                 out[sel] = (H[:d] / H[d]).T
             # _eval_soa sums a chunk of one point (a curve's only point, or the last of its
@@ -767,22 +847,35 @@ class NurbsCurve(_ControlNet):
                 last = np.flatnonzero(np.append(c[1:] != c[:-1], True))  # each curve's last point
                 for j in last[count[c[last]] == 1].tolist():  # loop over such points (rare)
                     sl = slice(j, j + 1)
-                    H = NurbsCurve._sums(self.K, self.W, int(pc[j]), span[sl], first[sl], t[sl], 0)[0]
+                    H = NurbsCurve._sums(self.K, self.W, int(self.p[c[j]]), span[sl], first[sl], t[sl], 0)[0]
                     out[j] = H[:d, 0] / H[d, 0]
             return out
 
         def closed(self, cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             """``(closed, size)`` of curves ``cs (k,)`` (sorted), as :attr:`NurbsCurve.is_closed`
             and :attr:`NurbsCurve.bbox_size`: both ends within :data:`CLOSED_RTOL` of the
-            control points' box diagonal ``size``."""
+            control points' box diagonal ``size``; decided from the end control points where
+            the knots are clamped (:func:`_closed_by_net`), else from the evaluated ends."""
             d = self.P.shape[1]
-            ends = self.points(np.stack([self.lo[cs], self.hi[cs]], axis=1).ravel(), np.repeat(cs, 2))
-            gap, box = np.zeros((len(cs), 3)), np.zeros((len(cs), 3))  # 3-vectors (z = 0 for 2D)
-            gap[:, :d] = ends[0::2] - ends[1::2]
-            first = self.poff[:-1]
+            first, last = self.poff[:-1], self.poff[1:] - 1
+            box = np.zeros((len(cs), 3))  # 3-vectors (z = 0 for 2D)
             box[:, :d] = (np.maximum.reduceat(self.P, first) - np.minimum.reduceat(self.P, first))[cs]
             size = np.sqrt(np.vecdot(box, box))
-            return np.sqrt(np.vecdot(gap, gap)) <= CLOSED_RTOL * np.maximum(size, 1e-300), size
+            p, start, end = self.p[cs], self.koff[cs], self.koff[cs] + self.n[cs]
+            K = self.K
+            clamped = (K[start + 1] == K[start + p]) & (K[end] == K[end + p - 1])  # as _clamped_ends
+            e = self.P[first[cs]] - self.P[last[cs]]  # end control points (the ends, if clamped)
+            gap = np.sqrt(np.vecdot(e, e))
+            scale = np.maximum.reduceat(np.abs(self.P).max(axis=1), first)[cs]
+            known = _closed_by_net(np.where(clamped, gap, np.inf), np.where(clamped, gap, np.nan), scale, p, size)
+            todo = np.flatnonzero(known < 0)
+            if todo.size:  # the ends evaluated
+                ct = cs[todo]
+                ends = self.points(np.stack([self.lo[ct], self.hi[ct]], axis=1).ravel(), np.repeat(ct, 2))
+                g = np.zeros((len(ct), 3))
+                g[:, :d] = ends[0::2] - ends[1::2]
+                known[todo] = np.sqrt(np.vecdot(g, g)) <= CLOSED_RTOL * np.maximum(size[todo], 1e-300)
+            return known == 1, size
 
     def __repr__(self) -> str:
         return (
@@ -864,14 +957,38 @@ class NurbsSurface(_ControlNet):
         _freeze(self, "_spans_u", _span_table(ku, self.degree_u, nu))
         _freeze(self, "_spans_v", _span_table(kv, self.degree_v, nv))
         object.__setattr__(self, "_size", _bbox_size(cp))
-        object.__setattr__(self, "closed_u", self._boundaries_coincide(0))
-        object.__setattr__(self, "closed_v", self._boundaries_coincide(1))
+        known = self._closed_by_net()
+        object.__setattr__(self, "closed_u", self._boundaries_coincide(0) if known[0] < 0 else bool(known[0]))
+        object.__setattr__(self, "closed_v", self._boundaries_coincide(1) if known[1] < 0 else bool(known[1]))
+
+    def _closed_by_net(self) -> np.ndarray:
+        """``(2,)`` int8 per direction: the outcome of :meth:`_boundaries_coincide` where the
+        control net decides it (:func:`_closed_by_net`: 1 closed, 0 open), else -1."""
+        cp, w = self.control_points, self.weights
+        nu, nv = cp.shape[:2]
+        u0, u1 = _clamped_ends(self.knots_u, self.degree_u, nu)
+        v0, v1 = _clamped_ends(self.knots_v, self.degree_v, nv)
+        rows, ends = [np.inf, np.inf], [np.nan, np.nan]
+        for a, (clamped, c0, c1) in enumerate(((u0 and u1, v0, v1), (v0 and v1, u0, u1))):  # the two directions
+            if not clamped:
+                continue
+            lo, hi = (np.s_[0], np.s_[-1]) if a == 0 else (np.s_[:, 0], np.s_[:, -1])  # the boundary rows
+            d = cp[lo] - cp[hi]
+            gap = np.sqrt(np.vecdot(d, d))  # (row,) control-point distances
+            if not self._rational or (w[lo] == w[hi]).all():
+                rows[a] = float(gap.max())
+            corners = [g for g, c in ((gap[0], c0), (gap[-1], c1)) if c]
+            if corners:
+                ends[a] = float(max(corners))
+        return _closed_by_net(np.array(rows), np.array(ends), float(np.abs(cp).max()),
+                              self.degree_u + self.degree_v, self._size)
 
     def _boundaries_coincide(self, direction: int) -> bool:
         """Do the boundary curves at both ends of ``direction`` coincide?
 
         Compared at the distinct knots of the other direction and at 7 points
         inside each of its spans (a sampling test, exact for identical rows).
+        :meth:`_closed_by_net` decides most surfaces as this does, from the net.
         """
         (u0, u1), (v0, v1) = self.domain_u, self.domain_v
         other = self.knots_v if direction == 0 else self.knots_u

@@ -680,10 +680,12 @@ class AffineBatch:
         self.origin = np.zeros((len(aff), 3))
         self.axes = np.zeros((len(aff), d, 3))
         self.limits = np.zeros((len(aff), d, 2))
-        for i, (e, a) in enumerate(zip(entities, aff, strict=True)):  # loop over entities, once
-            if a is not None:
-                self.origin[i], self.axes[i] = a
-                self.limits[i] = entity_limits(e)
+        rows = [(i, a) for i, a in enumerate(aff) if a is not None]
+        if rows:  # the frames stacked once (no row assignment per entity)
+            sel = [i for i, _ in rows]
+            self.origin[sel] = [a[0] for _, a in rows]
+            self.axes[sel] = [a[1] for _, a in rows]
+            self.limits[sel] = [entity_limits(entities[i]) for i in sel]
         self.clamped = bool(np.isfinite(self.limits[self.has]).any())
 
     def closest(self, ent: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -788,8 +790,9 @@ class GlobalSearcher:
         self._samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._trees: dict[int, cKDTree] = {}
         self._all: tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree] | None = None
-        lo = np.array([e.bbox[0] for e in entities])
-        hi = np.array([e.bbox[1] for e in entities])
+        boxes = [e.bbox for e in entities]  # each computed once
+        lo = np.array([b[0] for b in boxes])
+        hi = np.array([b[1] for b in boxes])
         self.bbox_lo, self.bbox_hi = lo, hi
         self.size = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
         self.affine = AffineBatch(entities)

@@ -50,7 +50,7 @@ import numpy as np
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
-from nagata_snap.mesh.arrays import ramp
+from nagata_snap.mesh.arrays import dot, ramp
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 
@@ -58,6 +58,8 @@ __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 CIRCLE_STEP = np.pi / 16
 #: samples of a B-spline p-curve per knot span (before refinement)
 SPLINE_SAMPLES = 8
+#: their fractions of the span, ``np.linspace(0, 1, SPLINE_SAMPLES + 1)[:-1]``
+_SPAN_STEPS = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
 #: trimming polygons are refined until every chord is within this fraction of the
 #: face's size of its p-curve (``SAMPLE_RTOL x size``; at most :data:`MAX_REFINE`
 #: halvings of a segment)
@@ -273,13 +275,12 @@ class _Splines:
         keep[1:] = (v[1:] != v[:-1]) | (grp[1:] != grp[:-1])
         v, grp = v[keep], grp[keep]
         iv = np.flatnonzero(grp[1:] == grp[:-1])  # intervals: first point
-        s = np.linspace(0.0, 1.0, SPLINE_SAMPLES + 1)[:-1]
         counts = np.bincount(grp[iv], minlength=ns) * SPLINE_SAMPLES + 1
         end = np.cumsum(counts) - 1
         t = np.empty(int(end[-1]) + 1 if ns else 0)
         spans = np.ones(len(t), dtype=bool)
         spans[end] = False
-        t[spans] = (v[iv, None] + np.outer(v[iv + 1] - v[iv], s)).ravel()
+        t[spans] = (v[iv, None] + np.multiply.outer(v[iv + 1] - v[iv], _SPAN_STEPS)).ravel()
         t[end] = t1
         return counts, t
 
@@ -317,9 +318,14 @@ class _PCurves:
         self.spline_of[self.spline_uses] = np.arange(self.spline_uses.size)
         self.splines = (_Splines([descs[j] for j in self.spline_uses.tolist()], self.face[self.spline_uses])
                         if self.spline_uses.size else None)
-        maps = [np.eye(3)[:, :2] if m is None else np.asarray(m, dtype=float) for m in uv_maps]
-        self.M = np.array(maps).reshape(-1, 3, 2)
-        self.mapped = np.array([m is not None for m in uv_maps] + [False], dtype=bool)[self.face]
+        self.M = np.zeros((len(uv_maps), 3, 2))  # per face its map (the identity: none)
+        self.M[:, 0, 0] = self.M[:, 1, 1] = 1.0
+        mapped = [i for i, m in enumerate(uv_maps) if m is not None]
+        if mapped:
+            self.M[mapped] = [np.asarray(uv_maps[i], dtype=float) for i in mapped]
+        self.mapped = np.zeros(len(uv_maps) + 1, dtype=bool)
+        self.mapped[mapped] = True
+        self.mapped = self.mapped[self.face]
 
     def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
@@ -337,19 +343,22 @@ class _PCurves:
     def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
         kind = self.kind[use]
-        P = np.empty((len(t), 2))
-        ln = np.flatnonzero(kind == 0)
-        if ln.size:
-            ul = use[ln]
-            P[ln] = self.A[ul] + t[ln, None] * self.B[ul]
-        c = np.flatnonzero(kind == 1)
-        if c.size:
-            uc, tc = use[c], t[c]
-            P[c] = self.A[uc] + self.R[uc, None] * (np.cos(tc)[:, None] * self.B[uc] +
-                                                    np.sin(tc)[:, None] * self.C[uc])
-        if self.splines is not None:
-            s = np.flatnonzero(kind == 2)
-            if s.size:
+        s = np.flatnonzero(kind == 2)
+        if self.splines is not None and s.size == len(t) and s.size:  # B-splines only: no selection
+            P = self.splines(t, self.spline_of[use])
+        else:
+            P = np.empty((len(t), 2))
+            ln = np.flatnonzero(kind == 0)
+            if ln.size:
+                ul = use[ln]
+                P[ln] = self.A[ul] + t[ln, None] * self.B[ul]
+            c = np.flatnonzero(kind == 1)
+            if c.size:  # coordinate by coordinate (no (k, 1) x (k, 2) broadcasts), the same products
+                uc, tc = use[c], t[c]
+                co, si, r = np.cos(tc), np.sin(tc), self.R[uc]
+                for j in range(2):
+                    P[c, j] = self.A[uc, j] + r * (co * self.B[uc, j] + si * self.C[uc, j])
+            if s.size and self.splines is not None:
                 P[s] = self.splines(t[s], self.spline_of[use[s]])
         m = np.flatnonzero(self.mapped[use])
         if m.size:
@@ -409,26 +418,37 @@ class _Metric:
     def __init__(self, surfaces: Sequence):
         self.surfaces = surfaces
         self.plane = np.array([isinstance(s, Plane) for s in surfaces] + [False], dtype=bool)
-        self.X = np.array([s.X if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3)
-        self.Y = np.array([s.Y if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3)
+        #: ``(3, n_faces)`` the planes' axes by coordinate (0 for other faces)
+        self.X = np.array([s.X if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3).T.copy()
+        self.Y = np.array([s.Y if isinstance(s, Plane) else np.zeros(3) for s in surfaces]).reshape(-1, 3).T.copy()
 
     def __call__(self, off: np.ndarray, mid: np.ndarray, face: np.ndarray) -> np.ndarray:
         """``(k,)`` lengths of ``off (k, 2)`` at ``mid (k, 2)`` on ``face (k,)`` (sorted)."""
-        dev = np.empty(len(off))
         on_plane = self.plane[face]
+        if on_plane.all():  # planes only (the common case): no row selection
+            return _lengths(off[:, 0], off[:, 1], self.X[:, face], self.Y[:, face])
+        dev = np.empty(len(off))
         p = np.flatnonzero(on_plane)
         if p.size:
             fp = face[p]
-            dev[p] = np.linalg.norm(off[p, 0, None] * self.X[fp] + off[p, 1, None] * self.Y[fp], axis=1)
+            dev[p] = _lengths(off[p, 0], off[p, 1], self.X[:, fp], self.Y[:, fp])
         for f in np.unique(face[~on_plane]):  # loop over curved faces with curved p-curves
             lo, hi = np.searchsorted(face, [f, f + 1])
             if self.surfaces[f] is None:
                 dev[lo:hi] = np.linalg.norm(off[lo:hi], axis=1)
             else:
-                T = _tangents(self.surfaces[f], mid[lo:hi])
-                dev[lo:hi] = np.linalg.norm(off[lo:hi, 0, None] * T[:, 0] + off[lo:hi, 1, None] * T[:, 1],
-                                            axis=1)
+                dev[lo:hi] = _lengths(off[lo:hi, 0], off[lo:hi, 1], *_tangents(self.surfaces[f], mid[lo:hi]))
         return dev
+
+
+def _lengths(a: np.ndarray, b: np.ndarray, U: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """``(k,)`` lengths ``|a U + b V|`` (length units) of ``a, b (k,)`` times the vectors
+    ``U, V (3, k)`` (by coordinate), coordinate by coordinate: to the last bit
+    ``np.linalg.norm(a[:, None] * U.T + b[:, None] * V.T, axis=1)`` (the same products, and
+    its sum of the squares in its order, :func:`~nagata_snap.mesh.arrays.dot`), without
+    the reduction over a 3-wide axis."""
+    v = [a * U[j] + b * V[j] for j in range(3)]
+    return np.sqrt(dot(v, v))
 
 
 def _circles_on_planes(f: _PCurves, first: _Samples, metric: _Metric, tols: np.ndarray) -> np.ndarray:
@@ -485,7 +505,7 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     done = _circles_on_planes(f, first, metric, tols)
     t, use = first.flat(reverses)
     P = f(t, use)
-    dev = np.nan_to_num(done, nan=0.0)[use]
+    dev = np.where(np.isnan(done), 0.0, done)[use]  # done: NaN or a (finite) sagitta
     fresh = ((f.kind != 0) & np.isnan(done))[use]  # segments (by their first point) to test
     it = 0  # refinement level of the segments tested
     while it <= MAX_REFINE:
@@ -495,14 +515,23 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
         two = it < MAX_REFINE  # the halves' level is within the refinement limit
         um = use[k]
         fm = f.face[um]
-        Pa, Pb = P[k], P[k + 1]
-        tm = 0.5 * (t[k] + t[k + 1])
+        Pa, Pb = P.take(k, axis=0), P.take(k + 1, axis=0)
+        ta, tb = t[k], t[k + 1]
+        tm = 0.5 * (ta + tb)
         if two:  # midpoints, then the midpoints of both halves, interleaved (uses stay sorted)
-            tq = np.stack([tm, 0.5 * (t[k] + tm), 0.5 * (tm + t[k + 1])], axis=1)
-            Pq = f(tq.ravel(), np.repeat(um, 3)).reshape(-1, 3, 2)
+            tq = np.empty((len(k), 3))  # columns tm, 0.5 (ta + tm), 0.5 (tm + tb)
+            tq[:, 0] = tm
+            np.add(ta, tm, out=tq[:, 1])
+            np.add(tm, tb, out=tq[:, 2])
+            tq[:, 1:] *= 0.5
+            Pq = f(tq.ravel(), um.repeat(3)).reshape(-1, 3, 2)
             Pm = Pq[:, 0]
-            mids = np.stack([0.5 * (Pa + Pb), 0.5 * (Pa + Pm), 0.5 * (Pm + Pb)], axis=1)
-            dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), np.repeat(fm, 3)).reshape(-1, 3)
+            mids = np.empty((len(k), 3, 2))  # chords' midpoints: 0.5 (Pa + Pb), 0.5 (Pa + Pm), 0.5 (Pm + Pb)
+            np.add(Pa, Pb, out=mids[:, 0])
+            np.add(Pa, Pm, out=mids[:, 1])
+            np.add(Pm, Pb, out=mids[:, 2])
+            mids *= 0.5
+            dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), fm.repeat(3)).reshape(-1, 3)
             d = dq[:, 0]
         else:
             mid = 0.5 * (Pa + Pb)
@@ -516,7 +545,9 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
         t, use, P, dev, new = _split(t, use, P, dev, k[sel], tm[sel], Pm[sel])
         it += 1
         if two:  # the halves' tests, done: their deviations, then their splits
-            halves = np.stack([new - 1, new], axis=1)  # (n, 2) first points of both halves
+            halves = np.empty((len(new), 2), dtype=new.dtype)  # (n, 2) first points of both halves
+            halves[:, 1] = new
+            np.subtract(new, 1, out=halves[:, 0])
             dev[halves] = dq[sel, 1:]
             split2 = dq[sel, 1:] > tols[fm[sel], None]
             if it == MAX_REFINE or not split2.any():
@@ -534,11 +565,12 @@ def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np
     """Insert the midpoints ``tm (n,)``, ``Pm (n, 2)`` of the segments starting at ``k (n,)``
     (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions.
 
-    One scatter per array (the old rows by a mask, the midpoints by their positions)."""
+    One scatter per array (the old rows and the midpoints by their positions)."""
     n, m = len(t), len(k)
     at = k + np.arange(1, m + 1)
     old = np.ones(n + m, dtype=bool)
     old[at] = False
+    old = old.nonzero()[0]  # the old rows' positions, found once for the four arrays
     t2, use2, P2, dev2 = np.empty(n + m), np.empty(n + m, dtype=use.dtype), np.empty((n + m, 2)), np.zeros(n + m)
     t2[old], t2[at] = t, tm
     use2[old], use2[at] = use, use[k]
@@ -823,12 +855,14 @@ def _three_distinct_groups(R: np.ndarray, ends: np.ndarray) -> np.ndarray:
     return ok & (np.bincount(grp[third], minlength=len(size)) > 0)
 
 
-def _tangents(surface, params: np.ndarray) -> np.ndarray:
-    """``(k, 2, 3)`` first derivatives at parameters (wrapped/clamped for NURBS)."""
-    from nagata_snap.cad.projection import evaluate_params, normalize_params
+def _tangents(surface, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(S_u, S_v)``, each ``(3, k)`` by coordinate: the first derivatives at parameters
+    ``params (k, 2)`` (wrapped/clamped for NURBS), from the surface's kernel as
+    :func:`~nagata_snap.cad.projection.evaluate_params` evaluates them."""
+    from nagata_snap.cad.projection import normalize_params
 
-    _, T = evaluate_params(surface, normalize_params(surface, params), 1)
-    return T
+    D = surface._eval_soa(np.ascontiguousarray(normalize_params(surface, params).T), 1)
+    return D[1], D[2]
 
 
 def _planar_2d(surfaces: Sequence, size: float, rtol: float = 1e-9) -> bool:

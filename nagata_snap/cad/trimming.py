@@ -98,27 +98,31 @@ class _Slabs:
         but the slicing of the result)."""
         if not polys:
             return []
-        return cls._many(np.concatenate(polys), np.array([len(P) for P in polys]))
+        P, m = np.concatenate(polys), np.array([len(P) for P in polys])
+        return cls._many(P, m, *_closing(m))
 
     @classmethod
-    def _many(cls, P: np.ndarray, m: np.ndarray) -> list[_Slabs]:
-        """:meth:`many` of the polygons ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows."""
-        off = np.concatenate([[0], np.cumsum(m)])
+    def _many(cls, P: np.ndarray, m: np.ndarray, off: np.ndarray, nxt: np.ndarray) -> list[_Slabs]:
+        """:meth:`many` of the polygons ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows
+        (``off``, ``nxt``: :func:`_closing` of ``m``)."""
         lid = np.repeat(np.arange(len(m)), m)
-        nxt = np.arange(len(P)) + 1
-        nxt[off[1:] - 1] = off[:-1]  # each polygon closes on its first vertex
-        lo, hi = np.minimum(P[:, 1], P[nxt, 1]), np.maximum(P[:, 1], P[nxt, 1])
+        y, yn = P[:, 1], P[nxt, 1]
+        lo, hi = np.minimum(y, yn), np.maximum(y, yn)
         y0, y1 = np.minimum.reduceat(lo, off[:-1]), np.maximum.reduceat(hi, off[:-1])
-        n = np.clip(m // 2, 1, 4096)
+        n = np.minimum(np.maximum(m // 2, 1), 4096)
         dy = np.maximum((y1 - y0) / n, 1e-300)
-        s0 = np.clip(((lo - y0[lid]) / dy[lid]).astype(np.int64), 0, n[lid] - 1)
-        s1 = np.clip(((hi - y0[lid]) / dy[lid]).astype(np.int64), 0, n[lid] - 1)
+        y0l, dyl, top = y0[lid], dy[lid], (n - 1)[lid]  # per vertex: its polygon's
+        s0 = np.minimum(np.maximum(((lo - y0l) / dyl).astype(np.int64), 0), top)
+        s1 = np.minimum(np.maximum(((hi - y0l) / dyl).astype(np.int64), 0), top)
         cnt = s1 - s0 + 1
-        first = np.concatenate([[0], np.cumsum(n)])  # global number of each polygon's first slab
+        first = np.zeros(len(n) + 1, dtype=np.int64)  # global number of each polygon's first slab
+        np.cumsum(n, out=first[1:])
         seg = np.repeat(np.arange(len(P)) - off[lid], cnt)
         slab = np.repeat(s0 + first[lid], cnt) + ramp(cnt)
-        seg = seg[np.argsort(slab, kind="stable")]
-        ptr = np.concatenate([[0], np.cumsum(np.bincount(slab, minlength=int(first[-1])))])
+        # by slab, stably (a radix sort where the slab numbers fit 16 bits: the same order)
+        seg = seg[(slab.astype(np.uint16) if first[-1] <= 0xFFFF else slab).argsort(kind="stable")]
+        ptr = np.zeros(int(first[-1]) + 1, dtype=np.int64)
+        np.cumsum(np.bincount(slab, minlength=int(first[-1])), out=ptr[1:])
         out = []
         f, s0 = first.tolist(), ptr[first].tolist()
         for i, (a, b, c) in enumerate(zip(y0.tolist(), n.tolist(), dy.tolist(), strict=True)):  # loop over polygons
@@ -139,12 +143,20 @@ class _Slabs:
         return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
 
 
-def _segments(P: np.ndarray, m: np.ndarray) -> list[np.ndarray]:
+def _closing(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(off (len(m) + 1,), nxt (sum m,))`` of closed polygons of ``m`` vertices each, stored
+    one after the other: polygon ``i`` is rows ``off[i]:off[i + 1]``, and vertex ``j`` is
+    followed by vertex ``nxt[j]`` (each polygon closes on its first vertex)."""
+    off = np.zeros(len(m) + 1, dtype=np.int64)
+    np.cumsum(m, out=off[1:])
+    nxt = np.arange(1, int(off[-1]) + 1)
+    nxt[off[1:] - 1] = off[:-1]
+    return off, nxt
+
+
+def _segments(P: np.ndarray, off: np.ndarray, nxt: np.ndarray) -> list[np.ndarray]:
     """Per closed polygon its edge vectors ``P[(j + 1) % k_i] - P[j]``, computed for all polygons
-    at once: ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows."""
-    off = np.concatenate([[0], np.cumsum(m)])
-    nxt = np.arange(len(P)) + 1
-    nxt[off[1:] - 1] = off[:-1]  # each polygon closes on its first vertex
+    at once: ``P (sum m, 2)``, polygon ``i`` the rows ``off[i]:off[i + 1]`` (:func:`_closing`)."""
     d = P[nxt] - P
     return [d[a:b] for a, b in pairwise(off.tolist())]
 
@@ -191,8 +203,9 @@ class TrimLoops:
         self.rtol = float(rtol)
         fast = self._checked_together(loops, bands)
         checked, m, P = self._checked(loops, bands) if fast is None else fast
-        slabs = _Slabs._many(P, m)
-        segs = _segments(P, m)
+        off, nxt = _closing(m)
+        slabs = _Slabs._many(P, m, off, nxt)
+        segs = _segments(P, off, nxt)
         self._loops: list[list[tuple]] = [[] for _ in range(n)]
         for (e, P, band), seg, sl in zip(checked, segs, slabs, strict=True):  # loop over loops (their records)
             self._loops[e].append((P, seg, band, sl))
@@ -254,7 +267,8 @@ class TrimLoops:
         m = np.array([len(P) for P in polys], dtype=np.int64)
         P = np.concatenate(polys)
         end = np.cumsum(m)
-        closed = (m > 1) & (P[end - m] == P[end - 1]).all(axis=1)  # closed on its first vertex
+        a, b = P[end - m], P[end - 1]
+        closed = (m > 1) & (a[:, 0] == b[:, 0]) & (a[:, 1] == b[:, 1])  # closed on its first vertex
         m -= closed
         if not np.isfinite(P).all() or (m < 2).any() or [len(b) for b in bs] != m.tolist():
             return None

@@ -19,6 +19,7 @@ array([0, 1, 0, 1, 2])
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import chain
 
 import numpy as np
 
@@ -170,8 +171,10 @@ class Ragged:
 
     def __init__(self, lists: Sequence[Sequence[int] | np.ndarray]):
         self.counts = np.array([len(a) for a in lists], dtype=np.int64)
-        self.ptr = np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
-        self.flat = np.concatenate([np.asarray(a, dtype=np.int64) for a in lists] + [np.zeros(0, np.int64)])
+        self.ptr = np.zeros(len(lists) + 1, dtype=np.int64)
+        np.cumsum(self.counts, out=self.ptr[1:])
+        # the values read once, one after the other (fastest from lists of Python ints)
+        self.flat = np.fromiter(chain.from_iterable(lists), dtype=np.int64, count=int(self.ptr[-1]))
 
     def take(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(counts (k,), values (counts.sum(),))``: the rows ``rows (k,)``, concatenated in order."""
