@@ -50,7 +50,7 @@ import numpy as np
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
-from nagata_snap.mesh.arrays import dot, ramp
+from nagata_snap.mesh.arrays import dot
 
 __all__ = ["CadModel", "Face", "Edge", "Loop", "nurbs_curve", "nurbs_surface"]
 
@@ -326,6 +326,8 @@ class _PCurves:
         self.mapped = np.zeros(len(uv_maps) + 1, dtype=bool)
         self.mapped[mapped] = True
         self.mapped = self.mapped[self.face]
+        #: some use is on a mapped face
+        self.any_mapped = bool(self.mapped.any())
 
     def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
@@ -360,10 +362,13 @@ class _PCurves:
                     P[c, j] = self.A[uc, j] + r * (co * self.B[uc, j] + si * self.C[uc, j])
             if s.size and self.splines is not None:
                 P[s] = self.splines(t[s], self.spline_of[use[s]])
-        m = np.flatnonzero(self.mapped[use])
-        if m.size:
-            M = self.M[self.face[use[m]]]
-            P[m] = np.einsum("ki,kij->kj", P[m], M[:, :2]) + M[:, 2]
+        if self.any_mapped:
+            m = np.flatnonzero(self.mapped[use])
+            if m.size:  # [u, v, 1] M coordinate by coordinate (einsum's products and sums, half its cost)
+                M = self.M[self.face[use[m]]]
+                u, v = P[m, 0], P[m, 1]
+                for j in range(2):
+                    P[m, j] = u * M[:, 0, j] + v * M[:, 1, j] + M[:, 2, j]
         return P
 
 
@@ -390,10 +395,10 @@ class _Samples:
         cnt = self.steps + 1
         cnt[self.spline_uses] = self.spline_counts
         use = np.repeat(np.arange(len(cnt)), cnt)
-        i = ramp(cnt)
+        end = np.cumsum(cnt)
+        i = np.arange(len(use)) - (end - cnt)[use]  # ramp(cnt), its cumsum and repeat shared
         t0, t1 = self.range[:, 0], self.range[:, 1]
         t = i * ((t1 - t0) / self.steps)[use] + t0[use]
-        end = np.cumsum(cnt)
         t[end - 1] = t1
         line = self.steps == 1
         t[(end - cnt)[line]] = t0[line]
@@ -945,8 +950,8 @@ class CadModel:
         faces = []
         face_edges: list[set] = []
         for f, surface, uv_map, lp in zip(fdata, surfaces, maps, loops, strict=True):
-            # a map that flips the parameter plane flips S_u x S_v
-            flip = uv_map is not None and np.linalg.det(uv_map[:2]) < 0
+            # a map that flips the parameter plane (negative determinant) flips S_u x S_v
+            flip = uv_map is not None and bool(uv_map[0, 0] * uv_map[1, 1] < uv_map[0, 1] * uv_map[1, 0])
             own = {u["edge"] for w in f["wires"] for u in w["uses"]
                    if not u["seam"] and edges[u["edge"]].curve is not None}
             face_edges.append(own)
