@@ -239,13 +239,16 @@ class _Splines:
         self.packed = pk = packed
         #: per curve: 1 closed, 0 open, -1 not known yet
         self.closed = np.full(len(pk.p), -1, dtype=np.int8) if closed is None else closed
+        #: every parameter evaluated is inside its curve's domain (set by :meth:`first_samples`)
+        self.inside = False
 
     def __call__(self, t: np.ndarray, c: np.ndarray) -> np.ndarray:
         """``(k, 2)`` points at ``t (k,)`` of curves ``c (k,)`` (grouped by curve, in curve order)."""
         pk = self.packed
-        out = np.flatnonzero((t < pk.lo[c]) | (t > pk.hi[c]))
-        if out.size:
-            t = self._wrap(t, c, out)
+        if not self.inside:
+            out = np.flatnonzero((t < pk.lo[c]) | (t > pk.hi[c]))
+            if out.size:
+                t = self._wrap(t, c, out)
         return pk.points(t, c)[:, :2]
 
     def _wrap(self, t: np.ndarray, c: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -262,12 +265,18 @@ class _Splines:
     def first_samples(self, t0: np.ndarray, t1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(counts (n,), t)``: per curve the distinct knots inside its range ``[t0, t1]`` and
         its ends, :data:`SPLINE_SAMPLES` samples per interval between them, then ``t1``;
-        ``t`` all curves' samples, concatenated."""
+        ``t`` all curves' samples, concatenated.
+
+        Where every range is inside its curve's domain, so is every parameter evaluated
+        (these samples, each within its interval, and the refinement's midpoints of two):
+        :attr:`inside` is set and the curves' points skip the domain test."""
         pk = self.packed
         ns, knots, ck = len(pk.p), pk.K, pk.ck
         inside = (knots >= t0[ck]) & (knots <= t1[ck])
         cs = np.arange(ns)
-        v = np.concatenate([np.minimum(t0, t1), knots[inside], np.maximum(t0, t1)])
+        a, b = np.minimum(t0, t1), np.maximum(t0, t1)
+        self.inside = bool(((a >= pk.lo) & (b <= pk.hi)).all())
+        v = np.concatenate([a, knots[inside], b])
         grp = np.concatenate([cs, ck[inside], cs])
         order = np.argsort(grp, kind="stable")  # per curve: its start, its knots, its end
         v, grp = v[order], grp[order]
@@ -342,11 +351,15 @@ class _PCurves:
         counts, t = self.splines.first_samples(rng[su, 0], rng[su, 1])
         return _Samples(rng, steps, su, counts, t)
 
-    def __call__(self, t: np.ndarray, use: np.ndarray) -> np.ndarray:
-        """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted)."""
-        kind = self.kind[use]
-        s = np.flatnonzero(kind == 2)
-        if self.splines is not None and s.size == len(t) and s.size:  # B-splines only: no selection
+    def __call__(self, t: np.ndarray, use: np.ndarray, splines: bool = False) -> np.ndarray:
+        """``(k, 2)`` points (mapped parameters) at ``t (k,)`` of uses ``use (k,)`` (sorted);
+        ``splines``: the uses are known to be B-splines (no kind selection)."""
+        if not splines:
+            kind = self.kind[use]
+            s = np.flatnonzero(kind == 2)
+            splines = self.splines is not None and s.size == len(t) and bool(s.size)
+        if splines:  # B-splines only: no selection
+            assert self.splines is not None
             P = self.splines(t, self.spline_of[use])
         else:
             P = np.empty((len(t), 2))
@@ -511,10 +524,11 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     t, use = first.flat(reverses)
     P = f(t, use)
     dev = np.where(np.isnan(done), 0.0, done)[use]  # done: NaN or a (finite) sagitta
-    fresh = ((f.kind != 0) & np.isnan(done))[use]  # segments (by their first point) to test
+    todo = (f.kind != 0) & np.isnan(done)  # uses to refine
+    splines = f.splines is not None and not (todo & (f.kind == 1)).any()  # they are all B-splines
+    k = np.flatnonzero((use[:-1] == use[1:]) & todo[use[:-1]])  # segments (by their first point) to test
     it = 0  # refinement level of the segments tested
     while it <= MAX_REFINE:
-        k = np.flatnonzero((use[:-1] == use[1:]) & fresh[:-1])
         if k.size == 0:
             break
         two = it < MAX_REFINE  # the halves' level is within the refinement limit
@@ -529,7 +543,7 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
             np.add(ta, tm, out=tq[:, 1])
             np.add(tm, tb, out=tq[:, 2])
             tq[:, 1:] *= 0.5
-            Pq = f(tq.ravel(), um.repeat(3)).reshape(-1, 3, 2)
+            Pq = f(tq.ravel(), um.repeat(3), splines).reshape(-1, 3, 2)
             Pm = Pq[:, 0]
             mids = np.empty((len(k), 3, 2))  # chords' midpoints: 0.5 (Pa + Pb), 0.5 (Pa + Pm), 0.5 (Pm + Pb)
             np.add(Pa, Pb, out=mids[:, 0])
@@ -540,7 +554,7 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
             d = dq[:, 0]
         else:
             mid = 0.5 * (Pa + Pb)
-            Pm = f(tm, um)
+            Pm = f(tm, um, splines)
             d = metric(Pm - mid, mid, fm)
         dev[k] = d
         split = d > tols[fm]
@@ -560,8 +574,9 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
             t, use, P, dev, new = _split(t, use, P, dev, halves[split2], tq[sel, 1:][split2],
                                          Pq[sel, 1:][split2])
             it += 1
-        fresh = np.zeros(len(t), dtype=bool)
-        fresh[new] = fresh[new - 1] = True
+        k = np.empty(2 * len(new), dtype=new.dtype)  # both halves of every segment split (sorted: the
+        np.subtract(new, 1, out=k[0::2])  # midpoints inserted are two rows apart at least)
+        k[1::2] = new
     return P, use, dev
 
 
