@@ -167,7 +167,7 @@ class AnalyticSurface:
                 or not ordered (the first such surface of the first failing check).
         """
         k = len(surfaces)
-        O = np.array([np.asarray(o, dtype=float).reshape(3) for o in origins]).reshape(k, 3)
+        O = _rows(origins, (3,))
         A = np.array(axes, dtype=float).reshape(k, 3, 3)
         n = norms(A)
         bad = ~np.isfinite(n) | (n == 0.0)
@@ -181,7 +181,7 @@ class AnalyticSurface:
             raise ValueError(f"origin must be finite, got {O[np.argmax(bad)].tolist()}")
         (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = X.T, Y.T, Z.T
         triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
-        B = np.array([np.asarray(b, dtype=float).reshape(2, 2) for b in bounds]).reshape(k, 2, 2)
+        B = _rows(bounds, (2, 2))
         bad = ~np.isfinite(B).all(axis=(1, 2)) | (B[:, :, 1] < B[:, :, 0]).any(axis=1)
         if bad.any():
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {B[np.argmax(bad)].tolist()}")
@@ -741,6 +741,20 @@ class Torus(AnalyticSurface):
         sign = np.sign(self.major + self.minor * np.cos(v))
         sign = np.where(sign == 0, 1.0, sign)
         return sign * np.cos(v), sign * np.sin(v)
+
+
+def _rows(values: Sequence | np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``(k, *shape)`` float array of ``k`` values each reshaped to ``shape``: converted at once
+    where they already form that array (lists of numbers, an array), else one by one (each
+    reshaped, raising as ``reshape`` does)."""
+    k = len(values)
+    try:
+        out = np.array(values, dtype=float)
+    except (ValueError, TypeError):
+        out = None
+    if out is None or out.shape != (k, *shape):
+        out = np.array([np.asarray(v, dtype=float).reshape(shape) for v in values]).reshape(k, *shape)
+    return out
 
 
 def _to_global(local: np.ndarray, c: np.ndarray, s: np.ndarray, X: np.ndarray, Y: np.ndarray, Z: np.ndarray,
