@@ -123,6 +123,24 @@ def test_closest_point_matches_occ(kind, left):
         np.testing.assert_allclose(du, 0, atol=1e-9)
 
 
+@pytest.mark.parametrize("left", [False, True])
+def test_tangents_of_surfaces_of_revolution_are_the_kernels(left):
+    """_tangents_soa is _eval_soa's first derivatives (equal but for the signs of zeros), and
+    the offset lengths of the refinement from them are the same to the last bit."""
+    from nagata_snap.cad.topology import _lengths
+
+    for kind in ("cylinder", "cone", "cone_lower", "sphere", "torus"):
+        surf = CASES[kind][0](left)
+        u = np.r_[RNG.uniform(*surf.bounds[0], 200), 0.0, np.pi / 2, np.pi, 1.5 * np.pi]
+        v = np.r_[RNG.uniform(*surf.bounds[1], 200), surf.bounds[1], surf.bounds[1]]
+        P = np.ascontiguousarray(np.stack([u, v]))
+        D = surf._eval_soa(P, 1)
+        Su, Sv = surf._tangents_soa(P)
+        assert np.array_equal(Su, D[1]) and np.array_equal(np.broadcast_to(Sv, D[2].shape), D[2])
+        a, b = RNG.normal(size=(2, len(u))) * RNG.choice([0.0, 1e-9, 1.0], size=(2, len(u)))
+        assert _lengths(a, b, Su, Sv).tobytes() == _lengths(a, b, D[1], D[2]).tobytes()
+
+
 def test_degenerate_points_take_the_seed():
     """On the axis, at the poles, at the apex and on a torus' tube centre the free
     parameter is the seed's; the foot point is still the exact one."""

@@ -298,6 +298,17 @@ class AnalyticSurface:
         local = self._local(u, v, c, s, nderiv)  # (nd, 3, k) in the (e, e', Z) basis
         return _to_global(local, c, s, self.X[:, None], self.Y[:, None], self.Z[:, None], self.origin[:, None])
 
+    def _tangents_soa(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(S_u, S_v)``, each ``(3, k)``, at ``params (2, k)``: ``_eval_soa(params, 1)[1:]``
+        without its terms of zero coefficients (``S_u`` is along ``e'(u)``, ``S_v`` in the
+        meridian plane of ``e(u)`` and ``Z``), so the same values but for the signs of zeros,
+        and the same lengths ``|a S_u + b S_v|`` to the last bit."""
+        u, v = params[0], params[1]
+        c, s = np.cos(u), np.sin(u)
+        local = self._local(u, v, c, s, 1)
+        X, Y = self.X[:, None], self.Y[:, None]
+        return local[1, 1] * (-s * X + c * Y), local[2, 0] * (c * X + s * Y) + local[2, 2] * self.Z[:, None]
+
     def _points(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         return self._eval_soa(np.stack([u, v]), 0)[0].T
 

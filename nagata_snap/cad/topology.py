@@ -907,10 +907,15 @@ def _three_distinct_groups(R: np.ndarray, ends: np.ndarray) -> np.ndarray:
 def _tangents(surface, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(S_u, S_v)``, each ``(3, k)`` by coordinate: the first derivatives at parameters
     ``params (k, 2)`` (wrapped/clamped for NURBS), from the surface's kernel as
-    :func:`~nagata_snap.cad.projection.evaluate_params` evaluates them."""
+    :func:`~nagata_snap.cad.projection.evaluate_params` evaluates them (a surface of
+    revolution's without the terms of zero coefficients, :meth:`AnalyticSurface._tangents_soa
+    <nagata_snap.cad.surfaces.AnalyticSurface._tangents_soa>`: the same lengths)."""
     from nagata_snap.cad.projection import normalize_params
 
-    D = surface._eval_soa(np.ascontiguousarray(normalize_params(surface, params).T), 1)
+    P = np.ascontiguousarray(normalize_params(surface, params).T)
+    if isinstance(surface, AnalyticSurface) and not isinstance(surface, Plane):
+        return surface._tangents_soa(P)
+    D = surface._eval_soa(P, 1)
     return D[1], D[2]
 
 
