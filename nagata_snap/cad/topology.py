@@ -490,12 +490,10 @@ def _circles_on_planes(f: _PCurves, first: _Samples, metric: _Metric, tols: np.n
     t0, t1 = first.range[sel, 0], first.range[sel, 1]
     dt0 = np.abs(t1 - t0) / n0
     R, tol = np.abs(f.R[sel]), tols[f.face[sel]]
-    h = np.zeros(sel.size, dtype=np.int64)
-    for _ in range(MAX_REFINE):  # at most MAX_REFINE halvings (vectorised over the circles)
-        more = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h)) > tol
-        if not more.any():
-            break
-        h += more
+    # the sagittas after 0 .. MAX_REFINE - 1 halvings, all at once: h the first within the
+    # tolerance (the refinement's test, not more), else MAX_REFINE
+    more = R[:, None] * (1.0 - np.cos(0.5 * dt0[:, None] / 2.0 ** np.arange(max(MAX_REFINE, 1)))) > tol[:, None]
+    h = np.where(more.all(axis=1), MAX_REFINE, (~more).argmax(axis=1))
     first.steps[sel] = n0 * 2 ** h
     done[sel] = R * (1.0 - np.cos(0.5 * dt0 / 2.0 ** h))
     return done
