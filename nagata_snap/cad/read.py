@@ -849,33 +849,41 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
 
 def _face_uses(faces: list[dict], occ_faces: list) -> Any:
     """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape
-    (``occ_faces``: their ``TopoDS_Face``): their uses (as walked), and from OpenCASCADE each
-    face's plane (if it is one) and bounding box."""
+    (``occ_faces``: their ``TopoDS_Face``): their uses (as walked), each face's plane (if it is
+    one of its own, as its description says: not a recognised one) and, from OpenCASCADE, its
+    bounding box."""
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
 
-    o = _occ()
-    plane_type = int(o.SurfaceType.GeomAbs_Plane)
     flat = [(i, u["edge"], u["reversed"]) for i, f in enumerate(faces) for w in f["wires"] for u in w["uses"]]
     use = np.array(flat, dtype=np.int64).reshape(-1, 3)
     nf = len(faces)
-    plane = np.zeros(nf, dtype=bool)
-    origin, normal = np.zeros((nf, 3)), np.zeros((nf, 3))
-    box = np.full((nf, 2, 3), np.nan)
-    for i, face in enumerate(occ_faces):  # loop over faces (plane, bounding box)
-        a = o.BRepAdaptor_Surface(face, False)
-        if int(a.GetType()) == plane_type:  # S_u x S_v = X x Y, negated for a reversed face
-            ax = a.Plane().Position()
-            plane[i] = True
-            origin[i] = ax.Location().Coord()
-            (x0, x1, x2), (y0, y1, y2) = ax.XDirection().Coord(), ax.YDirection().Coord()
-            n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
-            normal[i] = (-n[0], -n[1], -n[2]) if int(face.Orientation()) == o.REVERSED else n
+    plane: list[bool] = []
+    frames: list[float] = []  # origin and oriented normal of each face (flat)
+    box: list[float] = []
+    for f in faces:  # loop over faces (their planes)
+        s = f["surface"]
+        p = s["type"] == "plane" and "source" not in s
+        plane.append(p)
+        if not p:
+            frames += _ZERO_FRAME
+            continue
+        (x0, x1, x2), (y0, y1, y2) = s["x"], s["y"]  # S_u x S_v = X x Y, negated for a reversed face
+        n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
+        frames += s["origin"]
+        frames += (-n[0], -n[1], -n[2]) if f["reversed"] else n
+    for face in occ_faces:  # loop over faces (bounding boxes)
         b = Bnd_Box()
         BRepBndLib.Add_s(face, b)
-        if not b.IsVoid():
-            box[i] = b.CornerMin().Coord(), b.CornerMax().Coord()
-    return _sewing().FaceUses(use[:, 0], use[:, 1], use[:, 2].astype(bool), nf, plane, origin, normal, box)
+        box += _VOID_BOX if b.IsVoid() else b.CornerMin().Coord() + b.CornerMax().Coord()
+    frame = np.array(frames).reshape(nf, 2, 3)
+    return _sewing().FaceUses(use[:, 0], use[:, 1], use[:, 2].astype(bool), nf, np.array(plane, dtype=bool),
+                              frame[:, 0], frame[:, 1], np.array(box).reshape(nf, 2, 3))
+
+
+#: :func:`_face_uses`' origin and normal of a face that is not a plane, and box of a face without one
+_ZERO_FRAME = (0.0,) * 6
+_VOID_BOX = (math.nan,) * 6
 
 
 def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
