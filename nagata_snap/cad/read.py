@@ -517,15 +517,15 @@ def _surface(face, size: float = 1.0, uv: Sequence[float] | None = None) -> tupl
     return {"type": name}, True
 
 
-def _described(a, dim: int, other) -> dict:
+def _described(a, dim: int, other, known: tuple[float, float, int] | None = None) -> dict:
     """Description of a curve adaptor (3D edge or 2D p-curve, ``dim`` 3 or 2) with its range.
 
     Lines and circles in closed form, B-splines as they are, anything else
-    as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).
+    as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).  ``known``: the
+    adaptor's first and last parameters and type (``int(GetType())``) where already asked.
     """
     o = _occ()
-    t0, t1 = a.FirstParameter(), a.LastParameter()
-    t = int(a.GetType())
+    t0, t1, t = known or (a.FirstParameter(), a.LastParameter(), int(a.GetType()))
     if t == o.LINE:
         ln = a.Line()
         return {"type": "line", "origin": _xyz(ln.Location()), "direction": _xyz(ln.Direction()),
@@ -544,10 +544,10 @@ def _described(a, dim: int, other) -> dict:
     return d
 
 
-def _curve3d(edge, adaptor=None) -> dict | None:
+def _curve3d(edge, adaptor: tuple | None = None) -> dict | None:
     """Description of an edge's 3D curve (None for degenerate edges and edges without one);
-    ``adaptor``: the edge's ``BRepAdaptor_Curve`` if there is one already (the edge then has
-    a 3D curve and is not degenerate)."""
+    ``adaptor``: the edge's ``BRepAdaptor_Curve`` with its first and last parameters and type
+    (``int(GetType())``) if known already (the edge then has a 3D curve and is not degenerate)."""
     o = _occ()
     if adaptor is None and (o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge)):
         return None
@@ -556,7 +556,9 @@ def _curve3d(edge, adaptor=None) -> dict | None:
         geo = o.BRep_Tool.Curve_s(edge, t0, t1)
         return o.GeomConvert.CurveToBSplineCurve_s(o.Geom_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve(edge) if adaptor is None else adaptor, 3, other)
+    if adaptor is None:
+        return _described(o.BRepAdaptor_Curve(edge), 3, other)
+    return _described(adaptor[0], 3, other, adaptor[1:])
 
 
 def _curve2d(edge, face) -> dict:
@@ -808,7 +810,8 @@ def _walk(shape, size: float) -> dict:
 
 def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     """:class:`~nagata_snap.cad.sewing.EdgeCopies` of an unsewn shape, the edges and their
-    curve adaptors (None: degenerate or without a 3D curve)."""
+    curve adaptors with their first and last parameters and types (``int(GetType())``; None:
+    degenerate or without a 3D curve)."""
     from OCP.gp import gp_Pnt, gp_Vec
 
     o = _occ()
@@ -827,15 +830,16 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
         if degenerate[i] or not tool.IsGeometric_s(e):
             continue
-        a = adaptors[i] = o.BRepAdaptor_Curve(e)
-        t0, t1 = a.FirstParameter(), a.LastParameter()
+        a = o.BRepAdaptor_Curve(e)
+        t0, t1, kind = a.FirstParameter(), a.LastParameter(), int(a.GetType())
+        adaptors[i] = (a, t0, t1, kind)
         a.D1(0.5 * (t0 + t1), p, v)
         rows.append(i)
         xyz += p.Coord()
         xyz += v.Coord()
         xyz += a.Value(0.75 * t0 + 0.25 * t1).Coord()
         xyz += a.Value(0.25 * t0 + 0.75 * t1).Coord()
-        kinds.append(int(a.GetType()))
+        kinds.append(kind)
     if rows:
         g = np.array(xyz).reshape(-1, 4, 3)
         mid[rows], tangent[rows], quarters[rows] = g[:, 0], g[:, 1], g[:, 2:]
