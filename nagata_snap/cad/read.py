@@ -582,15 +582,19 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
     faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
     OpenCASCADE again, and a use's ``seam`` is left False for
     :func:`~nagata_snap.cad.sewing.relabel` to set, but on a degenerate edge (which
-    stays with its face).
+    stays with its face).  The outer wire is ``BRepTools::OuterWire``'s, asked only of a face
+    with several wires (a face's only wire is its outer wire).
     """
     o = _occ()
     tool = o.BRep_Tool
-    outer = o.BRepTools.OuterWire_s(face)
-    wires = []
+    ws = []
     ex = o.TopExp_Explorer(face, o.WIRE)
     while ex.More():
-        w = o.TopoDS.Wire(ex.Current())
+        ws.append(o.TopoDS.Wire(ex.Current()))
+        ex.Next()
+    outer = o.BRepTools.OuterWire_s(face) if len(ws) > 1 else None
+    wires = []
+    for w in ws:  # loop over the face's wires
         uses = []
         we = o.BRepTools_WireExplorer(w, face)
         while we.More():
@@ -605,8 +609,7 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
                 "pcurve": _curve2d(edge_of(e), pface),
             })
             we.Next()
-        wires.append({"outer": w.IsSame(outer), "uses": uses})
-        ex.Next()
+        wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
     return wires
 
 
