@@ -101,16 +101,26 @@ def preload() -> None:
 def _occ() -> SimpleNamespace:
     """The OpenCASCADE classes used once per face, edge or edge use, imported once (lazily:
     importing this module does not load OpenCASCADE), and the integer values of the enums
-    compared there (comparing pybind11 enums costs several times more than their ints)."""
+    compared there (comparing pybind11 enums costs several times more than their ints), with
+    the surface types' names by their values."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d, BRepAdaptor_Surface
     from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
-    from OCP.Geom import Geom_TrimmedCurve
+    from OCP.ElSLib import ElSLib
+    from OCP.Geom import (
+        Geom_ConicalSurface,
+        Geom_CylindricalSurface,
+        Geom_Plane,
+        Geom_RectangularTrimmedSurface,
+        Geom_SphericalSurface,
+        Geom_ToroidalSurface,
+        Geom_TrimmedCurve,
+    )
     from OCP.Geom2d import Geom2d_TrimmedCurve
     from OCP.Geom2dConvert import Geom2dConvert
     from OCP.GeomAbs import GeomAbs_CurveType as C
     from OCP.GeomAbs import GeomAbs_SurfaceType as S
-    from OCP.GeomConvert import GeomConvert
+    from OCP.GeomConvert import GeomConvert, GeomConvert_SurfToAnaSurf
     from OCP.TopAbs import TopAbs_Orientation, TopAbs_WIRE
     from OCP.TopExp import TopExp, TopExp_Explorer
     from OCP.TopoDS import TopoDS
@@ -121,11 +131,15 @@ def _occ() -> SimpleNamespace:
         BRepTools=BRepTools, BRepTools_WireExplorer=BRepTools_WireExplorer,
         Geom_TrimmedCurve=Geom_TrimmedCurve, Geom2d_TrimmedCurve=Geom2d_TrimmedCurve,
         Geom2dConvert=Geom2dConvert, GeomConvert=GeomConvert, TopExp=TopExp, TopExp_Explorer=TopExp_Explorer,
+        ElSLib=ElSLib, GeomConvert_SurfToAnaSurf=GeomConvert_SurfToAnaSurf,
+        Geom_RectangularTrimmedSurface=Geom_RectangularTrimmedSurface,
+        ELEMENTARY=(("plane", Geom_Plane), ("cylinder", Geom_CylindricalSurface), ("cone", Geom_ConicalSurface),
+                    ("sphere", Geom_SphericalSurface), ("torus", Geom_ToroidalSurface)),
         TopoDS=TopoDS, WIRE=TopAbs_WIRE, REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
         LINE=int(C.GeomAbs_Line), CIRCLE=int(C.GeomAbs_Circle), BSPLINE_CURVE=int(C.GeomAbs_BSplineCurve),
         BSPLINE_SURFACE=int(S.GeomAbs_BSplineSurface), BEZIER_SURFACE=int(S.GeomAbs_BezierSurface),
         ANALYTIC={int(getattr(S, f"GeomAbs_{kind.capitalize()}")): kind for kind in _ANALYTIC_FIELDS},
-        SurfaceType=S)
+        SURFACE_NAMES={int(t): t.name.replace("GeomAbs_", "") for t in S.__members__.values()})
 
 
 def _xyz(p) -> list[float]:
@@ -361,17 +375,7 @@ def _analytic(kind: str, s) -> dict:
 
 def _elementary(s) -> dict | None:
     """Description of an OpenCASCADE elementary surface (``Geom_Plane``, ...), else None."""
-    from OCP.Geom import (
-        Geom_ConicalSurface,
-        Geom_CylindricalSurface,
-        Geom_Plane,
-        Geom_SphericalSurface,
-        Geom_ToroidalSurface,
-    )
-
-    classes = {"plane": Geom_Plane, "cylinder": Geom_CylindricalSurface, "cone": Geom_ConicalSurface,
-               "sphere": Geom_SphericalSurface, "torus": Geom_ToroidalSurface}
-    for kind, cls in classes.items():
+    for kind, cls in _occ().ELEMENTARY:
         if isinstance(s, cls):
             return _analytic(kind, s)
     return None
@@ -403,8 +407,9 @@ def _pairs(us: Sequence[float], vs: Sequence[float]) -> list[tuple[float, float]
     return [(u, v) for u in us for v in vs]
 
 
-def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
-    """An analytic twin of a face's other surface (surface of revolution or extrusion, ...).
+def _recognised(geo, size: float, uv: Sequence[float]) -> dict | None:
+    """An analytic twin of a face's other surface ``geo`` (surface of revolution or extrusion,
+    ...; ``BRep_Tool::Surface``, with the face's location applied).
 
     ``GeomConvert_SurfToAnaSurf`` finds the plane, cylinder, cone, sphere or
     torus within 1e-9 of the model size.  Its parameters differ from the
@@ -420,13 +425,9 @@ def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
     numbers per face: plain floats, not numpy.  ``uv``: the face's ``(u0, u1, v0, v1)``
     box (``BRepTools::UVBounds``).
     """
-    from OCP.ElSLib import ElSLib
-    from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
-
     o = _occ()
-    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
     try:
-        conv = GeomConvert_SurfToAnaSurf(geo)
+        conv = o.GeomConvert_SurfToAnaSurf(geo)
         ana = conv.ConvertToAnalytical(1e-9 * size)
     except Exception:
         return None
@@ -440,7 +441,7 @@ def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
     if not (du > 0 and dv > 0):
         return None
     uc, vc = u0 + 2 * du, v0 + 2 * dv
-    (a0, b0), (a1, b1), (a2, b2) = (ElSLib.Parameters_s(prim, geo.Value(u, v))
+    (a0, b0), (a1, b1), (a2, b2) = (o.ElSLib.Parameters_s(prim, geo.Value(u, v))
                                     for u, v in ((uc, vc), (uc + du, vc), (uc, vc + dv)))
     step = [[a1 - a0, b1 - b0], [a2 - a0, b2 - b0]]  # the images of (du, 0) and (0, dv)
     for a in periodic:  # turns unwrapped: a quarter of the box is less than half a turn
@@ -465,8 +466,9 @@ def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
 TWIN_AT = (1.0 / 3.0, 2.0 / 3.0)
 
 
-def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
-    """The face's surface as a B-spline with the same parameters, or None.
+def _bspline_twin(geo, size: float, uv: Sequence[float]) -> dict | None:
+    """A face's surface ``geo`` (``BRep_Tool::Surface``) as a B-spline with the same
+    parameters, or None.
 
     ``GeomConvert::SurfaceToBSplineSurface`` of the surface restricted to the
     face's ``(u, v)`` box ``uv`` (``(u0, u1, v0, v1)``) is exact for some surfaces
@@ -477,12 +479,9 @@ def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
     reparametrisation agrees at the spans' ends (and, for a symmetric arc, at
     their middles) and differs elsewhere inside them.
     """
-    from OCP.Geom import Geom_RectangularTrimmedSurface
-
     o = _occ()
-    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
     try:
-        twin = o.GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geo, *uv))
+        twin = o.GeomConvert.SurfaceToBSplineSurface_s(o.Geom_RectangularTrimmedSurface(geo, *uv))
         desc = _bspline_surface(twin)
     except Exception:  # OpenCASCADE's construction and domain errors: not convertible this way
         return None
@@ -507,10 +506,11 @@ def _surface(face, size: float = 1.0, uv: Sequence[float] | None = None) -> tupl
         return _bspline_surface(a.BSpline()), False
     if t == o.BEZIER_SURFACE:
         return _bspline_surface(o.GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
-    name = o.SurfaceType(t).name.replace("GeomAbs_", "")
+    name = o.SURFACE_NAMES[t]
     if uv is None:
         uv = o.BRepTools.UVBounds_s(face)
-    desc = _recognised(face, size, uv) or _bspline_twin(face, size, uv)
+    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
+    desc = _recognised(geo, size, uv) or _bspline_twin(geo, size, uv)
     if desc is not None:
         desc["source"] = name
         return desc, False
