@@ -931,11 +931,12 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
         return None, {"join": j}
     sewing.relabel(faces, j)
     out = []
-    for m, src in enumerate(j.source.tolist()):  # loop over the joined edges (their 3D curves)
-        out.append({
+    # (the joined edges' numbers as Python ints and floats by one call each, not one per edge)
+    for src, (v0, v1), tol in zip(j.source.tolist(), j.ends.tolist(), j.edge_tolerance.tolist(), strict=True):
+        out.append({  # loop over the joined edges (their 3D curves)
             "curve": None if degenerate[src] else _curve3d(edges[src], adaptors[src]),
-            "vertices": (int(j.ends[m, 0]), int(j.ends[m, 1])),
-            "tolerance": float(j.edge_tolerance[m]),
+            "vertices": (v0, v1),
+            "tolerance": tol,
             "degenerate": degenerate[src],
             "source": src,
         })
