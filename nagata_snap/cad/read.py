@@ -823,35 +823,34 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     edges = [o.TopoDS.Edge(emap.FindKey(i)) for i in range(1, n + 1)]
     degenerate = [tool.Degenerated_s(e) for e in edges]
     adaptors: list = [None] * n
-    mid, tangent = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-    quarters = np.full((n, 2, 3), np.nan)
-    curved = np.zeros(n, dtype=bool)
     p, v = gp_Pnt(), gp_Vec()
-    rows: list[int] = []
-    kinds: list[int] = []
-    xyz: list[float] = []  # per edge: middle point, tangent, quarter points (flat: numpy reads it faster)
+    curved: list[bool] = []
+    # per edge: middle point, tangent, quarter points (flat, NaN without a curve: numpy reads it faster)
+    xyz: list[float] = []
     for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
         if degenerate[i] or not tool.IsGeometric_s(e):
+            xyz += _NO_CURVE
+            curved.append(False)
             continue
         a = o.BRepAdaptor_Curve(e)
         t0, t1, kind = a.FirstParameter(), a.LastParameter(), int(a.GetType())
         adaptors[i] = (a, t0, t1, kind)
         a.D1(0.5 * (t0 + t1), p, v)
-        rows.append(i)
         xyz += p.Coord()
         xyz += v.Coord()
         xyz += a.Value(0.75 * t0 + 0.25 * t1).Coord()
         xyz += a.Value(0.25 * t0 + 0.75 * t1).Coord()
-        kinds.append(kind)
-    if rows:
-        g = np.array(xyz).reshape(-1, 4, 3)
-        mid[rows], tangent[rows], quarters[rows] = g[:, 0], g[:, 1], g[:, 2:]
-        curved[rows] = [k != o.LINE and k != o.CIRCLE for k in kinds]  # (np.isin on a few ints costs more)
+        curved.append(kind != o.LINE and kind != o.CIRCLE)
+    g = np.array(xyz).reshape(n, 4, 3)
     copies = _sewing().EdgeCopies(
         points, vtol, np.array(_ends(edges, vmap), dtype=np.int64).reshape(-1, 2),
-        np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent,
-        quarters)
+        np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool),
+        np.array(curved, dtype=bool), g[:, 0], g[:, 1], g[:, 2:])
     return copies, edges, adaptors
+
+
+#: :func:`_edge_copies`' middle point, tangent and quarter points of an edge without a 3D curve
+_NO_CURVE = (math.nan,) * 12
 
 
 def _face_uses(faces: list[dict], occ_faces: list) -> Any:
