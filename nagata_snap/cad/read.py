@@ -338,10 +338,9 @@ def _bspline_surface(s) -> dict:
     weights = None
     if s.IsURational() or s.IsVRational():
         weights = np.array([[s.Weight(i, j) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
-    ku = [s.UKnot(i) for i in range(1, s.NbUKnots() + 1) for _ in range(s.UMultiplicity(i))]
-    kv = [s.VKnot(i) for i in range(1, s.NbVKnots() + 1) for _ in range(s.VMultiplicity(i))]
     return {"type": "bspline", "degree": (s.UDegree(), s.VDegree()), "poles": poles,
-            "weights": weights, "knots_u": np.array(ku), "knots_v": np.array(kv)}
+            "weights": weights, "knots_u": np.array(_values(s.UKnotSequence())),
+            "knots_v": np.array(_values(s.VKnotSequence()))}
 
 
 def _bspline_curve(c, dim: int) -> dict:
@@ -350,11 +349,17 @@ def _bspline_curve(c, dim: int) -> dict:
         c = c.Copy()
         c.SetNotPeriodic()
     n = c.NbPoles()
-    poles = np.array([c.Pole(i).Coord() for i in range(1, n + 1)]).reshape(n, dim)
-    weights = np.array([c.Weight(i) for i in range(1, n + 1)]) if c.IsRational() else None
-    knots = [c.Knot(i) for i in range(1, c.NbKnots() + 1) for _ in range(c.Multiplicity(i))]
+    poles = np.array([p.Coord() for p in map(c.Pole, range(1, n + 1))]).reshape(n, dim)
+    weights = np.array(list(map(c.Weight, range(1, n + 1)))) if c.IsRational() else None
     return {"type": "bspline", "degree": c.Degree(), "poles": poles, "weights": weights,
-            "knots": np.array(knots)}
+            "knots": np.array(_values(c.KnotSequence()))}
+
+
+def _values(seq) -> list[float]:
+    """The values of an OpenCASCADE array of reals (``TColStd_Array1OfReal``), here the flat
+    knots of a non-periodic B-spline (``KnotSequence``: each knot repeated as its
+    multiplicity): one call per value (iterating the array through OCP costs far more)."""
+    return list(map(seq.Value, range(seq.Lower(), seq.Upper() + 1)))
 
 
 #: analytic surfaces kept as such: their parameters, by the OCC accessor of each
