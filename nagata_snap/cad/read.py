@@ -305,6 +305,12 @@ def _count(shape, kind) -> int:
     return m.Extent()
 
 
+def _has(shape, kind) -> bool:
+    """Whether ``shape`` has a sub-shape of type ``kind`` (``_count(shape, kind) > 0`` without
+    mapping them all)."""
+    return _occ().TopExp_Explorer(shape, kind).More()
+
+
 def _size(shape) -> float:
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
@@ -690,7 +696,7 @@ def _load(path: str, unit: str) -> tuple:
     with _quiet():
         shape, file_units, unit = _read(path, fmt, unit)
     times["read"] = time.perf_counter() - t0
-    if shape.IsNull() or _count(shape, TopAbs_VERTEX) == 0:
+    if shape.IsNull() or not _has(shape, TopAbs_VERTEX):
         raise ReadError(f"{path}: the file holds an empty shape (no vertices, edges or faces)")
     size = _size(shape)
     if not (math.isfinite(size) and size > 0):
@@ -704,7 +710,7 @@ def _needs_sewing(shape, sew: bool | None) -> bool:
     from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL
 
     if sew is None:
-        return _count(shape, TopAbs_FACE) > 1 and _count(shape, TopAbs_SHELL) == 0
+        return not _has(shape, TopAbs_SHELL) and _count(shape, TopAbs_FACE) > 1
     return sew
 
 
