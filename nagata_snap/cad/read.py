@@ -121,7 +121,7 @@ def _occ() -> SimpleNamespace:
     from OCP.GeomAbs import GeomAbs_CurveType as C
     from OCP.GeomAbs import GeomAbs_SurfaceType as S
     from OCP.GeomConvert import GeomConvert, GeomConvert_SurfToAnaSurf
-    from OCP.TopAbs import TopAbs_Orientation, TopAbs_WIRE
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_Orientation, TopAbs_VERTEX, TopAbs_WIRE
     from OCP.TopExp import TopExp, TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
@@ -135,7 +135,8 @@ def _occ() -> SimpleNamespace:
         Geom_RectangularTrimmedSurface=Geom_RectangularTrimmedSurface,
         ELEMENTARY=(("plane", Geom_Plane), ("cylinder", Geom_CylindricalSurface), ("cone", Geom_ConicalSurface),
                     ("sphere", Geom_SphericalSurface), ("torus", Geom_ToroidalSurface)),
-        TopoDS=TopoDS, WIRE=TopAbs_WIRE, REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
+        TopoDS=TopoDS, WIRE=TopAbs_WIRE, EDGE=TopAbs_EDGE, VERTEX=TopAbs_VERTEX,
+        REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
         LINE=int(C.GeomAbs_Line), CIRCLE=int(C.GeomAbs_Circle), BSPLINE_CURVE=int(C.GeomAbs_BSplineCurve),
         BSPLINE_SURFACE=int(S.GeomAbs_BSplineSurface), BEZIER_SURFACE=int(S.GeomAbs_BezierSurface),
         ANALYTIC={int(getattr(S, f"GeomAbs_{kind.capitalize()}")): kind for kind in _ANALYTIC_FIELDS},
@@ -779,7 +780,17 @@ def _vertices(vmap) -> tuple[np.ndarray, np.ndarray]:
     vs = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, vmap.Extent() + 1)]
     points = np.array([BRep_Tool.Pnt_s(v).Coord() for v in vs]).reshape(-1, 3)
     _check_finite(points, "the vertices")
-    return points, np.array([BRep_Tool.Tolerance_s(v) for v in vs])
+    return points, np.array(_tolerances(vs, _occ().VERTEX))
+
+
+def _tolerances(shapes: list, kind) -> list[float]:
+    """``BRep_Tool::Tolerance`` of each of the vertices or edges ``shapes`` (``kind``:
+    ``TopAbs_VERTEX`` or ``TopAbs_EDGE``), as ``BRep_Tool::MaxTolerance`` of the shape over
+    its sub-shapes of that type (itself alone: the largest of 0 and its tolerance, the same
+    number), which is not overloaded: ``Tolerance`` (of a face, an edge or a vertex) costs
+    pybind11 failed tries of the overloads before, several times the call."""
+    tol = _occ().BRep_Tool.MaxTolerance_s
+    return [tol(s, kind) for s in shapes]
 
 
 def _ends(edges: list, vmap) -> list[tuple[int, int]]:
@@ -805,12 +816,13 @@ def _walk(shape, size: float) -> dict:
     fmap, emap, vmap, smap = shape_maps(shape)
     vertices, vtol = _vertices(vmap)
     occ_edges = [TopoDS.Edge(emap.FindKey(i)) for i in range(1, emap.Extent() + 1)]
+    ends, tolerances = _ends(occ_edges, vmap), _tolerances(occ_edges, _occ().EDGE)
     edges = []
-    for i, (e, ends) in enumerate(zip(occ_edges, _ends(occ_edges, vmap), strict=True)):  # loop over CAD edges
+    for i, (e, ve, tol) in enumerate(zip(occ_edges, ends, tolerances, strict=True)):  # loop over CAD edges
         edges.append({
             "curve": _curve3d(e),
-            "vertices": ends,
-            "tolerance": BRep_Tool.Tolerance_s(e),
+            "vertices": ve,
+            "tolerance": tol,
             "degenerate": BRep_Tool.Degenerated_s(e),
             "source": i,
         })
@@ -855,7 +867,7 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     g = np.array(xyz).reshape(n, 4, 3)
     copies = _sewing().EdgeCopies(
         points, vtol, np.array(_ends(edges, vmap), dtype=np.int64).reshape(-1, 2),
-        np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool),
+        np.array(_tolerances(edges, o.EDGE)), np.array(degenerate, dtype=bool),
         np.array(curved, dtype=bool), g[:, 0], g[:, 1], g[:, 2:])
     return copies, edges, adaptors
 
