@@ -101,17 +101,27 @@ def preload() -> None:
 def _occ() -> SimpleNamespace:
     """The OpenCASCADE classes used once per face, edge or edge use, imported once (lazily:
     importing this module does not load OpenCASCADE), and the integer values of the enums
-    compared there (comparing pybind11 enums costs several times more than their ints)."""
+    compared there (comparing pybind11 enums costs several times more than their ints), with
+    the surface types' names by their values."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d, BRepAdaptor_Surface
     from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
-    from OCP.Geom import Geom_TrimmedCurve
+    from OCP.ElSLib import ElSLib
+    from OCP.Geom import (
+        Geom_ConicalSurface,
+        Geom_CylindricalSurface,
+        Geom_Plane,
+        Geom_RectangularTrimmedSurface,
+        Geom_SphericalSurface,
+        Geom_ToroidalSurface,
+        Geom_TrimmedCurve,
+    )
     from OCP.Geom2d import Geom2d_TrimmedCurve
     from OCP.Geom2dConvert import Geom2dConvert
     from OCP.GeomAbs import GeomAbs_CurveType as C
     from OCP.GeomAbs import GeomAbs_SurfaceType as S
-    from OCP.GeomConvert import GeomConvert
-    from OCP.TopAbs import TopAbs_Orientation, TopAbs_WIRE
+    from OCP.GeomConvert import GeomConvert, GeomConvert_SurfToAnaSurf
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_Orientation, TopAbs_VERTEX, TopAbs_WIRE
     from OCP.TopExp import TopExp, TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
@@ -121,11 +131,16 @@ def _occ() -> SimpleNamespace:
         BRepTools=BRepTools, BRepTools_WireExplorer=BRepTools_WireExplorer,
         Geom_TrimmedCurve=Geom_TrimmedCurve, Geom2d_TrimmedCurve=Geom2d_TrimmedCurve,
         Geom2dConvert=Geom2dConvert, GeomConvert=GeomConvert, TopExp=TopExp, TopExp_Explorer=TopExp_Explorer,
-        TopoDS=TopoDS, WIRE=TopAbs_WIRE, REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
+        ElSLib=ElSLib, GeomConvert_SurfToAnaSurf=GeomConvert_SurfToAnaSurf,
+        Geom_RectangularTrimmedSurface=Geom_RectangularTrimmedSurface,
+        ELEMENTARY=(("plane", Geom_Plane), ("cylinder", Geom_CylindricalSurface), ("cone", Geom_ConicalSurface),
+                    ("sphere", Geom_SphericalSurface), ("torus", Geom_ToroidalSurface)),
+        TopoDS=TopoDS, WIRE=TopAbs_WIRE, EDGE=TopAbs_EDGE, VERTEX=TopAbs_VERTEX,
+        REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
         LINE=int(C.GeomAbs_Line), CIRCLE=int(C.GeomAbs_Circle), BSPLINE_CURVE=int(C.GeomAbs_BSplineCurve),
         BSPLINE_SURFACE=int(S.GeomAbs_BSplineSurface), BEZIER_SURFACE=int(S.GeomAbs_BezierSurface),
         ANALYTIC={int(getattr(S, f"GeomAbs_{kind.capitalize()}")): kind for kind in _ANALYTIC_FIELDS},
-        SurfaceType=S)
+        SURFACE_NAMES={int(t): t.name.replace("GeomAbs_", "") for t in S.__members__.values()})
 
 
 def _xyz(p) -> list[float]:
@@ -291,6 +306,12 @@ def _count(shape, kind) -> int:
     return m.Extent()
 
 
+def _has(shape, kind) -> bool:
+    """Whether ``shape`` has a sub-shape of type ``kind`` (``_count(shape, kind) > 0`` without
+    mapping them all)."""
+    return _occ().TopExp_Explorer(shape, kind).More()
+
+
 def _size(shape) -> float:
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
@@ -324,10 +345,9 @@ def _bspline_surface(s) -> dict:
     weights = None
     if s.IsURational() or s.IsVRational():
         weights = np.array([[s.Weight(i, j) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
-    ku = [s.UKnot(i) for i in range(1, s.NbUKnots() + 1) for _ in range(s.UMultiplicity(i))]
-    kv = [s.VKnot(i) for i in range(1, s.NbVKnots() + 1) for _ in range(s.VMultiplicity(i))]
     return {"type": "bspline", "degree": (s.UDegree(), s.VDegree()), "poles": poles,
-            "weights": weights, "knots_u": np.array(ku), "knots_v": np.array(kv)}
+            "weights": weights, "knots_u": np.array(_values(s.UKnotSequence())),
+            "knots_v": np.array(_values(s.VKnotSequence()))}
 
 
 def _bspline_curve(c, dim: int) -> dict:
@@ -336,11 +356,17 @@ def _bspline_curve(c, dim: int) -> dict:
         c = c.Copy()
         c.SetNotPeriodic()
     n = c.NbPoles()
-    poles = np.array([c.Pole(i).Coord() for i in range(1, n + 1)]).reshape(n, dim)
-    weights = np.array([c.Weight(i) for i in range(1, n + 1)]) if c.IsRational() else None
-    knots = [c.Knot(i) for i in range(1, c.NbKnots() + 1) for _ in range(c.Multiplicity(i))]
+    poles = np.array([p.Coord() for p in map(c.Pole, range(1, n + 1))]).reshape(n, dim)
+    weights = np.array(list(map(c.Weight, range(1, n + 1)))) if c.IsRational() else None
     return {"type": "bspline", "degree": c.Degree(), "poles": poles, "weights": weights,
-            "knots": np.array(knots)}
+            "knots": np.array(_values(c.KnotSequence()))}
+
+
+def _values(seq) -> list[float]:
+    """The values of an OpenCASCADE array of reals (``TColStd_Array1OfReal``), here the flat
+    knots of a non-periodic B-spline (``KnotSequence``: each knot repeated as its
+    multiplicity): one call per value (iterating the array through OCP costs far more)."""
+    return list(map(seq.Value, range(seq.Lower(), seq.Upper() + 1)))
 
 
 #: analytic surfaces kept as such: their parameters, by the OCC accessor of each
@@ -361,17 +387,7 @@ def _analytic(kind: str, s) -> dict:
 
 def _elementary(s) -> dict | None:
     """Description of an OpenCASCADE elementary surface (``Geom_Plane``, ...), else None."""
-    from OCP.Geom import (
-        Geom_ConicalSurface,
-        Geom_CylindricalSurface,
-        Geom_Plane,
-        Geom_SphericalSurface,
-        Geom_ToroidalSurface,
-    )
-
-    classes = {"plane": Geom_Plane, "cylinder": Geom_CylindricalSurface, "cone": Geom_ConicalSurface,
-               "sphere": Geom_SphericalSurface, "torus": Geom_ToroidalSurface}
-    for kind, cls in classes.items():
+    for kind, cls in _occ().ELEMENTARY:
         if isinstance(s, cls):
             return _analytic(kind, s)
     return None
@@ -403,8 +419,9 @@ def _pairs(us: Sequence[float], vs: Sequence[float]) -> list[tuple[float, float]
     return [(u, v) for u in us for v in vs]
 
 
-def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
-    """An analytic twin of a face's other surface (surface of revolution or extrusion, ...).
+def _recognised(geo, size: float, uv: Sequence[float]) -> dict | None:
+    """An analytic twin of a face's other surface ``geo`` (surface of revolution or extrusion,
+    ...; ``BRep_Tool::Surface``, with the face's location applied).
 
     ``GeomConvert_SurfToAnaSurf`` finds the plane, cylinder, cone, sphere or
     torus within 1e-9 of the model size.  Its parameters differ from the
@@ -420,13 +437,9 @@ def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
     numbers per face: plain floats, not numpy.  ``uv``: the face's ``(u0, u1, v0, v1)``
     box (``BRepTools::UVBounds``).
     """
-    from OCP.ElSLib import ElSLib
-    from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
-
     o = _occ()
-    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
     try:
-        conv = GeomConvert_SurfToAnaSurf(geo)
+        conv = o.GeomConvert_SurfToAnaSurf(geo)
         ana = conv.ConvertToAnalytical(1e-9 * size)
     except Exception:
         return None
@@ -440,7 +453,7 @@ def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
     if not (du > 0 and dv > 0):
         return None
     uc, vc = u0 + 2 * du, v0 + 2 * dv
-    (a0, b0), (a1, b1), (a2, b2) = (ElSLib.Parameters_s(prim, geo.Value(u, v))
+    (a0, b0), (a1, b1), (a2, b2) = (o.ElSLib.Parameters_s(prim, geo.Value(u, v))
                                     for u, v in ((uc, vc), (uc + du, vc), (uc, vc + dv)))
     step = [[a1 - a0, b1 - b0], [a2 - a0, b2 - b0]]  # the images of (du, 0) and (0, dv)
     for a in periodic:  # turns unwrapped: a quarter of the box is less than half a turn
@@ -465,8 +478,9 @@ def _recognised(face, size: float, uv: Sequence[float]) -> dict | None:
 TWIN_AT = (1.0 / 3.0, 2.0 / 3.0)
 
 
-def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
-    """The face's surface as a B-spline with the same parameters, or None.
+def _bspline_twin(geo, size: float, uv: Sequence[float]) -> dict | None:
+    """A face's surface ``geo`` (``BRep_Tool::Surface``) as a B-spline with the same
+    parameters, or None.
 
     ``GeomConvert::SurfaceToBSplineSurface`` of the surface restricted to the
     face's ``(u, v)`` box ``uv`` (``(u0, u1, v0, v1)``) is exact for some surfaces
@@ -477,12 +491,9 @@ def _bspline_twin(face, size: float, uv: Sequence[float]) -> dict | None:
     reparametrisation agrees at the spans' ends (and, for a symmetric arc, at
     their middles) and differs elsewhere inside them.
     """
-    from OCP.Geom import Geom_RectangularTrimmedSurface
-
     o = _occ()
-    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
     try:
-        twin = o.GeomConvert.SurfaceToBSplineSurface_s(Geom_RectangularTrimmedSurface(geo, *uv))
+        twin = o.GeomConvert.SurfaceToBSplineSurface_s(o.Geom_RectangularTrimmedSurface(geo, *uv))
         desc = _bspline_surface(twin)
     except Exception:  # OpenCASCADE's construction and domain errors: not convertible this way
         return None
@@ -507,25 +518,26 @@ def _surface(face, size: float = 1.0, uv: Sequence[float] | None = None) -> tupl
         return _bspline_surface(a.BSpline()), False
     if t == o.BEZIER_SURFACE:
         return _bspline_surface(o.GeomConvert.SurfaceToBSplineSurface_s(a.Bezier())), False
-    name = o.SurfaceType(t).name.replace("GeomAbs_", "")
+    name = o.SURFACE_NAMES[t]
     if uv is None:
         uv = o.BRepTools.UVBounds_s(face)
-    desc = _recognised(face, size, uv) or _bspline_twin(face, size, uv)
+    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
+    desc = _recognised(geo, size, uv) or _bspline_twin(geo, size, uv)
     if desc is not None:
         desc["source"] = name
         return desc, False
     return {"type": name}, True
 
 
-def _described(a, dim: int, other) -> dict:
+def _described(a, dim: int, other, known: tuple[float, float, int] | None = None) -> dict:
     """Description of a curve adaptor (3D edge or 2D p-curve, ``dim`` 3 or 2) with its range.
 
     Lines and circles in closed form, B-splines as they are, anything else
-    as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).
+    as the B-spline ``other(t0, t1)`` returns (``GeomConvert``).  ``known``: the
+    adaptor's first and last parameters and type (``int(GetType())``) where already asked.
     """
     o = _occ()
-    t0, t1 = a.FirstParameter(), a.LastParameter()
-    t = int(a.GetType())
+    t0, t1, t = known or (a.FirstParameter(), a.LastParameter(), int(a.GetType()))
     if t == o.LINE:
         ln = a.Line()
         return {"type": "line", "origin": _xyz(ln.Location()), "direction": _xyz(ln.Direction()),
@@ -544,10 +556,10 @@ def _described(a, dim: int, other) -> dict:
     return d
 
 
-def _curve3d(edge, adaptor=None) -> dict | None:
+def _curve3d(edge, adaptor: tuple | None = None) -> dict | None:
     """Description of an edge's 3D curve (None for degenerate edges and edges without one);
-    ``adaptor``: the edge's ``BRepAdaptor_Curve`` if there is one already (the edge then has
-    a 3D curve and is not degenerate)."""
+    ``adaptor``: the edge's ``BRepAdaptor_Curve`` with its first and last parameters and type
+    (``int(GetType())``) if known already (the edge then has a 3D curve and is not degenerate)."""
     o = _occ()
     if adaptor is None and (o.BRep_Tool.Degenerated_s(edge) or not o.BRep_Tool.IsGeometric_s(edge)):
         return None
@@ -556,7 +568,9 @@ def _curve3d(edge, adaptor=None) -> dict | None:
         geo = o.BRep_Tool.Curve_s(edge, t0, t1)
         return o.GeomConvert.CurveToBSplineCurve_s(o.Geom_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve(edge) if adaptor is None else adaptor, 3, other)
+    if adaptor is None:
+        return _described(o.BRepAdaptor_Curve(edge), 3, other)
+    return _described(adaptor[0], 3, other, adaptor[1:])
 
 
 def _curve2d(edge, face) -> dict:
@@ -580,15 +594,19 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
     faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
     OpenCASCADE again, and a use's ``seam`` is left False for
     :func:`~nagata_snap.cad.sewing.relabel` to set, but on a degenerate edge (which
-    stays with its face).
+    stays with its face).  The outer wire is ``BRepTools::OuterWire``'s, asked only of a face
+    with several wires (a face's only wire is its outer wire).
     """
     o = _occ()
     tool = o.BRep_Tool
-    outer = o.BRepTools.OuterWire_s(face)
-    wires = []
+    ws = []
     ex = o.TopExp_Explorer(face, o.WIRE)
     while ex.More():
-        w = o.TopoDS.Wire(ex.Current())
+        ws.append(o.TopoDS.Wire(ex.Current()))
+        ex.Next()
+    outer = o.BRepTools.OuterWire_s(face) if len(ws) > 1 else None
+    wires = []
+    for w in ws:  # loop over the face's wires
         uses = []
         we = o.BRepTools_WireExplorer(w, face)
         while we.More():
@@ -603,8 +621,7 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
                 "pcurve": _curve2d(edge_of(e), pface),
             })
             we.Next()
-        wires.append({"outer": w.IsSame(outer), "uses": uses})
-        ex.Next()
+        wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
     return wires
 
 
@@ -680,7 +697,7 @@ def _load(path: str, unit: str) -> tuple:
     with _quiet():
         shape, file_units, unit = _read(path, fmt, unit)
     times["read"] = time.perf_counter() - t0
-    if shape.IsNull() or _count(shape, TopAbs_VERTEX) == 0:
+    if shape.IsNull() or not _has(shape, TopAbs_VERTEX):
         raise ReadError(f"{path}: the file holds an empty shape (no vertices, edges or faces)")
     size = _size(shape)
     if not (math.isfinite(size) and size > 0):
@@ -694,7 +711,7 @@ def _needs_sewing(shape, sew: bool | None) -> bool:
     from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL
 
     if sew is None:
-        return _count(shape, TopAbs_FACE) > 1 and _count(shape, TopAbs_SHELL) == 0
+        return not _has(shape, TopAbs_SHELL) and _count(shape, TopAbs_FACE) > 1
     return sew
 
 
@@ -763,7 +780,17 @@ def _vertices(vmap) -> tuple[np.ndarray, np.ndarray]:
     vs = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, vmap.Extent() + 1)]
     points = np.array([BRep_Tool.Pnt_s(v).Coord() for v in vs]).reshape(-1, 3)
     _check_finite(points, "the vertices")
-    return points, np.array([BRep_Tool.Tolerance_s(v) for v in vs])
+    return points, np.array(_tolerances(vs, _occ().VERTEX))
+
+
+def _tolerances(shapes: list, kind) -> list[float]:
+    """``BRep_Tool::Tolerance`` of each of the vertices or edges ``shapes`` (``kind``:
+    ``TopAbs_VERTEX`` or ``TopAbs_EDGE``), as ``BRep_Tool::MaxTolerance`` of the shape over
+    its sub-shapes of that type (itself alone: the largest of 0 and its tolerance, the same
+    number), which is not overloaded: ``Tolerance`` (of a face, an edge or a vertex) costs
+    pybind11 failed tries of the overloads before, several times the call."""
+    tol = _occ().BRep_Tool.MaxTolerance_s
+    return [tol(s, kind) for s in shapes]
 
 
 def _ends(edges: list, vmap) -> list[tuple[int, int]]:
@@ -789,12 +816,13 @@ def _walk(shape, size: float) -> dict:
     fmap, emap, vmap, smap = shape_maps(shape)
     vertices, vtol = _vertices(vmap)
     occ_edges = [TopoDS.Edge(emap.FindKey(i)) for i in range(1, emap.Extent() + 1)]
+    ends, tolerances = _ends(occ_edges, vmap), _tolerances(occ_edges, _occ().EDGE)
     edges = []
-    for i, (e, ends) in enumerate(zip(occ_edges, _ends(occ_edges, vmap), strict=True)):  # loop over CAD edges
+    for i, (e, ve, tol) in enumerate(zip(occ_edges, ends, tolerances, strict=True)):  # loop over CAD edges
         edges.append({
             "curve": _curve3d(e),
-            "vertices": ends,
-            "tolerance": BRep_Tool.Tolerance_s(e),
+            "vertices": ve,
+            "tolerance": tol,
             "degenerate": BRep_Tool.Degenerated_s(e),
             "source": i,
         })
@@ -808,7 +836,8 @@ def _walk(shape, size: float) -> dict:
 
 def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     """:class:`~nagata_snap.cad.sewing.EdgeCopies` of an unsewn shape, the edges and their
-    curve adaptors (None: degenerate or without a 3D curve)."""
+    curve adaptors with their first and last parameters and types (``int(GetType())``; None:
+    degenerate or without a 3D curve)."""
     from OCP.gp import gp_Pnt, gp_Vec
 
     o = _occ()
@@ -817,65 +846,73 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     edges = [o.TopoDS.Edge(emap.FindKey(i)) for i in range(1, n + 1)]
     degenerate = [tool.Degenerated_s(e) for e in edges]
     adaptors: list = [None] * n
-    mid, tangent = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-    quarters = np.full((n, 2, 3), np.nan)
-    curved = np.zeros(n, dtype=bool)
     p, v = gp_Pnt(), gp_Vec()
-    rows: list[int] = []
-    kinds: list[int] = []
-    xyz: list[float] = []  # per edge: middle point, tangent, quarter points (flat: numpy reads it faster)
+    curved: list[bool] = []
+    # per edge: middle point, tangent, quarter points (flat, NaN without a curve: numpy reads it faster)
+    xyz: list[float] = []
     for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
         if degenerate[i] or not tool.IsGeometric_s(e):
+            xyz += _NO_CURVE
+            curved.append(False)
             continue
-        a = adaptors[i] = o.BRepAdaptor_Curve(e)
-        t0, t1 = a.FirstParameter(), a.LastParameter()
+        a = o.BRepAdaptor_Curve(e)
+        t0, t1, kind = a.FirstParameter(), a.LastParameter(), int(a.GetType())
+        adaptors[i] = (a, t0, t1, kind)
         a.D1(0.5 * (t0 + t1), p, v)
-        rows.append(i)
         xyz += p.Coord()
         xyz += v.Coord()
         xyz += a.Value(0.75 * t0 + 0.25 * t1).Coord()
         xyz += a.Value(0.25 * t0 + 0.75 * t1).Coord()
-        kinds.append(int(a.GetType()))
-    if rows:
-        g = np.array(xyz).reshape(-1, 4, 3)
-        mid[rows], tangent[rows], quarters[rows] = g[:, 0], g[:, 1], g[:, 2:]
-        curved[rows] = [k != o.LINE and k != o.CIRCLE for k in kinds]  # (np.isin on a few ints costs more)
+        curved.append(kind != o.LINE and kind != o.CIRCLE)
+    g = np.array(xyz).reshape(n, 4, 3)
     copies = _sewing().EdgeCopies(
         points, vtol, np.array(_ends(edges, vmap), dtype=np.int64).reshape(-1, 2),
-        np.array([tool.Tolerance_s(e) for e in edges]), np.array(degenerate, dtype=bool), curved, mid, tangent,
-        quarters)
+        np.array(_tolerances(edges, o.EDGE)), np.array(degenerate, dtype=bool),
+        np.array(curved, dtype=bool), g[:, 0], g[:, 1], g[:, 2:])
     return copies, edges, adaptors
+
+
+#: :func:`_edge_copies`' middle point, tangent and quarter points of an edge without a 3D curve
+_NO_CURVE = (math.nan,) * 12
 
 
 def _face_uses(faces: list[dict], occ_faces: list) -> Any:
     """:class:`~nagata_snap.cad.sewing.FaceUses` of the walked faces of an unsewn shape
-    (``occ_faces``: their ``TopoDS_Face``): their uses (as walked), and from OpenCASCADE each
-    face's plane (if it is one) and bounding box."""
+    (``occ_faces``: their ``TopoDS_Face``): their uses (as walked), each face's plane (if it is
+    one of its own, as its description says: not a recognised one) and, from OpenCASCADE, its
+    bounding box."""
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
 
-    o = _occ()
-    plane_type = int(o.SurfaceType.GeomAbs_Plane)
     flat = [(i, u["edge"], u["reversed"]) for i, f in enumerate(faces) for w in f["wires"] for u in w["uses"]]
     use = np.array(flat, dtype=np.int64).reshape(-1, 3)
     nf = len(faces)
-    plane = np.zeros(nf, dtype=bool)
-    origin, normal = np.zeros((nf, 3)), np.zeros((nf, 3))
-    box = np.full((nf, 2, 3), np.nan)
-    for i, face in enumerate(occ_faces):  # loop over faces (plane, bounding box)
-        a = o.BRepAdaptor_Surface(face, False)
-        if int(a.GetType()) == plane_type:  # S_u x S_v = X x Y, negated for a reversed face
-            ax = a.Plane().Position()
-            plane[i] = True
-            origin[i] = ax.Location().Coord()
-            (x0, x1, x2), (y0, y1, y2) = ax.XDirection().Coord(), ax.YDirection().Coord()
-            n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
-            normal[i] = (-n[0], -n[1], -n[2]) if int(face.Orientation()) == o.REVERSED else n
+    plane: list[bool] = []
+    frames: list[float] = []  # origin and oriented normal of each face (flat)
+    box: list[float] = []
+    for f in faces:  # loop over faces (their planes)
+        s = f["surface"]
+        p = s["type"] == "plane" and "source" not in s
+        plane.append(p)
+        if not p:
+            frames += _ZERO_FRAME
+            continue
+        (x0, x1, x2), (y0, y1, y2) = s["x"], s["y"]  # S_u x S_v = X x Y, negated for a reversed face
+        n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
+        frames += s["origin"]
+        frames += (-n[0], -n[1], -n[2]) if f["reversed"] else n
+    for face in occ_faces:  # loop over faces (bounding boxes)
         b = Bnd_Box()
         BRepBndLib.Add_s(face, b)
-        if not b.IsVoid():
-            box[i] = b.CornerMin().Coord(), b.CornerMax().Coord()
-    return _sewing().FaceUses(use[:, 0], use[:, 1], use[:, 2].astype(bool), nf, plane, origin, normal, box)
+        box += _VOID_BOX if b.IsVoid() else b.CornerMin().Coord() + b.CornerMax().Coord()
+    frame = np.array(frames).reshape(nf, 2, 3)
+    return _sewing().FaceUses(use[:, 0], use[:, 1], use[:, 2].astype(bool), nf, np.array(plane, dtype=bool),
+                              frame[:, 0], frame[:, 1], np.array(box).reshape(nf, 2, 3))
+
+
+#: :func:`_face_uses`' origin and normal of a face that is not a plane, and box of a face without one
+_ZERO_FRAME = (0.0,) * 6
+_VOID_BOX = (math.nan,) * 6
 
 
 def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
@@ -916,11 +953,12 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
         return None, {"join": j}
     sewing.relabel(faces, j)
     out = []
-    for m, src in enumerate(j.source.tolist()):  # loop over the joined edges (their 3D curves)
-        out.append({
+    # (the joined edges' numbers as Python ints and floats by one call each, not one per edge)
+    for src, (v0, v1), tol in zip(j.source.tolist(), j.ends.tolist(), j.edge_tolerance.tolist(), strict=True):
+        out.append({  # loop over the joined edges (their 3D curves)
             "curve": None if degenerate[src] else _curve3d(edges[src], adaptors[src]),
-            "vertices": (int(j.ends[m, 0]), int(j.ends[m, 1])),
-            "tolerance": float(j.edge_tolerance[m]),
+            "vertices": (v0, v1),
+            "tolerance": tol,
             "degenerate": degenerate[src],
             "source": src,
         })

@@ -194,23 +194,23 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     in the order of their lowest node.
 
     Every node takes the lowest label among its neighbours' and its own, then the label of
-    its label (pointer jumping), until nothing changes: a few passes over the pairs (the
-    graphs here are small: vertex clusters, edge copies, faces).  A pair of a node with
-    itself is allowed (it joins nothing).
+    its label (pointer jumping), until the two nodes of every pair have the same label: a
+    few passes over the pairs (one where they pair the nodes off; the graphs here are
+    small: vertex clusters, edge copies, faces).  A pair of a node with itself is allowed
+    (it joins nothing).
     """
     ids = np.arange(n)
     if len(pairs) == 0:
         return ids
     src, dst = pairs.ravel(), pairs[:, ::-1].ravel()  # every pair both ways
-    lab = ids
+    lab = ids.copy()
     while True:  # a few passes (until the labels are settled)
-        new = lab.copy()
-        np.minimum.at(new, src, lab[dst])
-        new = new[new]
-        if (new == lab).all():
+        np.minimum.at(lab, src, lab[dst])
+        lab = lab[lab]
+        if (lab[src] == lab[dst]).all():
             break
-        lab = new
-    # settled: every node's label is the lowest node of its component (labelled itself)
+    # settled: a node's label is a node of its component, none above the node, and the same
+    # for the whole component: its lowest node (labelled itself)
     return ((lab == ids).cumsum() - 1)[lab]
 
 
@@ -281,7 +281,7 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
         i = (key[s:] == key[:-s]).nonzero()[0]
         if len(i) == 0:
             break
-        runs.append(np.stack([order[i], order[i + s]], axis=1))
+        runs.append(order[i[:, None] + (0, s)])
     cand = np.concatenate(runs) if runs else np.zeros((0, 2), dtype=np.int64)
     d = _length(w.mid[cand[:, 0]] - w.mid[cand[:, 1]])
     near = cand[d <= 2.0 * tol]
