@@ -13,10 +13,11 @@ B-rep IGES) the script measures, side by side in one process:
   times;
 * attach: ``CadGeometry.attach`` of the coarse gmsh mesh's boundary facets, per
   distinct boundary vertex, with gmsh's classification (``mesh_cad``: known
-  faces and (u, v) seeds; target < 20 us; best of 10 calls: a call on the
-  smallest parts takes ~0.5 ms, which one scheduler hiccup on a shared
-  machine doubles, and the first call in a process also warms numpy's and
-  the CPU's caches, up to 2x longer) and without (global search; one call,
+  faces and (u, v) seeds; target < 20 us; best of 50 calls: a call on the
+  smallest parts takes ~0.3 ms, which a busy spell of a shared machine
+  doubles for several calls in a row (best of 10 gave 11-22 us/vertex on the
+  same 25-vertex part in consecutive runs), and the first calls in a process
+  also warm numpy's and the CPU's caches) and without (global search; one call,
   which includes building the search grid and its KD-tree);
 * place: the ``place`` stage of ``Snapper.refine`` per snapped point, two
   uniform levels;
@@ -109,7 +110,7 @@ def read_seconds(path: str, rounds: int = 7) -> tuple[tuple[float, float], tuple
 
 
 def attach_timing(cm, geo) -> tuple[float, float, int]:
-    """us per distinct boundary vertex: attach with the mesh hints (best of 10), and by global
+    """us per distinct boundary vertex: attach with the mesh hints (best of 50), and by global
     search (the first call)."""
     gids = np.asarray(cm.mesh.geometry.input_global_indices, dtype=np.int64)[cm.facets.nodes]
     x = cm.mesh.geometry.x[cm.facets.nodes]
@@ -123,7 +124,7 @@ def attach_timing(cm, geo) -> tuple[float, float, int]:
             best = min(best, time.perf_counter() - t0)
         return best
 
-    hinted = seconds(10)
+    hinted = seconds(50)
     hints, geo._hints = geo._hints, None
     search = seconds(1)
     geo._hints = hints
