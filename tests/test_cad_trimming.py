@@ -269,36 +269,6 @@ def test_packed_splines_first_samples_per_knot_span():
         assert g.tobytes() == want.tobytes()
 
 
-def test_trim_loops_from_the_models_concatenated_loops(tmp_path):
-    """TrimLoops from a model's concatenated loops (CadModel.loop_arrays, as CadGeometry builds
-    them) hold the same records as from its loops one by one; a model whose loops were replaced
-    has none, and a loop closed on its first vertex falls back to the loop by loop checks."""
-    import parts
-
-    from nagata_snap.cad.read import read_shape
-    from nagata_snap.cad.topology import CadModel, Loop
-    from nagata_snap.cad.trimming import TrimLoops
-
-    data = read_shape(str(parts.write_part("box_fillet_chamfer", tmp_path, ("iges",))["iges"]))
-    model = CadModel.from_data(data)
-    surfaces = [f.surface for f in model.faces]
-    loops = [[lp.points for lp in f.loops] for f in model.faces]
-    bands = [[lp.band for lp in f.loops] for f in model.faces]
-    joined = model.loop_arrays()
-    assert joined is not None and len(joined[0]) == sum(map(len, loops))
-    closed = np.concatenate([np.vstack([P, P[:1]]) for lps in loops for P in lps])
-    one = TrimLoops(surfaces, loops, bands)
-    for other in (TrimLoops(surfaces, loops, bands, joined=joined),  # the same loops, concatenated
-                  TrimLoops(surfaces, loops, bands, joined=(joined[0], joined[1] + 1, closed, np.zeros(len(closed))))):
-        for a, b in zip(one._loops, other._loops, strict=True):  # (closed on their first vertex: the loops)
-            for (P, seg, band, sl), (Q, seg2, band2, sl2) in zip(a, b, strict=True):
-                for x, y in ((P, Q), (seg, seg2), (band, band2), (sl.seg, sl2.seg), (sl.ptr, sl2.ptr)):
-                    assert x.tobytes() == y.tobytes()
-    lp = model.faces[0].loops[0]
-    model.faces[0].loops[0] = Loop(lp.points.copy(), lp.edges, lp.band, lp.senses, lp.outer)
-    assert model.loop_arrays() is None
-
-
 def test_first_tests_evaluated_with_the_first_samples(tmp_path, monkeypatch):
     """The refinement's first tests of B-spline p-curves evaluated in the call of the first
     samples give the loops of separate calls, to the last bit."""

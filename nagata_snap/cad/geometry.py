@@ -229,7 +229,7 @@ class CadGeometry:
         if self.model is not None and self.param_dim == 2:
             loops = [[lp.points for lp in f.loops] for f in self.model.faces]
             bands = [[lp.band for lp in f.loops] for f in self.model.faces]
-            return TrimLoops(self.entities, loops, bands, rtol, self.model.loop_arrays()) if any(loops) else None
+            return TrimLoops(self.entities, loops, bands, rtol) if any(loops) else None
         has = any(t is not None for t in (trim_loops or [])) or any(h for h in (trim_holes or []))
         if not has:
             return None

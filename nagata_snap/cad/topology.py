@@ -764,12 +764,8 @@ class _Wires:
         return loops
 
 
-#: loops concatenated: ``(face (w,), m (w,), points (sum m, 2), band (sum m,))`` (:meth:`CadModel.loop_arrays`)
-_Joined = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-
-
-def _polygons(wires: _Wires, surfaces: Sequence, uv_maps: Sequence[np.ndarray | None], tolerances: np.ndarray
-              ) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], _Joined]:
+def _polygons(wires: _Wires, surfaces: Sequence, uv_maps: Sequence[np.ndarray | None],
+              tolerances: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """Closed polygons of all wires: their edge uses' p-curve samples, joined.
 
     All p-curves of all faces are sampled together (:func:`_refine`, to
@@ -779,9 +775,7 @@ def _polygons(wires: _Wires, surfaces: Sequence, uv_maps: Sequence[np.ndarray | 
     file's parameters to the surface's, or None.
 
     Returns:
-        ``(polygons, joined)``: per wire ``(points (m, 2), edges (m,), band (m,), senses (m,))``
-        (:class:`Loop`), and the wires' faces, sizes, points and bands concatenated
-        (:meth:`CadModel.loop_arrays`; the points and bands of the polygons are views of them).
+        per wire ``(points (m, 2), edges (m,), band (m,), senses (m,))`` (:class:`Loop`).
 
     Raises:
         _FaceError: a p-curve that is not a valid B-spline, or a wire with
@@ -799,8 +793,7 @@ def _polygons(wires: _Wires, surfaces: Sequence, uv_maps: Sequence[np.ndarray | 
     ends = np.searchsorted(wires.wire[use], np.arange(len(wires.wires) + 1))
     _check_wires(P, ends, [i for i, _ in wires.wires])
     band = 2.0 * dev + tolerances[E]
-    polygons = [(P[i:j], E[i:j], band[i:j], S[i:j]) for i, j in pairwise(ends.tolist())]
-    return polygons, (np.array([i for i, _ in wires.wires], dtype=np.int64), np.diff(ends), P, band)
+    return [(P[i:j], E[i:j], band[i:j], S[i:j]) for i, j in pairwise(ends.tolist())]
 
 
 class _LazyLoops:
@@ -828,7 +821,7 @@ class _LazyLoops:
             ValueError: naming the face, as :meth:`CadModel.from_data` does.
         """
         try:
-            polygons = _polygons(*self._args)[0]
+            polygons = _polygons(*self._args)
         except _FaceError as err:
             raise ValueError(_face_message(self._path, self._faces, err)) from None
         for lp, poly in zip(self._loops, polygons, strict=True):  # the loops in wire order
@@ -953,8 +946,6 @@ class CadModel:
         self.times = dict(times or {})
         self.num_solids = int(num_solids)
         self.healed = dict(healed or {})
-        #: the sampled loops' points arrays and the loops concatenated (:meth:`loop_arrays`)
-        self._joined: tuple[list[np.ndarray], _Joined] | None = None
 
     @classmethod
     def from_data(cls, data: dict) -> CadModel:
@@ -985,15 +976,13 @@ class CadModel:
             surfaces.append(surface)
             maps.append(uv_map)
         wires = _Wires.gather(fdata[:len(surfaces)])
-        joined = None
         if bad is None and surfaces and _planar_2d(surfaces, float(data.get("size", 0.0))):
             # a 2D geometry snaps onto the edge curves: the polygons when first read
             loops = wires.loops(len(surfaces))
             _LazyLoops(loops, wires, surfaces, maps, tol, path, fdata)
         else:
             try:  # the loops of the faces before a bad surface: their errors come first
-                polygons, joined = _polygons(wires, surfaces, maps, tol)
-                loops = wires.loops(len(surfaces), polygons)
+                loops = wires.loops(len(surfaces), _polygons(wires, surfaces, maps, tol))
                 if bad is not None:
                     raise bad
             except _FaceError as err:
@@ -1017,29 +1006,10 @@ class CadModel:
             e.faces = tuple(sorted(u))
         times = dict(data.get("times", {}))
         times["build"] = time.perf_counter() - t0
-        model = cls(faces, edges, data["vertices"], path=path, format=data.get("format", ""),
-                    unit=data.get("unit", ""), file_units=data.get("file_units", ()),
-                    size=data.get("size", 0.0), times=times,
-                    num_solids=data.get("num_solids", 0), healed=data.get("healed"))
-        if joined is not None:
-            model._joined = ([p[0] for p in polygons], joined)
-        return model
-
-    def loop_arrays(self) -> _Joined | None:
-        """The loops' polygons concatenated, face by face, loop by loop: ``(face (w,), m (w,),
-        points (sum m, 2), band (sum m,))``, loop ``i`` (of face ``face[i]``) the next ``m[i]``
-        rows (as :class:`~nagata_snap.cad.trimming.TrimLoops` takes them, ``joined``).
-
-        Those :meth:`from_data` sampled, of which the loops' points and bands are views; None
-        for loops sampled otherwise (a planar 2D model's, when first read) or since replaced.
-        """
-        if self._joined is None:
-            return None
-        points, joined = self._joined
-        now = [lp._polygon for f in self.faces for lp in f.loops]
-        if len(now) != len(points) or any(p is None or p[0] is not q for p, q in zip(now, points, strict=True)):
-            return None
-        return joined
+        return cls(faces, edges, data["vertices"], path=path, format=data.get("format", ""),
+                   unit=data.get("unit", ""), file_units=data.get("file_units", ()),
+                   size=data.get("size", 0.0), times=times,
+                   num_solids=data.get("num_solids", 0), healed=data.get("healed"))
 
     def curve_edges(self) -> np.ndarray:
         """Indices of the edges with a 3D curve (not degenerate)."""

@@ -190,17 +190,10 @@ class TrimLoops:
             distance between each segment and the true trimming curve; default
             estimated from the polygon's turning angles (:func:`_user_band`).
         rtol: absolute tolerance, relative to each surface's size.
-        joined: optional, the same loops and bands already concatenated, ``(entity (w,),
-            m (w,), P (sum m, 2), band (sum m,))``: loop ``i`` of entity ``entity[i]`` is the
-            next ``m[i]`` rows (a model's, :meth:`CadModel.loop_arrays
-            <nagata_snap.cad.topology.CadModel.loop_arrays>`); checked on them as they are,
-            without gathering the loops again (``loops`` and ``bands`` decide where they are
-            not as expected).
     """
 
     def __init__(self, entities: Sequence, loops: Sequence[Sequence[np.ndarray]],
-                 bands: Sequence[Sequence[np.ndarray]] | None = None, rtol: float = TRIM_RTOL,
-                 joined: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None):
+                 bands: Sequence[Sequence[np.ndarray]] | None = None, rtol: float = TRIM_RTOL):
         from nagata_snap.cad.projection import entity_periods
 
         n = len(entities)
@@ -208,9 +201,7 @@ class TrimLoops:
             raise ValueError(f"{len(loops)} loop lists for {n} entities")
         self.entities = list(entities)
         self.rtol = float(rtol)
-        fast = None if joined is None else self._joined(joined[0].tolist(), *joined[1:], joined[1])
-        if fast is None:
-            fast = self._checked_together(loops, bands)
+        fast = self._checked_together(loops, bands)
         checked, m, P = self._checked(loops, bands) if fast is None else fast
         off, nxt = _closing(m)
         slabs = _Slabs._many(P, m, off, nxt)
@@ -273,27 +264,20 @@ class TrimLoops:
                 bs.append(band)
         if not polys:
             return [], np.zeros(0, dtype=np.int64), np.zeros((0, 2))
-        return self._joined(ent, np.array([len(P) for P in polys], dtype=np.int64), np.concatenate(polys),
-                            np.concatenate(bs), np.array([len(b) for b in bs], dtype=np.int64))
-
-    def _joined(self, ent: list[int], m: np.ndarray, P: np.ndarray, band: np.ndarray, band_m: np.ndarray
-                ) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], np.ndarray, np.ndarray] | None:
-        """:meth:`_checked_together`'s checks on the concatenated loops: loop ``i`` of entity
-        ``ent[i]`` is the next ``m[i]`` rows of ``P``, its band the next ``band_m[i]`` entries of
-        ``band``; None if one is not as expected (not finite, fewer than 2 vertices once a
-        repeated first vertex is dropped, a band of another length)."""
+        m = np.array([len(P) for P in polys], dtype=np.int64)
+        P = np.concatenate(polys)
         end = np.cumsum(m)
         a, b = P[end - m], P[end - 1]
         closed = (m > 1) & (a[:, 0] == b[:, 0]) & (a[:, 1] == b[:, 1])  # closed on its first vertex
-        m = m - closed
-        if not np.isfinite(P).all() or (m < 2).any() or not np.array_equal(band_m, m):
+        m -= closed
+        if not np.isfinite(P).all() or (m < 2).any() or [len(b) for b in bs] != m.tolist():
             return None
         if closed.any():
             keep = np.ones(len(P), dtype=bool)
             keep[(end - 1)[closed]] = False
             P = P[keep]
         tol = self.rtol * np.array([self.entities[e].bbox_size for e in ent])
-        band = band + np.repeat(tol, m)
+        band = np.concatenate(bs) + np.repeat(tol, m)
         off = np.concatenate([[0], np.cumsum(m)]).tolist()
         checked = [(e, P[a:b], band[a:b]) for e, a, b in zip(ent, off[:-1], off[1:], strict=True)]
         return checked, m, P
