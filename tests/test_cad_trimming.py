@@ -269,25 +269,6 @@ def test_packed_splines_first_samples_per_knot_span():
         assert g.tobytes() == want.tobytes()
 
 
-def test_first_tests_evaluated_with_the_first_samples(tmp_path, monkeypatch):
-    """The refinement's first tests of B-spline p-curves evaluated in the call of the first
-    samples give the loops of separate calls, to the last bit."""
-    import parts
-
-    from nagata_snap.cad import topology
-    from nagata_snap.cad.read import read_shape
-
-    for name in ("lofted_blade", "extruded_bspline"):
-        data = read_shape(str(parts.write_part(name, tmp_path, ("iges",))["iges"]))
-        joint = topology.CadModel.from_data(data)
-        with monkeypatch.context() as m:
-            m.setattr(topology, "CHUNK", 0)  # no curve qualifies: separate calls
-            apart = topology.CadModel.from_data(data)
-        for f, g in zip(joint.faces, apart.faces, strict=True):
-            for a, b in zip(f.loops, g.loops, strict=True):
-                assert a.points.tobytes() == b.points.tobytes() and a.band.tobytes() == b.band.tobytes()
-
-
 def test_planar_profile_loops_are_sampled_when_first_read(tmp_path, monkeypatch):
     """A planar 2D model's loop polygons are not sampled by ``from_data`` nor by its 2D geometry
     (which snaps onto the edge curves); reading one samples all, exactly as a model sampled at

@@ -48,7 +48,7 @@ from itertools import pairwise
 import numpy as np
 
 from nagata_snap.cad.curves import Circle, Line, analytic_curve, analytic_curves
-from nagata_snap.cad.nurbs import CHUNK, NurbsCurve, NurbsError, NurbsSurface
+from nagata_snap.cad.nurbs import NurbsCurve, NurbsError, NurbsSurface
 from nagata_snap.cad.surfaces import _SURFACES, AnalyticSurface, Plane, analytic_surface, analytic_surfaces, fill_boxes
 from nagata_snap.mesh.arrays import dot
 
@@ -509,12 +509,7 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     segments split are tested again (a segment kept keeps its deviation), and one
     evaluation tests two levels: each segment's midpoint and the midpoints of its
     two halves, whose tests count only where the segment is split (the same
-    points and decisions as level by level, in half the calls).  Where only
-    B-splines are refined, their first tests are evaluated with the first samples,
-    in one call: with at most ``CHUNK / 4`` first samples per curve no curve has a
-    count of points in a call, alone or joint, that :meth:`NurbsCurve.Packed.points
-    <nagata_snap.cad.nurbs.NurbsCurve.Packed.points>` evaluates apart (``1`` modulo
-    ``CHUNK``), so the points are the same.
+    points and decisions as level by level, in half the calls).
 
     Returns:
         ``(P (N, 2), use (N,), dev (N,))``: the samples of every use in
@@ -525,17 +520,11 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     metric = _Metric(surfaces)
     done = _circles_on_planes(f, first, metric, tols)
     t, use = first.flat(reverses)
+    P = f(t, use)
     dev = np.where(np.isnan(done), 0.0, done)[use]  # done: NaN or a (finite) sagitta
     todo = (f.kind != 0) & np.isnan(done)  # uses to refine
     splines = f.splines is not None and not (todo & (f.kind == 1)).any()  # they are all B-splines
     k = np.flatnonzero((use[:-1] == use[1:]) & todo[use[:-1]])  # segments (by their first point) to test
-    ahead = None  # the first tests' parameters and points, evaluated with the first samples
-    if splines and k.size and MAX_REFINE > 0 and first.spline_counts.max() <= CHUNK // 4:
-        tq = _test_params(t[k], t[k + 1])
-        P = f(np.concatenate([t, tq.ravel()]), np.concatenate([use, use[k].repeat(3)]))
-        P, ahead = P[:len(t)], (tq, P[len(t):].reshape(-1, 3, 2))
-    else:
-        P = f(t, use)
     it = 0  # refinement level of the segments tested
     while it <= MAX_REFINE:
         if k.size == 0:
@@ -544,13 +533,15 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
         um = use[k]
         fm = f.face[um]
         Pa, Pb = P.take(k, axis=0), P.take(k + 1, axis=0)
+        ta, tb = t[k], t[k + 1]
+        tm = 0.5 * (ta + tb)
         if two:  # midpoints, then the midpoints of both halves, interleaved (uses stay sorted)
-            if ahead is None:
-                tq = _test_params(t[k], t[k + 1])
-                Pq = f(tq.ravel(), um.repeat(3), splines).reshape(-1, 3, 2)
-            else:
-                (tq, Pq), ahead = ahead, None
-            tm = tq[:, 0]
+            tq = np.empty((len(k), 3))  # columns tm, 0.5 (ta + tm), 0.5 (tm + tb)
+            tq[:, 0] = tm
+            np.add(ta, tm, out=tq[:, 1])
+            np.add(tm, tb, out=tq[:, 2])
+            tq[:, 1:] *= 0.5
+            Pq = f(tq.ravel(), um.repeat(3), splines).reshape(-1, 3, 2)
             Pm = Pq[:, 0]
             mids = np.empty((len(k), 3, 2))  # chords' midpoints: 0.5 (Pa + Pb), 0.5 (Pa + Pm), 0.5 (Pm + Pb)
             np.add(Pa, Pb, out=mids[:, 0])
@@ -560,7 +551,6 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
             dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), fm.repeat(3)).reshape(-1, 3)
             d = dq[:, 0]
         else:
-            tm = 0.5 * (t[k] + t[k + 1])
             mid = 0.5 * (Pa + Pb)
             Pm = f(tm, um, splines)
             d = metric(Pm - mid, mid, fm)
@@ -586,18 +576,6 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
         np.subtract(new, 1, out=k[0::2])  # midpoints inserted are two rows apart at least)
         k[1::2] = new
     return P, use, dev
-
-
-def _test_params(ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
-    """``(k, 3)``: per segment from ``ta`` to ``tb (k,)`` its mid-parameter ``tm = 0.5 (ta + tb)``
-    and those of its halves, ``0.5 (ta + tm)`` and ``0.5 (tm + tb)`` (the refinement's tests)."""
-    tq = np.empty((len(ta), 3))
-    np.add(ta, tb, out=tq[:, 0])
-    tq[:, 0] *= 0.5
-    np.add(ta, tq[:, 0], out=tq[:, 1])
-    np.add(tq[:, 0], tb, out=tq[:, 2])
-    tq[:, 1:] *= 0.5
-    return tq
 
 
 def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np.ndarray,
