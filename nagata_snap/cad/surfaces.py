@@ -807,11 +807,9 @@ _SURFACES: dict[str, tuple[Any, tuple[str, ...]]] = {
 
 
 def analytic_surface(desc: dict, bounds) -> AnalyticSurface:
-    """The surface of a face description of :func:`nagata_snap.cad.read.read_shape`."""
-    if desc["type"] not in _SURFACES:
-        raise ValueError(f"not an analytic surface type: {desc['type']!r}")
-    cls, fields = _SURFACES[desc["type"]]
-    return cls(desc["origin"], desc["x"], desc["y"], desc["z"], *(desc[f] for f in fields), bounds)
+    """The surface of a face description of :func:`nagata_snap.cad.read.read_shape`
+    (:func:`analytic_surfaces` of the one description)."""
+    return analytic_surfaces([desc], [bounds])[0]
 
 
 def analytic_surfaces(descs: Sequence[dict], bounds: Sequence | np.ndarray) -> list[AnalyticSurface]:
