@@ -341,13 +341,13 @@ def _bspline_surface(s) -> dict:
         if s.IsVPeriodic():
             s.SetVNotPeriodic()
     nu, nv = s.NbUPoles(), s.NbVPoles()
-    poles = np.array([[s.Pole(i, j).Coord() for j in range(1, nv + 1)] for i in range(1, nu + 1)])
+    ij = list(itertools.product(range(1, nu + 1), range(1, nv + 1)))  # u major
+    poles = _floats(itertools.chain.from_iterable(p.Coord() for p in itertools.starmap(s.Pole, ij)), 3 * nu * nv)
     weights = None
     if s.IsURational() or s.IsVRational():
-        weights = np.array([[s.Weight(i, j) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
-    return {"type": "bspline", "degree": (s.UDegree(), s.VDegree()), "poles": poles,
-            "weights": weights, "knots_u": np.array(_values(s.UKnotSequence())),
-            "knots_v": np.array(_values(s.VKnotSequence()))}
+        weights = _floats(itertools.starmap(s.Weight, ij), nu * nv).reshape(nu, nv)
+    return {"type": "bspline", "degree": (s.UDegree(), s.VDegree()), "poles": poles.reshape(nu, nv, 3),
+            "weights": weights, "knots_u": _values(s.UKnotSequence()), "knots_v": _values(s.VKnotSequence())}
 
 
 def _bspline_curve(c, dim: int) -> dict:
@@ -356,17 +356,24 @@ def _bspline_curve(c, dim: int) -> dict:
         c = c.Copy()
         c.SetNotPeriodic()
     n = c.NbPoles()
-    poles = np.array([p.Coord() for p in map(c.Pole, range(1, n + 1))]).reshape(n, dim)
-    weights = np.array(list(map(c.Weight, range(1, n + 1)))) if c.IsRational() else None
-    return {"type": "bspline", "degree": c.Degree(), "poles": poles, "weights": weights,
-            "knots": np.array(_values(c.KnotSequence()))}
+    poles = _floats(itertools.chain.from_iterable(p.Coord() for p in map(c.Pole, range(1, n + 1))), dim * n)
+    weights = _floats(map(c.Weight, range(1, n + 1)), n) if c.IsRational() else None
+    return {"type": "bspline", "degree": c.Degree(), "poles": poles.reshape(n, dim), "weights": weights,
+            "knots": _values(c.KnotSequence())}
 
 
-def _values(seq) -> list[float]:
+def _floats(values: Iterator[float], n: int) -> np.ndarray:
+    """``(n,)`` array of the ``n`` floats ``values`` (read by numpy as they come: no list, no
+    nested tuples to inspect)."""
+    return np.fromiter(values, dtype=float, count=n)
+
+
+def _values(seq) -> np.ndarray:
     """The values of an OpenCASCADE array of reals (``TColStd_Array1OfReal``), here the flat
     knots of a non-periodic B-spline (``KnotSequence``: each knot repeated as its
     multiplicity): one call per value (iterating the array through OCP costs far more)."""
-    return list(map(seq.Value, range(seq.Lower(), seq.Upper() + 1)))
+    lo, hi = seq.Lower(), seq.Upper()
+    return _floats(map(seq.Value, range(lo, hi + 1)), hi - lo + 1)
 
 
 #: analytic surfaces kept as such: their parameters, by the OCC accessor of each
