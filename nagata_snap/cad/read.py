@@ -65,7 +65,7 @@ import itertools
 import math
 import os
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from types import SimpleNamespace
 from typing import Any
 
@@ -148,8 +148,8 @@ def _xyz(p) -> list[float]:
     return list(p.Coord())
 
 
-def _check_finite(values, what: str) -> None:
-    if not np.all(np.isfinite(np.asarray(values, dtype=float))):
+def _check_finite(values: np.ndarray, what: str) -> None:
+    if not np.isfinite(values).all():
         raise ReadError(f"{what} has NaN or infinite coordinates")
 
 
@@ -362,7 +362,7 @@ def _bspline_curve(c, dim: int) -> dict:
             "knots": _values(c.KnotSequence())}
 
 
-def _floats(values: Iterator[float], n: int) -> np.ndarray:
+def _floats(values: Iterable[float], n: int) -> np.ndarray:
     """``(n,)`` array of the ``n`` floats ``values`` (read by numpy as they come: no list, no
     nested tuples to inspect)."""
     return np.fromiter(values, dtype=float, count=n)
@@ -784,10 +784,11 @@ def _vertices(vmap) -> tuple[np.ndarray, np.ndarray]:
     from OCP.BRep import BRep_Tool
     from OCP.TopoDS import TopoDS
 
-    vs = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, vmap.Extent() + 1)]
-    points = np.array([BRep_Tool.Pnt_s(v).Coord() for v in vs]).reshape(-1, 3)
+    n = vmap.Extent()
+    vs = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, n + 1)]
+    points = _floats(itertools.chain.from_iterable(BRep_Tool.Pnt_s(v).Coord() for v in vs), 3 * n).reshape(n, 3)
     _check_finite(points, "the vertices")
-    return points, np.array(_tolerances(vs, _occ().VERTEX))
+    return points, _floats(_tolerances(vs, _occ().VERTEX), n)
 
 
 def _tolerances(shapes: list, kind) -> list[float]:
