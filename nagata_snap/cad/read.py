@@ -839,6 +839,7 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     curve adaptors with their first and last parameters and types (``int(GetType())``; None:
     degenerate or without a 3D curve)."""
     from OCP.gp import gp_Pnt, gp_Vec
+    from OCP.Standard import Standard_NullObject
 
     o = _occ()
     tool = o.BRep_Tool
@@ -851,18 +852,23 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     # per edge: middle point, tangent, quarter points (flat, NaN without a curve: numpy reads it faster)
     xyz: list[float] = []
     for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
-        if degenerate[i] or not tool.IsGeometric_s(e):
+        try:  # (an edge without geometry, neither a 3D curve nor a p-curve, has no adaptor)
+            a = None if degenerate[i] else o.BRepAdaptor_Curve(e)
+        except Standard_NullObject:
+            a = None
+        if a is None:
             xyz += _NO_CURVE
             curved.append(False)
             continue
-        a = o.BRepAdaptor_Curve(e)
-        t0, t1, kind = a.FirstParameter(), a.LastParameter(), int(a.GetType())
+        (t0, t1), kind = tool.Range_s(e), int(a.GetType())  # (the edge's range is the adaptor's)
         adaptors[i] = (a, t0, t1, kind)
         a.D1(0.5 * (t0 + t1), p, v)
         xyz += p.Coord()
         xyz += v.Coord()
-        xyz += a.Value(0.75 * t0 + 0.25 * t1).Coord()
-        xyz += a.Value(0.25 * t0 + 0.75 * t1).Coord()
+        a.D0(0.75 * t0 + 0.25 * t1, p)
+        xyz += p.Coord()
+        a.D0(0.25 * t0 + 0.75 * t1, p)
+        xyz += p.Coord()
         curved.append(kind != o.LINE and kind != o.CIRCLE)
     g = np.array(xyz).reshape(n, 4, 3)
     copies = _sewing().EdgeCopies(
