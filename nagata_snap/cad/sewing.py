@@ -272,9 +272,10 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
         return "an edge shorter than the tolerance (its vertices merge)"
     # copies: same merged end vertices (either order), middle points within tol; candidates:
     # the pairs of copies with the same vertices (runs of the copies sorted by them)
-    key = np.sort(ends.take(nd, 0), axis=1)
+    key = ends.take(nd, 0)
+    key.sort(axis=1)
     key = key[:, 0] * len(points) + key[:, 1]
-    srt = np.argsort(key, kind="stable")
+    srt = key.argsort(kind="stable")
     order, key = nd[srt], key[srt]
     runs = []
     for s in range(1, len(key)):  # pairs s apart in a run (runs are short: a pass per run length)
@@ -343,7 +344,7 @@ def join_faces(j: Joined, u: FaceUses, curve: np.ndarray) -> Joined | str:
     ms = m[shared]
     if (np.bincount(ms, minlength=len(j.source))[curve[j.source]] != 2).any():
         return "a joined edge not used exactly twice"
-    pairs = shared[np.argsort(ms, kind="stable")].reshape(-1, 2)  # the two uses of each joined edge
+    pairs = shared[ms.argsort(kind="stable")].reshape(-1, 2)  # the two uses of each joined edge
     same = np.count_nonzero(sense[pairs[:, 0]] == sense[pairs[:, 1]])
     if same:
         return f"{same} edges used twice in the same sense (inconsistent orientation)"
