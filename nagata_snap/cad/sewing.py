@@ -383,10 +383,11 @@ def _outside(u: FaceUses, shell: np.ndarray, tol: float) -> str | None:
     above = (other | (centre - reach >= -tol)).all(axis=1)  # all on the side +n: inward
     ns = int(shell.max()) + 1
     out = np.bincount(sp[below & ~above], minlength=ns)
-    inw = np.bincount(sp[above & ~below], minlength=ns)
-    if ((out > 0) & (inw > 0)).any():
-        return "planar faces disagree on which side of a shell is outside"
-    if (inw > 0).any():
+    inward = above & ~below
+    if inward.any():  # (then which: planes that disagree, or an inward shell)
+        inw = np.bincount(sp[inward], minlength=ns)
+        if ((out > 0) & (inw > 0)).any():
+            return "planar faces disagree on which side of a shell is outside"
         return f"shell {int(np.argmax(inw > 0))} is oriented inward (OpenCASCADE reverses it)"
     if (out == 0).any():
         return f"no planar face decides which side of shell {int(np.argmin(out > 0))} is outside"
