@@ -907,8 +907,9 @@ def _face_uses(faces: list[dict], occ_faces: list) -> Any:
         n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
         frames += s["origin"]
         frames += (-n[0], -n[1], -n[2]) if f["reversed"] else n
-    for face in occ_faces:  # loop over faces (bounding boxes)
-        b = Bnd_Box()
+    b = Bnd_Box()
+    for face in occ_faces:  # loop over faces (bounding boxes, in one Bnd_Box emptied for each)
+        b.SetVoid()
         BRepBndLib.Add_s(face, b)
         box += _VOID_BOX if b.IsVoid() else b.CornerMin().Coord() + b.CornerMax().Coord()
     frame = np.array(frames).reshape(nf, 2, 3)
