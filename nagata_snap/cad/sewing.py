@@ -210,8 +210,10 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
         if (lab[src] == lab[dst]).all():
             break
     # settled: a node's label is a node of its component, none above the node, and the same
-    # for the whole component: its lowest node (labelled itself)
-    return ((lab == ids).cumsum() - 1)[lab]
+    # for the whole component: its lowest node (labelled itself), numbered in their order
+    roots = (lab == ids).nonzero()[0]
+    ids[roots] = np.arange(len(roots))
+    return ids[lab]
 
 
 def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray,
@@ -227,10 +229,9 @@ def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.nda
     a, b = near[:, 0], near[:, 1]
     lab = _components(n, near.compress(_length(P.take(a, 0) - P.take(b, 0)) <= tol, 0))
     m = int(lab.max()) + 1 if n else 0
-    lo, hi = np.full((m, 3), np.inf), np.full((m, 3), -np.inf)
-    np.minimum.at(lo, lab, P)
-    np.maximum.at(hi, lab, P)
-    wide = np.count_nonzero(_length(hi - lo) > tol)
+    box = np.full((m, 6), np.inf)  # every cluster's lower corner and upper corner negated
+    np.minimum.at(box, lab, np.concatenate((P, -P), axis=1))
+    wide = np.count_nonzero(_length(-box[:, 3:] - box[:, :3]) > tol)
     if wide:
         return f"{wide} vertex clusters wider than the tolerance (chained vertices)"
     if (lab[a] != lab[b]).any():
