@@ -860,7 +860,7 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
             xyz += _NO_CURVE
             curved.append(False)
             continue
-        (t0, t1), kind = tool.Range_s(e), int(a.GetType())  # (the edge's range is the adaptor's)
+        t0, t1, kind = a.FirstParameter(), a.LastParameter(), int(a.GetType())
         adaptors[i] = (a, t0, t1, kind)
         a.D1(0.5 * (t0 + t1), p, v)
         xyz += p.Coord()
