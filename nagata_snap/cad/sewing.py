@@ -74,6 +74,12 @@ trimming loops sample them as curves in the ``(u, v)`` plane, whatever the
 parameter).  Each joined edge records its ``source``: the copy whose 3D curve
 it keeps, so that a reference built from the unsewn shape (the test's
 OpenCASCADE distances) is numbered as the model.
+
+The arrays are small (tens to hundreds of vertices and edges), so the cost is
+numpy's per-call overhead: rows are gathered with ``take`` and selected with
+``compress`` (cheaper calls than fancy indexing), and what only names a
+failure (which shell is inward, whether planes disagree) is worked out
+where the test fails.
 """
 
 from __future__ import annotations
