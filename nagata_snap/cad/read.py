@@ -847,6 +847,7 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     curve adaptors with their first and last parameters and types (``int(GetType())``; None:
     degenerate or without a 3D curve)."""
     from OCP.gp import gp_Pnt, gp_Vec
+    from OCP.Standard import Standard_NullObject
 
     o = _occ()
     tool = o.BRep_Tool
@@ -859,18 +860,23 @@ def _edge_copies(emap, vmap, points: np.ndarray, vtol: np.ndarray) -> tuple:
     # per edge: middle point, tangent, quarter points (flat, NaN without a curve: numpy reads it faster)
     xyz: list[float] = []
     for i, e in enumerate(edges):  # loop over the unsewn edges (OCC queries)
-        if degenerate[i] or not tool.IsGeometric_s(e):
+        try:  # (an edge without geometry, neither a 3D curve nor a p-curve, has no adaptor)
+            a = None if degenerate[i] else o.BRepAdaptor_Curve(e)
+        except Standard_NullObject:
+            a = None
+        if a is None:
             xyz += _NO_CURVE
             curved.append(False)
             continue
-        a = o.BRepAdaptor_Curve(e)
         t0, t1, kind = a.FirstParameter(), a.LastParameter(), int(a.GetType())
         adaptors[i] = (a, t0, t1, kind)
         a.D1(0.5 * (t0 + t1), p, v)
         xyz += p.Coord()
         xyz += v.Coord()
-        xyz += a.Value(0.75 * t0 + 0.25 * t1).Coord()
-        xyz += a.Value(0.25 * t0 + 0.75 * t1).Coord()
+        a.D0(0.75 * t0 + 0.25 * t1, p)
+        xyz += p.Coord()
+        a.D0(0.25 * t0 + 0.75 * t1, p)
+        xyz += p.Coord()
         curved.append(kind != o.LINE and kind != o.CIRCLE)
     g = np.array(xyz).reshape(n, 4, 3)
     copies = _sewing().EdgeCopies(
@@ -909,8 +915,9 @@ def _face_uses(faces: list[dict], occ_faces: list) -> Any:
         n = (x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0)  # (np.cross on 3 numbers costs more)
         frames += s["origin"]
         frames += (-n[0], -n[1], -n[2]) if f["reversed"] else n
-    for face in occ_faces:  # loop over faces (bounding boxes)
-        b = Bnd_Box()
+    b = Bnd_Box()
+    for face in occ_faces:  # loop over faces (bounding boxes, in one Bnd_Box emptied for each)
+        b.SetVoid()
         BRepBndLib.Add_s(face, b)
         box += _VOID_BOX if b.IsVoid() else b.CornerMin().Coord() + b.CornerMax().Coord()
     frame = np.array(frames).reshape(nf, 2, 3)

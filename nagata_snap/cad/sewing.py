@@ -74,6 +74,12 @@ trimming loops sample them as curves in the ``(u, v)`` plane, whatever the
 parameter).  Each joined edge records its ``source``: the copy whose 3D curve
 it keeps, so that a reference built from the unsewn shape (the test's
 OpenCASCADE distances) is numbered as the model.
+
+The arrays are small (tens to hundreds of vertices and edges), so the cost is
+numpy's per-call overhead: rows are gathered with ``take`` and selected with
+``compress`` (cheaper calls than fancy indexing), and what only names a
+failure (which shell is inward, whether planes disagree) is worked out
+where the test fails.
 """
 
 from __future__ import annotations
@@ -210,8 +216,10 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
         if (lab[src] == lab[dst]).all():
             break
     # settled: a node's label is a node of its component, none above the node, and the same
-    # for the whole component: its lowest node (labelled itself)
-    return ((lab == ids).cumsum() - 1)[lab]
+    # for the whole component: its lowest node (labelled itself), numbered in their order
+    roots = (lab == ids).nonzero()[0]
+    ids[roots] = np.arange(len(roots))
+    return ids[lab]
 
 
 def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray,
@@ -225,21 +233,20 @@ def _merge_vertices(P: np.ndarray, vtol: np.ndarray, tol: float) -> tuple[np.nda
     n = len(P)
     near = cKDTree(P).query_pairs(2.0 * tol, output_type="ndarray")
     a, b = near[:, 0], near[:, 1]
-    lab = _components(n, near[_length(P[a] - P[b]) <= tol])
+    lab = _components(n, near.compress(_length(P.take(a, 0) - P.take(b, 0)) <= tol, 0))
     m = int(lab.max()) + 1 if n else 0
-    lo, hi = np.full((m, 3), np.inf), np.full((m, 3), -np.inf)
-    np.minimum.at(lo, lab, P)
-    np.maximum.at(hi, lab, P)
-    wide = _length(hi - lo) > tol
-    if wide.any():
-        return f"{int(wide.sum())} vertex clusters wider than the tolerance (chained vertices)"
+    box = np.full((m, 6), np.inf)  # every cluster's lower corner and upper corner negated
+    np.minimum.at(box, lab, np.concatenate((P, -P), axis=1))
+    wide = np.count_nonzero(_length(-box[:, 3:] - box[:, :3]) > tol)
+    if wide:
+        return f"{wide} vertex clusters wider than the tolerance (chained vertices)"
     if (lab[a] != lab[b]).any():
         return "vertices of different clusters within twice the tolerance"
     mean = np.zeros((m, 3))
     np.add.at(mean, lab, P)
     mean /= np.bincount(lab, minlength=m)[:, None]
     vt = np.zeros(m)
-    np.maximum.at(vt, lab, _length(P - mean[lab]) + vtol)
+    np.maximum.at(vt, lab, _length(P - mean.take(lab, 0)) + vtol)
     return lab, mean, vt
 
 
@@ -260,21 +267,22 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     vlab, points, vtol = merged
     ne = len(w.ends)
     curve = ~w.degenerate
-    if (curve & ~np.isfinite(w.mid).all(axis=1)).any():
+    nd = curve.nonzero()[0]
+    if not np.isfinite(w.mid.take(nd, 0)).all():
         return "an edge without a 3D curve"
     if (w.ends < 0).any():
         return "an edge without vertices"
     ends = vlab[w.ends]
     first = ends[:, 0]
     closed = first == ends[:, 1]
-    if (curve & closed & (_length(w.mid - points[first]) <= tol)).any():
+    if (curve & closed & (_length(w.mid - points.take(first, 0)) <= tol)).any():
         return "an edge shorter than the tolerance (its vertices merge)"
     # copies: same merged end vertices (either order), middle points within tol; candidates:
     # the pairs of copies with the same vertices (runs of the copies sorted by them)
-    nd = curve.nonzero()[0]
-    key = np.sort(ends[nd], axis=1)
+    key = ends.take(nd, 0)
+    key.sort(axis=1)
     key = key[:, 0] * len(points) + key[:, 1]
-    srt = np.argsort(key, kind="stable")
+    srt = key.argsort(kind="stable")
     order, key = nd[srt], key[srt]
     runs = []
     for s in range(1, len(key)):  # pairs s apart in a run (runs are short: a pass per run length)
@@ -283,16 +291,17 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
             break
         runs.append(order[i[:, None] + (0, s)])
     cand = np.concatenate(runs) if runs else np.zeros((0, 2), dtype=np.int64)
-    d = _length(w.mid[cand[:, 0]] - w.mid[cand[:, 1]])
-    near = cand[d <= 2.0 * tol]
+    d = _length(w.mid.take(cand[:, 0], 0) - w.mid.take(cand[:, 1], 0))
+    near = cand.compress(d <= 2.0 * tol, 0)
     a, b = near[:, 0], near[:, 1]
-    lab = _components(ne, cand[d <= tol])
+    lab = _components(ne, cand.compress(d <= tol, 0))
     size = np.bincount(lab)
-    if (size > 2).any():
-        return f"{int((size > 2).sum())} edges with more than two copies (more than two faces)"
-    single = curve & (size[lab] == 1)
-    if single.any():
-        return f"{int(single.sum())} free edges (an open shell)"
+    more = np.count_nonzero(size > 2)
+    if more:
+        return f"{more} edges with more than two copies (more than two faces)"
+    single = np.count_nonzero(curve & (size[lab] == 1))
+    if single:
+        return f"{single} free edges (an open shell)"
     if (lab[a] != lab[b]).any():
         return "copies of different edges within twice the tolerance"
     # the kept copy: a line or circle rather than another curve, else the first
@@ -305,20 +314,20 @@ def join_edges(w: EdgeCopies, tol: float) -> Joined | str:
     # by their tangents, which must agree in any case
     t, nt = w.tangent, _length(w.tangent)
     with np.errstate(invalid="ignore", divide="ignore"):
-        cos = (t * t[keep]).sum(axis=1) / (nt * nt[keep])
+        cos = (t * t.take(keep, 0)).sum(axis=1) / (nt * nt[keep])
     opposed = np.where(closed[keep], cos < 0, first != first[keep])
     if (curve & ~(np.where(opposed, -cos, cos) >= TANGENT_COS)).any():
         return "copies of an edge whose directions disagree"
     # the gap between copies: at their middle and quarter points (an opposed copy's quarters
     # swapped), which must correspond (copies parametrised alike, or reversed)
-    q = w.quarters[keep]
+    q = w.quarters.take(keep, 0)
     q = np.where(opposed[:, None, None], q[:, ::-1], q)
-    gap = np.maximum(_length(w.mid - w.mid[keep]), _length(w.quarters - q).max(axis=1))
+    gap = np.maximum(_length(w.mid - w.mid.take(keep, 0)), _length(w.quarters - q).max(axis=1))
     if (curve & ~(gap <= tol)).any():
         return "copies of an edge that differ away from their middle points (parametrised differently)"
     etol = np.zeros(m)
     np.maximum.at(etol, lab, np.maximum(w.tolerance, np.where(curve, gap, 0.0)))
-    return Joined(tol, vlab, points, vtol, lab, source, ends[source], etol, opposed & curve)
+    return Joined(tol, vlab, points, vtol, lab, source, ends.take(source, 0), etol, opposed & curve)
 
 
 def join_faces(j: Joined, u: FaceUses, curve: np.ndarray) -> Joined | str:
@@ -334,7 +343,7 @@ def join_faces(j: Joined, u: FaceUses, curve: np.ndarray) -> Joined | str:
         outward oriented shells.
     """
     nf = u.num_faces
-    if (np.bincount(u.face, minlength=nf) == 0).any():
+    if np.count_nonzero(np.bincount(u.face, minlength=nf)) < nf:
         return "a face without edges"
     m = j.edge[u.edge]
     sense = u.reversed ^ j.opposed[u.edge]  # against the joined edge's 3D curve
@@ -342,16 +351,14 @@ def join_faces(j: Joined, u: FaceUses, curve: np.ndarray) -> Joined | str:
     ms = m[shared]
     if (np.bincount(ms, minlength=len(j.source))[curve[j.source]] != 2).any():
         return "a joined edge not used exactly twice"
-    order = shared[np.argsort(ms, kind="stable")]
-    a, b = order[0::2], order[1::2]
-    same = sense[a] == sense[b]
-    if same.any():
-        return f"{int(same.sum())} edges used twice in the same sense (inconsistent orientation)"
-    fa, fb = u.face[a], u.face[b]
-    twice = fa == fb
+    pairs = shared[ms.argsort(kind="stable")].reshape(-1, 2)  # the two uses of each joined edge
+    same = np.count_nonzero(sense[pairs[:, 0]] == sense[pairs[:, 1]])
+    if same:
+        return f"{same} edges used twice in the same sense (inconsistent orientation)"
+    faces = u.face[pairs]
     seam = np.zeros(len(m), dtype=bool)
-    seam[a[twice]] = seam[b[twice]] = True
-    shell = _components(nf, np.stack([fa, fb], axis=1))  # (a seam's pair joins its face to itself)
+    seam[pairs.compress(faces[:, 0] == faces[:, 1], 0)] = True
+    shell = _components(nf, faces)  # (a seam's pair joins its face to itself)
     side = _outside(u, shell, j.tolerance)
     if isinstance(side, str):
         return side
@@ -369,23 +376,25 @@ def _outside(u: FaceUses, shell: np.ndarray, tol: float) -> str | None:
     """
     if not np.isfinite(u.box).all():
         return "a face without a bounding box"
-    c, h = u.box.sum(axis=1) * 0.5, 0.5 * (u.box[:, 1] - u.box[:, 0])  # (the sum: the boxes' mean)
+    lo, hi = u.box[:, 0], u.box[:, 1]
+    c, h = (lo + hi) * 0.5, 0.5 * (hi - lo)
     p = u.plane.nonzero()[0]
-    n = u.normal[p]
+    n = u.normal.take(p, 0)
     n = n / _length(n)[:, None]
     # (np, nf): the extent of every face's box along each plane's normal, from the plane
-    centre = n @ c.T - (n * u.origin[p]).sum(axis=1)[:, None]
+    centre = n @ c.T - (n * u.origin.take(p, 0)).sum(axis=1)[:, None]
     reach = np.abs(n) @ h.T
     sp = shell[p]
-    other = sp[:, None] != shell[None, :]
+    other = sp[:, None] != shell
     below = (other | (centre + reach <= tol)).all(axis=1)   # all on the side -n: outward
     above = (other | (centre - reach >= -tol)).all(axis=1)  # all on the side +n: inward
     ns = int(shell.max()) + 1
     out = np.bincount(sp[below & ~above], minlength=ns)
-    inw = np.bincount(sp[above & ~below], minlength=ns)
-    if ((out > 0) & (inw > 0)).any():
-        return "planar faces disagree on which side of a shell is outside"
-    if (inw > 0).any():
+    inward = above & ~below
+    if inward.any():  # (then which: planes that disagree, or an inward shell)
+        inw = np.bincount(sp[inward], minlength=ns)
+        if ((out > 0) & (inw > 0)).any():
+            return "planar faces disagree on which side of a shell is outside"
         return f"shell {int(np.argmax(inw > 0))} is oriented inward (OpenCASCADE reverses it)"
     if (out == 0).any():
         return f"no planar face decides which side of shell {int(np.argmin(out > 0))} is outside"
