@@ -327,16 +327,20 @@ class _PCurves:
         self.spline_of[self.spline_uses] = np.arange(self.spline_uses.size)
         self.splines = (_Splines([descs[j] for j in self.spline_uses.tolist()], self.face[self.spline_uses])
                         if self.spline_uses.size else None)
-        self.M = np.zeros((len(uv_maps), 3, 2))  # per face its map (the identity: none)
-        self.M[:, 0, 0] = self.M[:, 1, 1] = 1.0
         mapped = [i for i, m in enumerate(uv_maps) if m is not None]
-        if mapped:
-            self.M[mapped] = [np.asarray(uv_maps[i], dtype=float) for i in mapped]
         self.mapped = np.zeros(len(uv_maps) + 1, dtype=bool)
         self.mapped[mapped] = True
         self.mapped = self.mapped[self.face]
         #: some use is on a mapped face
         self.any_mapped = bool(self.mapped.any())
+        #: ``(6, n)`` per use its face's map ``M (3, 2)`` by coordinate (``M[:, 0]``, ``M[:, 1]``;
+        #: the identity where none)
+        self.M = np.zeros((6, n))
+        self.M[0] = self.M[4] = 1.0
+        if self.any_mapped:
+            maps = np.array([np.asarray(uv_maps[i], dtype=float) for i in mapped]).reshape(-1, 3, 2)
+            at = np.searchsorted(mapped, self.face[self.mapped])  # each mapped use's map
+            self.M[:, self.mapped] = maps[at].transpose(2, 1, 0).reshape(6, -1)
 
     def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
@@ -376,13 +380,24 @@ class _PCurves:
             if s.size and self.splines is not None:
                 P[s] = self.splines(t[s], self.spline_of[use[s]])
         if self.any_mapped:
-            m = np.flatnonzero(self.mapped[use])
-            if m.size:  # [u, v, 1] M coordinate by coordinate (einsum's products and sums, half its cost)
-                M = self.M[self.face[use[m]]]
-                u, v = P[m, 0], P[m, 1]
-                for j in range(2):
-                    P[m, j] = u * M[:, 0, j] + v * M[:, 1, j] + M[:, 2, j]
+            mapped = self.mapped[use]
+            if mapped.all():  # no row selection
+                P = self._mapped(P, use)
+            else:
+                m = np.flatnonzero(mapped)
+                if m.size:
+                    P[m] = self._mapped(P[m], use[m])
         return P
+
+    def _mapped(self, P: np.ndarray, use: np.ndarray) -> np.ndarray:
+        """``(k, 2)`` the points ``P (k, 2)`` of uses ``use (k,)`` mapped: ``[u, v, 1] M``
+        coordinate by coordinate (einsum's products and sums, half its cost)."""
+        M = self.M.take(use, axis=1)
+        u, v = P[:, 0], P[:, 1]
+        out = np.empty_like(P)
+        for j in range(2):
+            out[:, j] = u * M[3 * j] + v * M[3 * j + 1] + M[3 * j + 2]
+        return out
 
 
 #: p-curve types evaluated in closed form (the rest: B-splines)
