@@ -465,8 +465,11 @@ class _Metric:
         if p.size:
             fp = face[p]
             dev[p] = _lengths(off[p, 0], off[p, 1], self.X[:, fp], self.Y[:, fp])
-        for f in np.unique(face[~on_plane]):  # loop over curved faces with curved p-curves
-            lo, hi = np.searchsorted(face, [f, f + 1])
+        start = np.flatnonzero(np.diff(face, prepend=-1))  # each face's first row
+        stop = np.append(start[1:], len(face))
+        curved = ~self.plane[face[start]]
+        for f, lo, hi in zip(face[start[curved]].tolist(), start[curved].tolist(), stop[curved].tolist(),
+                             strict=True):  # loop over curved faces with curved p-curves
             if self.surfaces[f] is None:
                 dev[lo:hi] = np.linalg.norm(off[lo:hi], axis=1)
             else:
