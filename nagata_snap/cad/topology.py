@@ -459,12 +459,12 @@ class _Metric:
         """``(k,)`` lengths of ``off (k, 2)`` at ``mid (k, 2)`` on ``face (k,)`` (sorted)."""
         on_plane = self.plane[face]
         if on_plane.all():  # planes only (the common case): no row selection
-            return _lengths(off[:, 0], off[:, 1], self.X[:, face], self.Y[:, face])
+            return _lengths(off[:, 0], off[:, 1], self.X.take(face, axis=1), self.Y.take(face, axis=1))
         dev = np.empty(len(off))
         p = np.flatnonzero(on_plane)
         if p.size:
             fp = face[p]
-            dev[p] = _lengths(off[p, 0], off[p, 1], self.X[:, fp], self.Y[:, fp])
+            dev[p] = _lengths(off[p, 0], off[p, 1], self.X.take(fp, axis=1), self.Y.take(fp, axis=1))
         start = np.flatnonzero(np.diff(face, prepend=-1))  # each face's first row
         stop = np.append(start[1:], len(face))
         curved = ~self.plane[face[start]]
