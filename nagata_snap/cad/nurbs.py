@@ -838,7 +838,11 @@ class NurbsCurve(_ControlNet):
             for p in self.degrees:  # loop over the distinct degrees
                 sel = slice(None) if pc is None else np.flatnonzero(pc == p)
                 H = NurbsCurve._sums(self.K, self.W, p, span[sel], first[sel], t[sel], 0)[0]
-                out[sel] = (H[:d] / H[d]).T
+                if pc is None:  # one degree: straight into out
+                    np.divide(H[:d], H[d], out=out.T)
+                else:  # coordinate by coordinate (fancy indexing of rows of 2 or 3 iterates row by row)
+                    for j, x in enumerate(H[:d] / H[d]):
+                        out[:, j][sel] = x
             # _eval_soa sums a chunk of one point (a curve's only point, or the last of its
             # points past a multiple of CHUNK) with einsum's single-point kernel, whose
             # rounding differs: those points again, alone

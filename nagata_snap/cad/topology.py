@@ -327,16 +327,20 @@ class _PCurves:
         self.spline_of[self.spline_uses] = np.arange(self.spline_uses.size)
         self.splines = (_Splines([descs[j] for j in self.spline_uses.tolist()], self.face[self.spline_uses])
                         if self.spline_uses.size else None)
-        self.M = np.zeros((len(uv_maps), 3, 2))  # per face its map (the identity: none)
-        self.M[:, 0, 0] = self.M[:, 1, 1] = 1.0
         mapped = [i for i, m in enumerate(uv_maps) if m is not None]
-        if mapped:
-            self.M[mapped] = [np.asarray(uv_maps[i], dtype=float) for i in mapped]
         self.mapped = np.zeros(len(uv_maps) + 1, dtype=bool)
         self.mapped[mapped] = True
         self.mapped = self.mapped[self.face]
         #: some use is on a mapped face
         self.any_mapped = bool(self.mapped.any())
+        #: ``(6, n)`` per use its face's map ``M (3, 2)`` by coordinate (``M[:, 0]``, ``M[:, 1]``;
+        #: the identity where none)
+        self.M = np.zeros((6, n))
+        self.M[0] = self.M[4] = 1.0
+        if self.any_mapped:
+            maps = np.array([np.asarray(uv_maps[i], dtype=float) for i in mapped]).reshape(-1, 3, 2)
+            at = np.searchsorted(mapped, self.face[self.mapped])  # each mapped use's map
+            self.M[:, self.mapped] = maps[at].transpose(2, 1, 0).reshape(6, -1)
 
     def initial(self, descs: Sequence[dict]) -> _Samples:
         """Per use its first samples: the ends (line), every ``pi / 16`` (circle),
@@ -376,13 +380,24 @@ class _PCurves:
             if s.size and self.splines is not None:
                 P[s] = self.splines(t[s], self.spline_of[use[s]])
         if self.any_mapped:
-            m = np.flatnonzero(self.mapped[use])
-            if m.size:  # [u, v, 1] M coordinate by coordinate (einsum's products and sums, half its cost)
-                M = self.M[self.face[use[m]]]
-                u, v = P[m, 0], P[m, 1]
-                for j in range(2):
-                    P[m, j] = u * M[:, 0, j] + v * M[:, 1, j] + M[:, 2, j]
+            mapped = self.mapped[use]
+            if mapped.all():  # no row selection
+                P = self._mapped(P, use)
+            else:
+                m = np.flatnonzero(mapped)
+                if m.size:
+                    P[m] = self._mapped(P[m], use[m])
         return P
+
+    def _mapped(self, P: np.ndarray, use: np.ndarray) -> np.ndarray:
+        """``(k, 2)`` the points ``P (k, 2)`` of uses ``use (k,)`` mapped: ``[u, v, 1] M``
+        coordinate by coordinate (einsum's products and sums, half its cost)."""
+        M = self.M.take(use, axis=1)
+        u, v = P[:, 0], P[:, 1]
+        out = np.empty_like(P)
+        for j in range(2):
+            out[:, j] = u * M[3 * j] + v * M[3 * j + 1] + M[3 * j + 2]
+        return out
 
 
 #: p-curve types evaluated in closed form (the rest: B-splines)
@@ -444,14 +459,17 @@ class _Metric:
         """``(k,)`` lengths of ``off (k, 2)`` at ``mid (k, 2)`` on ``face (k,)`` (sorted)."""
         on_plane = self.plane[face]
         if on_plane.all():  # planes only (the common case): no row selection
-            return _lengths(off[:, 0], off[:, 1], self.X[:, face], self.Y[:, face])
+            return _lengths(off[:, 0], off[:, 1], self.X.take(face, axis=1), self.Y.take(face, axis=1))
         dev = np.empty(len(off))
         p = np.flatnonzero(on_plane)
         if p.size:
             fp = face[p]
-            dev[p] = _lengths(off[p, 0], off[p, 1], self.X[:, fp], self.Y[:, fp])
-        for f in np.unique(face[~on_plane]):  # loop over curved faces with curved p-curves
-            lo, hi = np.searchsorted(face, [f, f + 1])
+            dev[p] = _lengths(off[p, 0], off[p, 1], self.X.take(fp, axis=1), self.Y.take(fp, axis=1))
+        start = np.flatnonzero(np.diff(face, prepend=-1))  # each face's first row
+        stop = np.append(start[1:], len(face))
+        curved = ~self.plane[face[start]]
+        for f, lo, hi in zip(face[start[curved]].tolist(), start[curved].tolist(), stop[curved].tolist(),
+                             strict=True):  # loop over curved faces with curved p-curves
             if self.surfaces[f] is None:
                 dev[lo:hi] = np.linalg.norm(off[lo:hi], axis=1)
             else:
@@ -509,7 +527,8 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     segments split are tested again (a segment kept keeps its deviation), and one
     evaluation tests two levels: each segment's midpoint and the midpoints of its
     two halves, whose tests count only where the segment is split (the same
-    points and decisions as level by level, in half the calls).
+    points and decisions as level by level, in half the calls).  The points are
+    carried as complex numbers (:func:`_complex`).
 
     Returns:
         ``(P (N, 2), use (N,), dev (N,))``: the samples of every use in
@@ -520,7 +539,7 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
     metric = _Metric(surfaces)
     done = _circles_on_planes(f, first, metric, tols)
     t, use = first.flat(reverses)
-    P = f(t, use)
+    Z = _complex(f(t, use))  # the points x + iy
     dev = np.where(np.isnan(done), 0.0, done)[use]  # done: NaN or a (finite) sagitta
     todo = (f.kind != 0) & np.isnan(done)  # uses to refine
     splines = f.splines is not None and not (todo & (f.kind == 1)).any()  # they are all B-splines
@@ -532,56 +551,72 @@ def _refine(f: _PCurves, first: _Samples, reverses: np.ndarray, surfaces: Sequen
         two = it < MAX_REFINE  # the halves' level is within the refinement limit
         um = use[k]
         fm = f.face[um]
-        Pa, Pb = P.take(k, axis=0), P.take(k + 1, axis=0)
-        ta, tb = t[k], t[k + 1]
+        k1 = k + 1
+        Za, Zb = Z[k], Z[k1]
+        ta, tb = t[k], t[k1]
         tm = 0.5 * (ta + tb)
         if two:  # midpoints, then the midpoints of both halves, interleaved (uses stay sorted)
             tq = np.empty((len(k), 3))  # columns tm, 0.5 (ta + tm), 0.5 (tm + tb)
             tq[:, 0] = tm
-            np.add(ta, tm, out=tq[:, 1])
-            np.add(tm, tb, out=tq[:, 2])
-            tq[:, 1:] *= 0.5
-            Pq = f(tq.ravel(), um.repeat(3), splines).reshape(-1, 3, 2)
-            Pm = Pq[:, 0]
-            mids = np.empty((len(k), 3, 2))  # chords' midpoints: 0.5 (Pa + Pb), 0.5 (Pa + Pm), 0.5 (Pm + Pb)
-            np.add(Pa, Pb, out=mids[:, 0])
-            np.add(Pa, Pm, out=mids[:, 1])
-            np.add(Pm, Pb, out=mids[:, 2])
-            mids *= 0.5
-            dq = metric((Pq - mids).reshape(-1, 2), mids.reshape(-1, 2), fm.repeat(3)).reshape(-1, 3)
+            for j, (lo, hi) in enumerate(((ta, tm), (tm, tb)), start=1):
+                np.add(lo, hi, out=tq[:, j])
+                tq[:, j] *= 0.5
+            Zq = _complex(f(tq.ravel(), um.repeat(3), splines)).reshape(-1, 3)
+            Zm = Zq[:, 0]
+            mids = np.empty((len(k), 3), dtype=complex)  # chords' midpoints: 0.5 (Za + Zb), 0.5 (Za + Zm), ...
+            np.add(Za, Zb, out=mids[:, 0])
+            np.add(Za, Zm, out=mids[:, 1])
+            np.add(Zm, Zb, out=mids[:, 2])
+            mids.view(np.float64)[:] *= 0.5
+            dq = metric(_real(Zq - mids), _real(mids), fm.repeat(3)).reshape(-1, 3)
             d = dq[:, 0]
         else:
-            mid = 0.5 * (Pa + Pb)
-            Pm = f(tm, um, splines)
-            d = metric(Pm - mid, mid, fm)
+            mid = Za + Zb
+            mid.view(np.float64)[:] *= 0.5
+            Zm = _complex(f(tm, um, splines))
+            d = metric(_real(Zm - mid), _real(mid), fm)
         dev[k] = d
         split = d > tols[fm]
         if it == MAX_REFINE or not split.any():
             break
         sel = np.flatnonzero(split)
-        t, use, P, dev, new = _split(t, use, P, dev, k[sel], tm[sel], Pm[sel])
+        t, use, Z, dev, new = _split(t, use, Z, dev, k[sel], tm[sel], Zm[sel])
         it += 1
         if two:  # the halves' tests, done: their deviations, then their splits
             halves = np.empty((len(new), 2), dtype=new.dtype)  # (n, 2) first points of both halves
             halves[:, 1] = new
             np.subtract(new, 1, out=halves[:, 0])
-            dev[halves] = dq[sel, 1:]
-            split2 = dq[sel, 1:] > tols[fm[sel], None]
+            dh = dq.take(sel, axis=0)[:, 1:]
+            dev[halves.ravel()] = dh.ravel()
+            split2 = dh > tols[fm[sel], None]
             if it == MAX_REFINE or not split2.any():
                 break
-            t, use, P, dev, new = _split(t, use, P, dev, halves[split2], tq[sel, 1:][split2],
-                                         Pq[sel, 1:][split2])
+            t, use, Z, dev, new = _split(t, use, Z, dev, halves[split2], tq.take(sel, axis=0)[:, 1:][split2],
+                                         Zq.take(sel, axis=0)[:, 1:][split2])
             it += 1
         k = np.empty(2 * len(new), dtype=new.dtype)  # both halves of every segment split (sorted: the
         np.subtract(new, 1, out=k[0::2])  # midpoints inserted are two rows apart at least)
         k[1::2] = new
-    return P, use, dev
+    return _real(Z), use, dev
 
 
-def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np.ndarray,
-           tm: np.ndarray, Pm: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Insert the midpoints ``tm (n,)``, ``Pm (n, 2)`` of the segments starting at ``k (n,)``
-    (sorted) into the samples ``t, use, P, dev``; returns them and the midpoints' positions.
+def _complex(P: np.ndarray) -> np.ndarray:
+    """``(k,)`` the points ``P (k, 2)`` as complex numbers ``x + iy`` (a view where ``P`` is
+    contiguous): a point is gathered, scattered, added or subtracted as one item (a complex
+    sum is the sums of the parts, to the last bit), not by numpy's iteration over rows of 2."""
+    return np.ascontiguousarray(P).view(np.complex128)[:, 0]
+
+
+def _real(Z: np.ndarray) -> np.ndarray:
+    """``(k, 2)`` the points of contiguous complex ``Z`` (any shape, ``k`` items) as rows ``(x, y)`` (a view)."""
+    return Z.view(np.float64).reshape(-1, 2)
+
+
+def _split(t: np.ndarray, use: np.ndarray, Z: np.ndarray, dev: np.ndarray, k: np.ndarray,
+           tm: np.ndarray, Zm: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Insert the midpoints ``tm (n,)``, ``Zm (n,)`` (complex points, :func:`_complex`) of the
+    segments starting at ``k (n,)`` (sorted) into the samples ``t, use, Z, dev``; returns them
+    and the midpoints' positions.
 
     One scatter per array (the old rows and the midpoints by their positions)."""
     n, m = len(t), len(k)
@@ -589,12 +624,13 @@ def _split(t: np.ndarray, use: np.ndarray, P: np.ndarray, dev: np.ndarray, k: np
     old = np.ones(n + m, dtype=bool)
     old[at] = False
     old = old.nonzero()[0]  # the old rows' positions, found once for the four arrays
-    t2, use2, P2, dev2 = np.empty(n + m), np.empty(n + m, dtype=use.dtype), np.empty((n + m, 2)), np.zeros(n + m)
+    t2, use2, dev2 = np.empty(n + m), np.empty(n + m, dtype=use.dtype), np.zeros(n + m)
+    Z2 = np.empty(n + m, dtype=complex)
     t2[old], t2[at] = t, tm
     use2[old], use2[at] = use, use[k]
-    P2[old], P2[at] = P, Pm
+    Z2[old], Z2[at] = Z, Zm
     dev2[old] = dev
-    return t2, use2, P2, dev2, at
+    return t2, use2, Z2, dev2, at
 
 
 def _edge_curves(edges: Sequence[dict], path: str) -> list:
