@@ -176,14 +176,13 @@ class AnalyticSurface:
             raise ValueError(f"{'xyz'[j]} must be a finite non-zero vector, got {A[i, j].tolist()}")
         A = A / n[..., None]
         X, Y, Z = A[:, 0], A[:, 1], A[:, 2]
-        bad = ~np.isfinite(O).all(axis=1)
-        if bad.any():
-            raise ValueError(f"origin must be finite, got {O[np.argmax(bad)].tolist()}")
+        if not np.isfinite(O).all():
+            raise ValueError(f"origin must be finite, got {O[np.argmin(np.isfinite(O).all(axis=1))].tolist()}")
         (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = X.T, Y.T, Z.T
         triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
         B = _rows(bounds, (2, 2))
-        bad = ~np.isfinite(B).all(axis=(1, 2)) | (B[:, :, 1] < B[:, :, 0]).any(axis=1)
-        if bad.any():
+        if not (np.isfinite(B).all() and (B[:, :, 0] <= B[:, :, 1]).all()):
+            bad = ~np.isfinite(B).all(axis=(1, 2)) | (B[:, :, 1] < B[:, :, 0]).any(axis=1)
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {B[np.argmax(bad)].tolist()}")
         # closest points measure the angle from e(u0 + pi): atan2 then lands in
         # [u0, u0 + 2 pi] with one addition, no wrapping
@@ -194,10 +193,9 @@ class AnalyticSurface:
         o_local = np.matmul(frame, O[:, :, None])[:, :, 0]
         frame4 = np.concatenate([frame, O[:, None]], axis=1)  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
         hand = np.where(triple > 0, 1.0, -1.0).tolist()
-        for i, sf in enumerate(surfaces):  # loop over surfaces (their fields)
-            sf.origin, sf.X, sf.Y, sf.Z, sf.bounds = O[i], X[i], Y[i], Z[i], B[i]
-            sf.hand, sf._shift = hand[i], float(shift[i])
-            sf._frame, sf._o_local, sf._frame4 = frame[i], o_local[i], frame4[i]
+        for sf, *fields in zip(surfaces, O, X, Y, Z, B, hand, shift.tolist(), frame, o_local, frame4,
+                               strict=True):  # loop over surfaces (their fields)
+            sf.origin, sf.X, sf.Y, sf.Z, sf.bounds, sf.hand, sf._shift, sf._frame, sf._o_local, sf._frame4 = fields
             sf._box = None
         planes = [i for i, sf in enumerate(surfaces) if isinstance(sf, Plane)]
         if planes:
@@ -258,28 +256,37 @@ class AnalyticSurface:
         revolution (any classes, those of a class next to each other), the points of a
         :data:`BOX_GRID` x :data:`BOX_GRID` grid widened by their sagitta.
 
-        The grids are evaluated together: per class :meth:`_local` of one surface whose
-        shape fields are per-point arrays, then :func:`_to_global` with per-point frames
-        (both are elementwise, so each point is what its own surface's :meth:`_eval_soa`
-        gives).
+        A point of a surface of revolution is ``O + a(v) e(u) + 0 e'(u) + b(v) Z``: per class
+        :meth:`_local` of one surface whose shape fields are per-sample arrays gives ``a, b``
+        at the ``v`` of every grid row (its ``e'(u)`` coefficient is 0), the frame ``e(u),
+        e'(u)`` is taken at the ``u`` of every column, and the grid points are combined from
+        both by broadcasting, with the products and sums of :func:`_to_global` in its order
+        (so each point is what its own surface's :meth:`_eval_soa` gives).
         """
         k, g = len(surfaces), BOX_GRID
         B = np.array([sf.bounds for sf in surfaces])
         u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
-        U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
-        c, sn = np.repeat(np.cos(u), g, axis=1).ravel(), np.repeat(np.sin(u), g, axis=1).ravel()  # of U
-        local = np.empty((1, 3, k * g * g))
+        V = v.ravel()
+        local = np.empty((3, k * g))  # a, 0, b at every v (the local point, nderiv 0)
         cls = [type(sf) for sf in surfaces]
         first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
         for i0, i1 in pairwise(first):  # loop over classes (their formulas)
             stack = cls[i0].__new__(cls[i0])
             for name in cls[i0]._shape_fields:
-                setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g * g))
-            sl = slice(i0 * g * g, i1 * g * g)
-            local[:, :, sl] = stack._local(U[sl], V[sl], c[sl], sn[sl], 0)
-        F = np.repeat(np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0), g * g,
-                      axis=2)  # (4, 3, k g^2): X, Y, Z, origin of every point's surface
-        S = _to_global(local, c, sn, F[0], F[1], F[2], F[3])[0].reshape(3, k, g * g)
+                setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g))
+            sl = slice(i0 * g, i1 * g)
+            local[:, sl] = stack._local(V[sl], V[sl], V[sl], V[sl], 0)[0]  # no term in u (nor c, s)
+        a, b = local[0].reshape(k, 1, g), local[2].reshape(k, 1, g)  # along the grid's v (last axis)
+        F = np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0)[..., None]
+        X, Y, Z, O = F  # (3, k, 1) each
+        c, sn = np.cos(u), np.sin(u)  # (k, g): along the grid's u
+        E = c * X + sn * Y  # (3, k, g): e(u), e'(u) as _to_global
+        Ep = -sn * X + c * Y
+        S = a * E[..., None]  # (3, k, g, g), u major
+        S += (0.0 * Ep)[..., None]  # the e'(u) term (a zero's sign where a e(u) is 0)
+        S += b * Z[..., None]
+        S += O[..., None]
+        S = S.reshape(3, k, g * g)
         pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
                         zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
         return S.min(axis=2).T - pad, S.max(axis=2).T + pad
