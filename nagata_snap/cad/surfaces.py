@@ -36,6 +36,7 @@ taken); evaluation is not clamped to it: the surface extends beyond its face.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from itertools import pairwise
 from typing import Any, cast
@@ -55,7 +56,7 @@ BOX_GRID = 17
 
 def _positive(value, what: str) -> float:
     v = float(value)
-    if not (np.isfinite(v) and v > 0):
+    if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{what} must be positive, got {value}")
     return v
 
@@ -261,19 +262,26 @@ class AnalyticSurface:
         at the ``v`` of every grid row (its ``e'(u)`` coefficient is 0), the frame ``e(u),
         e'(u)`` is taken at the ``u`` of every column, and the grid points are combined from
         both by broadcasting, with the products and sums of :func:`_to_global` in its order
-        (so each point is what its own surface's :meth:`_eval_soa` gives).
+        (so each point is what its own surface's :meth:`_eval_soa` gives).  The sagittas of a
+        class are its :meth:`_sagitta` of the stacked surfaces, elementwise as well.
         """
         k, g = len(surfaces), BOX_GRID
         B = np.array([sf.bounds for sf in surfaces])
         u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
         V = v.ravel()
+        du, dv = u[:, 1] - u[:, 0], v[:, 1] - v[:, 0]
         local = np.empty((3, k * g))  # a, 0, b at every v (the local point, nderiv 0)
+        pad = np.empty((k, 1))
         cls = [type(sf) for sf in surfaces]
         first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
         for i0, i1 in pairwise(first):  # loop over classes (their formulas)
-            stack = cls[i0].__new__(cls[i0])
+            stack = cls[i0].__new__(cls[i0])  # the surfaces i0 .. i1: their fields, then per v sample
+            stack.bounds = B[i0:i1]
             for name in cls[i0]._shape_fields:
-                setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g))
+                setattr(stack, name, np.array([getattr(sf, name) for sf in surfaces[i0:i1]]))
+            pad[i0:i1, 0] = stack._sagitta(du[i0:i1], dv[i0:i1])
+            for name in cls[i0]._shape_fields:
+                setattr(stack, name, np.repeat(getattr(stack, name), g))
             sl = slice(i0 * g, i1 * g)
             local[:, sl] = stack._local(V[sl], V[sl], V[sl], V[sl], 0)[0]  # no term in u (nor c, s)
         a, b = local[0].reshape(k, 1, g), local[2].reshape(k, 1, g)  # along the grid's v (last axis)
@@ -287,11 +295,11 @@ class AnalyticSurface:
         S += b * Z[..., None]
         S += O[..., None]
         S = S.reshape(3, k, g * g)
-        pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
-                        zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
         return S.min(axis=2).T - pad, S.max(axis=2).T + pad
 
-    def _sagitta(self, du: float, dv: float) -> float:
+    def _sagitta(self, du, dv):
+        """The sagitta of grid steps ``du, dv`` (scalars, or ``(m,)`` for ``m`` surfaces stacked as in
+        :meth:`_sample_boxes`): the most a grid cell's surface bulges beyond its corners' box."""
         return 0.0
 
     def _evaluate_inside(self, u: np.ndarray, v: np.ndarray, nderiv: int) -> np.ndarray:
@@ -552,21 +560,21 @@ class Cone(AnalyticSurface):
         radius, semi_angle = shape
         self.radius = float(radius)
         self.semi_angle = float(semi_angle)
-        if not (np.isfinite(self.radius) and self.radius >= 0):
+        if not (math.isfinite(self.radius) and self.radius >= 0):
             raise ValueError(f"cone reference radius must be >= 0, got {radius}")
-        if not (np.isfinite(self.semi_angle) and 0 < abs(self.semi_angle) < np.pi / 2):
+        if not (math.isfinite(self.semi_angle) and 0 < abs(self.semi_angle) < np.pi / 2):
             raise ValueError(f"cone semi-angle must be in (0, pi/2) in magnitude, got {semi_angle}")
         self.sin, self.cos = np.sin(self.semi_angle), np.cos(self.semi_angle)
         #: ``v`` of the apex, where the radius ``R + v sin a`` vanishes
         self.v_apex = -self.radius / self.sin
-        b = np.asarray(bounds, dtype=float).reshape(2, 2)
-        #: +1 if the face's nappe has ``v >= v_apex``, else -1
-        self.nappe = 1.0 if b[1].mean() >= self.v_apex else -1.0
+        v0, v1 = np.asarray(bounds, dtype=float).reshape(2, 2)[1].tolist()
+        #: +1 if the face's nappe (its mid-``v``, as ``mean``) has ``v >= v_apex``, else -1
+        self.nappe = 1.0 if (v0 + v1) / 2 >= self.v_apex else -1.0
         lo, hi = (self.v_apex, np.inf) if self.nappe > 0 else (-np.inf, self.v_apex)
         self.limits = np.array([[-np.inf, np.inf], [lo, hi]])
 
     def _sagitta(self, du, dv):
-        r = np.max(np.abs(self.radius + self.bounds[1] * self.sin))
+        r = np.abs(self.radius + self.bounds[..., 1, :].T * self.sin).max(axis=0)  # the larger end radius
         return r * (1 - np.cos(du / 2))
 
     def _local(self, u, v, c, s, nderiv):
@@ -652,7 +660,7 @@ class Sphere(AnalyticSurface):
         self.radius = _positive(shape[0], "sphere radius")
 
     def _sagitta(self, du, dv):
-        return self.radius * (1 - np.cos(max(du, dv) / 2))
+        return self.radius * (1 - np.cos(np.maximum(du, dv) / 2))
 
     def _local(self, u, v, c, s, nderiv):
         k = u.shape[0]
