@@ -491,8 +491,8 @@ class Plane(AnalyticSurface):
         linear in ``u, v``), ``(lo, hi)`` each ``(k, 3)``."""
         B = np.array([sf.bounds for sf in surfaces])  # (k, 2, 2)
         u, v = B[:, 0][:, [0, 0, 1, 1], None], B[:, 1][:, [0, 1, 0, 1], None]  # (k, 4, 1)
-        O, X, Y = (np.array([getattr(sf, a) for sf in surfaces])[:, None] for a in ("origin", "X", "Y"))
-        S = O + X * u + Y * v
+        F = np.array([(sf.origin, sf.X, sf.Y) for sf in surfaces])  # (k, 3, 3): O, X, Y
+        S = F[:, 0, None] + F[:, 1, None] * u + F[:, 2, None] * v
         return S.min(axis=1), S.max(axis=1)
 
     def normals(self, params):
