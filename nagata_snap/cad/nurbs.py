@@ -539,8 +539,11 @@ class NurbsCurve(_ControlNet):
         _freeze(self, "knots", knots)
         _freeze(self, "control_points", cp)
         _freeze(self, "weights", w)
-        # homogeneous control points (w P, w) as (4, n), points last
-        _freeze(self, "_pwT", np.concatenate([cp * w[:, None], w[:, None]], axis=1).T)
+        # homogeneous control points (w P, w) as (4, n), points last, written in place
+        pwT = np.empty((4, n))
+        np.multiply(cp.T, w, out=pwT[:3])
+        pwT[3] = w
+        _freeze(self, "_pwT", pwT)
         _freeze(self, "_spans", _span_table(knots, self.degree, n))
         object.__setattr__(self, "_size", _bbox_size(cp))
         known = -1
