@@ -97,7 +97,7 @@ class _Curve:
             d = c.__dict__
             d["bounds"] = d["limits"] = b
             d["bbox"], d["bbox_size"] = (lo_i, hi_i), size
-            d.update(zip(names, values))
+            d.update(zip(names, values, strict=True))
             curves.append(c)
         return curves
 
@@ -215,7 +215,7 @@ class Circle(_Curve):
         V = _fields((centers, xs, ys), 2, ("circle centre", "circle x direction", "circle y direction"))
         C, (X, Y) = V[0], V[1:] / norms(V[1:])[..., None]
         R = np.asarray(radii, dtype=float).reshape(-1)
-        ok = (R > 0) & (R < np.inf)  # positive and finite (NaN fails both)
+        ok = np.isfinite(R) & (R > 0)
         if not ok.all():
             raise ValueError(f"circle radius must be positive, got {np.reshape(radii, -1)[np.argmin(ok)]}")
         a, b = np.asarray(t0, dtype=float).reshape(-1), np.asarray(t1, dtype=float).reshape(-1)
