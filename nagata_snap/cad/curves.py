@@ -78,9 +78,10 @@ class _Curve:
     def _ranges(t0: npt.ArrayLike, t1: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """``(t0 (k,), t1 (k,))``: the ranges of ``k`` curves, checked."""
         t0, t1 = np.asarray(t0, dtype=float).reshape(-1), np.asarray(t1, dtype=float).reshape(-1)
-        bad = np.flatnonzero(~(np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)))
-        if bad.size:
-            raise ValueError(f"curve range must be finite with t0 < t1, got ({t0[bad[0]]}, {t1[bad[0]]})")
+        ok = np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)
+        if not ok.all():
+            i = np.argmin(ok)
+            raise ValueError(f"curve range must be finite with t0 < t1, got ({t0[i]}, {t1[i]})")
         return t0, t1
 
     @classmethod
