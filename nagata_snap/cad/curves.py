@@ -90,16 +90,13 @@ class _Curve:
         ``lo, hi (k, 3)`` (and their diagonals), and the per-curve values of ``fields``."""
         bounds = np.empty((len(t0), 1, 2))
         bounds[:, 0, 0], bounds[:, 0, 1] = t0, t1
-        names = list(fields)
-        curves = []
-        for b, lo_i, hi_i, size, *values in zip(bounds, lo, hi, norms(hi - lo).tolist(), *fields.values(),
-                                          strict=True):  # loop over curves (the objects)
-            c = cls.__new__(cls)
+        keys = ("bounds", "bbox", "bbox_size", *fields)
+        curves = [cls.__new__(cls) for _ in range(len(t0))]
+        for c, *row in zip(curves, bounds, zip(lo, hi, strict=True), norms(hi - lo).tolist(), *fields.values(),
+                           strict=True):  # loop over curves (their attributes, one row each)
             d = c.__dict__
-            d["bounds"] = d["limits"] = b
-            d["bbox"], d["bbox_size"] = (lo_i, hi_i), size
-            d.update(zip(names, values, strict=True))
-            curves.append(c)
+            d.update(zip(keys, row, strict=True))
+            d["limits"] = row[0]
         return curves
 
     def _copy_from(self, other: _Curve) -> None:
