@@ -283,7 +283,7 @@ class AnalyticSurface:
             for name in cls[i0]._shape_fields:
                 setattr(stack, name, np.repeat(getattr(stack, name), g))
             sl = slice(i0 * g, i1 * g)
-            local[:, sl] = stack._local(V[sl], V[sl], V[sl], V[sl], 0)[0]  # no term in u (nor c, s)
+            local[:, sl] = stack._local(V[sl], V[sl], V[sl], V[sl], 0)[0]  # u, c, s unused at nderiv 0
         a, b = local[0].reshape(k, 1, g), local[2].reshape(k, 1, g)  # along the grid's v (last axis)
         F = np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0)[..., None]
         X, Y, Z, O = F  # (3, k, 1) each
