@@ -50,6 +50,19 @@ def _vecs(a, n: int, what: str) -> np.ndarray:
     return v
 
 
+def _fields(values: tuple, n: int, whats: tuple[str, ...]) -> np.ndarray:
+    """``(f, k, 3)``: ``f`` fields of ``k`` curves, each ``k`` ``n``- or 3-vectors, as :func:`_vecs`
+    gives them: converted and checked together where they all are finite 3-vectors, else field
+    by field (:func:`_vecs`, raising its error for the first invalid field, ``whats`` naming it)."""
+    try:
+        V = np.array(values, dtype=float)
+    except (ValueError, TypeError):
+        V = None
+    if V is None or V.ndim != 3 or V.shape[2] != 3 or not np.isfinite(V).all():
+        V = np.array([_vecs(a, n, what) for a, what in zip(values, whats, strict=True)])
+    return V
+
+
 class _Curve:
     param_dim = 1
     kind = "curve"
@@ -65,26 +78,25 @@ class _Curve:
     def _ranges(t0: npt.ArrayLike, t1: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """``(t0 (k,), t1 (k,))``: the ranges of ``k`` curves, checked."""
         t0, t1 = np.asarray(t0, dtype=float).reshape(-1), np.asarray(t1, dtype=float).reshape(-1)
-        bad = np.flatnonzero(~(np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)))
-        if bad.size:
-            raise ValueError(f"curve range must be finite with t0 < t1, got ({t0[bad[0]]}, {t1[bad[0]]})")
+        ok = np.isfinite(t0) & np.isfinite(t1) & (t1 > t0)
+        if not ok.all():
+            i = np.argmin(ok)
+            raise ValueError(f"curve range must be finite with t0 < t1, got ({t0[i]}, {t1[i]})")
         return t0, t1
 
     @classmethod
     def _make(cls, t0: np.ndarray, t1: np.ndarray, lo: np.ndarray, hi: np.ndarray, **fields: Any) -> list:
         """``k`` curves of class ``cls``: ranges ``t0, t1 (k,)`` (checked, :meth:`_ranges`), boxes
         ``lo, hi (k, 3)`` (and their diagonals), and the per-curve values of ``fields``."""
-        bounds = np.stack([t0, t1], axis=1)[:, None, :]  # (k, 1, 2)
-        size = norms(hi - lo).tolist()
-        curves = []
-        for i, b in enumerate(bounds):  # loop over curves (the objects)
-            c = cls.__new__(cls)
+        bounds = np.empty((len(t0), 1, 2))
+        bounds[:, 0, 0], bounds[:, 0, 1] = t0, t1
+        keys = ("bounds", "bbox", "bbox_size", *fields)
+        curves = [cls.__new__(cls) for _ in range(len(t0))]
+        for c, *row in zip(curves, bounds, zip(lo, hi, strict=True), norms(hi - lo).tolist(), *fields.values(),
+                           strict=True):  # loop over curves (their attributes, one row each)
             d = c.__dict__
-            d["bounds"] = d["limits"] = b
-            d["bbox"], d["bbox_size"] = (lo[i], hi[i]), size[i]
-            for name, values in fields.items():
-                d[name] = values[i]
-            curves.append(c)
+            d.update(zip(keys, row, strict=True))
+            d["limits"] = row[0]
         return curves
 
     def _copy_from(self, other: _Curve) -> None:
@@ -153,10 +165,9 @@ class Line(_Curve):
              t1: npt.ArrayLike) -> list[Line]:
         """``k`` lines from ``origins, directions (k, 2|3)`` (directions are normalised) and
         ranges ``t0, t1 (k,)``; their boxes are their end points' (exact: linear in ``t``)."""
-        O = _vecs(origins, 2, "line origin")
-        D = _vecs(directions, 2, "line direction")
+        O, D = _fields((origins, directions), 2, ("line origin", "line direction"))
         n = norms(D)
-        if np.any(n == 0):
+        if not n.all():
             raise ValueError("line direction must be non-zero")
         D = D / n[:, None]
         t0, t1 = cls._ranges(t0, t1)
@@ -199,23 +210,24 @@ class Circle(_Curve):
         """``k`` circles from ``centers, xs, ys (k, 2|3)`` (``xs, ys`` are normalised), ``radii (k,)``
         and ranges ``t0, t1 (k,)``.  Box: :data:`BOX_SAMPLES` points on the range, widened by the
         sagitta ``R (1 - cos(dt / 2))`` of their spacing ``dt``."""
-        C = _vecs(centers, 2, "circle centre")
-        X, Y = _vecs(xs, 2, "circle x direction"), _vecs(ys, 2, "circle y direction")
-        X, Y = X / norms(X)[:, None], Y / norms(Y)[:, None]
+        V = _fields((centers, xs, ys), 2, ("circle centre", "circle x direction", "circle y direction"))
+        C, (X, Y) = V[0], V[1:] / norms(V[1:])[..., None]
         R = np.asarray(radii, dtype=float).reshape(-1)
-        bad = np.flatnonzero(~(np.isfinite(R) & (R > 0)))
-        if bad.size:
-            raise ValueError(f"circle radius must be positive, got {np.reshape(radii, -1)[bad[0]]}")
+        ok = np.isfinite(R) & (R > 0)
+        if not ok.all():
+            raise ValueError(f"circle radius must be positive, got {np.reshape(radii, -1)[np.argmin(ok)]}")
         a, b = np.asarray(t0, dtype=float).reshape(-1), np.asarray(t1, dtype=float).reshape(-1)
-        long = np.flatnonzero(b - a > TWO_PI * (1 + 1e-12))
-        if long.size:
-            raise ValueError(f"circle range longer than 2 pi: ({a[long[0]]}, {b[long[0]]})")
-        full = np.abs((b - a) - TWO_PI) <= 1e-12 * TWO_PI
+        dt = b - a
+        long = dt > TWO_PI * (1 + 1e-12)
+        if long.any():
+            i = np.argmax(long)
+            raise ValueError(f"circle range longer than 2 pi: ({a[i]}, {b[i]})")
+        full = np.abs(dt - TWO_PI) <= 1e-12 * TWO_PI
         t0, t1 = cls._ranges(a, b)
         t = linspaces(t0, t1, BOX_SAMPLES)  # (k, s)
         # (3, k, s): the samples' coordinates, each along the last (contiguous) axis
         P = C.T[:, :, None] + R[:, None] * (X.T[:, :, None] * np.cos(t) + Y.T[:, :, None] * np.sin(t))
-        pad = R * (1 - np.cos((t1 - t0) / (BOX_SAMPLES - 1) / 2))
+        pad = R * (1 - np.cos(dt / (BOX_SAMPLES - 1) / 2))
         return cls._make(t0, t1, P.min(axis=2).T - pad[:, None], P.max(axis=2).T + pad[:, None], center=C, X=X, Y=Y,
                          radius=R.tolist(), closed=[(f,) for f in full.tolist()])
 

@@ -334,8 +334,11 @@ def _check_nderiv(nderiv: int) -> int:
 
 
 def _bbox_size(points: np.ndarray) -> float:
-    pts = points.reshape(-1, 3)
-    d = pts.max(axis=0) - pts.min(axis=0)
+    """Diagonal of the box of ``points (..., 3)``, reduced coordinate by coordinate over a
+    contiguous copy (faster than along the rows; the extents and their norm are exact
+    whatever the order, a zero's sign squared away)."""
+    pts = np.ascontiguousarray(points.reshape(-1, 3).T)  # (3, n)
+    d = pts.max(axis=1) - pts.min(axis=1)
     return float(np.sqrt(d @ d))  # np.linalg.norm(d), to the last bit
 
 
@@ -539,8 +542,11 @@ class NurbsCurve(_ControlNet):
         _freeze(self, "knots", knots)
         _freeze(self, "control_points", cp)
         _freeze(self, "weights", w)
-        # homogeneous control points (w P, w) as (4, n), points last
-        _freeze(self, "_pwT", np.concatenate([cp * w[:, None], w[:, None]], axis=1).T)
+        # homogeneous control points (w P, w) as (4, n), points last, written in place
+        pwT = np.empty((4, n))
+        np.multiply(cp.T, w, out=pwT[:3])
+        pwT[3] = w
+        _freeze(self, "_pwT", pwT)
         _freeze(self, "_spans", _span_table(knots, self.degree, n))
         object.__setattr__(self, "_size", _bbox_size(cp))
         known = -1

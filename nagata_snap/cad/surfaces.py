@@ -36,6 +36,7 @@ taken); evaluation is not clamped to it: the surface extends beyond its face.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from itertools import pairwise
 from typing import Any, cast
@@ -55,7 +56,7 @@ BOX_GRID = 17
 
 def _positive(value, what: str) -> float:
     v = float(value)
-    if not (np.isfinite(v) and v > 0):
+    if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{what} must be positive, got {value}")
     return v
 
@@ -176,14 +177,13 @@ class AnalyticSurface:
             raise ValueError(f"{'xyz'[j]} must be a finite non-zero vector, got {A[i, j].tolist()}")
         A = A / n[..., None]
         X, Y, Z = A[:, 0], A[:, 1], A[:, 2]
-        bad = ~np.isfinite(O).all(axis=1)
-        if bad.any():
-            raise ValueError(f"origin must be finite, got {O[np.argmax(bad)].tolist()}")
+        if not np.isfinite(O).all():
+            raise ValueError(f"origin must be finite, got {O[np.argmin(np.isfinite(O).all(axis=1))].tolist()}")
         (x0, x1, x2), (y0, y1, y2), (z0, z1, z2) = X.T, Y.T, Z.T
         triple = (x1 * y2 - x2 * y1) * z0 + (x2 * y0 - x0 * y2) * z1 + (x0 * y1 - x1 * y0) * z2  # (X x Y).Z
         B = _rows(bounds, (2, 2))
-        bad = ~np.isfinite(B).all(axis=(1, 2)) | (B[:, :, 1] < B[:, :, 0]).any(axis=1)
-        if bad.any():
+        if not (np.isfinite(B).all() and (B[:, :, 0] <= B[:, :, 1]).all()):
+            bad = ~np.isfinite(B).all(axis=(1, 2)) | (B[:, :, 1] < B[:, :, 0]).any(axis=1)
             raise ValueError(f"bounds must be finite [[u0, u1], [v0, v1]], got {B[np.argmax(bad)].tolist()}")
         # closest points measure the angle from e(u0 + pi): atan2 then lands in
         # [u0, u0 + 2 pi] with one addition, no wrapping
@@ -194,10 +194,9 @@ class AnalyticSurface:
         o_local = np.matmul(frame, O[:, :, None])[:, :, 0]
         frame4 = np.concatenate([frame, O[:, None]], axis=1)  # [x y z 1] @ _frame4 = O + x e + y e' + z Z
         hand = np.where(triple > 0, 1.0, -1.0).tolist()
-        for i, sf in enumerate(surfaces):  # loop over surfaces (their fields)
-            sf.origin, sf.X, sf.Y, sf.Z, sf.bounds = O[i], X[i], Y[i], Z[i], B[i]
-            sf.hand, sf._shift = hand[i], float(shift[i])
-            sf._frame, sf._o_local, sf._frame4 = frame[i], o_local[i], frame4[i]
+        for sf, *fields in zip(surfaces, O, X, Y, Z, B, hand, shift.tolist(), frame, o_local, frame4,
+                               strict=True):  # loop over surfaces (their fields)
+            sf.origin, sf.X, sf.Y, sf.Z, sf.bounds, sf.hand, sf._shift, sf._frame, sf._o_local, sf._frame4 = fields
             sf._box = None
         planes = [i for i, sf in enumerate(surfaces) if isinstance(sf, Plane)]
         if planes:
@@ -258,33 +257,49 @@ class AnalyticSurface:
         revolution (any classes, those of a class next to each other), the points of a
         :data:`BOX_GRID` x :data:`BOX_GRID` grid widened by their sagitta.
 
-        The grids are evaluated together: per class :meth:`_local` of one surface whose
-        shape fields are per-point arrays, then :func:`_to_global` with per-point frames
-        (both are elementwise, so each point is what its own surface's :meth:`_eval_soa`
-        gives).
+        A point of a surface of revolution is ``O + a(v) e(u) + 0 e'(u) + b(v) Z``: per class
+        :meth:`_local` of one surface whose shape fields are per-sample arrays gives ``a, b``
+        at the ``v`` of every grid row (its ``e'(u)`` coefficient is 0), the frame ``e(u),
+        e'(u)`` is taken at the ``u`` of every column, and the grid points are combined from
+        both by broadcasting, with the products and sums of :func:`_to_global` in its order
+        (so each point is what its own surface's :meth:`_eval_soa` gives).  The sagittas of a
+        class are its :meth:`_sagitta` of the stacked surfaces, elementwise as well.
         """
         k, g = len(surfaces), BOX_GRID
         B = np.array([sf.bounds for sf in surfaces])
         u, v = linspaces(B[:, 0, 0], B[:, 0, 1], g), linspaces(B[:, 1, 0], B[:, 1, 1], g)  # (k, g) each
-        U, V = np.repeat(u, g, axis=1).ravel(), np.tile(v, (1, g)).ravel()  # each surface's grid, u major
-        c, sn = np.repeat(np.cos(u), g, axis=1).ravel(), np.repeat(np.sin(u), g, axis=1).ravel()  # of U
-        local = np.empty((1, 3, k * g * g))
+        V = v.ravel()
+        du, dv = u[:, 1] - u[:, 0], v[:, 1] - v[:, 0]
+        local = np.empty((3, k * g))  # a, 0, b at every v (the local point, nderiv 0)
+        pad = np.empty((k, 1))
         cls = [type(sf) for sf in surfaces]
         first = [i for i in range(k) if i == 0 or cls[i] is not cls[i - 1]] + [k]
         for i0, i1 in pairwise(first):  # loop over classes (their formulas)
-            stack = cls[i0].__new__(cls[i0])
+            stack = cls[i0].__new__(cls[i0])  # the surfaces i0 .. i1: their fields, then per v sample
+            stack.bounds = B[i0:i1]
             for name in cls[i0]._shape_fields:
-                setattr(stack, name, np.repeat([getattr(sf, name) for sf in surfaces[i0:i1]], g * g))
-            sl = slice(i0 * g * g, i1 * g * g)
-            local[:, :, sl] = stack._local(U[sl], V[sl], c[sl], sn[sl], 0)
-        F = np.repeat(np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0), g * g,
-                      axis=2)  # (4, 3, k g^2): X, Y, Z, origin of every point's surface
-        S = _to_global(local, c, sn, F[0], F[1], F[2], F[3])[0].reshape(3, k, g * g)
-        pad = np.array([sf._sagitta(du, dv) for sf, du, dv in  # loop over surfaces (scalars)
-                        zip(surfaces, u[:, 1] - u[:, 0], v[:, 1] - v[:, 0], strict=True)])[:, None]
+                setattr(stack, name, np.array([getattr(sf, name) for sf in surfaces[i0:i1]]))
+            pad[i0:i1, 0] = stack._sagitta(du[i0:i1], dv[i0:i1])
+            for name in cls[i0]._shape_fields:
+                setattr(stack, name, np.repeat(getattr(stack, name), g))
+            sl = slice(i0 * g, i1 * g)
+            local[:, sl] = stack._local(V[sl], V[sl], V[sl], V[sl], 0)[0]  # u, c, s unused at nderiv 0
+        a, b = local[0].reshape(k, 1, g), local[2].reshape(k, 1, g)  # along the grid's v (last axis)
+        F = np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0)[..., None]
+        X, Y, Z, O = F  # (3, k, 1) each
+        c, sn = np.cos(u), np.sin(u)  # (k, g): along the grid's u
+        E = c * X + sn * Y  # (3, k, g): e(u), e'(u) as _to_global
+        Ep = -sn * X + c * Y
+        S = a * E[..., None]  # (3, k, g, g), u major
+        S += (0.0 * Ep)[..., None]  # the e'(u) term (a zero's sign where a e(u) is 0)
+        S += b * Z[..., None]
+        S += O[..., None]
+        S = S.reshape(3, k, g * g)
         return S.min(axis=2).T - pad, S.max(axis=2).T + pad
 
-    def _sagitta(self, du: float, dv: float) -> float:
+    def _sagitta(self, du, dv):
+        """The sagitta of grid steps ``du, dv`` (scalars, or ``(m,)`` for ``m`` surfaces stacked as in
+        :meth:`_sample_boxes`): the most a grid cell's surface bulges beyond its corners' box."""
         return 0.0
 
     def _evaluate_inside(self, u: np.ndarray, v: np.ndarray, nderiv: int) -> np.ndarray:
@@ -476,8 +491,8 @@ class Plane(AnalyticSurface):
         linear in ``u, v``), ``(lo, hi)`` each ``(k, 3)``."""
         B = np.array([sf.bounds for sf in surfaces])  # (k, 2, 2)
         u, v = B[:, 0][:, [0, 0, 1, 1], None], B[:, 1][:, [0, 1, 0, 1], None]  # (k, 4, 1)
-        O, X, Y = (np.array([getattr(sf, a) for sf in surfaces])[:, None] for a in ("origin", "X", "Y"))
-        S = O + X * u + Y * v
+        F = np.array([(sf.origin, sf.X, sf.Y) for sf in surfaces])  # (k, 3, 3): O, X, Y
+        S = F[:, 0, None] + F[:, 1, None] * u + F[:, 2, None] * v
         return S.min(axis=1), S.max(axis=1)
 
     def normals(self, params):
@@ -545,21 +560,21 @@ class Cone(AnalyticSurface):
         radius, semi_angle = shape
         self.radius = float(radius)
         self.semi_angle = float(semi_angle)
-        if not (np.isfinite(self.radius) and self.radius >= 0):
+        if not (math.isfinite(self.radius) and self.radius >= 0):
             raise ValueError(f"cone reference radius must be >= 0, got {radius}")
-        if not (np.isfinite(self.semi_angle) and 0 < abs(self.semi_angle) < np.pi / 2):
+        if not (math.isfinite(self.semi_angle) and 0 < abs(self.semi_angle) < np.pi / 2):
             raise ValueError(f"cone semi-angle must be in (0, pi/2) in magnitude, got {semi_angle}")
         self.sin, self.cos = np.sin(self.semi_angle), np.cos(self.semi_angle)
         #: ``v`` of the apex, where the radius ``R + v sin a`` vanishes
         self.v_apex = -self.radius / self.sin
-        b = np.asarray(bounds, dtype=float).reshape(2, 2)
-        #: +1 if the face's nappe has ``v >= v_apex``, else -1
-        self.nappe = 1.0 if b[1].mean() >= self.v_apex else -1.0
+        v0, v1 = np.asarray(bounds, dtype=float).reshape(2, 2)[1].tolist()
+        #: +1 if the face's nappe (its mid-``v``, as ``mean``) has ``v >= v_apex``, else -1
+        self.nappe = 1.0 if (v0 + v1) / 2 >= self.v_apex else -1.0
         lo, hi = (self.v_apex, np.inf) if self.nappe > 0 else (-np.inf, self.v_apex)
         self.limits = np.array([[-np.inf, np.inf], [lo, hi]])
 
     def _sagitta(self, du, dv):
-        r = np.max(np.abs(self.radius + self.bounds[1] * self.sin))
+        r = np.abs(self.radius + self.bounds[..., 1, :].T * self.sin).max(axis=0)  # the larger end radius
         return r * (1 - np.cos(du / 2))
 
     def _local(self, u, v, c, s, nderiv):
@@ -645,7 +660,7 @@ class Sphere(AnalyticSurface):
         self.radius = _positive(shape[0], "sphere radius")
 
     def _sagitta(self, du, dv):
-        return self.radius * (1 - np.cos(max(du, dv) / 2))
+        return self.radius * (1 - np.cos(np.maximum(du, dv) / 2))
 
     def _local(self, u, v, c, s, nderiv):
         k = u.shape[0]

@@ -703,9 +703,9 @@ def _surface(desc: dict, uv) -> tuple[AnalyticSurface | NurbsSurface, np.ndarray
     from :mod:`~nagata_snap.cad.read`) gets the image of its ``(u, v)`` box as its bounds
     (:func:`_map_boxes`).
     """
-    box = np.array([[uv[0], uv[1]], [uv[2], uv[3]]], dtype=float)
     if desc["type"] == "bspline":
         return nurbs_surface(desc), None
+    box = np.array([[uv[0], uv[1]], [uv[2], uv[3]]], dtype=float)
     M = desc.get("uv_map")
     if M is None:
         return analytic_surface(desc, box), None
