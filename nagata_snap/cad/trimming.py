@@ -272,8 +272,8 @@ class TrimLoops:
         if P.ndim != 2 or P.shape[1] != 2 or band.ndim != 1 or (m < 2).any():
             return None
         end = m.cumsum()
-        a, b = P[end - m], P[end - 1]
-        closed = (m > 1) & (a[:, 0] == b[:, 0]) & (a[:, 1] == b[:, 1])  # closed on its first vertex
+        uv = P.view(np.complex128)[:, 0]  # each vertex as u + iv: equal when both coordinates are
+        closed = uv[end - m] == uv[end - 1]  # closed on its first vertex
         m -= closed
         if not np.isfinite(P).all() or (m < 2).any() or list(map(len, bs)) != m.tolist():
             return None
