@@ -121,7 +121,11 @@ class _Slabs:
         first = np.zeros(len(n) + 1, dtype=np.int64)  # global number of each polygon's first slab
         n.cumsum(out=first[1:])
         seg = (np.arange(len(P)) - off[lid]).repeat(cnt)
-        slab = (s[0] + first[lid]).repeat(cnt) + ramp(cnt)
+        # the slabs of each edge's entries: its first one plus 0..cnt-1 (ramp(cnt) with one repeat:
+        # the entries of edge j start at end[j] - cnt[j])
+        end = cnt.cumsum()
+        slab = (s[0] + first[lid] + cnt - end).repeat(cnt)
+        slab += np.arange(len(seg))
         # by slab, stably (a radix sort where the slab numbers fit 16 bits: the same order)
         seg = seg[(slab.astype(np.uint16) if first[-1] <= 0xFFFF else slab).argsort(kind="stable")]
         ptr = np.zeros(int(first[-1]) + 1, dtype=np.int64)
