@@ -676,6 +676,7 @@ class AffineBatch:
     def __init__(self, entities: Sequence[Entity]):
         aff = [getattr(e, "affine", None) for e in entities]
         sel = [i for i, a in enumerate(aff) if a is not None]
+        frames = [a for a in aff if a is not None]
         n, d = len(aff), entities[0].param_dim if entities else 1
         self.has = np.zeros(n, dtype=bool)
         self.has[sel] = True
@@ -684,8 +685,8 @@ class AffineBatch:
         self.limits = np.zeros((n, d, 2))
         self.clamped = False
         if sel:  # the frames stacked once (concatenated: no row assignment per entity)
-            self.origin[sel] = np.concatenate([aff[i][0] for i in sel]).reshape(-1, 3)
-            self.axes[sel] = np.concatenate([aff[i][1] for i in sel]).reshape(-1, d, 3)
+            self.origin[sel] = np.concatenate([a[0] for a in frames]).reshape(-1, 3)
+            self.axes[sel] = np.concatenate([a[1] for a in frames]).reshape(-1, d, 3)
             lim = np.concatenate([entity_limits(entities[i]) for i in sel]).reshape(-1, d, 2)
             self.limits[sel] = lim
             self.clamped = bool(np.isfinite(lim).any())
