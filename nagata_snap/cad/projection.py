@@ -675,18 +675,21 @@ class AffineBatch:
 
     def __init__(self, entities: Sequence[Entity]):
         aff = [getattr(e, "affine", None) for e in entities]
-        self.has = np.array([a is not None for a in aff], dtype=bool)
-        d = entities[0].param_dim if entities else 1
-        self.origin = np.zeros((len(aff), 3))
-        self.axes = np.zeros((len(aff), d, 3))
-        self.limits = np.zeros((len(aff), d, 2))
-        rows = [(i, a) for i, a in enumerate(aff) if a is not None]
-        if rows:  # the frames stacked once (no row assignment per entity)
-            sel = [i for i, _ in rows]
-            self.origin[sel] = [a[0] for _, a in rows]
-            self.axes[sel] = [a[1] for _, a in rows]
-            self.limits[sel] = [entity_limits(entities[i]) for i in sel]
-        self.clamped = bool(np.isfinite(self.limits[self.has]).any())
+        sel = [i for i, a in enumerate(aff) if a is not None]
+        frames = [a for a in aff if a is not None]
+        n, d = len(aff), entities[0].param_dim if entities else 1
+        self.has = np.zeros(n, dtype=bool)
+        self.has[sel] = True
+        self.origin = np.zeros((n, 3))
+        self.axes = np.zeros((n, d, 3))
+        self.limits = np.zeros((n, d, 2))
+        self.clamped = False
+        if sel:  # the frames stacked once (concatenated: no row assignment per entity)
+            self.origin[sel] = np.concatenate([a[0] for a in frames]).reshape(-1, 3)
+            self.axes[sel] = np.concatenate([a[1] for a in frames]).reshape(-1, d, 3)
+            lim = np.concatenate([entity_limits(entities[i]) for i in sel]).reshape(-1, d, 2)
+            self.limits[sel] = lim
+            self.clamped = bool(np.isfinite(lim).any())
 
     def closest(self, ent: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(params (n, d), foot points (n, 3), distances (n,))`` of ``X (n, 3)`` on the
@@ -791,10 +794,11 @@ class GlobalSearcher:
         self._trees: dict[int, cKDTree] = {}
         self._all: tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree] | None = None
         boxes = [e.bbox for e in entities]  # each computed once
-        lo = np.array([b[0] for b in boxes])
-        hi = np.array([b[1] for b in boxes])
+        lo = np.concatenate([b[0] for b in boxes]).reshape(-1, 3)
+        hi = np.concatenate([b[1] for b in boxes]).reshape(-1, 3)
         self.bbox_lo, self.bbox_hi = lo, hi
-        self.size = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
+        diag = hi.max(axis=0) - lo.min(axis=0)
+        self.size = math.sqrt(diag.dot(diag))  # its norm (as np.linalg.norm computes it)
         self.affine = AffineBatch(entities)
 
     def entity_samples(self, i: int) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,6 @@ period, the seam edge being used twice).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
@@ -105,24 +104,32 @@ class _Slabs:
     def _many(cls, P: np.ndarray, m: np.ndarray, off: np.ndarray, nxt: np.ndarray) -> list[_Slabs]:
         """:meth:`many` of the polygons ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows
         (``off``, ``nxt``: :func:`_closing` of ``m``)."""
-        lid = np.repeat(np.arange(len(m)), m)
-        y, yn = P[:, 1], P[nxt, 1]
-        lo, hi = np.minimum(y, yn), np.maximum(y, yn)
-        y0, y1 = np.minimum.reduceat(lo, off[:-1]), np.maximum.reduceat(hi, off[:-1])
+        lid = np.arange(len(m)).repeat(m)
+        y = P[:, 1]
+        ends = np.empty((2, len(P)))  # the lower and upper ordinate of each edge
+        yn = y[nxt]
+        np.minimum(y, yn, out=ends[0])
+        np.maximum(y, yn, out=ends[1])
+        y0, y1 = np.minimum.reduceat(ends[0], off[:-1]), np.maximum.reduceat(ends[1], off[:-1])
         n = np.minimum(np.maximum(m // 2, 1), 4096)
         dy = np.maximum((y1 - y0) / n, 1e-300)
-        y0l, dyl, top = y0[lid], dy[lid], (n - 1)[lid]  # per vertex: its polygon's
-        s0 = np.minimum(np.maximum(((lo - y0l) / dyl).astype(np.int64), 0), top)
-        s1 = np.minimum(np.maximum(((hi - y0l) / dyl).astype(np.int64), 0), top)
-        cnt = s1 - s0 + 1
+        # the first and the last slab of each edge (of its polygon's, clamped to them)
+        s = ((ends - y0[lid]) / dy[lid]).astype(np.int64)
+        np.maximum(s, 0, out=s)
+        np.minimum(s, (n - 1)[lid], out=s)
+        cnt = s[1] - s[0] + 1
         first = np.zeros(len(n) + 1, dtype=np.int64)  # global number of each polygon's first slab
-        np.cumsum(n, out=first[1:])
-        seg = np.repeat(np.arange(len(P)) - off[lid], cnt)
-        slab = np.repeat(s0 + first[lid], cnt) + ramp(cnt)
+        n.cumsum(out=first[1:])
+        seg = (np.arange(len(P)) - off[lid]).repeat(cnt)
+        # the slabs of each edge's entries: its first one plus 0..cnt-1 (ramp(cnt) with one repeat:
+        # the entries of edge j start at end[j] - cnt[j])
+        end = cnt.cumsum()
+        slab = (s[0] + first[lid] + cnt - end).repeat(cnt)
+        slab += np.arange(len(seg))
         # by slab, stably (a radix sort where the slab numbers fit 16 bits: the same order)
         seg = seg[(slab.astype(np.uint16) if first[-1] <= 0xFFFF else slab).argsort(kind="stable")]
         ptr = np.zeros(int(first[-1]) + 1, dtype=np.int64)
-        np.cumsum(np.bincount(slab, minlength=int(first[-1])), out=ptr[1:])
+        np.bincount(slab, minlength=int(first[-1])).cumsum(out=ptr[1:])
         out = []
         f, s0 = first.tolist(), ptr[first].tolist()
         for i, (a, b, c) in enumerate(zip(y0.tolist(), n.tolist(), dy.tolist(), strict=True)):  # loop over polygons
@@ -148,17 +155,10 @@ def _closing(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     one after the other: polygon ``i`` is rows ``off[i]:off[i + 1]``, and vertex ``j`` is
     followed by vertex ``nxt[j]`` (each polygon closes on its first vertex)."""
     off = np.zeros(len(m) + 1, dtype=np.int64)
-    np.cumsum(m, out=off[1:])
+    m.cumsum(out=off[1:])
     nxt = np.arange(1, int(off[-1]) + 1)
     nxt[off[1:] - 1] = off[:-1]
     return off, nxt
-
-
-def _segments(P: np.ndarray, off: np.ndarray, nxt: np.ndarray) -> list[np.ndarray]:
-    """Per closed polygon its edge vectors ``P[(j + 1) % k_i] - P[j]``, computed for all polygons
-    at once: ``P (sum m, 2)``, polygon ``i`` the rows ``off[i]:off[i + 1]`` (:func:`_closing`)."""
-    d = P[nxt] - P
-    return [d[a:b] for a, b in pairwise(off.tolist())]
 
 
 def _user_band(P: np.ndarray) -> np.ndarray:
@@ -202,27 +202,31 @@ class TrimLoops:
         self.entities = list(entities)
         self.rtol = float(rtol)
         fast = self._checked_together(loops, bands)
-        checked, m, P = self._checked(loops, bands) if fast is None else fast
+        ent, m, P, band = self._checked(loops, bands) if fast is None else fast
         off, nxt = _closing(m)
+        seg = P[nxt] - P  # the edge vectors of all loops
         slabs = _Slabs._many(P, m, off, nxt)
-        segs = _segments(P, off, nxt)
+        o = off.tolist()
         self._loops: list[list[tuple]] = [[] for _ in range(n)]
-        for (e, P, band), seg, sl in zip(checked, segs, slabs, strict=True):  # loop over loops (their records)
-            self._loops[e].append((P, seg, band, sl))
+        for i, (e, sl) in enumerate(zip(ent, slabs, strict=True)):  # loop over loops (their records)
+            a, b = o[i], o[i + 1]
+            self._loops[e].append((P[a:b], seg[a:b], band[a:b], sl))
         self.trimmed = np.array([bool(lp) for lp in self._loops])
         self._period = np.array([entity_periods(ent) for ent in self.entities])
 
     def _checked(self, loops: Sequence[Sequence[np.ndarray]], bands: Sequence[Sequence[np.ndarray]] | None
-                 ) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], np.ndarray, np.ndarray]:
-        """``(checked, m, P)``: per loop ``(entity, polygon (k, 2), band (k,))`` (a repeated first
-        vertex dropped; the band plus the absolute tolerance), loop by loop; the polygons'
-        sizes and their vertices, concatenated.
+                 ) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray]:
+        """``(entity, m, P, band)``: per loop its entity and size ``m (w,)``, and the polygons
+        ``P (sum m, 2)`` (a repeated first vertex dropped) and their bands plus the absolute
+        tolerance ``(sum m,)``, concatenated; checked loop by loop.
 
         Raises:
             ValueError: naming the first loop that is not a finite ``(k, 2)`` polygon of at
                 least 2 vertices.
         """
-        checked: list[tuple[int, np.ndarray, np.ndarray]] = []
+        ent: list[int] = []
+        polys: list[np.ndarray] = []
+        bs: list[np.ndarray] = []
         for e in range(len(loops)):  # loop over entities (checks and bands)
             for k, poly in enumerate(loops[e] or []):
                 P = np.asarray(poly, dtype=float)
@@ -236,51 +240,53 @@ class TrimLoops:
                     band = self._param_band(e, P)
                 else:
                     band = np.asarray(bands[e][k], dtype=float).reshape(len(P))
-                checked.append((e, P, band + self.rtol * self.entities[e].bbox_size))
-        m = np.array([len(P) for _, P, _ in checked], dtype=np.int64)
-        return checked, m, np.concatenate([P for _, P, _ in checked] + [np.zeros((0, 2))])
+                ent.append(e)
+                polys.append(P)
+                bs.append(band + self.rtol * self.entities[e].bbox_size)
+        m = np.array([len(P) for P in polys], dtype=np.int64)
+        return ent, m, np.concatenate([*polys, np.zeros((0, 2))]), np.concatenate([*bs, np.zeros(0)])
 
     def _checked_together(self, loops: Sequence[Sequence[np.ndarray]],
                           bands: Sequence[Sequence[np.ndarray]] | None
-                          ) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], np.ndarray, np.ndarray] | None:
+                          ) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray] | None:
         """:meth:`_checked` for loops that all have their bands (a model's), the checks and the
         tolerances of all loops done together; None if one is not as expected (then
         :meth:`_checked` decides, loop by loop)."""
         if bands is None:
             return None
-        ent, polys, bs = [], [], []
-        for e, lps in enumerate(loops):  # loop over entities and their loops (gathering them)
+        ent: list[int] = []
+        polys: list[np.ndarray] = []
+        bs: list[np.ndarray] = []
+        for e, lps in enumerate(loops):  # loop over entities (gathering their loops)
             if not lps:
                 continue
             be = bands[e]
             if be is None or len(be) != len(lps):
                 return None
-            for poly, b in zip(lps, be, strict=True):
-                P, band = np.asarray(poly, dtype=float), np.asarray(b, dtype=float)
-                if P.ndim != 2 or P.shape[1] != 2 or band.ndim != 1:
-                    return None
-                ent.append(e)
-                polys.append(P)
-                bs.append(band)
+            ent += [e] * len(lps)
+            polys += lps
+            bs += be
         if not polys:
-            return [], np.zeros(0, dtype=np.int64), np.zeros((0, 2))
-        m = np.array([len(P) for P in polys], dtype=np.int64)
-        P = np.concatenate(polys)
-        end = np.cumsum(m)
-        a, b = P[end - m], P[end - 1]
-        closed = (m > 1) & (a[:, 0] == b[:, 0]) & (a[:, 1] == b[:, 1])  # closed on its first vertex
+            return [], np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(0)
+        try:  # the checks of every loop's shape, on them concatenated
+            P, band = np.concatenate(polys, dtype=float), np.concatenate(bs, dtype=float)
+        except (ValueError, TypeError):  # not all of one number of dimensions (or not real)
+            return None
+        m = np.fromiter(map(len, polys), dtype=np.int64, count=len(polys))
+        if P.ndim != 2 or P.shape[1] != 2 or band.ndim != 1 or (m < 2).any():
+            return None
+        end = m.cumsum()
+        uv = P.view(np.complex128)[:, 0]  # each vertex as u + iv: equal when both coordinates are
+        closed = uv[end - m] == uv[end - 1]  # closed on its first vertex
         m -= closed
-        if not np.isfinite(P).all() or (m < 2).any() or [len(b) for b in bs] != m.tolist():
+        if not np.isfinite(P).all() or (m < 2).any() or list(map(len, bs)) != m.tolist():
             return None
         if closed.any():
             keep = np.ones(len(P), dtype=bool)
             keep[(end - 1)[closed]] = False
             P = P[keep]
         tol = self.rtol * np.array([self.entities[e].bbox_size for e in ent])
-        band = np.concatenate(bs) + np.repeat(tol, m)
-        off = np.concatenate([[0], np.cumsum(m)]).tolist()
-        checked = [(e, P[a:b], band[a:b]) for e, a, b in zip(ent, off[:-1], off[1:], strict=True)]
-        return checked, m, P
+        return ent, m, P, band + tol.repeat(m)
 
     @classmethod
     def from_outer_holes(cls, entities, outer=None, holes=None, rtol: float = TRIM_RTOL) -> TrimLoops:
