@@ -70,8 +70,9 @@ def dot_last(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def norms(V: np.ndarray) -> np.ndarray:
-    """Euclidean norms of the rows of ``V (..., d)``, the same to the last bit as
-    ``np.linalg.norm(V, axis=-1)`` (a dot product: ``vecdot``), with less overhead."""
+    """Euclidean norms of the rows of ``V (..., d)``: ``np.linalg.norm(V, axis=-1)`` with less
+    overhead, as the square root of a dot product (``vecdot``).  Within rounding of it, not
+    always to the last bit (the dot product may sum the squares in another order)."""
     return np.sqrt(np.vecdot(V, V))
 
 
