@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.mesh.arrays import linspaces, norms
+from nagata_snap.mesh.arrays import float_array, linspaces, norms
 
 __all__ = ["Line", "Circle", "analytic_curve", "analytic_curves"]
 
@@ -54,10 +54,7 @@ def _fields(values: tuple, n: int, whats: tuple[str, ...]) -> np.ndarray:
     """``(f, k, 3)``: ``f`` fields of ``k`` curves, each ``k`` ``n``- or 3-vectors, as :func:`_vecs`
     gives them: converted and checked together where they all are finite 3-vectors, else field
     by field (:func:`_vecs`, raising its error for the first invalid field, ``whats`` naming it)."""
-    try:
-        V = np.array(values, dtype=float)
-    except (ValueError, TypeError):
-        V = None
+    V = float_array(values)
     if V is None or V.ndim != 3 or V.shape[2] != 3 or not np.isfinite(V).all():
         V = np.array([_vecs(a, n, what) for a, what in zip(values, whats, strict=True)])
     return V

@@ -781,14 +781,12 @@ def _sewing():
 
 def _vertices(vmap) -> tuple[np.ndarray, np.ndarray]:
     """``(points (nv, 3), tolerances (nv,))`` of the vertices of ``vmap``."""
-    from OCP.BRep import BRep_Tool
-    from OCP.TopoDS import TopoDS
-
+    o = _occ()
     n = vmap.Extent()
-    vs = [TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, n + 1)]
-    points = _floats(itertools.chain.from_iterable(BRep_Tool.Pnt_s(v).Coord() for v in vs), 3 * n).reshape(n, 3)
+    vs = [o.TopoDS.Vertex(vmap.FindKey(i)) for i in range(1, n + 1)]
+    points = _floats(itertools.chain.from_iterable(o.BRep_Tool.Pnt_s(v).Coord() for v in vs), 3 * n).reshape(n, 3)
     _check_finite(points, "the vertices")
-    return points, _floats(_tolerances(vs, _occ().VERTEX), n)
+    return points, _floats(_tolerances(vs, o.VERTEX), n)
 
 
 def _tolerances(shapes: list, kind) -> list[float]:

@@ -44,7 +44,7 @@ from typing import Any, cast
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.mesh.arrays import linspaces, norms
+from nagata_snap.mesh.arrays import float_array, linspaces, norms
 
 __all__ = ["AnalyticSurface", "Plane", "Cylinder", "Cone", "Sphere", "Torus", "analytic_surface",
            "analytic_surfaces", "fill_boxes"]
@@ -774,10 +774,7 @@ def _rows(values: Sequence | np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     where they already form that array (lists of numbers, an array), else one by one (each
     reshaped, raising as ``reshape`` does)."""
     k = len(values)
-    try:
-        out = np.array(values, dtype=float)
-    except (ValueError, TypeError):
-        out = None
+    out = float_array(values)
     if out is None or out.shape != (k, *shape):
         out = np.array([np.asarray(v, dtype=float).reshape(shape) for v in values]).reshape(k, *shape)
     return out

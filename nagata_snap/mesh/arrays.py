@@ -23,8 +23,8 @@ from itertools import chain
 
 import numpy as np
 
-__all__ = ["best_per_group", "dot", "dot_last", "norms", "unique_rows", "row_index", "pack_rows", "ramp", "linspaces",
-           "Ragged", "Groups"]
+__all__ = ["best_per_group", "dot", "dot_last", "norms", "float_array", "unique_rows", "row_index", "pack_rows",
+           "ramp", "linspaces", "Ragged", "Groups"]
 
 
 def best_per_group(
@@ -74,6 +74,16 @@ def norms(V: np.ndarray) -> np.ndarray:
     overhead, as the square root of a dot product (``vecdot``).  Within rounding of it, not
     always to the last bit (the dot product may sum the squares in another order)."""
     return np.sqrt(np.vecdot(V, V))
+
+
+def float_array(values) -> np.ndarray | None:
+    """``np.array(values, dtype=float)``, or None where numpy cannot make one float array of
+    them (ragged, or not numbers): for converting many small values at once, checking them
+    one by one only where that fails."""
+    try:
+        return np.array(values, dtype=float)
+    except (ValueError, TypeError):
+        return None
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
