@@ -79,6 +79,20 @@ class SnapFailure(Exception):
 # --------------------------------------------------------------------------
 # readers
 # --------------------------------------------------------------------------
+def tag_list(tags) -> str:
+    """Tag values as text, runs of consecutive values as ranges.
+
+    >>> tag_list([1, 2, 3, 4, 7, 9, 10])
+    '1-4, 7, 9, 10'
+    """
+    t = np.unique(np.asarray(tags, dtype=np.int64))
+    if t.size == 0:
+        return "none"
+    cut = np.flatnonzero(np.diff(t) != 1) + 1
+    runs = [(int(r[0]), int(r[-1])) for r in np.split(t, cut)]
+    return ", ".join(f"{a}-{b}" if b > a + 1 else (f"{a}, {b}" if b > a else f"{a}") for a, b in runs)
+
+
 def _bcast_checked(comm, value: Any, error: str | None) -> Any:
     """Broadcast ``(value, error)`` from rank 0; raise UserError everywhere on error."""
     value, error = comm.bcast((value, error), root=0)
@@ -330,6 +344,11 @@ CAD_SUFFIXES = (".step", ".stp", ".igs", ".iges", ".brep", ".brp")
 #: seconds between the heartbeat lines of a long level
 HEARTBEAT = 10.0
 
+#: :attr:`Snapper.stage` -> the heartbeat's words
+_STAGES = {"refine": "refining (dolfinx.mesh.refine)", "lineage": "parent maps of the new facets",
+           "place": "placing the new boundary vertices", "smooth+check": "smoothing and checking the cells",
+           "tags": "facet tags", "report": "quality report"}
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -444,7 +463,7 @@ def _mesh_input(args: argparse.Namespace, comm: MPI.Comm, say: Callable[..., Non
 
     tdim = mesh.topology.dim
     say(f"{PROG}: read {args.input}: {mesh.topology.index_map(tdim).size_global} cells ({tdim}D), "
-        f"facet tags {present_tags(ft, comm)} ({time.perf_counter() - t0:.2f} s)")
+        f"facet tags {tag_list(present_tags(ft, comm))} ({time.perf_counter() - t0:.2f} s)")
     if args.cad is None:
         return mesh, ft, None, args.tags
     from nagata_snap.cad import CadError, CadGeometry
@@ -458,19 +477,23 @@ def _mesh_input(args: argparse.Namespace, comm: MPI.Comm, say: Callable[..., Non
 
 
 class _Heartbeat:
-    """Prints ``... level k: still running (t s)`` every :data:`HEARTBEAT` seconds on rank 0."""
+    """Prints ``... level k: still running (t s, <stage>)`` every :data:`HEARTBEAT` seconds on rank 0.
 
-    def __init__(self, say, level: int):
+    The stage is the snapper's :attr:`~nagata_snap.Snapper.stage`.  A stage that holds
+    Python's lock (``dolfinx.mesh.refine`` on a large mesh) delays the next line."""
+
+    def __init__(self, say, level: int, snapper):
         import threading
 
-        self.say, self.level, self.t0 = say, level, time.perf_counter()
+        self.say, self.level, self.snapper, self.t0 = say, level, snapper, time.perf_counter()
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self):
         while not self.stop.wait(HEARTBEAT):
+            stage = _STAGES.get(self.snapper.stage or "", "")
             self.say(f"{PROG}:   ... level {self.level}: still running "
-                     f"({time.perf_counter() - self.t0:.0f} s)")
+                     f"({time.perf_counter() - self.t0:.0f} s{', ' + stage if stage else ''})")
 
     def __enter__(self):
         self.thread.start()
@@ -519,15 +542,15 @@ def _run(args, comm) -> None:
             nagata_snap.NagataGeometry(mesh, ft, tags=tags, crease_angle=args.crease_angle)
         snapper = nagata_snap.Snapper(mesh, ft, snap_geometry, tags=tags)
     except Exception as e:
-        raise SnapFailure(f"cannot set up snapping of tags {tags}: {type(e).__name__}: {e}") from None
-    say(f"{PROG}: snapping tags {snapper.tags} onto {what} ({time.perf_counter() - t0:.2f} s)")
+        raise SnapFailure(f"cannot set up snapping of tags {tag_list(tags)}: {type(e).__name__}: {e}") from None
+    say(f"{PROG}: snapping tags {tag_list(snapper.tags)} onto {what} ({time.perf_counter() - t0:.2f} s)")
 
     cad = geometry is not None  # CAD: distances from the faces are reported
     history = []
     for level in range(1, args.levels + 1):
         t0 = time.perf_counter()
         try:
-            with _Heartbeat(say, level):
+            with _Heartbeat(say, level, snapper):
                 mesh, ft, _, _, report = snapper.refine(mesh)
         except Exception as e:
             raise SnapFailure(f"level {level}: {type(e).__name__}: {e}") from None

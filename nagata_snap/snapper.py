@@ -213,6 +213,9 @@ class Snapper:
         self._level = self._coarse_level(mesh, facet_tags)
         self._last: _LastRefine | None = None
         self.level = 0
+        #: the stage :meth:`refine` is in (a key of ``report.times``, or ``"report"``), None
+        #: between calls; for progress output from another thread (the CLI's heartbeat)
+        self.stage: str | None = None
 
     def _coarse_level(self, mesh: dolfinx.mesh.Mesh, facet_tags: dolfinx.mesh.MeshTags) -> _Level:
         """The coarse mesh's boundary facets, their tags and records, and its tagged interfaces."""
@@ -292,25 +295,39 @@ class Snapper:
                 "built on); got a different mesh object"
             )
         times: dict[str, float] = {}
-        with _timed(times, "refine"):
+        with self._timed(times, "refine"):
             mesh1, parent_cell, parent_facet = self._bisect(mesh, edges)
-        with _timed(times, "lineage"):
+        with self._timed(times, "lineage"):
             level, parent_cells = self._lineage(prev, mesh1, parent_cell)
-        with _timed(times, "place"):
+        with self._timed(times, "place"):
             x_ref, moved, records, placed = self._place(level)
         level = dataclasses.replace(level, records=records)
-        with _timed(times, "smooth+check"):
+        with self._timed(times, "smooth+check"):
             res, records = self._guard(level, x_ref, moved)
         level = dataclasses.replace(level, records=records)
-        with _timed(times, "tags"):
+        with self._timed(times, "tags"):
             ft1 = self._facet_tags(level)
-        report = self._report(level, x_ref, moved, res, placed, times)
+        self.stage = "report"
+        try:
+            report = self._report(level, x_ref, moved, res, placed, times)
+        finally:
+            self.stage = None
         self._level = level
         self._last = _LastRefine(mesh, parent_cells, mesh1)
         self.level += 1
         if self.verbose and self.comm.rank == 0:
             print(report, flush=True)
         return Refined(mesh1, ft1, parent_cell, parent_facet, report)
+
+    @contextlib.contextmanager
+    def _timed(self, times: dict[str, float], stage: str) -> Iterator[None]:
+        """Run the ``with`` block as :attr:`stage` ``stage``; its seconds go to ``times[stage]``."""
+        self.stage, t0 = stage, time.perf_counter()
+        try:
+            yield
+        finally:
+            times[stage] = time.perf_counter() - t0
+            self.stage = None
 
     @staticmethod
     def _bisect(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike | None
@@ -489,13 +506,6 @@ class Snapper:
         v = tag[keep][first].astype(np.int32)
         return dolfinx.mesh.meshtags(mesh1, tdim - 1, f.astype(np.int32), v)
 
-
-@contextlib.contextmanager
-def _timed(times: dict[str, float], stage: str) -> Iterator[None]:
-    """Record the seconds the ``with`` block takes as ``times[stage]``."""
-    t0 = time.perf_counter()
-    yield
-    times[stage] = time.perf_counter() - t0
 
 
 def _check_options(smoothing: str, min_fraction: float, min_quality: float,

@@ -193,3 +193,28 @@ def test_cad_input_errors(step, tmp_path):
     assert r.returncode == 2 and "--cad applies to a mesh input" in r.stderr
     r = cli(step, "--size", -1)
     assert r.returncode == 2 and "--size must be positive" in r.stderr
+
+
+def test_heartbeat_names_the_stage(monkeypatch):
+    """The heartbeat's lines say how long the level has run and which stage it is in."""
+    import time
+    from types import SimpleNamespace
+
+    from nagata_snap import cli as cli_module
+
+    monkeypatch.setattr(cli_module, "HEARTBEAT", 0.02)
+    lines, snapper = [], SimpleNamespace(stage="place")
+    with cli_module._Heartbeat(lines.append, 3, snapper):
+        time.sleep(0.1)
+        snapper.stage = None
+        time.sleep(0.1)
+    assert any("level 3: still running" in t and "placing the new boundary vertices" in t for t in lines), lines
+    assert lines[-1].endswith(" s)"), lines  # no stage named between stages
+
+
+def test_tag_lists_are_ranges():
+    from nagata_snap.cli import tag_list
+
+    assert tag_list(range(1, 276)) == "1-275"
+    assert tag_list([7, 1, 2, 3, 9, 10]) == "1-3, 7, 9, 10"
+    assert tag_list([]) == "none"

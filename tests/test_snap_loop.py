@@ -129,6 +129,24 @@ def test_refine_rejects_foreign_mesh(dfg):
     snapper.refine(m1)
 
 
+def test_stage_names_the_running_stage(dfg):
+    """Snapper.stage is the stage refine is in while it runs (the CLI's heartbeat reads it)."""
+    mesh, ft = dfg
+    geo = NagataGeometry(mesh, ft, tags=[generate.CYLINDER])
+    snapper = Snapper(mesh, ft, geo)
+    seen, place = [], geo.place
+
+    def spy(*args):
+        seen.append(snapper.stage)
+        return place(*args)
+
+    geo.place = spy
+    assert snapper.stage is None
+    report = snapper.refine(mesh).report
+    assert seen == ["place"] and snapper.stage is None
+    assert {"refine", "lineage", "place", "smooth+check", "tags"} <= set(report.times)
+
+
 def test_unknown_and_interior_tags(dfg):
     mesh, ft = dfg
     with pytest.raises(ValueError, match=r"facet tags \[99\] do not exist"):
