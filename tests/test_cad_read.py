@@ -136,6 +136,25 @@ def test_revolved_radial_line_is_converted_not_refused(tmp_path):
     assert np.arctan2(P[:, 1], P[:, 0]).max() >= 1.4  # the quarter turn is covered
 
 
+def test_faces_on_no_solid_are_counted(tmp_path):
+    """A face left beside the solid (a construction profile written with it) is read and
+    counted in the summary as on no solid; the solid's faces name their solid."""
+    path = str(tmp_path / "box_and_disk.step")
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.addDisk(3, 0, 0, 0.5, 0.5)
+        gmsh.model.occ.synchronize()
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
+    model = CadGeometry.from_file(path, isolate=False).model
+    free = [f for f in model.faces if not f.solids]
+    assert model.num_solids == 1 and len(model.faces) == 7 and len(free) == 1
+    assert free[0].surface.kind == "plane" and "7 faces (7 plane; 1 on no solid)" in model.summary()
+
+
 # ----------------------------------------------------------------------
 # errors
 # ----------------------------------------------------------------------

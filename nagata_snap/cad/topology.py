@@ -1042,8 +1042,10 @@ class CadModel:
             k = "nurbs" if isinstance(f.surface, NurbsSurface) else k
             kinds[k] = kinds.get(k, 0) + 1
         what = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
-        return (f"{len(self.faces)} faces ({what}), {len(self.curve_edges())} edges, "
-                f"{len(self.vertices)} vertices, {self.num_solids} solids, unit {self.unit}")
+        free = sum(not f.solids for f in self.faces) if self.num_solids else 0
+        return (f"{len(self.faces)} faces ({what}{f'; {free} on no solid' if free else ''}), "
+                f"{len(self.curve_edges())} edges, {len(self.vertices)} vertices, {self.num_solids} solids, "
+                f"unit {self.unit}")
 
     def __repr__(self) -> str:
         return f"CadModel({self.path!r}: {self.summary()})"
