@@ -107,5 +107,17 @@ class PlaceReport:
     max_edge_gap: float = 0.0
 
     def summary(self) -> str:
-        """One line ``name value, ...`` of every field (for ``--report`` output)."""
-        return ", ".join(f"{f.name} {getattr(self, f.name)}" for f in dataclasses.fields(self))
+        """One line ``name value, ...`` of every field (for ``--report`` output): lengths to 4
+        digits, the histogram as ``{iterations: points}`` of its nonzero bins.
+
+        >>> print(PlaceReport(6, 3, 0.25, 0.0625, np.array([2, 0, 4]), max_edge_gap=1.23456e-12).summary())
+        n_points 6, n_vertices 3, max_residual 0.25, mean_residual 0.0625, iterations_histogram {0: 2, 2: 4},
+        n_fallback 0, n_off_root 0, n_unresolved 0, n_left_face 0, n_edge_vertices 0, max_edge_gap 1.235e-12
+        """
+
+        def text(v) -> str:
+            if isinstance(v, np.ndarray):
+                return "{" + ", ".join(f"{i}: {v[i]}" for i in np.flatnonzero(v)) + "}"
+            return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+        return ", ".join(f"{f.name} {text(getattr(self, f.name))}" for f in dataclasses.fields(self))
