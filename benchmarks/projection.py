@@ -34,9 +34,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "meshes"))
 
-from nagata_snap.cad.nurbs import torus  # noqa: E402
-from nagata_snap.cad.projection import project_newton  # noqa: E402
-from nurbs_reference import occ_bspline  # noqa: E402
+from nagata_snap.cad.nurbs import torus
+from nagata_snap.cad.projection import project_newton
+from nurbs_reference import occ_bspline
 
 R_MAJOR, R_MINOR = 2.0, 1.0
 

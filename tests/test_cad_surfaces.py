@@ -16,7 +16,7 @@ from nagata_snap.cad.curves import Circle, Line
 from nagata_snap.cad.projection import project_newton
 from nagata_snap.cad.surfaces import Cone, Cylinder, Plane, Sphere, Torus
 
-from OCP.Geom import (  # noqa: E402
+from OCP.Geom import (
     Geom_Circle,
     Geom_ConicalSurface,
     Geom_CylindricalSurface,
@@ -26,9 +26,9 @@ from OCP.Geom import (  # noqa: E402
     Geom_ToroidalSurface,
     Geom_TrimmedCurve,
 )
-from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf  # noqa: E402
-from OCP.GeomLProp import GeomLProp_SLProps  # noqa: E402
-from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Lin, gp_Pnt  # noqa: E402
+from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf
+from OCP.GeomLProp import GeomLProp_SLProps
+from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Lin, gp_Pnt
 
 RNG = np.random.default_rng(7)
 O = np.array([0.3, -0.2, 0.5])

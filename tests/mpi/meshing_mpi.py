@@ -18,9 +18,9 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import parts  # noqa: E402
+import parts
 
-from nagata_snap.meshing import mesh_cad_file  # noqa: E402
+from nagata_snap.meshing import mesh_cad_file
 
 comm = MPI.COMM_WORLD
 out = sys.argv[1]

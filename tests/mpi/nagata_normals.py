@@ -14,11 +14,11 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import generate  # noqa: E402
-import parts  # noqa: E402
+import generate
+import parts
 
-from nagata_snap import NagataGeometry  # noqa: E402
-from nagata_snap.cad import mesh_cad  # noqa: E402
+from nagata_snap import NagataGeometry
+from nagata_snap.cad import mesh_cad
 
 comm = MPI.COMM_WORLD
 if sys.argv[2:] == ["cad"]:

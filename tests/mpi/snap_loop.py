@@ -12,15 +12,15 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import generate  # noqa: E402
-import make_iges  # noqa: E402
+import generate
+import make_iges
 
-import dolfinx.mesh  # noqa: E402
+import dolfinx.mesh
 
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.cad.iges import write_iges  # noqa: E402
-from nagata_snap.cad.nurbs import cylinder  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.cad import CadGeometry
+from nagata_snap.cad.iges import write_iges
+from nagata_snap.cad.nurbs import cylinder
 
 comm = MPI.COMM_WORLD
 case, levels, mode, out = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]

@@ -45,17 +45,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "meshes"))
-import generate  # noqa: E402
+import generate
 
-import basix.ufl  # noqa: E402
-import dolfinx  # noqa: E402
-import dolfinx.la  # noqa: E402
-import dolfinx.mesh  # noqa: E402
+import basix.ufl
+import dolfinx
+import dolfinx.la
+import dolfinx.mesh
 
-import nagata_snap.snapper as hook  # noqa: E402
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
-from nagata_snap.smoothing.repair import repair  # noqa: E402
+import nagata_snap.snapper as hook
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.smoothing.quality import inverted_cells
+from nagata_snap.smoothing.repair import repair
 
 WORLD = MPI.COMM_WORLD
 METHODS = ("elastic", "laplace")
