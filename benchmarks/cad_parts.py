@@ -141,7 +141,7 @@ def snap_part(name: str, fmt: str, path: str) -> dict:
     place_us, worst, inverted = [], 0.0, 0
     for _ in range(2):
         prev = mesh
-        mesh, ft, _, _, rep = snapper.refine(mesh)
+        mesh, *_, rep = snapper.refine(mesh)
         place_us.append(1e6 * rep.times["place"] / max(rep.geometry.n_points, 1))
         prev.topology.create_entities(1)
         straight, *_ = dolfinx.mesh.refine(prev, None, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)

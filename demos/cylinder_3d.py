@@ -126,7 +126,7 @@ def main(argv=None) -> dict:
         old = mesh.geometry.index_map().size_global
         on_before = n_on_cylinder(mesh, ft)
         edges = mark_near_cylinder(mesh, args.band / 2**k)
-        mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
+        mesh, ft, *_, rep = snapper.refine(mesh, edges)
         new = mesh.geometry.index_map().size_global
         hist = np.asarray(rep.geometry.iterations_histogram, dtype=np.int64)
         hist = np.asarray(comm.allreduce(np.pad(hist, (0, 64 - len(hist)))))

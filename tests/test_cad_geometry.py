@@ -660,7 +660,7 @@ def test_collapsed_rows_of_a_net_mark_surfaces_that_can_degenerate():
     assert sphere().can_degenerate
     assert not cylinder().can_degenerate and not torus().can_degenerate
     s = sphere()
-    (u0, u1), (v0, v1) = s.domain_u, s.domain_v
+    (u0, u1), (_, v1) = s.domain_u, s.domain_v
     at = np.array([[u0, 0.3 * v1], [0.5 * (u0 + u1), 0.3 * v1], [u1, 0.7 * v1]])
     np.testing.assert_array_equal(degenerate([s], np.zeros(3, dtype=np.int64), at),
                                   [[False, True], [False, False], [False, True]])

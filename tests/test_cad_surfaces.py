@@ -213,7 +213,7 @@ def test_circle_arc_closest_point_matches_occ(t0, t1):
     occ = Geom_Circle(gp_Circ(gp_Ax2(gp_Pnt(*O), gp_Dir(*Z), gp_Dir(*X)), 0.6))
     t = RNG.uniform(-np.pi, 3 * np.pi, 300)
     Xq = c._points(t) + RNG.normal(scale=0.2, size=(300, 3))
-    T, C, d = c.closest(Xq)
+    T, _, d = c.closest(Xq)
     np.testing.assert_allclose(d, occ_curve_project(occ, t0, t1, Xq), rtol=0, atol=1e-14)
     assert np.all((T[:, 0] >= t0) & (T[:, 0] <= t1))
     p = occ.Value(1.1)
@@ -224,7 +224,7 @@ def test_line_segment_closest_point_matches_occ():
     ln = Line(O, Z, -0.5, 1.5)
     occ = Geom_Line(gp_Lin(gp_Pnt(*O), gp_Dir(*Z)))
     Xq = O + RNG.normal(scale=1.5, size=(300, 3))
-    T, C, d = ln.closest(Xq)
+    T, _, d = ln.closest(Xq)
     np.testing.assert_allclose(d, occ_curve_project(occ, -0.5, 1.5, Xq), rtol=0, atol=1e-14)
     assert np.all((T >= -0.5) & (T <= 1.5))
 

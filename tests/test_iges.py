@@ -80,7 +80,7 @@ def test_kadir_files_read_by_occ(files):
     d = read_shape(files / "kadir_cylinder.igs", unit="FILE")
     (face,) = d["faces"]
     s = nurbs_surface(face["surface"])
-    _, V, P = sample_surface(s, 801, 11)
+    _, _, P = sample_surface(s, 801, 11)
     rel = np.abs(np.linalg.norm(P[:, :2] - YC, axis=1) - YR) / YR
     assert rel.max() <= bound * (1 + 1e-6) + 1e-14
     assert abs(P[:, 2].min() - YZ[0]) < 1e-15 and abs(P[:, 2].max() - YZ[1]) < 1e-15

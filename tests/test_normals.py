@@ -258,7 +258,7 @@ def test_cube_creases_keep_faces_flat_and_corners_sharp():
 
 def test_crease_angle_controls_sharpness():
     """A coarse octagon (45 deg turns) is smooth at the default 60 deg, sharp at 30 deg."""
-    p, s, exact = circle_polygon(8)
+    p, s, _ = circle_polygon(8)
     smooth = NagataGeometry.from_surface(p, s)
     sharp = NagataGeometry.from_surface(p, s, crease_angle=30.0)
     assert np.abs(smooth.coef).max() > 0.05
@@ -298,7 +298,7 @@ def test_fillet_meeting_planes_tangentially_is_smooth(h):
 @pytest.mark.parametrize("kind, h", [("torus", 0.3), ("ellipsoid", 0.3), ("torus", 0.2)])
 def test_coarse_smooth_mesh_is_not_cut_into_creases(kind, h):
     """Neighbouring facets turning by 30-50 degrees (below crease_angle): no creases."""
-    p, t, exact, _ = gmsh_surface(kind, h)
+    p, t, _, _ = gmsh_surface(kind, h)
     _, turn, crease = creases_of(p, t)
     assert turn.max() > (39.0 if h == 0.3 else 30.0) and (turn > 20).sum() > 50
     assert not crease.any()
@@ -614,5 +614,5 @@ def test_stencils_of_a_fan_keep_its_apex(n):
     idx, mask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2)
     for v in (1, n // 2, n):
         assert 0 in idx[v][mask[v]]
-    fidx, fmask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2, facets=True)
+    _, fmask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2, facets=True)
     assert fmask[1].sum() == n  # every facet of the fan touches the apex

@@ -140,7 +140,7 @@ def test_multiple_curve_patches():
     ang = ang[np.min(np.abs(ang[:, None] - np.arange(5) * np.pi / 2), axis=1) > 1e-3]  # not at the joints
     rad = rng.uniform(0.5, 1.6, ang.size)
     P = np.c_[rad * np.cos(ang), rad * np.sin(ang), 0 * ang]
-    ent, par, dist = global_search(arcs, P)
+    ent, _, dist = global_search(arcs, P)
     np.testing.assert_array_equal(ent, (ang // (np.pi / 2)).astype(int))
     np.testing.assert_allclose(dist, np.abs(rad - 1), rtol=0, atol=1e-13)
 
@@ -161,7 +161,7 @@ def test_surface_midpoint_seeds_exact_and_iterations(which):
         c = np.array([0.0, 0.0, 1.0])
         surf, truth, scale, margin = torus(c, 2.0, 1.0), lambda P: closest_on_torus(P, c, 2.0, 1.0), 1.0, 0.0
     n = 20000
-    P, seeds, h = chord_midpoints(surf, n, 0.02, rng, margin)
+    P, seeds, _ = chord_midpoints(surf, n, 0.02, rng, margin)
     if which == "cylinder":
         keep = (P[:, 2] > 0) & (P[:, 2] < 0.4)
         P, seeds = P[keep], seeds[keep]
@@ -183,7 +183,7 @@ def test_surface_far_points_global_search_exact():
     xy = np.hypot(P[:, 0], P[:, 1])
     ridge = np.hypot(xy - 2.0, P[:, 2] - 1.0)  # distance to the tube's centre circle
     P = P[(ridge > 0.1) & (xy > 0.1)]  # the closest point is unique off these sets
-    ent, par, dist = global_search([tor], P)
+    _, par, dist = global_search([tor], P)
     X = tor.evaluate(par[:, 0], par[:, 1])[0]
     np.testing.assert_allclose(X, closest_on_torus(P, c, 2.0, 1.0), rtol=0, atol=1e-12)
     np.testing.assert_allclose(dist, np.abs(ridge[(ridge > 0.1) & (xy > 0.1)] - 1.0), rtol=0, atol=1e-12)
@@ -298,7 +298,7 @@ def test_against_occ_primitives(gmsh_session, which):
     P = _near_points(surf, 1500, 3 * h, rng, umargin=0.05 if which == "sphere" else 0.0,
                      vmargin=0.05 if which == "cylinder" else 0.0)
     occ = _occ_closest(gmsh, tag, P)
-    ent, par, dist = global_search([surf], P)
+    _, par, dist = global_search([surf], P)
     ours = surf.evaluate(par[:, 0], par[:, 1])[0]
     np.testing.assert_allclose(ours, occ, rtol=0, atol=1e-9 * size)
     np.testing.assert_allclose(dist, np.linalg.norm(occ - P, axis=1), rtol=0, atol=1e-9 * size)
@@ -345,10 +345,10 @@ def test_search_grids_are_built_on_first_use_and_agree_with_the_eager_ones():
     gs = GlobalSearcher(ents)
     assert gs._samples == {} and gs._all is None  # construction samples nothing
     X = closest_on_torus(np.array([[3.4, 0.2, 0.1], [-2.9, 0.3, 0.2]]), c, 3.0, 0.5) * 1.01
-    params, proj, dist = gs.search_on(X, [1, 1])
+    _, _, dist = gs.search_on(X, [1, 1])
     assert set(gs._samples) == {1} and gs._all is None
     np.testing.assert_allclose(dist, np.linalg.norm(closest_on_torus(X, c, 3.0, 0.5) - X, axis=1), atol=1e-12)
-    e, p, d = gs.search(X)
+    e, _, d = gs.search(X)
     assert set(gs._samples) == {0, 1} and np.all(e == 1)
     np.testing.assert_allclose(d, dist, atol=1e-12)
     P1, X1 = gs.entity_samples(1)

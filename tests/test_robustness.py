@@ -188,7 +188,7 @@ def test_cell_tags_passed_as_facet_tags(square):
 
 
 def test_facet_tags_of_another_mesh(square):
-    mesh, ft = square
+    _, ft = square
     other = dolfinx.mesh.create_unit_square(COMM, 4, 4)
     raises(ValueError, "belong to another mesh", NagataGeometry, other, ft)
 

@@ -81,7 +81,7 @@ SMOOTH_LAYERS = 4
 
 
 def test_straight_mesh_is_fixed_point(pushed):
-    msh, x_ref, left, fixed = pushed
+    _, x_ref, left, fixed = pushed
     msh2 = dolfinx.mesh.create_unit_square(COMM, N, N)
     for method in ("elastic", "laplace"):
         x_new = smooth(msh2, x_ref, left, fixed, method=method)
@@ -360,7 +360,7 @@ def test_repair_impossible_raises():
 
 
 def test_nothing_moved():
-    msh, x_ref, left, fixed = square_push(0.0)
+    msh, x_ref, _, fixed = square_push(0.0)
     empty = np.zeros(0, np.int32)
     for method in ("elastic", "laplace", "none"):
         np.testing.assert_array_equal(smooth(msh, x_ref, empty, fixed, method=method), x_ref)

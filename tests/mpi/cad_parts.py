@@ -144,7 +144,7 @@ def run(name, fmt, size_factor, curvature):
             mesh, lo + (hi - lo) * np.array([0.35, 0.45, 0.6]), 0.06 * np.linalg.norm(hi - lo))
         prev = mesh
         t0 = time.perf_counter()
-        mesh, ft, _, _, report = snapper.refine(mesh, edges)
+        mesh, *_, report = snapper.refine(mesh, edges)
         t_level = time.perf_counter() - t0
         lv = snapper._level
         sel = np.flatnonzero(lv.snapped)
