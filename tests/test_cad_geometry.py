@@ -367,6 +367,7 @@ def test_point_near_face_extension_goes_to_the_face_containing_its_closest_point
     untrimmed = CadGeometry([A, B])
     ent0, _, d0 = untrimmed.closest_point(P)
     np.testing.assert_array_equal(ent0, [0, 0, 0, 1])  # A's extension wins without trims
+    np.testing.assert_allclose(d0, [0.3, 0.05, 0.2, 0.05], rtol=0, atol=1e-14)
     geo = CadGeometry([A, B], loops)
     ent, par, dist = geo.closest_point(P)
     np.testing.assert_array_equal(ent, [1, 1, 0, 1])

@@ -63,6 +63,7 @@ def test_cad_loop_on_exact_geometry_serial_and_mpi(case, mode, levels, dist, siz
             assert a.shape == b.shape
             d, i = cKDTree(a).query(b)
             assert d.max() <= 1e-12 * size
+            assert np.unique(i).size == len(i)  # one to one: no point matched twice, none missed
 
 
 def test_kadir_cylinder_file_snapping_matches_occ(tmp_path):

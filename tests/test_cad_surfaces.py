@@ -188,6 +188,7 @@ def test_newton_on_analytic_surfaces_agrees_with_the_closed_form():
         P, S, d = s.closest(X)
         res = project_newton(s, X, P + RNG.normal(scale=0.05, size=P.shape))
         np.testing.assert_allclose(res.distance, d, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(res.points, S, rtol=0, atol=1e-13)
 
 
 # ----------------------------------------------------------------------

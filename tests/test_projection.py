@@ -113,8 +113,11 @@ def test_circle_far_points_global_search_exact():
     np.testing.assert_allclose(X, truth, rtol=0, atol=1e-12 * R)
     np.testing.assert_allclose(dist, np.linalg.norm(truth - P, axis=1), rtol=1e-12, atol=1e-17)
     # 2D input (z = 0) is accepted
-    e2, p2, d2 = global_search(cur, P[:, :2])
-    np.testing.assert_allclose(cur.evaluate(p2[:, 0])[0], closest_on_circle(np.c_[P[:, :2], 0 * ang], c, R), atol=1e-12 * R)
+    P2 = np.c_[P[:, :2], 0 * ang]
+    _, p2, d2 = global_search(cur, P[:, :2])
+    truth2 = closest_on_circle(P2, c, R)
+    np.testing.assert_allclose(cur.evaluate(p2[:, 0])[0], truth2, rtol=0, atol=1e-12 * R)
+    np.testing.assert_allclose(d2, np.linalg.norm(truth2 - P2, axis=1), rtol=0, atol=1e-12 * R)
 
 
 def test_open_curve_clamps_at_end():
@@ -313,9 +316,10 @@ def test_against_occ_bspline_herrero(gmsh_session):
     rng = np.random.default_rng(8)
     P = _near_points(surf, 1000, 4.0, rng, umargin=0.05, vmargin=0.05)  # edge length ~ a few units
     occ = _occ_closest(gmsh, tag, P)
-    ent, par, dist = global_search([surf], P)
+    _, par, dist = global_search([surf], P)
     ours = surf.evaluate(par[:, 0], par[:, 1])[0]
     np.testing.assert_allclose(ours, occ, rtol=0, atol=1e-9 * size)
+    np.testing.assert_allclose(dist, np.linalg.norm(occ - P, axis=1), rtol=0, atol=1e-9 * size)
     # seeded Newton from the parameter of a nearby point converges to the same point
     res = project_newton(surf, P, par + rng.uniform(-0.01, 0.01, par.shape))
     assert res.converged.all()
