@@ -310,7 +310,7 @@ def main() -> None:
     passed += max(attach_hint) < 20
     print(f"attach with gmsh's classification: max {max(attach_hint):.1f} us/vertex (target < 20)")
 
-    print(f"\nlarger files and meshes (figures only; the targets above are judged on the parts):")
+    print("\nlarger files and meshes (figures only; the targets above are judged on the parts):")
     print(f"{'case':20s} {'faces':>5s} {'read':>7s} {'OCC':>7s} {'ratio':>6s} {'cpu':>6s} {'verts':>6s} "
           f"{'att.gmsh':>9s} {'att.search':>10s} {'gmsh mesh':>9s}")
     for name, nfaces, our_t, occ_t, cpu_ratio, nv, t_hint, t_search, t_mesh in (

@@ -650,7 +650,7 @@ def test_attach_keeps_exact_seeds_and_projects_inexact_ones():
     np.testing.assert_allclose(near.params[:, :, :2], P, rtol=0, atol=1e-12)
     assert np.allclose(np.hypot(facets[..., 0], facets[..., 1]), R, rtol=1e-14)
     with pytest.raises(CadError, match="do not lie on the CAD geometry"):
-        geo.attach(facets + [0.0, 0.0, 0.3 * H], faces=faces, seeds=P)
+        geo.attach(facets + np.array([0.0, 0.0, 0.3 * H]), faces=faces, seeds=P)
 
 
 def test_collapsed_rows_of_a_net_mark_surfaces_that_can_degenerate():

@@ -25,7 +25,7 @@ def run(n, args, tmp_path):
     out = tmp_path / f"{args[0]}_np{n}.npz"
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
     r = subprocess.run(
-        exe + [sys.executable, os.path.join(HERE, "mpi", "snap_loop.py"), *args, str(out)],
+        [*exe, sys.executable, os.path.join(HERE, "mpi", "snap_loop.py"), *args, str(out)],
         capture_output=True, text=True, timeout=900,
     )
     assert r.returncode == 0, r.stdout + r.stderr

@@ -284,7 +284,7 @@ def test_bad_arguments(kwargs, match):
 def _run_curved(n, args, tmp_path):
     out = tmp_path / f"curved_{n}_{'_'.join(args)}.npz"
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
-    r = subprocess.run(exe + [sys.executable, os.path.join(HERE, "mpi", "curved.py"), *args, str(out)],
+    r = subprocess.run([*exe, sys.executable, os.path.join(HERE, "mpi", "curved.py"), *args, str(out)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     return np.load(out)

@@ -16,7 +16,7 @@ TINY_FLOW = ["--levels", "3", "--n-circle", "16", "--h-far", "0.08", "--theta", 
 
 def run(args, n=1, timeout=300):
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
-    r = subprocess.run(exe + [sys.executable, *map(str, args)], capture_output=True, text=True,
+    r = subprocess.run([*exe, sys.executable, *map(str, args)], capture_output=True, text=True,
                        timeout=timeout, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
     return r

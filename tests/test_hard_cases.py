@@ -101,7 +101,7 @@ def test_hard_cases_mpi_same_repair_as_serial():
     mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
 
     def rows(cmd):
-        r = subprocess.run(cmd + [sys.executable, script, "--cases", "8gon-bl,sphere-squeezed"],
+        r = subprocess.run([*cmd, sys.executable, script, "--cases", "8gon-bl,sphere-squeezed"],
                            capture_output=True, text=True, timeout=900)
         assert r.returncode == 0, r.stdout + r.stderr
         assert "inverted_after 0" in r.stdout.splitlines()

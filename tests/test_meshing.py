@@ -177,7 +177,7 @@ def test_whole_boundary_tag_and_order2(files):
 def _groove_tag(path) -> int:
     with gmsh_session("groove"):
         import_cad(path)
-        return [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) == "Cylinder"][0]
+        return next(t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) == "Cylinder")
 
 
 def test_gmsh_session_left_as_found(files):

@@ -98,7 +98,7 @@ def edge_gap(geo):
         lam[np.arange(len(f)), :, i1] = t
         pts.append(geo.evaluate(f, lam))
     gap = float(np.abs(pts[0] - pts[1]).max())
-    assert F == len(geo.ids) and np.all(cnt == 2)
+    assert len(geo.ids) == F and np.all(cnt == 2)
     return gap
 
 
@@ -252,7 +252,7 @@ def test_cube_creases_keep_faces_flat_and_corners_sharp():
     assert np.all(np.abs(geo.coef) == 0)
     g = barycentric_grid(3, 5)
     pts = geo.evaluate(np.arange(geo.num_patches), np.broadcast_to(g, (geo.num_patches, *g.shape)))
-    flat = np.einsum("pkv,pvi->pki", np.broadcast_to(g, pts.shape[:2] + (3,)), geo.x)
+    flat = np.einsum("pkv,pvi->pki", np.broadcast_to(g, (*pts.shape[:2], 3)), geo.x)
     assert np.abs(pts - flat).max() == 0.0
 
 
@@ -493,7 +493,7 @@ def test_cad_normals_of_tangent_faces_and_creases():
     assert line.sum() >= 8
     np.testing.assert_allclose(n[line], np.tile([1.0, 0.0, 0.0], (line.sum(), 1)), atol=1e-15)
     ids = one.ids.reshape(-1)[line]
-    first = {i: v for i, v in zip(ids[::-1], n[line][::-1])}
+    first = dict(zip(ids[::-1], n[line][::-1]))
     assert all(np.array_equal(v, first[i]) for i, v in zip(ids, n[line]))  # one normal per vertex
 
 
@@ -589,7 +589,7 @@ def test_normals_identical_under_mpi(tmp_path, case):
     for n in (1, 2):
         exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
         f = tmp_path / f"n{n}.npz"
-        r = subprocess.run(exe + [sys.executable, script, str(f), case], capture_output=True, text=True,
+        r = subprocess.run([*exe, sys.executable, script, str(f), case], capture_output=True, text=True,
                            timeout=300)
         assert r.returncode == 0, r.stdout + r.stderr
         out[n] = np.load(f)

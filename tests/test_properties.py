@@ -38,8 +38,8 @@ from nagata_snap.nagata import patch as N
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
 from nagata_snap.cad.projection import GlobalSearcher, global_search, project_newton
 
-SETTINGS = dict(derandomize=True, database=None, deadline=2000,
-                suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = {"derandomize": True, "database": None, "deadline": 2000,
+            "suppress_health_check": [HealthCheck.too_slow]}
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 point = st.tuples(finite, finite, finite).map(np.array)
