@@ -108,7 +108,7 @@ def study(name, mesh, ft, geo, tag, error, levels, comm):
                 line += (" | " if j > 1 else " ") + f"{r[j]:{11 if j > 1 else 10}.3e} {o}"
             print(line)
         print("curve_mesh time on the finest level [s]: " + ", ".join(
-            f"{label} {t:.2f}" for (label, _, _), t in zip(RUNS, times)))
+            f"{label} {t:.2f}" for (label, _, _), t in zip(RUNS, times, strict=True)))
     return rows
 
 

@@ -262,7 +262,7 @@ def test_planes_and_segments_project_at_once_as_each_alone():
     ):
         frames = [np.linalg.qr(rng.normal(size=(3, 3)))[0].T for _ in range(4)]
         origins = rng.normal(size=(4, 3))
-        ents = [make(o, f) for o, f in zip(origins, frames)]
+        ents = [make(o, f) for o, f in zip(origins, frames, strict=True)]
         batch = AffineBatch(ents)
         which = rng.integers(0, 4, 400)
         Xq = origins[which] + rng.normal(scale=2.0, size=(400, 3))

@@ -165,7 +165,7 @@ def test_nagata_nodes_lie_on_the_patch_at_their_barycentric_position(case):
     c2f = mesh.topology.connectivity(tdim, tdim - 1)
     facets = ft.find(tag)
     cells = np.array([f2c.links(f)[0] for f in facets])
-    local = np.array([list(c2f.links(c)).index(f) for c, f in zip(cells, facets)])
+    local = np.array([list(c2f.links(c)).index(f) for c, f in zip(cells, facets, strict=True)])
     for k in (3, 4):
         ck, _ = snapper.curved_mesh(degree=k)
         el = basix.create_element(basix.ElementFamily.P, cell_type(tdim), k, basix.LagrangeVariant.gll_warped)

@@ -76,7 +76,7 @@ def test_flow_curved_run_same_meshes_smaller_error(flow):
     p2, iges = runs["iges-p2"], runs["iges"]
     assert p2["status"] == "ok", f"iges-p2 run {p2['status']}: {p2['reason']}"
     assert [r["dofs"] for r in p2["levels"]] == [r["dofs"] for r in iges["levels"]]
-    for a, b in zip(p2["levels"], iges["levels"]):
+    for a, b in zip(p2["levels"], iges["levels"], strict=True):
         assert a["err_c_D"] < b["err_c_D"]
 
 

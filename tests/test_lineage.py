@@ -37,7 +37,7 @@ def _tag_interface(mesh, ft, value, n):
 
 
 def _pairs(ft):
-    return set(zip(ft.indices.tolist(), ft.values.tolist()))
+    return set(zip(ft.indices.tolist(), ft.values.tolist(), strict=True))
 
 
 def _marked_edges(mesh, centre, radius):

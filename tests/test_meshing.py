@@ -73,9 +73,10 @@ def check_on_cad(cm: CadMesh, path, tol: float = TOL, per_face_tags: bool = True
                                                                     oriented=False))
             closure |= set(gmsh.model.getBoundary([d for d in closure if d[0] == 1], combined=False,
                                                   oriented=False)) if tdim == 3 else set()
-            got = set(zip(cm.node_entity_dim[sel].ravel().tolist(), cm.node_entity_tag[sel].ravel().tolist()))
+            got = set(zip(cm.node_entity_dim[sel].ravel().tolist(), cm.node_entity_tag[sel].ravel().tolist(),
+                          strict=True))
             assert got <= closure
-        for (d, t) in set(zip(cm.node_entity_dim.ravel().tolist(), cm.node_entity_tag.ravel().tolist())):
+        for (d, t) in set(zip(cm.node_entity_dim.ravel().tolist(), cm.node_entity_tag.ravel().tolist(), strict=True)):
             P = X[(cm.node_entity_dim == d) & (cm.node_entity_tag == t)]
             if d == 0:
                 corner = np.asarray(gmsh.model.getValue(0, t, []))

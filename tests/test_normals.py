@@ -493,8 +493,8 @@ def test_cad_normals_of_tangent_faces_and_creases():
     assert line.sum() >= 8
     np.testing.assert_allclose(n[line], np.tile([1.0, 0.0, 0.0], (line.sum(), 1)), atol=1e-15)
     ids = one.ids.reshape(-1)[line]
-    first = dict(zip(ids[::-1], n[line][::-1]))
-    assert all(np.array_equal(v, first[i]) for i, v in zip(ids, n[line]))  # one normal per vertex
+    first = dict(zip(ids[::-1], n[line][::-1], strict=True))
+    assert all(np.array_equal(v, first[i]) for i, v in zip(ids, n[line], strict=True))  # one normal per vertex
 
 
 def test_cad_normals_checked():

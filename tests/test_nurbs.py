@@ -86,7 +86,7 @@ def test_basis_matches_naive_recursion(p):
     span, N = basis_functions(U, p, u, nderiv=3)
     for k in range(4):
         ref = np.array(
-            [[naive_N(s - p + a, p, U, uj, k) for a in range(p + 1)] for s, uj in zip(span, u)]
+            [[naive_N(s - p + a, p, U, uj, k) for a in range(p + 1)] for s, uj in zip(span, u, strict=True)]
         )
         scale = max(1.0, np.abs(ref).max())
         np.testing.assert_allclose(N[k], ref, rtol=0, atol=1e-12 * scale)

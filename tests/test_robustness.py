@@ -128,7 +128,7 @@ def snapshot(mesh, ft):
 
 def assert_unchanged(before, mesh, ft):
     after = snapshot(mesh, ft)
-    for a, b in zip(before, after):
+    for a, b in zip(before, after, strict=True):
         assert a.dtype == b.dtype and a.shape == b.shape
         assert a.tobytes() == b.tobytes()
 

@@ -92,7 +92,7 @@ def feature_distances(geo, occ, nodes, root, x, tdim):
     """
     model = geo.model
     faces_of = {}
-    for n, f in zip(nodes.ravel(), np.repeat(root, nodes.shape[1])):
+    for n, f in zip(nodes.ravel(), np.repeat(root, nodes.shape[1]), strict=True):
         faces_of.setdefault(int(n), set()).add(int(f))
     pairs, corner = [], []
     for n, fs in faces_of.items():

@@ -68,7 +68,8 @@ for k in range(levels):
     if comm.size == 1:  # transfer_meshtag aborts (double free) under mpiexec in DOLFINx 0.11
         # the tags found without facet entities are DOLFINx's own transfer
         ref = dolfinx.mesh.transfer_meshtag(ft0, mesh, pc, pf)
-        if set(zip(ft.indices.tolist(), ft.values.tolist())) != set(zip(ref.indices.tolist(), ref.values.tolist())):
+        pairs = [set(zip(t.indices.tolist(), t.values.tolist(), strict=True)) for t in (ft, ref)]
+        if pairs[0] != pairs[1]:
             raise AssertionError(f"facet tags differ from transfer_meshtag at level {k + 1}")
     # tagged facets (owned ones, so each once): midpoint and tag, and measure per tag
     fdim = mesh.topology.dim - 1
