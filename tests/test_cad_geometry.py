@@ -85,7 +85,7 @@ def test_circle_polygon_refinement(offset):
     np.testing.assert_array_equal(rec.root, 0)
     check_records(geo, facets, rec, 1e-15)
     x = facets
-    for level in range(4):
+    for _ in range(4):
         st, rec = split_segments(x, rec)
         pts, rec, report = geo.place(rec, st)
         rad = np.linalg.norm(pts - c, axis=2)
@@ -211,7 +211,7 @@ def test_cylinder_triangulation_refinement(offset):
     assert rec.params.shape == (80, 3, 2)
     check_records(geo, facets, rec, 1e-15)
     x = facets
-    for level in range(2):
+    for _ in range(2):
         st, rec = split_triangles(x, rec)
         pts, rec, report = geo.place(rec, st)
         rad = np.hypot(pts[..., 0] - c[0], pts[..., 1] - c[1])
@@ -242,7 +242,7 @@ def test_sphere_with_poles_refinement():
     rec = geo.attach(facets)
     check_records(geo, facets, rec, 1e-15)
     x = facets
-    for level in range(3):
+    for _ in range(3):
         st, rec = split_triangles(x, rec)
         pts, rec, report = geo.place(rec, st)
         np.testing.assert_allclose(np.linalg.norm(pts, axis=2), 1.0, rtol=1e-12, atol=0)
@@ -543,7 +543,7 @@ def test_trim_loops_checked_together_as_loop_by_loop(monkeypatch):
 
     def loops_and_bands():
         loops, bands = [], []
-        for e in range(4):
+        for _ in ents:  # the loops of each entity
             lp, bd = [], []
             for _ in range(int(rng.integers(0, 3))):
                 P = rng.uniform(0.0, 1.0, (int(rng.integers(2, 30)), 2))

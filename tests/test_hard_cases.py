@@ -149,7 +149,7 @@ def two_levels_nothing_short(mesh, ft, geo):
     amin0 = coarse_min_angle(mesh)
     snapper = Snapper(mesh, ft, geo)
     m, reps = mesh, []
-    for level in range(2):
+    for _ in range(2):
         m, *_, rep = snapper.refine(m)
         assert rep.partially_moved == 0 and rep.quality.n_inverted_after == 0
         assert rep.quality.min_angle.min >= amin0 / 3

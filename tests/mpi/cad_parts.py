@@ -139,7 +139,7 @@ def run(name, fmt, size_factor, curvature):
     comm.Allreduce(mesh.geometry.x.max(axis=0), hi, op=MPI.MAX)
     modes = ["uniform"] * 3 if tdim == 2 else ["uniform", "uniform", "marked", "marked"]
     levels = []
-    for k, mode in enumerate(modes):
+    for mode in modes:
         edges = None if mode == "uniform" else marked_edges(
             mesh, lo + (hi - lo) * np.array([0.35, 0.45, 0.6]), 0.06 * np.linalg.norm(hi - lo))
         prev = mesh
