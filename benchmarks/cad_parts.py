@@ -245,7 +245,8 @@ def projection_speed(path: str, kinds: set[str], n: int, rng) -> list[tuple]:
             N = geo.vertex_normals(Records(np.full(n, e), uv[:, None, :]))[:, 0]
             X = S + 1e-3 * geo.size * rng.normal(size=(n, 1)) * N
             # the gmsh face on which these points lie
-            tag = min(tags, key=lambda t: np.abs(np.reshape(gmsh.model.getClosestPoint(2, t, S[:20].ravel())[0], (-1, 3)) - S[:20]).max())
+            tag = min(tags, key=lambda t: np.abs(
+                np.reshape(gmsh.model.getClosestPoint(2, t, S[:20].ravel())[0], (-1, 3)) - S[:20]).max())
             seeds = uv + 1e-3 * (hi - lo) * rng.normal(size=uv.shape)  # refinement-like seeds
             # best of 5 on both sides, calls interleaved: one run is at the mercy of the
             # scheduler (consecutive calls of ours on the NURBS face take 1.6-2.7 us/point on a
@@ -280,7 +281,8 @@ def main() -> None:
     read_ratios, cpu_ratios, attach_hint = [], [], []
     print(f"{'part':20s} {'format':9s} {'faces':>5s} {'read':>7s} {'OCC':>7s} {'ratio':>6s} "
           f"{'cpu':>7s} {'OCC cpu':>7s} {'ratio':>6s} "
-          f"{'verts':>6s} {'att.gmsh':>9s} {'att.search':>10s} {'place':>7s} {'dist/size':>9s} {'inv':>4s} {'short':>5s}")
+          f"{'verts':>6s} {'att.gmsh':>9s} {'att.search':>10s} {'place':>7s} "
+          f"{'dist/size':>9s} {'inv':>4s} {'short':>5s}")
     print(f"{'':20s} {'':9s} {'':5s} {'[s]':>7s} {'[s]':>7s} {'':6s} {'[s]':>7s} {'[s]':>7s} {'':6s} {'':6s} "
           f"{'[us/v]':>9s} {'[us/v]':>10s} {'[us/pt]':>7s} {'':9s} {'':4s} {'':5s}")
     for name in names:

@@ -114,7 +114,8 @@ def test_multiple_curves_and_shared_vertices():
     arcs = []
     for k in range(4):
         a0, a1 = k * np.pi / 2, (k + 1) * np.pi / 2
-        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0], [np.cos(a1), np.sin(a1), 0]]
+        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0],
+             [np.cos(a1), np.sin(a1), 0]]
         arcs.append(NurbsCurve(2, [0, 0, 0, 1, 1, 1], P, [1, S2, 1]))
     geo = CadGeometry(arcs)
     facets = circle_polygon(np.zeros(3), 1.0, 12, 0.0)

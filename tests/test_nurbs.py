@@ -218,8 +218,8 @@ def test_closed_detection_and_domain():
     ],
 )
 def test_curve_validation(kwargs, msg):
-    args = {"degree": 2, "knots": [0, 0, 0, 0.3, 0.6, 1, 1, 1], "control_points": np.random.default_rng(0).random((5, 3)),
-            "weights": np.ones(5)}
+    args = {"degree": 2, "knots": [0, 0, 0, 0.3, 0.6, 1, 1, 1],
+            "control_points": np.random.default_rng(0).random((5, 3)), "weights": np.ones(5)}
     args.update(kwargs)
     with pytest.raises(NurbsError, match=msg):
         NurbsCurve(**args)

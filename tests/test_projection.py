@@ -136,7 +136,8 @@ def test_multiple_curve_patches():
     arcs = []
     for k in range(4):
         a0, a1 = k * np.pi / 2, (k + 1) * np.pi / 2
-        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0], [np.cos(a1), np.sin(a1), 0]]
+        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0],
+             [np.cos(a1), np.sin(a1), 0]]
         arcs.append(NurbsCurve(2, [0, 0, 0, 1, 1, 1], P, [1, S2, 1]))
     rng = np.random.default_rng(2)
     ang = rng.uniform(0, 2 * np.pi, 2000)

@@ -3,8 +3,9 @@
 Usage: python nagata_normals.py OUT.npz [estimated|cad]
 ``estimated``: a box with a cylindrical hole (flat faces, box edges, curved
 hole, rims), estimated normals; ``cad``: ``plate_filleted`` as STEP through
-``nagata_snap.cad.mesh_cad``, the ``CadGeometry``'s normals.  Rank 0 writes the canonical facet ids, corner normals and edge coefficients;
-``ranks_agree`` says whether every process computed the same bytes.
+``nagata_snap.cad.mesh_cad``, the ``CadGeometry``'s normals.  Rank 0 writes
+the canonical facet ids, corner normals and edge coefficients; ``ranks_agree``
+says whether every process computed the same bytes.
 """
 
 import os

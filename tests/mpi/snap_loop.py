@@ -85,7 +85,8 @@ for k in range(levels):
     n = mesh.geometry.index_map().size_local
     xs = comm.gather(mesh.geometry.x[:n], root=0)
     ext = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    bs = comm.gather(mesh.geometry.x[dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ext).ravel()], root=0)
+    bnodes = dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ext).ravel()
+    bs = comm.gather(mesh.geometry.x[bnodes], root=0)
     if comm.rank == 0:
         result[f"level{k + 1}"] = np.concatenate(xs)
         result[f"boundary{k + 1}"] = np.unique(np.concatenate(bs), axis=0)
