@@ -42,8 +42,8 @@ export OMP_NUM_THREADS=1
 check() {
   # Every tool runs (all problems are listed); the step fails if any of them failed.
   local failed=() api
-  echo "== ruff check nagata_snap"
-  "$VENV/bin/ruff" check nagata_snap || failed+=(ruff)
+  echo "== ruff check nagata_snap tests benchmarks demos meshes docs"
+  "$VENV/bin/ruff" check nagata_snap tests benchmarks demos meshes docs || failed+=(ruff)
   echo "== mypy (files and options: [tool.mypy] in pyproject.toml)"
   "$VENV/bin/python" -m mypy || failed+=(mypy)
   echo "== API reference (pdoc, docs/build_api.py)"

@@ -141,7 +141,7 @@ def snap_part(name: str, fmt: str, path: str) -> dict:
     place_us, worst, inverted = [], 0.0, 0
     for _ in range(2):
         prev = mesh
-        mesh, ft, _, _, rep = snapper.refine(mesh)
+        mesh, *_, rep = snapper.refine(mesh)
         place_us.append(1e6 * rep.times["place"] / max(rep.geometry.n_points, 1))
         prev.topology.create_entities(1)
         straight, *_ = dolfinx.mesh.refine(prev, None, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
@@ -246,7 +246,8 @@ def projection_speed(path: str, kinds: set[str], n: int, rng) -> list[tuple]:
             N = geo.vertex_normals(Records(np.full(n, e), uv[:, None, :]))[:, 0]
             X = S + 1e-3 * geo.size * rng.normal(size=(n, 1)) * N
             # the gmsh face on which these points lie
-            tag = min(tags, key=lambda t: np.abs(np.reshape(gmsh.model.getClosestPoint(2, t, S[:20].ravel())[0], (-1, 3)) - S[:20]).max())
+            tag = min(tags, key=lambda t: np.abs(
+                np.reshape(gmsh.model.getClosestPoint(2, t, S[:20].ravel())[0], (-1, 3)) - S[:20]).max())
             seeds = uv + 1e-3 * (hi - lo) * rng.normal(size=uv.shape)  # refinement-like seeds
             # best of 5 on both sides, calls interleaved: one run is at the mercy of the
             # scheduler (consecutive calls of ours on the NURBS face take 1.6-2.7 us/point on a
@@ -281,7 +282,8 @@ def main() -> None:
     read_ratios, cpu_ratios, attach_hint = [], [], []
     print(f"{'part':20s} {'format':9s} {'faces':>5s} {'read':>7s} {'OCC':>7s} {'ratio':>6s} "
           f"{'cpu':>7s} {'OCC cpu':>7s} {'ratio':>6s} "
-          f"{'verts':>6s} {'att.gmsh':>9s} {'att.search':>10s} {'place':>7s} {'dist/size':>9s} {'inv':>4s} {'short':>5s}")
+          f"{'verts':>6s} {'att.gmsh':>9s} {'att.search':>10s} {'place':>7s} "
+          f"{'dist/size':>9s} {'inv':>4s} {'short':>5s}")
     print(f"{'':20s} {'':9s} {'':5s} {'[s]':>7s} {'[s]':>7s} {'':6s} {'[s]':>7s} {'[s]':>7s} {'':6s} {'':6s} "
           f"{'[us/v]':>9s} {'[us/v]':>10s} {'[us/pt]':>7s} {'':9s} {'':4s} {'':5s}")
     for name in names:
@@ -311,7 +313,7 @@ def main() -> None:
     passed += max(attach_hint) < 20
     print(f"attach with gmsh's classification: max {max(attach_hint):.1f} us/vertex (target < 20)")
 
-    print(f"\nlarger files and meshes (figures only; the targets above are judged on the parts):")
+    print("\nlarger files and meshes (figures only; the targets above are judged on the parts):")
     print(f"{'case':20s} {'faces':>5s} {'read':>7s} {'OCC':>7s} {'ratio':>6s} {'cpu':>6s} {'verts':>6s} "
           f"{'att.gmsh':>9s} {'att.search':>10s} {'gmsh mesh':>9s}")
     for name, nfaces, our_t, occ_t, cpu_ratio, nv, t_hint, t_search, t_mesh in (

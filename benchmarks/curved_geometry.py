@@ -35,13 +35,13 @@ import dolfinx.fem as fem
 import dolfinx.mesh
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
-import generate  # noqa: E402
-import make_iges  # noqa: E402
+import generate
+import make_iges
 
-from nagata_snap import Snapper  # noqa: E402
-from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.cad.iges import write_iges  # noqa: E402
-from nagata_snap.cad.nurbs import sphere, torus  # noqa: E402
+from nagata_snap import Snapper
+from nagata_snap.cad import CadGeometry
+from nagata_snap.cad.iges import write_iges
+from nagata_snap.cad.nurbs import sphere, torus
 
 #: (label, degree, variant) of the curved columns
 RUNS = [("k=2", 2, None), ("k=3 equisp.", 3, "equispaced"), ("k=3", 3, None), ("k=4", 4, None)]
@@ -108,7 +108,7 @@ def study(name, mesh, ft, geo, tag, error, levels, comm):
                 line += (" | " if j > 1 else " ") + f"{r[j]:{11 if j > 1 else 10}.3e} {o}"
             print(line)
         print("curve_mesh time on the finest level [s]: " + ", ".join(
-            f"{label} {t:.2f}" for (label, _, _), t in zip(RUNS, times)))
+            f"{label} {t:.2f}" for (label, _, _), t in zip(RUNS, times, strict=True)))
     return rows
 
 

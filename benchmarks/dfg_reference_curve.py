@@ -32,8 +32,8 @@ import mpi4py.MPI as MPI
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from demos.dfg import C_D_REF, C_L_REF, DP_REF, solve_dfg  # noqa: E402
-from meshes.generate import dfg_channel_regenerated  # noqa: E402
+from demos.dfg import C_D_REF, C_L_REF, DP_REF, solve_dfg
+from meshes.generate import dfg_channel_regenerated
 
 FAMILIES = {"uniform": 16, "circle32": 32}
 

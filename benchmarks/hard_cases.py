@@ -58,7 +58,7 @@ from nagata_snap.smoothing.repair import repair  # noqa: E402
 
 OPTS: dict = {}
 #: the ladder before the untangler (Snapper's schedule then): for --compare
-OLD_LADDER = dict(untangle=False, stiffen=((0.0, 3), (1.0, 3), (1.0, 6)))
+OLD_LADDER = {"untangle": False, "stiffen": ((0.0, 3), (1.0, 3), (1.0, 6))}
 BIG = 100_000  # the cost target applies from this many cells
 
 
@@ -155,9 +155,9 @@ def run(name, comm, mesh, ft, tags, levels, say, compare, rows, geo=None):
         sc = comm.allreduce(sc, op=MPI.MAX)
         rf = comm.allreduce(rf, op=MPI.MAX)
         amin = rep.quality.min_angle.min
-        row = dict(case=f"{name} {mode}", level=f"{k}{kind}", cells=rep.num_cells,
-                   inverted=rep.quality.n_inverted_after, frac=frac,
-                   short=rep.max_shortfall / size, angle_ratio=amin / amin0, sc=sc, refine=rf)
+        row = {"case": f"{name} {mode}", "level": f"{k}{kind}", "cells": rep.num_cells,
+               "inverted": rep.quality.n_inverted_after, "frac": frac,
+               "short": rep.max_shortfall / size, "angle_ratio": amin / amin0, "sc": sc, "refine": rf}
         rows.append(row)
         line = (f"{k:>5}{kind} {rep.num_cells:>9} {rep.inverted_before_smoothing:>5} "
                 f"{rep.repair_stage:>9} {rep.partially_moved:>8} {100 * frac:>8.3f} "

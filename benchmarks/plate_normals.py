@@ -37,16 +37,16 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
 
-import gmsh  # noqa: E402
-import parts  # noqa: E402
-from occ_reference import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance  # noqa: E402
+import gmsh
+import parts
+from occ_reference import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance
 
-import dolfinx.mesh  # noqa: E402
+import dolfinx.mesh
 
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.mesh.boundary import boundary_facets  # noqa: E402
-from nagata_snap.cad import mesh_cad  # noqa: E402
-from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.mesh.boundary import boundary_facets
+from nagata_snap.cad import mesh_cad
+from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file
 
 
 def face_distances(mesh, ft, faces) -> np.ndarray:

@@ -34,9 +34,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "meshes"))
 
-from nagata_snap.cad.nurbs import torus  # noqa: E402
-from nagata_snap.cad.projection import project_newton  # noqa: E402
-from nurbs_reference import occ_bspline  # noqa: E402
+from nagata_snap.cad.nurbs import torus
+from nagata_snap.cad.projection import project_newton
+from nurbs_reference import occ_bspline
 
 R_MAJOR, R_MINOR = 2.0, 1.0
 
@@ -121,7 +121,7 @@ def main(argv=None) -> float:
         tag_b = occ_bspline(gmsh, surf)
         gmsh.model.occ.addTorus(10.0, 0.0, 0.0, R_MAJOR, R_MINOR)  # shifted away from the B-spline
         gmsh.model.occ.synchronize()
-        tag_t = [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) == "Torus"][0]
+        tag_t = next(t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) == "Torus")
         gmsh.model.getClosestPoint(2, tag_b, Q[0].tolist())  # warm-up
         tb_per, tb_bat, ob_per, ob_bat = time_occ(gmsh, tag_b, Q)
         shift = np.array([10.0, 0.0, 0.0])

@@ -31,10 +31,10 @@ import numpy as np
 import dolfinx.mesh
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
-import generate  # noqa: E402
-from surfaces import nagata_surface_error  # noqa: E402
+import generate
+from surfaces import nagata_surface_error
 
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper
 
 
 def tagged_vertices(mesh, ft, tag) -> np.ndarray:

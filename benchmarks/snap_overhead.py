@@ -174,11 +174,11 @@ def run_case(comm, case: str, methods, repeat: int, options: dict):
             if not best or t["overhead"] < best["overhead"]:
                 best = t
             del r, snapper
-        rows.append(dict(case=case, method=method, n0=n0, n1=n1, plain=t_plain, t=best,
-                         tags=t_tags, extra_vs_tags=(best["wall"] - t_tags) / t_tags,
-                         moved=rep.boundary_vertices_moved, stage=rep.repair_stage,
-                         ratio=best["overhead"] / t_plain,
-                         ratio_norep=(best["overhead"] - best.get("sc:report", 0.0)) / t_plain))
+        rows.append({"case": case, "method": method, "n0": n0, "n1": n1, "plain": t_plain, "t": best,
+                     "tags": t_tags, "extra_vs_tags": (best["wall"] - t_tags) / t_tags,
+                     "moved": rep.boundary_vertices_moved, "stage": rep.repair_stage,
+                     "ratio": best["overhead"] / t_plain,
+                     "ratio_norep": (best["overhead"] - best.get("sc:report", 0.0)) / t_plain})
     return rows
 
 

@@ -83,7 +83,7 @@ def best_time(comm, fn, repeat: int):
 def run_case(comm, name: str, repeat: int) -> dict:
     dim, h = CASES[name]
     if dim == 2:
-        md = generate.unit_disk(comm, n=int(round(2 * math.pi / h)), h=h)
+        md = generate.unit_disk(comm, n=round(2 * math.pi / h), h=h)
         tag = generate.DISK_BOUNDARY
     else:
         md = generate.ball(comm, radius=1.0, h=h)
@@ -116,9 +116,9 @@ def run_case(comm, name: str, repeat: int) -> dict:
                 comm.allreduce(float(np.abs(a - e).max(initial=0.0)), op=MPI.MAX))
 
     (z_ours, e_ours), (z_nm, e_nm) = stats(ours), stats(nm)
-    return dict(case=name, dofs=V1.dofmap.index_map.size_global * dim, ours=t_ours, nm=t_nm,
-                ratio=t_nm / t_ours, zeros_ours=z_ours, zeros_nm=z_nm, err_ours=e_ours,
-                err_nm=e_nm, outside=info.outside)
+    return {"case": name, "dofs": V1.dofmap.index_map.size_global * dim, "ours": t_ours, "nm": t_nm,
+            "ratio": t_nm / t_ours, "zeros_ours": z_ours, "zeros_nm": z_nm, "err_ours": e_ours,
+            "err_nm": e_nm, "outside": info.outside}
 
 
 def main(argv=None) -> None:

@@ -79,7 +79,7 @@ def domain_error(mesh) -> float:
     import dolfinx.fem as fem
 
     tdim = mesh.topology.dim
-    c, r = CASES[tdim]
+    _, r = CASES[tdim]
     exact = 2.2 * 0.41 - np.pi * r**2 if tdim == 2 else 8.0 - 4.0 / 3.0 * np.pi * r**3
     k = mesh.geometry.cmaps[0].degree
     dx = ufl.dx(domain=mesh, metadata={"quadrature_degree": 2 * k})

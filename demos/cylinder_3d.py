@@ -126,7 +126,7 @@ def main(argv=None) -> dict:
         old = mesh.geometry.index_map().size_global
         on_before = n_on_cylinder(mesh, ft)
         edges = mark_near_cylinder(mesh, args.band / 2**k)
-        mesh, ft, pc, pf, rep = snapper.refine(mesh, edges)
+        mesh, ft, *_, rep = snapper.refine(mesh, edges)
         new = mesh.geometry.index_map().size_global
         hist = np.asarray(rep.geometry.iterations_histogram, dtype=np.int64)
         hist = np.asarray(comm.allreduce(np.pad(hist, (0, 64 - len(hist)))))
@@ -137,13 +137,13 @@ def main(argv=None) -> dict:
         ktxt = f"{kad[0]:7d} {kad[1]:7d} {kad[3]:9d} {kad[5]:10.2f}" if kad else ""
         say(f"{k + 1:3d} {old:9d} {new:9d} {new - old:8d} {projected:9d} {t_proj:9.4f} "
             f"{1e6 * t_proj / max(projected, 1):7.1f} | Kadir: {ktxt}")
-        rows.append(dict(level=k + 1, old_points=old, new_points=new, projected=projected,
-                         projection_time=t_proj, newton_histogram=hist.tolist(),
-                         max_iterations=int(np.flatnonzero(hist)[-1]) if hist.any() else 0,
-                         unresolved=rep.geometry.n_unresolved,
-                         inverted_after=rep.inverted_after_smoothing,
-                         cylinder_distance=cylinder_distance(mesh, ft),
-                         times=rep.times))
+        rows.append({"level": k + 1, "old_points": old, "new_points": new, "projected": projected,
+                     "projection_time": t_proj, "newton_histogram": hist.tolist(),
+                     "max_iterations": int(np.flatnonzero(hist)[-1]) if hist.any() else 0,
+                     "unresolved": rep.geometry.n_unresolved,
+                     "inverted_after": rep.inverted_after_smoothing,
+                     "cylinder_distance": cylinder_distance(mesh, ft),
+                     "times": rep.times})
     ours = bins(total_hist)
     say("\nNewton iterations of the seeded projections (all levels; one per distinct boundary point")
     say("and seed; points already on the surface need 0 iterations and are not binned) vs Kadir")
@@ -158,7 +158,7 @@ def main(argv=None) -> dict:
     say(f"max distance of the cylinder's vertices from the exact cylinder: "
         f"{max(r['cylinder_distance'] for r in rows):.3e} m (Kadir's file rounds the NURBS "
         f"weights to 0.707107: its surface is itself up to {KADIR_SURFACE_OFFSET:.3e} m off)")
-    out = dict(levels=rows, histogram=total_hist.tolist(), bins=ours, mean_iterations=mean)
+    out = {"levels": rows, "histogram": total_hist.tolist(), "bins": ours, "mean_iterations": mean}
     if args.json and comm.rank == 0:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)

@@ -63,7 +63,7 @@ import itertools
 import time
 import typing
 
-import mpi4py.MPI as MPI  # noqa: F401  (must precede dolfinx/petsc4py)
+import mpi4py.MPI as MPI  # must precede dolfinx/petsc4py
 
 import basix.ufl
 import numpy as np

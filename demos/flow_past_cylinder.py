@@ -53,7 +53,7 @@ import sys
 import tempfile
 import time
 
-import mpi4py.MPI as MPI  # noqa: F401  (must precede dolfinx/petsc4py)
+import mpi4py.MPI as MPI  # must precede dolfinx/petsc4py
 
 import numpy as np
 

@@ -85,7 +85,7 @@ def test_circle_polygon_refinement(offset):
     np.testing.assert_array_equal(rec.root, 0)
     check_records(geo, facets, rec, 1e-15)
     x = facets
-    for level in range(4):
+    for _ in range(4):
         st, rec = split_segments(x, rec)
         pts, rec, report = geo.place(rec, st)
         rad = np.linalg.norm(pts - c, axis=2)
@@ -114,7 +114,8 @@ def test_multiple_curves_and_shared_vertices():
     arcs = []
     for k in range(4):
         a0, a1 = k * np.pi / 2, (k + 1) * np.pi / 2
-        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0], [np.cos(a1), np.sin(a1), 0]]
+        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0],
+             [np.cos(a1), np.sin(a1), 0]]
         arcs.append(NurbsCurve(2, [0, 0, 0, 1, 1, 1], P, [1, S2, 1]))
     geo = CadGeometry(arcs)
     facets = circle_polygon(np.zeros(3), 1.0, 12, 0.0)
@@ -211,7 +212,7 @@ def test_cylinder_triangulation_refinement(offset):
     assert rec.params.shape == (80, 3, 2)
     check_records(geo, facets, rec, 1e-15)
     x = facets
-    for level in range(2):
+    for _ in range(2):
         st, rec = split_triangles(x, rec)
         pts, rec, report = geo.place(rec, st)
         rad = np.hypot(pts[..., 0] - c[0], pts[..., 1] - c[1])
@@ -242,7 +243,7 @@ def test_sphere_with_poles_refinement():
     rec = geo.attach(facets)
     check_records(geo, facets, rec, 1e-15)
     x = facets
-    for level in range(3):
+    for _ in range(3):
         st, rec = split_triangles(x, rec)
         pts, rec, report = geo.place(rec, st)
         np.testing.assert_allclose(np.linalg.norm(pts, axis=2), 1.0, rtol=1e-12, atol=0)
@@ -367,6 +368,7 @@ def test_point_near_face_extension_goes_to_the_face_containing_its_closest_point
     untrimmed = CadGeometry([A, B])
     ent0, _, d0 = untrimmed.closest_point(P)
     np.testing.assert_array_equal(ent0, [0, 0, 0, 1])  # A's extension wins without trims
+    np.testing.assert_allclose(d0, [0.3, 0.05, 0.2, 0.05], rtol=0, atol=1e-14)
     geo = CadGeometry([A, B], loops)
     ent, par, dist = geo.closest_point(P)
     np.testing.assert_array_equal(ent, [1, 1, 0, 1])
@@ -542,7 +544,7 @@ def test_trim_loops_checked_together_as_loop_by_loop(monkeypatch):
 
     def loops_and_bands():
         loops, bands = [], []
-        for e in range(4):
+        for _ in ents:  # the loops of each entity
             lp, bd = [], []
             for _ in range(int(rng.integers(0, 3))):
                 P = rng.uniform(0.0, 1.0, (int(rng.integers(2, 30)), 2))
@@ -649,7 +651,7 @@ def test_attach_keeps_exact_seeds_and_projects_inexact_ones():
     np.testing.assert_allclose(near.params[:, :, :2], P, rtol=0, atol=1e-12)
     assert np.allclose(np.hypot(facets[..., 0], facets[..., 1]), R, rtol=1e-14)
     with pytest.raises(CadError, match="do not lie on the CAD geometry"):
-        geo.attach(facets + [0.0, 0.0, 0.3 * H], faces=faces, seeds=P)
+        geo.attach(facets + np.array([0.0, 0.0, 0.3 * H]), faces=faces, seeds=P)
 
 
 def test_collapsed_rows_of_a_net_mark_surfaces_that_can_degenerate():
@@ -660,7 +662,7 @@ def test_collapsed_rows_of_a_net_mark_surfaces_that_can_degenerate():
     assert sphere().can_degenerate
     assert not cylinder().can_degenerate and not torus().can_degenerate
     s = sphere()
-    (u0, u1), (v0, v1) = s.domain_u, s.domain_v
+    (u0, u1), (_, v1) = s.domain_u, s.domain_v
     at = np.array([[u0, 0.3 * v1], [0.5 * (u0 + u1), 0.3 * v1], [u1, 0.7 * v1]])
     np.testing.assert_array_equal(degenerate([s], np.zeros(3, dtype=np.int64), at),
                                   [[False, True], [False, False], [False, True]])

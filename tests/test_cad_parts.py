@@ -22,6 +22,7 @@ the way (issue 12).
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -48,7 +49,7 @@ def run_driver(tmp_path, cases, n):
     out = tmp_path / f"parts_np{n}.json"
     arg = ",".join(f"{name}:{fmt}:{MESH[name][0]}:{MESH[name][1]}" for name, fmt in cases)
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
-    r = subprocess.run(exe + [sys.executable, os.path.join(HERE, "mpi", "cad_parts.py"), str(out), arg],
+    r = subprocess.run([*exe, sys.executable, os.path.join(HERE, "mpi", "cad_parts.py"), str(out), arg],
                        capture_output=True, text=True, timeout=1800)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     return {(d["part"], d["format"]): d for d in json.loads(out.read_text())}
@@ -69,7 +70,7 @@ def check(result):
     modes = [lv["mode"] for lv in result["levels"]]
     assert modes == (["uniform"] * 3 if part.dim == 2 else ["uniform", "uniform", "marked", "marked"])
     cells = [result["coarse_cells"]] + [lv["cells"] for lv in result["levels"]]
-    assert all(b > a for a, b in zip(cells, cells[1:]))  # every level refined
+    assert all(b > a for a, b in itertools.pairwise(cells))  # every level refined
     for k, lv in enumerate(result["levels"], 1):
         where = f"{result['part']} ({result['format']}) level {k}"
         assert lv["own"] <= TOL, f"{where}: a vertex {lv['own']:.2e} of the size from its face"

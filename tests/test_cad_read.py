@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import random
 import re
+from pathlib import Path
 
 import gmsh
 import numpy as np
@@ -271,7 +272,7 @@ def mutate(src: bytes, rng: random.Random, fmt: str) -> bytes:
 @pytest.mark.parametrize("fmt", ["step", "igs"])
 def test_fuzzed_files_give_a_geometry_or_cad_error(sources, tmp_path, fmt):
     rng = random.Random({"step": 1, "igs": 2}[fmt])
-    src = open(sources[fmt], "rb").read()
+    src = Path(sources[fmt]).read_bytes()
     outcome = {"geometry": 0, "error": 0, "crash": 0, "timeout": 0}
     for k in range(FUZZ_PER_FORMAT):
         p = tmp_path / f"m{k}.{fmt}"
@@ -311,7 +312,7 @@ def test_reads_do_not_depend_on_earlier_files(sources, tmp_path):
     depend on the machine's load and are not compared.
     """
     rng = random.Random(2)  # the IGES mutations of the fuzz test
-    src = open(sources["igs"], "rb").read()
+    src = Path(sources["igs"]).read_bytes()
     paths = []
     for k in range(140):
         paths.append(tmp_path / f"m{k}.igs")

@@ -25,7 +25,7 @@ def run(n, args, tmp_path):
     out = tmp_path / f"{args[0]}_np{n}.npz"
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
     r = subprocess.run(
-        exe + [sys.executable, os.path.join(HERE, "mpi", "snap_loop.py"), *args, str(out)],
+        [*exe, sys.executable, os.path.join(HERE, "mpi", "snap_loop.py"), *args, str(out)],
         capture_output=True, text=True, timeout=900,
     )
     assert r.returncode == 0, r.stdout + r.stderr
@@ -63,6 +63,7 @@ def test_cad_loop_on_exact_geometry_serial_and_mpi(case, mode, levels, dist, siz
             assert a.shape == b.shape
             d, i = cKDTree(a).query(b)
             assert d.max() <= 1e-12 * size
+            assert np.unique(i).size == len(i)  # one to one: no point matched twice, none missed
 
 
 def test_kadir_cylinder_file_snapping_matches_occ(tmp_path):

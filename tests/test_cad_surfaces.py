@@ -16,7 +16,7 @@ from nagata_snap.cad.curves import Circle, Line
 from nagata_snap.cad.projection import project_newton
 from nagata_snap.cad.surfaces import Cone, Cylinder, Plane, Sphere, Torus
 
-from OCP.Geom import (  # noqa: E402
+from OCP.Geom import (
     Geom_Circle,
     Geom_ConicalSurface,
     Geom_CylindricalSurface,
@@ -26,9 +26,9 @@ from OCP.Geom import (  # noqa: E402
     Geom_ToroidalSurface,
     Geom_TrimmedCurve,
 )
-from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf  # noqa: E402
-from OCP.GeomLProp import GeomLProp_SLProps  # noqa: E402
-from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Lin, gp_Pnt  # noqa: E402
+from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf
+from OCP.GeomLProp import GeomLProp_SLProps
+from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Lin, gp_Pnt
 
 RNG = np.random.default_rng(7)
 O = np.array([0.3, -0.2, 0.5])
@@ -188,6 +188,7 @@ def test_newton_on_analytic_surfaces_agrees_with_the_closed_form():
         P, S, d = s.closest(X)
         res = project_newton(s, X, P + RNG.normal(scale=0.05, size=P.shape))
         np.testing.assert_allclose(res.distance, d, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(res.points, S, rtol=0, atol=1e-13)
 
 
 # ----------------------------------------------------------------------
@@ -213,7 +214,7 @@ def test_circle_arc_closest_point_matches_occ(t0, t1):
     occ = Geom_Circle(gp_Circ(gp_Ax2(gp_Pnt(*O), gp_Dir(*Z), gp_Dir(*X)), 0.6))
     t = RNG.uniform(-np.pi, 3 * np.pi, 300)
     Xq = c._points(t) + RNG.normal(scale=0.2, size=(300, 3))
-    T, C, d = c.closest(Xq)
+    T, _, d = c.closest(Xq)
     np.testing.assert_allclose(d, occ_curve_project(occ, t0, t1, Xq), rtol=0, atol=1e-14)
     assert np.all((T[:, 0] >= t0) & (T[:, 0] <= t1))
     p = occ.Value(1.1)
@@ -224,7 +225,7 @@ def test_line_segment_closest_point_matches_occ():
     ln = Line(O, Z, -0.5, 1.5)
     occ = Geom_Line(gp_Lin(gp_Pnt(*O), gp_Dir(*Z)))
     Xq = O + RNG.normal(scale=1.5, size=(300, 3))
-    T, C, d = ln.closest(Xq)
+    T, _, d = ln.closest(Xq)
     np.testing.assert_allclose(d, occ_curve_project(occ, -0.5, 1.5, Xq), rtol=0, atol=1e-14)
     assert np.all((T >= -0.5) & (T <= 1.5))
 
@@ -261,7 +262,7 @@ def test_planes_and_segments_project_at_once_as_each_alone():
     ):
         frames = [np.linalg.qr(rng.normal(size=(3, 3)))[0].T for _ in range(4)]
         origins = rng.normal(size=(4, 3))
-        ents = [make(o, f) for o, f in zip(origins, frames)]
+        ents = [make(o, f) for o, f in zip(origins, frames, strict=True)]
         batch = AffineBatch(ents)
         which = rng.integers(0, 4, 400)
         Xq = origins[which] + rng.normal(scale=2.0, size=(400, 3))

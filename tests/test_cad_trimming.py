@@ -22,9 +22,9 @@ from nagata_snap.cad.projection import entity_limits, entity_periods, evaluate_p
 
 from occ_reference import OccShape
 
-from OCP.BRepClass import BRepClass_FaceClassifier  # noqa: E402
-from OCP.TopAbs import TopAbs_State  # noqa: E402
-from OCP.gp import gp_Pnt2d  # noqa: E402
+from OCP.BRepClass import BRepClass_FaceClassifier
+from OCP.TopAbs import TopAbs_State
+from OCP.gp import gp_Pnt2d
 
 RNG = np.random.default_rng(3)
 

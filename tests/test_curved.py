@@ -165,9 +165,9 @@ def test_nagata_nodes_lie_on_the_patch_at_their_barycentric_position(case):
     c2f = mesh.topology.connectivity(tdim, tdim - 1)
     facets = ft.find(tag)
     cells = np.array([f2c.links(f)[0] for f in facets])
-    local = np.array([list(c2f.links(c)).index(f) for c, f in zip(cells, facets)])
+    local = np.array([list(c2f.links(c)).index(f) for c, f in zip(cells, facets, strict=True)])
     for k in (3, 4):
-        ck, info = snapper.curved_mesh(degree=k)
+        ck, _ = snapper.curved_mesh(degree=k)
         el = basix.create_element(basix.ElementFamily.P, cell_type(tdim), k, basix.LagrangeVariant.gll_warped)
         phi = p2.tabulate(0, el.points)[0, :, :, 0]  # (ndofs_k, 6 or 10)
         pred = np.einsum("pn,cni->cpi", phi, c2.geometry.x[c2.geometry.dofmaps[0][cells]])
@@ -190,7 +190,7 @@ def _dfg_boundary_layer():
 def test_jacobian_guard_pulls_back_crushing_nodes(k):
     """Boundary-layer cells thinner than the 8-gon's sagitta: nodes are pulled back
     (reported) until det J > 0 everywhere, checked at points the guard does not use."""
-    mesh, snapper = _dfg_boundary_layer()
+    _, snapper = _dfg_boundary_layer()
     cm, info = snapper.curved_mesh(degree=k, min_ratio=0.05)
     assert info.reduced_nodes > 0 and info.max_shortfall > 0
     assert info.min_jacobian_ratio >= 0.05
@@ -255,11 +255,11 @@ def poisson_l2_error(m, k):
 
 
 def test_poisson_p3_on_cubic_disk_converges_at_order_4():
-    mesh, ft, snapper = disk_snapper()
+    mesh, _, snapper = disk_snapper()
     curved, straight = [], []
     for level in range(3):
         if level:
-            mesh, ft, *_ = snapper.refine(mesh)
+            mesh, *_ = snapper.refine(mesh)
         cm, _ = snapper.curved_mesh(degree=3)
         curved.append(poisson_l2_error(cm, 3))
         straight.append(poisson_l2_error(mesh, 3))
@@ -284,7 +284,7 @@ def test_bad_arguments(kwargs, match):
 def _run_curved(n, args, tmp_path):
     out = tmp_path / f"curved_{n}_{'_'.join(args)}.npz"
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
-    r = subprocess.run(exe + [sys.executable, os.path.join(HERE, "mpi", "curved.py"), *args, str(out)],
+    r = subprocess.run([*exe, sys.executable, os.path.join(HERE, "mpi", "curved.py"), *args, str(out)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     return np.load(out)

@@ -16,7 +16,7 @@ TINY_FLOW = ["--levels", "3", "--n-circle", "16", "--h-far", "0.08", "--theta", 
 
 def run(args, n=1, timeout=300):
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
-    r = subprocess.run(exe + [sys.executable, *map(str, args)], capture_output=True, text=True,
+    r = subprocess.run([*exe, sys.executable, *map(str, args)], capture_output=True, text=True,
                        timeout=timeout, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
     return r
@@ -76,7 +76,7 @@ def test_flow_curved_run_same_meshes_smaller_error(flow):
     p2, iges = runs["iges-p2"], runs["iges"]
     assert p2["status"] == "ok", f"iges-p2 run {p2['status']}: {p2['reason']}"
     assert [r["dofs"] for r in p2["levels"]] == [r["dofs"] for r in iges["levels"]]
-    for a, b in zip(p2["levels"], iges["levels"]):
+    for a, b in zip(p2["levels"], iges["levels"], strict=True):
         assert a["err_c_D"] < b["err_c_D"]
 
 

@@ -50,7 +50,7 @@ def test_dfg_8gon_boundary_layer():
     amin0 = coarse_min_angle(mesh)
     m = mesh
     for level in range(3):
-        m, f, pc, pf, rep = snapper.refine(m)
+        m, f, *_, rep = snapper.refine(m)
         assert rep.inverted_before_smoothing > 0  # the case is hard at every level
         assert rep.inverted_after_smoothing == 0 and rep.partially_moved == 0
         assert rep.repair_stage == "untangle"  # the linear band smoother alone does not do it
@@ -77,7 +77,7 @@ def test_sphere_with_thin_wall_layer():
     snapper = Snapper(mesh, ft, geo)
     m = mesh
     for level in range(2):
-        m, f, pc, pf, rep = snapper.refine(m)
+        m, f, *_, rep = snapper.refine(m)
         if level == 0:
             assert rep.inverted_before_smoothing > 0
         # (before the untangler, two cells of the squeezed layer stayed inverted at
@@ -101,7 +101,7 @@ def test_hard_cases_mpi_same_repair_as_serial():
     mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
 
     def rows(cmd):
-        r = subprocess.run(cmd + [sys.executable, script, "--cases", "8gon-bl,sphere-squeezed"],
+        r = subprocess.run([*cmd, sys.executable, script, "--cases", "8gon-bl,sphere-squeezed"],
                            capture_output=True, text=True, timeout=900)
         assert r.returncode == 0, r.stdout + r.stderr
         assert "inverted_after 0" in r.stdout.splitlines()
@@ -125,7 +125,7 @@ def test_partial_moves_are_the_last_resort_and_reported(capsys):
     md = hard_parts.touching_hole(MPI.COMM_SELF)
     mesh, ft = md.mesh, md.facet_tags
     geo = NagataGeometry(mesh, ft, tags=[hard_parts.TOUCH_HOLE])
-    m, f, pc, pf, rep = Snapper(mesh, ft, geo, verbose=True).refine(mesh)
+    m, f, *_, rep = Snapper(mesh, ft, geo, verbose=True).refine(mesh)
     stages = [a["stage"] for a in rep.smoothing_attempts]
     assert rep.repair_stage == "partial" and "untangle" in stages and "slide" in stages
     assert stages.index("partial") > stages.index("slide")  # the last resort
@@ -149,8 +149,8 @@ def two_levels_nothing_short(mesh, ft, geo):
     amin0 = coarse_min_angle(mesh)
     snapper = Snapper(mesh, ft, geo)
     m, reps = mesh, []
-    for level in range(2):
-        m, f, pc, pf, rep = snapper.refine(m)
+    for _ in range(2):
+        m, *_, rep = snapper.refine(m)
         assert rep.partially_moved == 0 and rep.quality.n_inverted_after == 0
         assert rep.quality.min_angle.min >= amin0 / 3
         reps.append(rep)

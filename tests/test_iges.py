@@ -80,7 +80,7 @@ def test_kadir_files_read_by_occ(files):
     d = read_shape(files / "kadir_cylinder.igs", unit="FILE")
     (face,) = d["faces"]
     s = nurbs_surface(face["surface"])
-    _, V, P = sample_surface(s, 801, 11)
+    _, _, P = sample_surface(s, 801, 11)
     rel = np.abs(np.linalg.norm(P[:, :2] - YC, axis=1) - YR) / YR
     assert rel.max() <= bound * (1 + 1e-6) + 1e-14
     assert abs(P[:, 2].min() - YZ[0]) < 1e-15 and abs(P[:, 2].max() - YZ[1]) < 1e-15
@@ -140,7 +140,7 @@ def test_round_trip_through_occ_is_exact(tmp_path):
     assert [int(lines[-1][8 * k + 1:8 * k + 8]) for k in range(4)] == [counts[c] for c in "SGDP"]
     d = read_shape(path, unit="FILE")
     assert d["file_units"] == ["M"] and len(d["faces"]) == len(surfaces)
-    for a, f in zip(surfaces, d["faces"]):
+    for a, f in zip(surfaces, d["faces"], strict=True):
         b = nurbs_surface(f["surface"])
         U, V, P = sample_surface(a, 13, 15)
         np.testing.assert_allclose(b.evaluate(U, V)[0], P, rtol=0, atol=1e-13 * a.bbox_size)
@@ -167,7 +167,7 @@ def test_written_files_imported_by_gmsh(tmp_path):
         gmsh.model.occ.synchronize()
         faces = [t for _, t in gmsh.model.getEntities(2)]
         assert len(faces) == len(surfaces)
-        for s, f in zip(surfaces, faces):
+        for s, f in zip(surfaces, faces, strict=True):
             lo, hi = gmsh.model.getParametrizationBounds(2, f)
             np.testing.assert_allclose(lo, [s.domain_u[0], s.domain_v[0]], atol=1e-15)
             np.testing.assert_allclose(hi, [s.domain_u[1], s.domain_v[1]], atol=1e-15)

@@ -37,7 +37,7 @@ def _tag_interface(mesh, ft, value, n):
 
 
 def _pairs(ft):
-    return set(zip(ft.indices.tolist(), ft.values.tolist()))
+    return set(zip(ft.indices.tolist(), ft.values.tolist(), strict=True))
 
 
 def _marked_edges(mesh, centre, radius):
@@ -61,7 +61,7 @@ def test_tags_equal_transfer_meshtag(case):
     snapper = Snapper(mesh, ft, NagataGeometry(mesh, ft, tags=[tag]), tags=[tag])
     for level in range(3 if case == "dfg" else 2):
         edges = _marked_edges(mesh, centre, radius) if level == 1 else None
-        mesh1, ft1, pc, pf, rep = snapper.refine(mesh, edges)
+        mesh1, ft1, pc, pf, _ = snapper.refine(mesh, edges)
         ref = dolfinx.mesh.transfer_meshtag(ft, mesh1, pc, pf)
         assert _pairs(ft1) == _pairs(ref)
         assert np.count_nonzero(ft1.values == 77) > 0

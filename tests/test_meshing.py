@@ -73,9 +73,10 @@ def check_on_cad(cm: CadMesh, path, tol: float = TOL, per_face_tags: bool = True
                                                                     oriented=False))
             closure |= set(gmsh.model.getBoundary([d for d in closure if d[0] == 1], combined=False,
                                                   oriented=False)) if tdim == 3 else set()
-            got = set(zip(cm.node_entity_dim[sel].ravel().tolist(), cm.node_entity_tag[sel].ravel().tolist()))
+            got = set(zip(cm.node_entity_dim[sel].ravel().tolist(), cm.node_entity_tag[sel].ravel().tolist(),
+                          strict=True))
             assert got <= closure
-        for (d, t) in set(zip(cm.node_entity_dim.ravel().tolist(), cm.node_entity_tag.ravel().tolist())):
+        for (d, t) in set(zip(cm.node_entity_dim.ravel().tolist(), cm.node_entity_tag.ravel().tolist(), strict=True)):
             P = X[(cm.node_entity_dim == d) & (cm.node_entity_tag == t)]
             if d == 0:
                 corner = np.asarray(gmsh.model.getValue(0, t, []))
@@ -177,7 +178,7 @@ def test_whole_boundary_tag_and_order2(files):
 def _groove_tag(path) -> int:
     with gmsh_session("groove"):
         import_cad(path)
-        return [t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) == "Cylinder"][0]
+        return next(t for _, t in gmsh.model.getEntities(2) if gmsh.model.getType(2, t) == "Cylinder")
 
 
 def test_gmsh_session_left_as_found(files):
@@ -207,18 +208,18 @@ def test_gmsh_session_left_as_found(files):
 
 
 def test_bad_input(tmp_path, files):
-    with pytest.raises(FileNotFoundError, match="missing.step: no such CAD file"):
+    with pytest.raises(FileNotFoundError, match=r"missing\.step: no such CAD file"):
         mesh_cad_file(tmp_path / "missing.step", MPI.COMM_WORLD)
     garbage = tmp_path / "garbage.step"
     garbage.write_bytes(b"\x00\x01 this is not STEP at all \xff" * 50)
-    with pytest.raises(ValueError, match="garbage.step: gmsh/OpenCASCADE cannot read this file"):
+    with pytest.raises(ValueError, match=r"garbage\.step: gmsh/OpenCASCADE cannot read this file"):
         mesh_cad_file(garbage, MPI.COMM_WORLD)
     empty = tmp_path / "empty.step"
     empty.write_text("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION((''),'2;1');\nFILE_NAME('empty','',(''),(''),'','','');\n"
                      "FILE_SCHEMA(('AUTOMOTIVE_DESIGN'));\nENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n")
-    with pytest.raises(ValueError, match="empty.step: .*(no shapes|cannot read)"):
+    with pytest.raises(ValueError, match=r"empty\.step: .*(no shapes|cannot read)"):
         mesh_cad_file(empty, MPI.COMM_WORLD)
-    with pytest.raises(ValueError, match="unknown CAD file suffix '.stl'"):
+    with pytest.raises(ValueError, match=r"unknown CAD file suffix '\.stl'"):
         mesh_cad_file(tmp_path / "part.stl", MPI.COMM_WORLD)
     with pytest.raises(ValueError, match="unknown length unit 'parsec'"):
         mesh_cad_file(files["plate"]["step"], MPI.COMM_WORLD, unit="parsec")
@@ -235,7 +236,7 @@ def test_bad_input(tmp_path, files):
         gmsh.model.occ.remove([(2, 2), (2, 3)], recursive=True)
         gmsh.model.occ.synchronize()
         gmsh.write(str(shell))
-    with pytest.raises(ValueError, match="shell.step: no solid in the file and its 1 faces do not close"):
+    with pytest.raises(ValueError, match=r"shell\.step: no solid in the file and its 1 faces do not close"):
         mesh_cad_file(shell, MPI.COMM_WORLD)
 
 

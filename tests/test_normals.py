@@ -98,7 +98,7 @@ def edge_gap(geo):
         lam[np.arange(len(f)), :, i1] = t
         pts.append(geo.evaluate(f, lam))
     gap = float(np.abs(pts[0] - pts[1]).max())
-    assert F == len(geo.ids) and np.all(cnt == 2)
+    assert len(geo.ids) == F and np.all(cnt == 2)
     return gap
 
 
@@ -252,13 +252,13 @@ def test_cube_creases_keep_faces_flat_and_corners_sharp():
     assert np.all(np.abs(geo.coef) == 0)
     g = barycentric_grid(3, 5)
     pts = geo.evaluate(np.arange(geo.num_patches), np.broadcast_to(g, (geo.num_patches, *g.shape)))
-    flat = np.einsum("pkv,pvi->pki", np.broadcast_to(g, pts.shape[:2] + (3,)), geo.x)
+    flat = np.einsum("pkv,pvi->pki", np.broadcast_to(g, (*pts.shape[:2], 3)), geo.x)
     assert np.abs(pts - flat).max() == 0.0
 
 
 def test_crease_angle_controls_sharpness():
     """A coarse octagon (45 deg turns) is smooth at the default 60 deg, sharp at 30 deg."""
-    p, s, exact = circle_polygon(8)
+    p, s, _ = circle_polygon(8)
     smooth = NagataGeometry.from_surface(p, s)
     sharp = NagataGeometry.from_surface(p, s, crease_angle=30.0)
     assert np.abs(smooth.coef).max() > 0.05
@@ -298,7 +298,7 @@ def test_fillet_meeting_planes_tangentially_is_smooth(h):
 @pytest.mark.parametrize("kind, h", [("torus", 0.3), ("ellipsoid", 0.3), ("torus", 0.2)])
 def test_coarse_smooth_mesh_is_not_cut_into_creases(kind, h):
     """Neighbouring facets turning by 30-50 degrees (below crease_angle): no creases."""
-    p, t, exact, _ = gmsh_surface(kind, h)
+    p, t, _, _ = gmsh_surface(kind, h)
     _, turn, crease = creases_of(p, t)
     assert turn.max() > (39.0 if h == 0.3 else 30.0) and (turn > 20).sum() > 50
     assert not crease.any()
@@ -448,7 +448,8 @@ def test_cad_normals_give_the_exact_normal_patches():
     np.testing.assert_array_equal(np.abs(n[~side]), np.tile([0, 0, 1.0], ((~side).sum(), 1)))
     ref = NagataGeometry.from_surface(p, t, normals=exact.normal)  # discs: estimated, exact for planes
     np.testing.assert_allclose(geo.coef, ref.coef, atol=1e-15)
-    assert nagata_surface_error(geo, exact.distance) == pytest.approx(nagata_surface_error(ref, exact.distance), rel=1e-9)
+    err, err_ref = (nagata_surface_error(g, exact.distance) for g in (geo, ref))
+    assert err == pytest.approx(err_ref, rel=1e-9)
     assert edge_gap(geo) == 0.0
 
 
@@ -493,8 +494,8 @@ def test_cad_normals_of_tangent_faces_and_creases():
     assert line.sum() >= 8
     np.testing.assert_allclose(n[line], np.tile([1.0, 0.0, 0.0], (line.sum(), 1)), atol=1e-15)
     ids = one.ids.reshape(-1)[line]
-    first = {i: v for i, v in zip(ids[::-1], n[line][::-1])}
-    assert all(np.array_equal(v, first[i]) for i, v in zip(ids, n[line]))  # one normal per vertex
+    first = dict(zip(ids[::-1], n[line][::-1], strict=True))
+    assert all(np.array_equal(v, first[i]) for i, v in zip(ids, n[line], strict=True))  # one normal per vertex
 
 
 def test_cad_normals_checked():
@@ -589,7 +590,7 @@ def test_normals_identical_under_mpi(tmp_path, case):
     for n in (1, 2):
         exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
         f = tmp_path / f"n{n}.npz"
-        r = subprocess.run(exe + [sys.executable, script, str(f), case], capture_output=True, text=True,
+        r = subprocess.run([*exe, sys.executable, script, str(f), case], capture_output=True, text=True,
                            timeout=300)
         assert r.returncode == 0, r.stdout + r.stderr
         out[n] = np.load(f)
@@ -614,5 +615,5 @@ def test_stencils_of_a_fan_keep_its_apex(n):
     idx, mask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2)
     for v in (1, n // 2, n):
         assert 0 in idx[v][mask[v]]
-    fidx, fmask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2, facets=True)
+    _, fmask = sector_stencils(vid, label, np.zeros(n, dtype=np.int64), rings=2, facets=True)
     assert fmask[1].sum() == n  # every facet of the fan touches the apex

@@ -113,8 +113,11 @@ def test_circle_far_points_global_search_exact():
     np.testing.assert_allclose(X, truth, rtol=0, atol=1e-12 * R)
     np.testing.assert_allclose(dist, np.linalg.norm(truth - P, axis=1), rtol=1e-12, atol=1e-17)
     # 2D input (z = 0) is accepted
-    e2, p2, d2 = global_search(cur, P[:, :2])
-    np.testing.assert_allclose(cur.evaluate(p2[:, 0])[0], closest_on_circle(np.c_[P[:, :2], 0 * ang], c, R), atol=1e-12 * R)
+    P2 = np.c_[P[:, :2], 0 * ang]
+    _, p2, d2 = global_search(cur, P[:, :2])
+    truth2 = closest_on_circle(P2, c, R)
+    np.testing.assert_allclose(cur.evaluate(p2[:, 0])[0], truth2, rtol=0, atol=1e-12 * R)
+    np.testing.assert_allclose(d2, np.linalg.norm(truth2 - P2, axis=1), rtol=0, atol=1e-12 * R)
 
 
 def test_open_curve_clamps_at_end():
@@ -133,14 +136,15 @@ def test_multiple_curve_patches():
     arcs = []
     for k in range(4):
         a0, a1 = k * np.pi / 2, (k + 1) * np.pi / 2
-        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0], [np.cos(a1), np.sin(a1), 0]]
+        P = [[np.cos(a0), np.sin(a0), 0], [np.cos(a0) + np.cos(a1), np.sin(a0) + np.sin(a1), 0],
+             [np.cos(a1), np.sin(a1), 0]]
         arcs.append(NurbsCurve(2, [0, 0, 0, 1, 1, 1], P, [1, S2, 1]))
     rng = np.random.default_rng(2)
     ang = rng.uniform(0, 2 * np.pi, 2000)
     ang = ang[np.min(np.abs(ang[:, None] - np.arange(5) * np.pi / 2), axis=1) > 1e-3]  # not at the joints
     rad = rng.uniform(0.5, 1.6, ang.size)
     P = np.c_[rad * np.cos(ang), rad * np.sin(ang), 0 * ang]
-    ent, par, dist = global_search(arcs, P)
+    ent, _, dist = global_search(arcs, P)
     np.testing.assert_array_equal(ent, (ang // (np.pi / 2)).astype(int))
     np.testing.assert_allclose(dist, np.abs(rad - 1), rtol=0, atol=1e-13)
 
@@ -161,7 +165,7 @@ def test_surface_midpoint_seeds_exact_and_iterations(which):
         c = np.array([0.0, 0.0, 1.0])
         surf, truth, scale, margin = torus(c, 2.0, 1.0), lambda P: closest_on_torus(P, c, 2.0, 1.0), 1.0, 0.0
     n = 20000
-    P, seeds, h = chord_midpoints(surf, n, 0.02, rng, margin)
+    P, seeds, _ = chord_midpoints(surf, n, 0.02, rng, margin)
     if which == "cylinder":
         keep = (P[:, 2] > 0) & (P[:, 2] < 0.4)
         P, seeds = P[keep], seeds[keep]
@@ -183,7 +187,7 @@ def test_surface_far_points_global_search_exact():
     xy = np.hypot(P[:, 0], P[:, 1])
     ridge = np.hypot(xy - 2.0, P[:, 2] - 1.0)  # distance to the tube's centre circle
     P = P[(ridge > 0.1) & (xy > 0.1)]  # the closest point is unique off these sets
-    ent, par, dist = global_search([tor], P)
+    _, par, dist = global_search([tor], P)
     X = tor.evaluate(par[:, 0], par[:, 1])[0]
     np.testing.assert_allclose(X, closest_on_torus(P, c, 2.0, 1.0), rtol=0, atol=1e-12)
     np.testing.assert_allclose(dist, np.abs(ridge[(ridge > 0.1) & (xy > 0.1)] - 1.0), rtol=0, atol=1e-12)
@@ -298,7 +302,7 @@ def test_against_occ_primitives(gmsh_session, which):
     P = _near_points(surf, 1500, 3 * h, rng, umargin=0.05 if which == "sphere" else 0.0,
                      vmargin=0.05 if which == "cylinder" else 0.0)
     occ = _occ_closest(gmsh, tag, P)
-    ent, par, dist = global_search([surf], P)
+    _, par, dist = global_search([surf], P)
     ours = surf.evaluate(par[:, 0], par[:, 1])[0]
     np.testing.assert_allclose(ours, occ, rtol=0, atol=1e-9 * size)
     np.testing.assert_allclose(dist, np.linalg.norm(occ - P, axis=1), rtol=0, atol=1e-9 * size)
@@ -313,9 +317,10 @@ def test_against_occ_bspline_herrero(gmsh_session):
     rng = np.random.default_rng(8)
     P = _near_points(surf, 1000, 4.0, rng, umargin=0.05, vmargin=0.05)  # edge length ~ a few units
     occ = _occ_closest(gmsh, tag, P)
-    ent, par, dist = global_search([surf], P)
+    _, par, dist = global_search([surf], P)
     ours = surf.evaluate(par[:, 0], par[:, 1])[0]
     np.testing.assert_allclose(ours, occ, rtol=0, atol=1e-9 * size)
+    np.testing.assert_allclose(dist, np.linalg.norm(occ - P, axis=1), rtol=0, atol=1e-9 * size)
     # seeded Newton from the parameter of a nearby point converges to the same point
     res = project_newton(surf, P, par + rng.uniform(-0.01, 0.01, par.shape))
     assert res.converged.all()
@@ -345,10 +350,10 @@ def test_search_grids_are_built_on_first_use_and_agree_with_the_eager_ones():
     gs = GlobalSearcher(ents)
     assert gs._samples == {} and gs._all is None  # construction samples nothing
     X = closest_on_torus(np.array([[3.4, 0.2, 0.1], [-2.9, 0.3, 0.2]]), c, 3.0, 0.5) * 1.01
-    params, proj, dist = gs.search_on(X, [1, 1])
+    _, _, dist = gs.search_on(X, [1, 1])
     assert set(gs._samples) == {1} and gs._all is None
     np.testing.assert_allclose(dist, np.linalg.norm(closest_on_torus(X, c, 3.0, 0.5) - X, axis=1), atol=1e-12)
-    e, p, d = gs.search(X)
+    e, _, d = gs.search(X)
     assert set(gs._samples) == {0, 1} and np.all(e == 1)
     np.testing.assert_allclose(d, dist, atol=1e-12)
     P1, X1 = gs.entity_samples(1)

@@ -38,8 +38,8 @@ from nagata_snap.nagata import patch as N
 from nagata_snap.cad.nurbs import NurbsCurve, NurbsSurface
 from nagata_snap.cad.projection import GlobalSearcher, global_search, project_newton
 
-SETTINGS = dict(derandomize=True, database=None, deadline=2000,
-                suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = {"derandomize": True, "database": None, "deadline": 2000,
+            "suppress_health_check": [HealthCheck.too_slow]}
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 point = st.tuples(finite, finite, finite).map(np.array)
@@ -297,7 +297,7 @@ def test_point_on_entity_projects_to_itself(ep, delta):
     X = entity_points(ent, params)
     size = ent.bbox_size
     # global search (KD-tree seeds + Newton)
-    e, par, dist = global_search(ent, X)
+    _, par, dist = global_search(ent, X)
     assert np.all(dist <= 1e-9 * size), dist
     np.testing.assert_allclose(entity_points(ent, par), X, rtol=0, atol=1e-9 * size)
     # Newton seeded near the true parameters (as in refinement: the parametric midpoint)
@@ -335,7 +335,7 @@ def test_projection_finite_and_consistent(eps):
     np.testing.assert_allclose(np.linalg.norm(res.points - X, axis=1), res.distance, rtol=0,
                                atol=1e-12 * scale_)
     # global search: finite, and S(params) is at the reported distance
-    e, gp, gd = GlobalSearcher([ent]).search(X)
+    _, gp, gd = GlobalSearcher([ent]).search(X)
     assert np.all(np.isfinite(gp)) and np.all(np.isfinite(gd))
     np.testing.assert_allclose(np.linalg.norm(entity_points(ent, gp) - X, axis=1), gd, rtol=0,
                                atol=1e-10 * scale_)
@@ -350,5 +350,5 @@ def test_projection_of_extreme_but_accepted_points_is_finite():
         res = project_newton(ent, X, seeds)
         for a in (res.params, res.points, res.distance):
             assert np.all(np.isfinite(a))
-        e, p, d = global_search(ent, X)
+        _, p, d = global_search(ent, X)
         assert np.all(np.isfinite(p)) and np.all(np.isfinite(d))

@@ -128,17 +128,16 @@ def snapshot(mesh, ft):
 
 def assert_unchanged(before, mesh, ft):
     after = snapshot(mesh, ft)
-    for a, b in zip(before, after):
+    for a, b in zip(before, after, strict=True):
         assert a.dtype == b.dtype and a.shape == b.shape
         assert a.tobytes() == b.tobytes()
 
 
 def raises(exc, match, fn, *args, **kwargs):
     """Assert ``fn`` raises exactly the class ``exc`` (or a subclass) with ``match`` in the message."""
-    with pytest.raises(exc) as info:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            fn(*args, **kwargs)
+    with pytest.raises(exc) as info, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fn(*args, **kwargs)
     assert match in str(info.value), f"{match!r} not in {str(info.value)!r}"
     return info.value
 
@@ -188,7 +187,7 @@ def test_cell_tags_passed_as_facet_tags(square):
 
 
 def test_facet_tags_of_another_mesh(square):
-    mesh, ft = square
+    _, ft = square
     other = dolfinx.mesh.create_unit_square(COMM, 4, 4)
     raises(ValueError, "belong to another mesh", NagataGeometry, other, ft)
 
@@ -560,8 +559,8 @@ def channel():
 # wall normals 100 and 110 deg apart: the bulge (about 0.09, 4 cell heights) inverts cells
 # even after smoothing; normals more than 111 deg apart no longer bulge more (nagata.B_MAX)
 INVERTING = [
-    ("no_smoothing", 50.0, 60.0, dict(repair=False, smoothing="none")),
-    ("smoothing_and_repair", 55.0, 80.0, dict(min_fraction=1.0)),
+    ("no_smoothing", 50.0, 60.0, {"repair": False, "smoothing": "none"}),
+    ("smoothing_and_repair", 55.0, 80.0, {"min_fraction": 1.0}),
 ]
 
 
@@ -688,7 +687,7 @@ MPI_CASES = {
 
 def run_bad_input(n: int, cases: dict) -> dict:
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
-    cmd = exe + [sys.executable, os.path.join(HERE, "mpi", "bad_input.py"), *cases]
+    cmd = [*exe, sys.executable, os.path.join(HERE, "mpi", "bad_input.py"), *cases]
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
     except subprocess.TimeoutExpired as e:  # a process waiting for the others: a hang

@@ -95,7 +95,7 @@ def test_cad_project_keeps_vertices_on_their_feature(tmp_path):
     nodes = level.boundary.nodes[level.snapped]
     x = md.mesh.geometry.x[nodes]  # (nf, 3, 3)
     push = np.random.default_rng(0).normal(size=(int(nodes.max()) + 1, 3))
-    out, rec = geo.project(level.records, x + 0.03 * push[nodes])  # one push per vertex
+    out, _ = geo.project(level.records, x + 0.03 * push[nodes])  # one push per vertex
 
     def r(p):
         return np.hypot(p[..., 1] - 0.5, p[..., 2] - 1.0)

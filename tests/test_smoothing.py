@@ -81,7 +81,7 @@ SMOOTH_LAYERS = 4
 
 
 def test_straight_mesh_is_fixed_point(pushed):
-    msh, x_ref, left, fixed = pushed
+    _, x_ref, left, fixed = pushed
     msh2 = dolfinx.mesh.create_unit_square(COMM, N, N)
     for method in ("elastic", "laplace"):
         x_new = smooth(msh2, x_ref, left, fixed, method=method)
@@ -318,7 +318,7 @@ def test_repair_partial_move():
     assert r.report.n_inverted_after == 0
     assert "not fully moved" in str(r.report)
     np.testing.assert_array_equal(r.x[fixed], x_ref[fixed])
-    for a, b in zip(inputs, (x_ref, x_t, left, fixed)):
+    for a, b in zip(inputs, (x_ref, x_t, left, fixed), strict=True):
         np.testing.assert_array_equal(a, b)
 
 
@@ -347,7 +347,7 @@ def test_repair_impossible_raises():
     bad = set(inverted_cells(x_c, x_ref, cells, 2).tolist())
     bad |= set(np.flatnonzero(mean_ratio(x_c, cells, 2) < np.minimum(0.01, 0.5 * q_ref)).tolist())
     assert sorted(bad) == e.cells.tolist()  # serial: global == local cell index
-    for a, b in zip(inputs, (x_ref, x_t, left, fixed)):
+    for a, b in zip(inputs, (x_ref, x_t, left, fixed), strict=True):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(msh.geometry.x, geom)
     # no partial moves allowed -> also an error
@@ -360,7 +360,7 @@ def test_repair_impossible_raises():
 
 
 def test_nothing_moved():
-    msh, x_ref, left, fixed = square_push(0.0)
+    msh, x_ref, _, fixed = square_push(0.0)
     empty = np.zeros(0, np.int32)
     for method in ("elastic", "laplace", "none"):
         np.testing.assert_array_equal(smooth(msh, x_ref, empty, fixed, method=method), x_ref)

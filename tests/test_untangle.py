@@ -29,7 +29,7 @@ def test_energy_gradient_and_hessian_match_finite_differences(d):
     cells, xr, x = simplex(d)
     winv = untangle.targets(xr, cells)
     delta, e = 0.05, 1e-6
-    F, g, sigma, H = untangle.energy(x, cells, winv, delta, hessian=True)
+    _, g, _, H = untangle.energy(x, cells, winv, delta, hessian=True)
     gf = np.zeros_like(x)
     Hf = np.zeros((d + 1, d, d + 1, d))
     for v in range(d + 1):

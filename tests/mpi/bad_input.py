@@ -41,16 +41,16 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-import generate  # noqa: E402
-import make_iges  # noqa: E402
-from robustness_inputs import exterior_tags, flatten_one_cell, wall_tags, wavy  # noqa: E402
+import generate
+import make_iges
+from robustness_inputs import exterior_tags, flatten_one_cell, wall_tags, wavy
 
-import dolfinx.mesh  # noqa: E402
+import dolfinx.mesh
 
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.cad.iges import write_iges  # noqa: E402
-from nagata_snap.cad.nurbs import circle  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.cad import CadGeometry
+from nagata_snap.cad.iges import write_iges
+from nagata_snap.cad.nurbs import circle
 
 comm = MPI.COMM_WORLD
 
@@ -233,7 +233,7 @@ for case in sys.argv[1:]:
     try:
         globals()[case]()
         out = ("OK", "")
-    except Exception as e:  # noqa: BLE001 (the class is the result)
+    except Exception as e:  # the class is the result
         out = (type(e).__name__, str(e)[:300])
     result[case] = comm.allgather(out)
 if comm.rank == 0:

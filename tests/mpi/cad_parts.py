@@ -92,7 +92,7 @@ def feature_distances(geo, occ, nodes, root, x, tdim):
     """
     model = geo.model
     faces_of = {}
-    for n, f in zip(nodes.ravel(), np.repeat(root, nodes.shape[1])):
+    for n, f in zip(nodes.ravel(), np.repeat(root, nodes.shape[1]), strict=True):
         faces_of.setdefault(int(n), set()).add(int(f))
     pairs, corner = [], []
     for n, fs in faces_of.items():
@@ -139,12 +139,12 @@ def run(name, fmt, size_factor, curvature):
     comm.Allreduce(mesh.geometry.x.max(axis=0), hi, op=MPI.MAX)
     modes = ["uniform"] * 3 if tdim == 2 else ["uniform", "uniform", "marked", "marked"]
     levels = []
-    for k, mode in enumerate(modes):
+    for mode in modes:
         edges = None if mode == "uniform" else marked_edges(
             mesh, lo + (hi - lo) * np.array([0.35, 0.45, 0.6]), 0.06 * np.linalg.norm(hi - lo))
         prev = mesh
         t0 = time.perf_counter()
-        mesh, ft, _, _, report = snapper.refine(mesh, edges)
+        mesh, *_, report = snapper.refine(mesh, edges)
         t_level = time.perf_counter() - t0
         lv = snapper._level
         sel = np.flatnonzero(lv.snapped)

@@ -17,13 +17,13 @@ import numpy as np
 import ufl
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import generate  # noqa: E402
+import generate
 
-import dolfinx.fem as fem  # noqa: E402
+import dolfinx.fem as fem
 
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.cad.nurbs import sphere  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.cad import CadGeometry
+from nagata_snap.cad.nurbs import sphere
 
 comm = MPI.COMM_WORLD
 case, levels, degree, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]

@@ -18,9 +18,9 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import parts  # noqa: E402
+import parts
 
-from nagata_snap.meshing import mesh_cad_file  # noqa: E402
+from nagata_snap.meshing import mesh_cad_file
 
 comm = MPI.COMM_WORLD
 out = sys.argv[1]
@@ -57,7 +57,7 @@ for name in ("plate_holes_2d", "plate_filleted", "seamed", "assembly"):
     ok = True
     if comm.rank == 0:
         ser = table(mesh_cad_file(path, MPI.COMM_SELF))
-        for a, b, what in zip(par, ser, ("facets", "entities", "vertex dims", "vertex tags", "params")):
+        for a, b, what in zip(par, ser, ("facets", "entities", "vertex dims", "vertex tags", "params"), strict=True):
             if a.shape != b.shape or not np.array_equal(a, b):
                 print(f"{name}: {what} differ between mpiexec -n {comm.size} and serial", flush=True)
                 ok = False

@@ -3,8 +3,9 @@
 Usage: python nagata_normals.py OUT.npz [estimated|cad]
 ``estimated``: a box with a cylindrical hole (flat faces, box edges, curved
 hole, rims), estimated normals; ``cad``: ``plate_filleted`` as STEP through
-``nagata_snap.cad.mesh_cad``, the ``CadGeometry``'s normals.  Rank 0 writes the canonical facet ids, corner normals and edge coefficients;
-``ranks_agree`` says whether every process computed the same bytes.
+``nagata_snap.cad.mesh_cad``, the ``CadGeometry``'s normals.  Rank 0 writes
+the canonical facet ids, corner normals and edge coefficients; ``ranks_agree``
+says whether every process computed the same bytes.
 """
 
 import os
@@ -14,11 +15,11 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import generate  # noqa: E402
-import parts  # noqa: E402
+import generate
+import parts
 
-from nagata_snap import NagataGeometry  # noqa: E402
-from nagata_snap.cad import mesh_cad  # noqa: E402
+from nagata_snap import NagataGeometry
+from nagata_snap.cad import mesh_cad
 
 comm = MPI.COMM_WORLD
 if sys.argv[2:] == ["cad"]:

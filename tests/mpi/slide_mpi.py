@@ -24,16 +24,16 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import generate  # noqa: E402
-import make_iges  # noqa: E402
-from surfaces import nagata_surface_error  # noqa: E402
+import generate
+import make_iges
+from surfaces import nagata_surface_error
 
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
-from nagata_snap.mesh.records import Records  # noqa: E402
-from nagata_snap.smoothing.repair import repair  # noqa: E402
-from nagata_snap.smoothing.slide import SlidingBoundary  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.cad import CadGeometry
+from nagata_snap.smoothing.quality import inverted_cells
+from nagata_snap.mesh.records import Records
+from nagata_snap.smoothing.repair import repair
+from nagata_snap.smoothing.slide import SlidingBoundary
 
 ANGLE_FROM, ANGLE_TO = np.radians(22.5), np.radians(36.0)
 

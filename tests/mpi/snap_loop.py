@@ -12,15 +12,15 @@ import mpi4py.MPI as MPI
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))
-import generate  # noqa: E402
-import make_iges  # noqa: E402
+import generate
+import make_iges
 
-import dolfinx.mesh  # noqa: E402
+import dolfinx.mesh
 
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.cad import CadGeometry  # noqa: E402
-from nagata_snap.cad.iges import write_iges  # noqa: E402
-from nagata_snap.cad.nurbs import cylinder  # noqa: E402
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.cad import CadGeometry
+from nagata_snap.cad.iges import write_iges
+from nagata_snap.cad.nurbs import cylinder
 
 comm = MPI.COMM_WORLD
 case, levels, mode, out = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
@@ -68,7 +68,8 @@ for k in range(levels):
     if comm.size == 1:  # transfer_meshtag aborts (double free) under mpiexec in DOLFINx 0.11
         # the tags found without facet entities are DOLFINx's own transfer
         ref = dolfinx.mesh.transfer_meshtag(ft0, mesh, pc, pf)
-        if set(zip(ft.indices.tolist(), ft.values.tolist())) != set(zip(ref.indices.tolist(), ref.values.tolist())):
+        pairs = [set(zip(t.indices.tolist(), t.values.tolist(), strict=True)) for t in (ft, ref)]
+        if pairs[0] != pairs[1]:
             raise AssertionError(f"facet tags differ from transfer_meshtag at level {k + 1}")
     # tagged facets (owned ones, so each once): midpoint and tag, and measure per tag
     fdim = mesh.topology.dim - 1
@@ -84,7 +85,8 @@ for k in range(levels):
     n = mesh.geometry.index_map().size_local
     xs = comm.gather(mesh.geometry.x[:n], root=0)
     ext = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    bs = comm.gather(mesh.geometry.x[dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ext).ravel()], root=0)
+    bnodes = dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ext).ravel()
+    bs = comm.gather(mesh.geometry.x[bnodes], root=0)
     if comm.rank == 0:
         result[f"level{k + 1}"] = np.concatenate(xs)
         result[f"boundary{k + 1}"] = np.unique(np.concatenate(bs), axis=0)

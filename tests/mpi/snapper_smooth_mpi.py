@@ -45,17 +45,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "meshes"))
-import generate  # noqa: E402
+import generate
 
-import basix.ufl  # noqa: E402
-import dolfinx  # noqa: E402
-import dolfinx.la  # noqa: E402
-import dolfinx.mesh  # noqa: E402
+import basix.ufl
+import dolfinx
+import dolfinx.la
+import dolfinx.mesh
 
-import nagata_snap.snapper as hook  # noqa: E402
-from nagata_snap import NagataGeometry, Snapper  # noqa: E402
-from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
-from nagata_snap.smoothing.repair import repair  # noqa: E402
+import nagata_snap.snapper as hook
+from nagata_snap import NagataGeometry, Snapper
+from nagata_snap.smoothing.quality import inverted_cells
+from nagata_snap.smoothing.repair import repair
 
 WORLD = MPI.COMM_WORLD
 METHODS = ("elastic", "laplace")
@@ -67,9 +67,9 @@ _repair = hook.repair
 
 def _spy(mesh, x_ref, x_target, moved, fixed, **kw):
     res = _repair(mesh, x_ref, x_target, moved, fixed, **kw)
-    _calls.append(dict(mesh=mesh, x_ref=np.array(x_ref), x_target=np.array(x_target),
-                       moved=np.array(moved), fixed=np.array(fixed), kw=kw, x=res.x.copy(),
-                       stage=res.stage))
+    _calls.append({"mesh": mesh, "x_ref": np.array(x_ref), "x_target": np.array(x_target),
+                   "moved": np.array(moved), "fixed": np.array(fixed), "kw": kw, "x": res.x.copy(),
+                   "stage": res.stage})
     return res
 
 
@@ -171,10 +171,10 @@ def run_snapper(comm, case, method):
         n_inv = comm.allreduce(int(inverted_cells(x, call["x_ref"], owned_cells(mesh),
                                                   mesh.geometry.dim).size))
         same = same_mesh_diff(call) if comm.size > 1 else None
-        out.append(dict(data=level_data(mesh, call), same=same, ghost_ok=ghost_ok(mesh, x),
-                        n_inverted=n_inv, stage=call["stage"], ghosts_coarse=ghosts,
-                        ghosts_refined=comm.allgather(
-                            mesh.topology.index_map(mesh.topology.dim).num_ghosts)))
+        out.append({"data": level_data(mesh, call), "same": same, "ghost_ok": ghost_ok(mesh, x),
+                    "n_inverted": n_inv, "stage": call["stage"], "ghosts_coarse": ghosts,
+                    "ghosts_refined": comm.allgather(
+                        mesh.topology.index_map(mesh.topology.dim).num_ghosts)})
     return out
 
 
@@ -196,14 +196,14 @@ def run_direct(comm, case, method):
     moved = nodes.astype(np.int32)
     fixed = np.zeros(0, np.int32)
     res = repair(mesh, x_ref, x_t, moved, fixed, method=method)
-    call = dict(mesh=mesh, x_ref=x_ref, x_target=x_t, moved=moved, fixed=fixed,
-                kw=dict(method=method), x=res.x, stage=res.stage)
+    call = {"mesh": mesh, "x_ref": x_ref, "x_target": x_t, "moved": moved, "fixed": fixed,
+            "kw": {"method": method}, "x": res.x, "stage": res.stage}
     n_inv = comm.allreduce(int(inverted_cells(res.x, x_ref, owned_cells(mesh), tdim).size))
     n_changed = comm.allreduce(int(np.count_nonzero(
         np.any(res.x != x_t, axis=1)[: mesh.geometry.index_map().size_local])))
     same = same_mesh_diff(call) if comm.size > 1 else None
-    return [dict(same=same, ghost_ok=ghost_ok(mesh, res.x), n_inverted=n_inv,
-                 stage=res.stage, ghosts_coarse=ghosts, n_smoothed=n_changed)]
+    return [{"same": same, "ghost_ok": ghost_ok(mesh, res.x), "n_inverted": n_inv,
+             "stage": res.stage, "ghosts_coarse": ghosts, "n_smoothed": n_changed}]
 
 
 def compare(par, ser):

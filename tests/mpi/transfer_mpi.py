@@ -24,9 +24,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "meshes"))  # generate
-from test_transfer import coarse_snapper, exactness_error  # noqa: E402
+from test_transfer import coarse_snapper, exactness_error
 
-import dolfinx.fem as fem  # noqa: E402
+import dolfinx.fem as fem
 
 
 comm = MPI.COMM_WORLD
