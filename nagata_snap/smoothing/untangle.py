@@ -226,16 +226,12 @@ def _hessian_S(S: np.ndarray, C: np.ndarray, sigma: np.ndarray, r: np.ndarray, a
         dC = np.broadcast_to(_DCOF[2], (m, 16))
     else:
         dC = S.reshape(m, 9) @ _DCOF[3].T
-    n = d * d
-    Sf, Cf = S.reshape(m, n), C.reshape(m, n)
-    # three (m, n, n) arrays in all: the products are formed in place
-    H = Cf[:, :, None] * ((2.0 * b / (d * r) + b * sigma / r**2)[:, None] * Cf)[:, None, :]
-    SC = Sf[:, :, None] * ((2.0 * a / (d * r))[:, None] * Cf)[:, None, :]
-    H -= SC
-    H -= SC.transpose(0, 2, 1)
-    bdC = np.multiply(b[:, None], dC, out=SC.reshape(m, n * n))
-    H -= bdC.reshape(m, n, n)
-    H[:, np.arange(n), np.arange(n)] += a[:, None]
+    Sf, Cf = S.reshape(m, d * d), C.reshape(m, d * d)
+    SC = Sf[:, :, None] * Cf[:, None, :]
+    H = ((2.0 * b / (d * r) + b * sigma / r**2)[:, None, None] * Cf[:, :, None] * Cf[:, None, :]
+         - (2.0 * a / (d * r))[:, None, None] * (SC + SC.transpose(0, 2, 1))
+         - b[:, None, None] * dC.reshape(m, d * d, d * d))
+    H[:, np.arange(d * d), np.arange(d * d)] += a[:, None]
     return H.reshape(m, d, d, d, d)
 
 
