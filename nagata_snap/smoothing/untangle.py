@@ -195,12 +195,9 @@ def energy(x: np.ndarray, cells: np.ndarray | None, winv: np.ndarray | None, del
         return F, g, sigma
     Sm = np.stack([np.stack(row, axis=1) for row in S], axis=1)  # (m, d, d)
     Cm = np.stack([np.stack(row, axis=1) for row in cof], axis=1)
-    HS = _hessian_S(Sm, Cm, sigma, r, a, b)  # (m, c, j, e, l): d^2 eta / dS_cj dS_el
-    m, B = len(sigma), cc.B  # B (m, d + 1, d): dS_cj / dx_vc = B_vj
-    # Hx_vcwe = sum_jl B_vj HS_cjel B_wl, as two batched products of one matrix per cell
-    T = (HS.reshape(m, d * d * d, d) @ B.transpose(0, 2, 1)).reshape(m, d, d, d, d + 1)  # (m, c, j, e, w)
-    T = T.transpose(0, 2, 1, 3, 4).reshape(m, d, d * d * (d + 1))  # (m, j, c e w)
-    Hx = (B @ T).reshape(m, d + 1, d, d, d + 1).transpose(0, 1, 2, 4, 3)  # (m, v, c, w, e)
+    HS = _hessian_S(Sm, Cm, sigma, r, a, b).transpose(0, 1, 3, 2, 4)  # (m, c, e, j, l)
+    B = cc.B[:, None, None]  # (m, 1, 1, d + 1, d)
+    Hx = (B @ HS @ np.swapaxes(B, 3, 4)).transpose(0, 3, 1, 4, 2)  # (m, v, c, w, e)
     return F, g, sigma, Hx
 
 
