@@ -307,11 +307,8 @@ class Snapper:
         level = dataclasses.replace(level, records=records)
         with self._timed(times, "tags"):
             ft1 = self._facet_tags(level)
-        self.stage = "report"
-        try:
+        with self._in_stage("report"):  # (not in times: the report holds them)
             report = self._report(level, x_ref, moved, res, placed, times)
-        finally:
-            self.stage = None
         self._level = level
         self._last = _LastRefine(mesh, parent_cells, mesh1)
         self.level += 1
@@ -320,14 +317,21 @@ class Snapper:
         return Refined(mesh1, ft1, parent_cell, parent_facet, report)
 
     @contextlib.contextmanager
-    def _timed(self, times: dict[str, float], stage: str) -> Iterator[None]:
-        """Run the ``with`` block as :attr:`stage` ``stage``; its seconds go to ``times[stage]``."""
-        self.stage, t0 = stage, time.perf_counter()
+    def _in_stage(self, stage: str) -> Iterator[None]:
+        """Run the ``with`` block as :attr:`stage` ``stage`` (None again after it)."""
+        self.stage = stage
         try:
             yield
         finally:
-            times[stage] = time.perf_counter() - t0
             self.stage = None
+
+    @contextlib.contextmanager
+    def _timed(self, times: dict[str, float], stage: str) -> Iterator[None]:
+        """:meth:`_in_stage` ``stage``, its seconds recorded as ``times[stage]``."""
+        t0 = time.perf_counter()
+        with self._in_stage(stage):
+            yield
+        times[stage] = time.perf_counter() - t0
 
     @staticmethod
     def _bisect(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike | None
