@@ -89,8 +89,8 @@ def tag_list(tags) -> str:
     if t.size == 0:
         return "none"
     cut = np.flatnonzero(np.diff(t) != 1) + 1
-    runs = [(int(r[0]), int(r[-1])) for r in np.split(t, cut)]
-    return ", ".join(f"{a}-{b}" if b > a + 1 else (f"{a}, {b}" if b > a else f"{a}") for a, b in runs)
+    runs = np.split(t, cut)  # a run of 3 or more is a range, shorter ones are listed
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 2 else ", ".join(map(str, r)) for r in runs)
 
 
 def _bcast_checked(comm, value: Any, error: str | None) -> Any:
