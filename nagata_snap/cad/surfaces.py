@@ -257,13 +257,14 @@ class AnalyticSurface:
         revolution (any classes, those of a class next to each other), the points of a
         :data:`BOX_GRID` x :data:`BOX_GRID` grid widened by their sagitta.
 
-        A point of a surface of revolution is ``O + a(v) e(u) + 0 e'(u) + b(v) Z``: per class
+        A point of a surface of revolution is ``O + a(v) e(u) + b(v) Z``: per class
         :meth:`_local` of one surface whose shape fields are per-sample arrays gives ``a, b``
-        at the ``v`` of every grid row (its ``e'(u)`` coefficient is 0), the frame ``e(u),
-        e'(u)`` is taken at the ``u`` of every column, and the grid points are combined from
-        both by broadcasting, with the products and sums of :func:`_to_global` in its order
-        (so each point is what its own surface's :meth:`_eval_soa` gives).  The sagittas of a
-        class are its :meth:`_sagitta` of the stacked surfaces, elementwise as well.
+        at the ``v`` of every grid row, ``e(u)`` is taken at the ``u`` of every column, and
+        the grid points are combined from both by broadcasting, with the products and sums
+        of :func:`_to_global` in its order (so each point is what its own surface's
+        :meth:`_eval_soa` gives, but for the sign of a zero: its ``e'(u)`` term, whose
+        coefficient is 0, is left out).  The sagittas of a class are its :meth:`_sagitta`
+        of the stacked surfaces, elementwise as well.
         """
         k, g = len(surfaces), BOX_GRID
         B = np.array([sf.bounds for sf in surfaces])
@@ -288,10 +289,8 @@ class AnalyticSurface:
         F = np.array([[sf.X, sf.Y, sf.Z, sf.origin] for sf in surfaces]).transpose(1, 2, 0)[..., None]
         X, Y, Z, O = F  # (3, k, 1) each
         c, sn = np.cos(u), np.sin(u)  # (k, g): along the grid's u
-        E = c * X + sn * Y  # (3, k, g): e(u), e'(u) as _to_global
-        Ep = -sn * X + c * Y
+        E = c * X + sn * Y  # (3, k, g): e(u) as _to_global
         S = a * E[..., None]  # (3, k, g, g), u major
-        S += (0.0 * Ep)[..., None]  # the e'(u) term (a zero's sign where a e(u) is 0)
         S += b * Z[..., None]
         S += O[..., None]
         S = S.reshape(3, k, g * g)
