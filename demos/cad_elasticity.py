@@ -320,6 +320,27 @@ def peak_stress(u: dolfinx.fem.Function, x0: np.ndarray, delta: float) -> float:
     return float(num / den)
 
 
+def hot_spot(u: dolfinx.fem.Function, load: Load) -> np.ndarray:
+    """Midpoint of the free boundary facet (not loaded) whose cell has the largest von Mises
+    stress at its midpoint: the point of the peak-stress measure of a ``--step`` part without
+    ``--point`` (collective), ``(3,)`` [mm]."""
+    mesh = u.function_space.mesh
+    fdim = mesh.topology.dim - 1
+    ft = load.facet_tags(mesh)
+    free = ft.indices[ft.values == 0]
+    f2c = mesh.topology.connectivity(fdim, fdim + 1)
+    cells = f2c.array[f2c.offsets[free]]  # an exterior facet has one cell
+    own = cells < mesh.topology.index_map(fdim + 1).size_local
+    W = dolfinx.fem.functionspace(mesh, ("DG", 0))
+    vm = dolfinx.fem.Function(W)
+    vm.interpolate(dolfinx.fem.Expression(von_mises(u), W.element.interpolation_points))
+    value = vm.x.array[cells[own]]
+    k = int(np.argmax(value)) if value.size else -1
+    best = (float(value[k]), dolfinx.mesh.compute_midpoints(mesh, fdim, free[own][k:k + 1])[0]) \
+        if k >= 0 else (-np.inf, np.zeros(3))
+    return max(mesh.comm.allgather(best), key=lambda b: b[0])[1]
+
+
 def von_mises_function(u: dolfinx.fem.Function) -> dolfinx.fem.Function:
     """von Mises stress of ``u`` interpolated into discontinuous Lagrange of one degree less."""
     mesh = u.function_space.mesh
@@ -390,8 +411,10 @@ def adapt(name: str, mesh0: dolfinx.mesh.Mesh, snapper: Snapper | None, load: Lo
     for level in range(args.levels + 1):
         lap = Laps()
         V = dolfinx.fem.functionspace(mesh, ("Lagrange", args.degree, (3,)))
-        if u_prev is not None:  # the previous level's displacement as the initial guess
-            u_prev = snapper.transfer(u_prev, V)
+        if u_prev is not None and snapper is not None:  # the previous level's displacement
+            moved = snapper.transfer(u_prev, V)  # as the initial guess
+            assert isinstance(moved, dolfinx.fem.Function)  # (no return_info)
+            u_prev = moved
         lap("transfer")
         u, its = solve(V, load, u_prev)
         lap("solve")
@@ -439,7 +462,7 @@ def plot(path: Path, runs: list[Run], reference: float | None) -> None:
         ax2.semilogx(run.dofs, run.peak, style, label=run.name)
     if reference is not None:
         ax2.axhline(reference, color="k", lw=0.8, label="gmsh on the true geometry")
-    ax1.set(xlabel="dofs", ylabel="residual estimator", title="error estimator")
+    ax1.set(xlabel="dofs", ylabel="ZZ estimator [(N mm)^1/2]", title="error estimator")
     ax2.set(xlabel="dofs", ylabel="von Mises at the fillet [MPa]", title="peak stress")
     for ax in (ax1, ax2):
         ax.grid(True, which="both", alpha=0.3)
@@ -499,16 +522,22 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--curvature", type=float, default=8, help="coarse cells per 2 pi of curvature")
     p.add_argument("--axis", type=int, choices=(0, 1, 2), help="pull direction (default: longest side)")
     p.add_argument("--sigma0", type=float, default=SIGMA0, help="traction on the end faces [MPa]")
-    p.add_argument("--point", type=float, nargs=3, default=FILLET_POINT,
-                   help="point of the peak-stress measure [mm] (default: on the pocket's floor fillet)")
-    p.add_argument("--radius", type=float, default=FILLET_RADIUS,
-                   help="radius of the measure's Gaussian weight [mm]")
+    p.add_argument("--point", type=float, nargs=3,
+                   help="point of the peak-stress measure [mm] (default: on the pocket's floor fillet; "
+                        "with --step, the free boundary facet of the largest stress of the coarse mesh)")
+    p.add_argument("--radius", type=float,
+                   help=f"radius of the measure's Gaussian weight [mm] (default {FILLET_RADIUS:g}; "
+                        "with --step, --size / 20)")
     p.add_argument("--reference", action="store_true",
                    help="also solve on gmsh meshes of the true geometry graded around the point "
                         f"(sizes far / near [mm]: {', '.join(f'{a:g}/{b:g}' for a, b in REFERENCE_SIZES)})")
     args = p.parse_args(argv)
     if args.levels is None:
         args.levels = 2 if args.quick else 3
+    if args.step is None:
+        args.point = FILLET_POINT if args.point is None else args.point
+    if args.radius is None:
+        args.radius = FILLET_RADIUS if args.step is None else args.size / 20
     if args.levels < 1:
         p.error("--levels must be at least 1 (the last line compares the last two levels)")
     return args
@@ -531,6 +560,9 @@ def main(argv: list[str] | None = None) -> dict:
         say(f"{step.name}: {geometry.model.summary() if geometry.model else ''}; coarse mesh "
             f"{mesh0.topology.index_map(3).size_global} cells ({time.perf_counter() - t_start:.1f} s); pull "
             f"{args.sigma0:g} MPa along x{load.axis} between x{load.axis} = {load.lo:g} and {load.hi:g}")
+        if args.point is None:  # a --step part: the hot spot of a first solve on the coarse mesh
+            u0, _ = solve(dolfinx.fem.functionspace(mesh0, ("Lagrange", args.degree, (3,))), load, None)
+            args.point = hot_spot(u0, load)
         say(f"peak stress: von Mises averaged with a Gaussian of radius {args.radius:g} mm around "
             f"{np.round(args.point, 4).tolist()}")
         say(f"{'run':>8} {'level':>5} {'dofs':>9} {'estimator':>12} {'peak [MPa]':>12} {'CG its':>6} "
