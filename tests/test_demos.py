@@ -124,7 +124,8 @@ def test_flow_writes_its_plot_by_default_and_says_where(tmp_path):
 @pytest.mark.mpi
 def test_flow_mpi_matches_serial(flow, tmp_path):
     _, serial, _ = flow
-    run([FLOW, *TINY_FLOW, "--modes", "none", "nagata", "--quiet", "--json", tmp_path / "p.json"], n=2)
+    run([FLOW, *TINY_FLOW, "--modes", "none", "nagata", "--quiet", "--no-plot", "--json", tmp_path / "p.json"],
+        n=2)
     par = json.loads((tmp_path / "p.json").read_text())
     assert par["config"]["mpi_size"] == 2
     for mode in ("none", "nagata"):
