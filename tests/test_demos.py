@@ -14,10 +14,10 @@ SPHERE = os.path.join(ROOT, "demos", "sphere_poisson.py")
 TINY_FLOW = ["--levels", "3", "--n-circle", "16", "--h-far", "0.08", "--theta", "0.5"]
 
 
-def run(args, n=1, timeout=300):
+def run(args, n=1, timeout=300, cwd=ROOT):
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
     r = subprocess.run([*exe, sys.executable, *map(str, args)], capture_output=True, text=True,
-                       timeout=timeout, cwd=ROOT)
+                       timeout=timeout, cwd=cwd)
     assert r.returncode == 0, r.stdout + r.stderr
     return r
 
@@ -105,10 +105,27 @@ def test_flow_outputs(flow):
             assert (out / f"{mode}_{name}.bp").is_dir()
 
 
+def test_flow_writes_its_plot_by_default_and_says_where(tmp_path):
+    """Without --plot the convergence plot goes to DIR/flow_cd.png (--out DIR), and the demo
+    prints that path; --out holds the last level's VTX (velocity, pressure, indicator)."""
+    out = tmp_path / "vtx"
+    r = run([FLOW, "--levels", "1", "--n-circle", "16", "--h-far", "0.08", "--modes", "none",
+             "--out", out])
+    png = out / "flow_cd.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"wrote the c_D convergence plot to {png}" in r.stdout
+    for name in ("velocity", "pressure", "eta"):
+        assert (out / f"none_{name}.bp").is_dir()
+    r = run([FLOW, "--levels", "0", "--n-circle", "16", "--h-far", "0.08", "--modes", "none",
+             "--no-plot"], cwd=tmp_path)
+    assert "convergence plot" not in r.stdout and not (tmp_path / "out").exists()
+
+
 @pytest.mark.mpi
 def test_flow_mpi_matches_serial(flow, tmp_path):
     _, serial, _ = flow
-    run([FLOW, *TINY_FLOW, "--modes", "none", "nagata", "--quiet", "--json", tmp_path / "p.json"], n=2)
+    run([FLOW, *TINY_FLOW, "--modes", "none", "nagata", "--quiet", "--no-plot", "--json", tmp_path / "p.json"],
+        n=2)
     par = json.loads((tmp_path / "p.json").read_text())
     assert par["config"]["mpi_size"] == 2
     for mode in ("none", "nagata"):
