@@ -1,0 +1,221 @@
+"""Inventory of the CAD corpus: what OpenCASCADE reads from each STEP/IGES file here.
+
+Run ``python meshes/corpus/inventory.py [--json] [files...]``. One row per file:
+file name, originating system (from the STEP FILE_NAME or the IGES global section),
+format/schema, face count, face counts by OpenCASCADE surface kind, solids, shells
+and how many of the shells are closed.
+
+Surface kinds are the ``Geom_*`` class names without the prefix; a face on a
+``Geom_RectangularTrimmedSurface`` is listed as ``Trimmed(<basis kind>)`` and a face
+on a ``Geom_OffsetSurface`` as ``Offset(<basis kind>)``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+STEP_SUFFIXES = {".stp", ".step"}
+IGES_SUFFIXES = {".igs", ".iges"}
+
+
+@dataclass
+class Row:
+    """What one file contains, as OpenCASCADE reads it."""
+
+    file: str
+    system: str
+    format: str
+    schema: str
+    faces: int
+    kinds: dict[str, int] = field(default_factory=dict)
+    solids: int = 0
+    shells: int = 0
+    closed_shells: int = 0
+
+
+def _step_strings(text: str, keyword: str) -> list[str]:
+    """The quoted strings of the first ``keyword( ... );`` record of a STEP header."""
+    match = re.search(keyword + r"\s*\((.*?)\)\s*;", text, re.S | re.I)
+    if match is None:
+        return []
+    return re.findall(r"'((?:[^']|'')*)'", match.group(1))
+
+
+def step_header(path: Path) -> tuple[str, str]:
+    """(originating system, schema) from a STEP file's header section."""
+    head = path.read_text(errors="replace")[:20000]
+    head = re.sub(r"/\*.*?\*/", "", head, flags=re.S)
+    names = _step_strings(head, r"FILE_NAME")
+    # FILE_NAME(name, time_stamp, (author), (organization), preprocessor_version,
+    #           originating_system, authorization): strings 0, 1, then the lists.
+    system = ""
+    if len(names) >= 3:
+        tail = names[-3:]
+        preprocessor, originating = tail[0], tail[1]
+        system = originating.strip() or preprocessor.strip()
+        if preprocessor.strip() and preprocessor.strip() != system:
+            system = f"{system} / {preprocessor.strip()}"
+    schema = " ".join(_step_strings(head, r"FILE_SCHEMA"))
+    return system, schema
+
+
+def _hollerith_fields(text: str) -> list[str]:
+    """Split an IGES global section into its fields (Hollerith strings kept whole)."""
+    delim, end = ",", ";"
+    if text.startswith("1H"):
+        delim = text[2]
+    fields: list[str] = []
+    i, current = 0, ""
+    while i < len(text):
+        match = re.match(r"\s*(\d+)H", text[i:])
+        if match and current.strip() == "":
+            n = int(match.group(1))
+            start = i + match.end()
+            current = text[start : start + n]
+            i = start + n
+            continue
+        ch = text[i]
+        if ch == delim or ch == end:
+            fields.append(current.strip())
+            current = ""
+            if ch == end and len(fields) > 2:
+                break
+            if len(fields) == 1 and fields[0] and len(fields[0]) == 1:
+                pass
+        else:
+            current += ch
+        i += 1
+    return fields
+
+
+def iges_header(path: Path) -> tuple[str, str]:
+    """(originating system, 'IGES <version>') from an IGES file's global section."""
+    lines = path.read_text(errors="replace").splitlines()
+    glob = "".join(line[:72] for line in lines if len(line) >= 73 and line[72] == "G")
+    fields = _hollerith_fields(glob)
+    # Global parameters: 3 file name, 4 native system id, 5 preprocessor version.
+    system = ""
+    if len(fields) > 5:
+        system = fields[4] or fields[5]
+        if fields[5] and fields[5] != fields[4]:
+            system = f"{fields[4]} / {fields[5]}"
+    version = ""
+    if len(fields) > 22:
+        version = fields[22]
+    return system, f"IGES (version flag {version})" if version else "IGES"
+
+
+def surface_kind(surface: object) -> str:
+    """The OpenCASCADE kind of a face's surface, looking through trims and offsets."""
+    from OCP.Geom import Geom_OffsetSurface, Geom_RectangularTrimmedSurface
+
+    name = surface.DynamicType().Name().removeprefix("Geom_")  # type: ignore[attr-defined]
+    if isinstance(surface, Geom_RectangularTrimmedSurface):
+        return f"Trimmed({surface_kind(surface.BasisSurface())})"
+    if isinstance(surface, Geom_OffsetSurface):
+        return f"Offset({surface_kind(surface.BasisSurface())})"
+    return str(name)
+
+
+def read_shape(path: Path) -> object:
+    """Read a STEP or IGES file with OpenCASCADE; raises RuntimeError if nothing transfers."""
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.IGESControl import IGESControl_Reader
+    from OCP.STEPControl import STEPControl_Reader
+
+    suffix = path.suffix.lower()
+    reader = STEPControl_Reader() if suffix in STEP_SUFFIXES else IGESControl_Reader()
+    if reader.ReadFile(str(path)) != IFSelect_RetDone:
+        raise RuntimeError(f"{path.name}: OpenCASCADE could not read the file")
+    reader.TransferRoots()
+    shape = reader.OneShape()
+    if shape.IsNull():
+        raise RuntimeError(f"{path.name}: OpenCASCADE transferred no shape")
+    return shape
+
+
+def inventory(path: Path) -> Row:
+    """Read ``path`` and count its faces by surface kind, its solids and shells."""
+    from OCP.BRep import BRep_Tool
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    suffix = path.suffix.lower()
+    if suffix in STEP_SUFFIXES:
+        system, schema = step_header(path)
+        fmt = "STEP"
+    else:
+        system, schema = iges_header(path)
+        fmt = "IGES"
+    shape = read_shape(path)
+    kinds: Counter[str] = Counter()
+    explorer = TopExp_Explorer(shape, TopAbs_FACE)
+    while explorer.More():
+        face = TopoDS.Face(explorer.Current())
+        kinds[surface_kind(BRep_Tool.Surface_s(face))] += 1
+        explorer.Next()
+    solids = 0
+    explorer = TopExp_Explorer(shape, TopAbs_SOLID)
+    while explorer.More():
+        solids += 1
+        explorer.Next()
+    shells = closed = 0
+    explorer = TopExp_Explorer(shape, TopAbs_SHELL)
+    while explorer.More():
+        shells += 1
+        closed += int(BRep_Tool.IsClosed_s(TopoDS.Shell(explorer.Current())))
+        explorer.Next()
+    return Row(
+        file=path.name,
+        system=system,
+        format=fmt,
+        schema=schema,
+        faces=sum(kinds.values()),
+        kinds=dict(sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))),
+        solids=solids,
+        shells=shells,
+        closed_shells=closed,
+    )
+
+
+def corpus_files(folder: Path = HERE) -> list[Path]:
+    """The STEP/IGES files of ``folder``, sorted by name."""
+    suffixes = STEP_SUFFIXES | IGES_SUFFIXES
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)
+
+
+def _quiet() -> None:
+    """Keep OpenCASCADE's messages off the terminal."""
+    from OCP.Message import Message, Message_Gravity
+
+    for printer in Message.DefaultMessenger_s().Printers():
+        printer.SetTraceLevel(Message_Gravity.Message_Fail)
+
+
+def main(argv: list[str]) -> int:
+    as_json = "--json" in argv
+    names = [a for a in argv if not a.startswith("--")]
+    paths = [Path(n) for n in names] if names else corpus_files()
+    _quiet()
+    rows = [inventory(p) for p in paths]
+    if as_json:
+        print(json.dumps([asdict(r) for r in rows], indent=1))
+        return 0
+    for r in rows:
+        kinds = ", ".join(f"{k} {n}" for k, n in r.kinds.items())
+        print(
+            f"{r.file} | {r.system} | {r.format} {r.schema} | {r.faces} | {kinds} | "
+            f"solids {r.solids} | shells {r.closed_shells}/{r.shells} closed"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
