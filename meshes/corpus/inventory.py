@@ -81,13 +81,11 @@ def _hollerith_fields(text: str) -> list[str]:
             i = start + n
             continue
         ch = text[i]
-        if ch == delim or ch == end:
+        if ch in (delim, end):
             fields.append(current.strip())
             current = ""
             if ch == end and len(fields) > 2:
                 break
-            if len(fields) == 1 and fields[0] and len(fields[0]) == 1:
-                pass
         else:
             current += ch
         i += 1
