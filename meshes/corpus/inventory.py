@@ -15,17 +15,47 @@ on a ``Geom_OffsetSurface`` as ``Offset(<basis kind>)``.
 
 from __future__ import annotations
 
+import gzip
 import hashlib
 import json
 import re
+import shutil
 import sys
+import tempfile
 from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 STEP_SUFFIXES = {".stp", ".step"}
 IGES_SUFFIXES = {".igs", ".iges"}
+
+
+def cad_suffix(path: Path) -> str:
+    """The CAD extension of ``path`` (lower case), looking through a trailing ``.gz``."""
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] == ".gz":
+        suffixes = suffixes[:-1]
+    return suffixes[-1] if suffixes else ""
+
+
+@contextmanager
+def plain_file(path: Path) -> Iterator[Path]:
+    """``path`` itself, or for ``x.igs.gz`` an uncompressed temporary copy ``x.igs``.
+
+    Files above the corpus's 2 MB limit are kept gzip-compressed; OpenCASCADE and gmsh
+    read only the plain file, so every consumer of the manifest opens files through this.
+    """
+    if not path.name.lower().endswith(".gz"):
+        yield path
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        plain = Path(tmp) / path.name[: -len(".gz")]
+        with gzip.open(path, "rb") as src, plain.open("wb") as dst:
+            shutil.copyfileobj(src, dst)
+        yield plain
 
 
 @dataclass
@@ -53,7 +83,7 @@ def _step_strings(text: str, keyword: str) -> list[str]:
 
 def step_header(path: Path) -> tuple[str, str]:
     """(originating system, schema) from a STEP file's header section."""
-    head = path.read_text(errors="replace")[:20000]
+    head = path.read_bytes()[:20000].decode(errors="replace")
     head = re.sub(r"/\*.*?\*/", "", head, flags=re.S)
     names = _step_strings(head, r"FILE_NAME")
     # FILE_NAME(name, time_stamp, (author), (organization), preprocessor_version,
@@ -131,8 +161,7 @@ def read_shape(path: Path) -> object:
     from OCP.IGESControl import IGESControl_Reader
     from OCP.STEPControl import STEPControl_Reader
 
-    suffix = path.suffix.lower()
-    reader = STEPControl_Reader() if suffix in STEP_SUFFIXES else IGESControl_Reader()
+    reader = STEPControl_Reader() if cad_suffix(path) in STEP_SUFFIXES else IGESControl_Reader()
     if reader.ReadFile(str(path)) != IFSelect_RetDone:
         raise RuntimeError(f"{path.name}: OpenCASCADE could not read the file")
     reader.TransferRoots()
@@ -149,14 +178,14 @@ def inventory(path: Path) -> Row:
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
-    suffix = path.suffix.lower()
-    if suffix in STEP_SUFFIXES:
-        system, schema = step_header(path)
-        fmt = "STEP"
-    else:
-        system, schema = iges_header(path)
-        fmt = "IGES"
-    shape = read_shape(path)
+    with plain_file(path) as plain:
+        if cad_suffix(plain) in STEP_SUFFIXES:
+            system, schema = step_header(plain)
+            fmt = "STEP"
+        else:
+            system, schema = iges_header(plain)
+            fmt = "IGES"
+        shape = read_shape(plain)
     kinds: Counter[str] = Counter()
     explorer = TopExp_Explorer(shape, TopAbs_FACE)
     while explorer.More():
@@ -190,7 +219,7 @@ def inventory(path: Path) -> Row:
 def corpus_files(folder: Path = HERE) -> list[Path]:
     """The STEP/IGES files of ``folder``, sorted by name."""
     suffixes = STEP_SUFFIXES | IGES_SUFFIXES
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)
+    return sorted(p for p in folder.iterdir() if cad_suffix(p) in suffixes)
 
 
 def _quiet() -> None:
