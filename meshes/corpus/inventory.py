@@ -71,6 +71,7 @@ class Row:
     solids: int = 0
     shells: int = 0
     closed_shells: int = 0
+    iges_entities: dict[int, int] = field(default_factory=dict)
 
 
 def _step_strings(text: str, keyword: str) -> list[str]:
@@ -143,6 +144,20 @@ def iges_header(path: Path) -> tuple[str, str]:
     return system, f"IGES (version flag {version})" if version else "IGES"
 
 
+def iges_entity_types(path: Path) -> dict[int, int]:
+    """Entity type number -> count, from the directory entry section of an IGES file."""
+    counts: Counter[int] = Counter()
+    d_lines = [
+        line for line in path.read_text(errors="replace").splitlines()
+        if len(line) >= 73 and line[72] == "D"
+    ]
+    for line in d_lines[::2]:  # each entry is two lines; the type is in columns 1-8
+        field_text = line[:8].strip()
+        if field_text.isdigit():
+            counts[int(field_text)] += 1
+    return dict(sorted(counts.items()))
+
+
 def surface_kind(surface: object) -> str:
     """The OpenCASCADE kind of a face's surface, looking through trims and offsets."""
     from OCP.Geom import Geom_OffsetSurface, Geom_RectangularTrimmedSurface
@@ -178,6 +193,7 @@ def inventory(path: Path) -> Row:
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
+    entities: dict[int, int] = {}
     with plain_file(path) as plain:
         if cad_suffix(plain) in STEP_SUFFIXES:
             system, schema = step_header(plain)
@@ -185,6 +201,7 @@ def inventory(path: Path) -> Row:
         else:
             system, schema = iges_header(plain)
             fmt = "IGES"
+            entities = iges_entity_types(plain)
         shape = read_shape(plain)
     kinds: Counter[str] = Counter()
     explorer = TopExp_Explorer(shape, TopAbs_FACE)
@@ -213,6 +230,7 @@ def inventory(path: Path) -> Row:
         solids=solids,
         shells=shells,
         closed_shells=closed,
+        iges_entities=entities,
     )
 
 
@@ -261,6 +279,7 @@ def write_manifest(rows: list[Row], folder: Path = HERE) -> None:
                 "solids": r.solids,
                 "shells": r.shells,
                 "closed_shells": r.closed_shells,
+                "iges_entities": {str(k): n for k, n in r.iges_entities.items()},
                 "bytes": (folder / r.file).stat().st_size,
                 "sha256": hashlib.sha256((folder / r.file).read_bytes()).hexdigest(),
                 "notes": notes,
@@ -289,7 +308,50 @@ def write_manifest(rows: list[Row], folder: Path = HERE) -> None:
             f"| {e['format']} {e['schema']} | {e['faces']} | {_kinds_text(e['kinds'])} | {e['solids']} "
             f"| {e['closed_shells']}/{e['shells']} | {e['notes']} |"
         )
+    lines += ["", *coverage_lines(entries)]
     (folder / "MANIFEST.md").write_text("\n".join(lines) + "\n")
+
+
+#: OpenCASCADE surface kinds the corpus should contain (plain, and under a rectangular trim)
+WANTED_KINDS = [
+    "Plane", "CylindricalSurface", "ConicalSurface", "SphericalSurface", "ToroidalSurface",
+    "SurfaceOfRevolution", "SurfaceOfLinearExtrusion", "OffsetSurface", "BSplineSurface",
+    "BezierSurface",
+]
+#: IGES entities the corpus should contain
+WANTED_IGES = [128, 144, 143, 120, 122, 108, 140, 186, 514]
+#: STEP application protocols, by a word of their schema name
+WANTED_SCHEMAS = {"AP203": ("CONFIG_CONTROL", "CONFIGURATION_CONTROL"), "AP214": ("AUTOMOTIVE",),
+                  "AP242": ("AP242",)}
+
+
+def _files_with(entries: list[dict], test) -> str:  # type: ignore[type-arg, no-untyped-def]
+    hits = [e["file"] for e in entries if test(e)]
+    return ", ".join(hits) if hits else "**none**"
+
+
+def coverage_lines(entries: list[dict]) -> list[str]:  # type: ignore[type-arg]
+    """The coverage section of MANIFEST.md: which file has which kind, entity, schema."""
+    out = ["## Coverage", "", "| item | files |", "|---|---|"]
+    for kind in WANTED_KINDS:
+        plain = kind if kind != "OffsetSurface" else "Offset("
+        out.append(f"| {kind} | " + _files_with(
+            entries, lambda e, k=plain: any(n == k or n.startswith(k) for n in e["kinds"])) + " |")
+        out.append(f"| Trimmed({kind}) | " + _files_with(
+            entries, lambda e, k=kind: any(n.startswith(f"Trimmed({k}") for n in e["kinds"])) + " |")
+    for ent in WANTED_IGES:
+        out.append(f"| IGES {ent} | " + _files_with(
+            entries, lambda e, t=str(ent): t in e["iges_entities"]) + " |")
+    for ap, words in WANTED_SCHEMAS.items():
+        out.append(f"| STEP {ap} | " + _files_with(
+            entries, lambda e, w=words: e["format"] == "STEP"
+            and any(x in e["schema"].upper() for x in w)) + " |")
+    out.append("| faces-only IGES (no 186/514) | " + _files_with(
+        entries, lambda e: e["format"] == "IGES" and e["faces"]
+        and not {"186", "514"} & set(e["iges_entities"])) + " |")
+    out.append("| multi-solid | " + _files_with(entries, lambda e: e["solids"] > 1) + " |")
+    out.append("| 100-1000 faces | " + _files_with(entries, lambda e: 100 <= e["faces"] <= 1000) + " |")
+    return out
 
 
 def main(argv: list[str]) -> int:
