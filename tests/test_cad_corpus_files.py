@@ -13,6 +13,7 @@ import hashlib
 import json
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import pytest
 from corpus.inventory import cad_suffix, plain_file
@@ -24,7 +25,7 @@ MAX_TOTAL = 40 * 1024 * 1024
 CAD_SUFFIXES = {".stp", ".step", ".igs", ".iges"}
 
 
-def _kind(surface) -> str:  # type: ignore[no-untyped-def]
+def _kind(surface: Any) -> str:
     """``Geom_*`` class name without the prefix; trims and offsets show their basis."""
     from OCP.Geom import Geom_OffsetSurface, Geom_RectangularTrimmedSurface
 
@@ -32,10 +33,10 @@ def _kind(surface) -> str:  # type: ignore[no-untyped-def]
         return f"Trimmed({_kind(surface.BasisSurface())})"
     if isinstance(surface, Geom_OffsetSurface):
         return f"Offset({_kind(surface.BasisSurface())})"
-    return surface.DynamicType().Name().removeprefix("Geom_")
+    return str(surface.DynamicType().Name()).removeprefix("Geom_")
 
 
-def _read(path: Path):  # type: ignore[no-untyped-def]
+def _read(path: Path) -> Any:
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.IGESControl import IGESControl_Reader
     from OCP.STEPControl import STEPControl_Reader
@@ -72,7 +73,7 @@ ROWS = [
 
 
 @pytest.mark.parametrize("row", ROWS)
-def test_file_intact_and_read_as_recorded(row: dict) -> None:  # type: ignore[type-arg]
+def test_file_intact_and_read_as_recorded(row: dict[str, Any]) -> None:
     from OCP.BRep import BRep_Tool
     from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
     from OCP.TopExp import TopExp_Explorer

@@ -27,6 +27,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 STEP_SUFFIXES = {".stp", ".step"}
@@ -325,32 +326,37 @@ WANTED_SCHEMAS = {"AP203": ("CONFIG_CONTROL", "CONFIGURATION_CONTROL"), "AP214":
                   "AP242": ("AP242",)}
 
 
-def _files_with(entries: list[dict], test) -> str:  # type: ignore[type-arg, no-untyped-def]
-    hits = [e["file"] for e in entries if test(e)]
-    return ", ".join(hits) if hits else "**none**"
+def coverage_tags(entry: dict[str, Any]) -> set[str]:
+    """What one manifest entry covers, as the row labels of the coverage table."""
+    tags: set[str] = set()
+    for name in entry["kinds"]:
+        trimmed = name.startswith("Trimmed(")
+        basis = name.removeprefix("Trimmed(").rstrip(")")
+        basis = "OffsetSurface" if basis.startswith("Offset(") else basis
+        tags.add(f"Trimmed({basis})" if trimmed else basis)
+    tags |= {f"IGES {t}" for t in entry["iges_entities"]}
+    if entry["format"] == "STEP":
+        schema = entry["schema"].upper()
+        tags |= {f"STEP {ap}" for ap, words in WANTED_SCHEMAS.items() if any(w in schema for w in words)}
+    if entry["format"] == "IGES" and entry["faces"] > 0 and not {"186", "514"} & set(entry["iges_entities"]):
+        tags.add("faces-only IGES (no 186/514)")
+    if entry["solids"] > 1:
+        tags.add("multi-solid")
+    if 100 <= entry["faces"] <= 1000:
+        tags.add("100-1000 faces")
+    return tags
 
 
-def coverage_lines(entries: list[dict]) -> list[str]:  # type: ignore[type-arg]
-    """The coverage section of MANIFEST.md: which file has which kind, entity, schema."""
+def coverage_lines(entries: list[dict[str, Any]]) -> list[str]:
+    """The coverage section of MANIFEST.md: which files have which kind, entity, schema."""
+    rows = [r for kind in WANTED_KINDS for r in (kind, f"Trimmed({kind})")]
+    rows += [f"IGES {t}" for t in WANTED_IGES] + [f"STEP {ap}" for ap in WANTED_SCHEMAS]
+    rows += ["faces-only IGES (no 186/514)", "multi-solid", "100-1000 faces"]
+    tags = {e["file"]: coverage_tags(e) for e in entries}
     out = ["## Coverage", "", "| item | files |", "|---|---|"]
-    for kind in WANTED_KINDS:
-        plain = kind if kind != "OffsetSurface" else "Offset("
-        out.append(f"| {kind} | " + _files_with(
-            entries, lambda e, k=plain: any(n == k or n.startswith(k) for n in e["kinds"])) + " |")
-        out.append(f"| Trimmed({kind}) | " + _files_with(
-            entries, lambda e, k=kind: any(n.startswith(f"Trimmed({k}") for n in e["kinds"])) + " |")
-    for ent in WANTED_IGES:
-        out.append(f"| IGES {ent} | " + _files_with(
-            entries, lambda e, t=str(ent): t in e["iges_entities"]) + " |")
-    for ap, words in WANTED_SCHEMAS.items():
-        out.append(f"| STEP {ap} | " + _files_with(
-            entries, lambda e, w=words: e["format"] == "STEP"
-            and any(x in e["schema"].upper() for x in w)) + " |")
-    out.append("| faces-only IGES (no 186/514) | " + _files_with(
-        entries, lambda e: e["format"] == "IGES" and e["faces"]
-        and not {"186", "514"} & set(e["iges_entities"])) + " |")
-    out.append("| multi-solid | " + _files_with(entries, lambda e: e["solids"] > 1) + " |")
-    out.append("| 100-1000 faces | " + _files_with(entries, lambda e: 100 <= e["faces"] <= 1000) + " |")
+    for row in rows:
+        hits = [f for f, t in tags.items() if row in t]
+        out.append(f"| {row} | {', '.join(hits) if hits else '**none**'} |")
     return out
 
 
