@@ -10,6 +10,7 @@ NURBS of an IGES file.  See :class:`Snapper`.
 import mpi4py.MPI  # noqa: F401
 
 from nagata_snap.cad import CadError, CadGeometry
+from nagata_snap.fitted import FittedGeometry
 from nagata_snap.mesh.lineage import LineageError
 from nagata_snap.mesh.records import Records
 from nagata_snap.nagata.geometry import NagataGeometry
@@ -18,6 +19,7 @@ from nagata_snap.snapper import InvertedCellsError, Refined, Snapper, SnapReport
 
 __all__ = [
     "NagataGeometry",
+    "FittedGeometry",
     "CadGeometry",
     "CadError",
     "Snapper",
