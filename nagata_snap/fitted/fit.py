@@ -119,7 +119,7 @@ def curve_columns(degree: int, top: int) -> np.ndarray:
 
 def fit_surfaces(
     x0: np.ndarray, frame: np.ndarray, pts: np.ndarray, mask: np.ndarray, h: np.ndarray, degree: int,
-    planar: bool,
+    planar: bool, explicit: bool = False,
 ) -> np.ndarray:
     """Implicit local surfaces ``w + sum_j c_j phi_j(u, v, w) = 0`` of degree ``degree`` in each vertex's frame.
 
@@ -135,18 +135,56 @@ def fit_surfaces(
         h: ``(S,)`` length scale (the coordinates are divided by it).
         degree: ``>= 2``.
         planar: 2D (a curve in the plane of ``t1, n``).
+        explicit: a height polynomial only (the terms in ``w`` left out, their
+            coefficients 0; the others lightly penalised): the fallback where
+            the implicit fit is not a height function over the stencil
+            (:func:`height_valid`).
 
     Returns:
         ``(S, q)`` coefficients (:func:`terms`), in coordinates scaled by ``h``;
-        NaN rows where the linear terms are not determined.
+        NaN rows where the linear terms are not determined (implicit fits that
+        are no height function over their stencil included).
     """
     d = pts - x0[:, None, :]
     loc = np.einsum("smi,sji->smj", d, frame) / h[:, None, None]
     wt = _weights(np.einsum("smi,smi->sm", d, d), h, mask)
-    P = model_terms(loc[..., 0], loc[..., 1], loc[..., 2], degree, planar)
+    u, v = loc[..., 0], loc[..., 1]
+    P = model_terms(u, v, 0.0 * u if explicit else loc[..., 2], degree, planar)
     # no ridge penalty while the design is determined (exact on its own model); the
-    # solver's fallback penalises all but the linear terms where it is not
-    return _weighted_lstsq(P, -loc[..., 2], wt, np.zeros(P.shape[-1], dtype=bool), 1 if planar else 2)
+    # solver's fallback penalises all but the linear terms where it is not (always
+    # when explicit: the terms in w are zero columns)
+    c = _weighted_lstsq(P, -loc[..., 2], wt, np.zeros(P.shape[-1], dtype=bool), 1 if planar else 2)
+    if explicit:
+        c[:, [1, 2] if planar else [3, 4, 5]] = 0.0
+    else:
+        c[~height_valid(c, degree, planar, u, v, mask)] = np.nan
+    return c
+
+
+#: An implicit fit is a height function where it is used (its stencil points
+#: within ``CHECK_RADIUS`` mean edge lengths of the vertex) when ``B = dF/dw``
+#: stays above ``MIN_SLOPE`` there (1 at the vertex) and the quadratic in ``w``
+#: has a root.
+MIN_SLOPE = 0.5
+CHECK_RADIUS = 1.5
+
+
+def height_valid(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray,
+                 mask: np.ndarray) -> np.ndarray:
+    """``(S,)`` whether the fits ``coef (S, q)`` are height functions near the vertex, at the points ``u, v (S, m)``.
+
+    ``B = 1 + c_uw u + c_vw v >= MIN_SLOPE`` and a real root of the quadratic
+    in ``w`` (:func:`surface_height`) at every valid point: the implicit
+    surface does not turn back over the stencil.
+    """
+    C = np.einsum("skq,sq->sk", model_terms(u, v, 0.0 * u, degree, planar), np.nan_to_num(coef))
+    if planar:
+        A, B = coef[:, 2:3], 1.0 + coef[:, 1:2] * u
+    else:
+        A, B = coef[:, 5:6], 1.0 + coef[:, 3:4] * u + coef[:, 4:5] * v
+    ok = (B >= MIN_SLOPE) & (B * B - 4.0 * A * C >= 0.0)
+    near = mask & (u * u + v * v <= CHECK_RADIUS**2)
+    return np.all(ok | ~near, axis=1) & np.isfinite(coef).all(axis=1)
 
 
 def surface_height(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -170,28 +208,30 @@ def surface_height(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v
 
 
 def fit_levels(
-    levels: list[tuple[int, int]],
+    levels: list[tuple[int, int, bool]],
     stencil: Callable[[int], tuple[np.ndarray, np.ndarray]],
-    fit: Callable[[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray],
+    fit: Callable[[np.ndarray, np.ndarray, np.ndarray, int, bool], np.ndarray],
     S: int, columns: Callable[[int], np.ndarray], q: int, comps: int = 1,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Fits of ``S`` stencils trying ``levels = [(degree, width), ...]`` in turn.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fits of ``S`` stencils trying ``levels = [(degree, width, variant), ...]`` in turn.
 
     ``stencil(width) -> (idx (S, m), mask (S, m))`` gives the points of each
-    fit at that stencil width; ``fit(sel, idx, mask, degree) -> (len(sel), comps, q_d)``
+    fit at that stencil width; ``fit(sel, idx, mask, degree, variant) -> (len(sel), comps, q_d)``
     fits the selected ones (NaN: failed), whose ``q_d`` terms are the columns
     ``columns(degree) (q_d,)`` of the ``q`` of the padded result.  A level takes
     the fits not yet done whose stencil has at least ``q_d + EXTRA_POINTS`` points.
 
     Returns:
-        ``(coef (S, comps, q), degree (S,))``: coefficients padded to the ``q`` terms of
-        the first level's degree (zeros for the terms a lower degree lacks),
-        and the degree each fit got (0: none, coefficients 0).
+        ``(coef (S, comps, q), degree (S,), level (S,))``: coefficients padded to
+        the ``q`` terms of the first level's degree (zeros for the terms a lower
+        degree lacks), the degree each fit got (0: none, coefficients 0) and
+        the index of its level (-1: none).
     """
     coef = np.zeros((S, comps, q))
     got = np.zeros(S, dtype=np.int64)
+    level = np.full(S, -1, dtype=np.int64)
     cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for degree, width in levels:
+    for li, (degree, width, variant) in enumerate(levels):
         todo = got == 0
         if not todo.any():
             break
@@ -207,11 +247,12 @@ def fit_levels(
             m = int(mask[sel].sum(axis=1).max())
             order = np.argsort(~mask[sel], axis=1, kind="stable")[:, :m]  # valid points first
             c = fit(sel, np.take_along_axis(idx[sel], order, axis=1),
-                    np.take_along_axis(mask[sel], order, axis=1), degree)
+                    np.take_along_axis(mask[sel], order, axis=1), degree, variant)
             ok = np.isfinite(c).all(axis=(1, 2))
             coef[sel[ok][:, None, None], np.arange(comps)[None, :, None], cols[None, None, :]] = c[ok]
             got[sel[ok]] = degree
-    return coef, got
+            level[sel[ok]] = li
+    return coef, got, level
 
 
 def fit_curves(
