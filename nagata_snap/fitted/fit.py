@@ -41,8 +41,8 @@ import numpy as np
 
 from nagata_snap.nagata.jets import _basis, _weighted_lstsq
 
-__all__ = ["exponents", "monomials", "terms", "model_terms", "term_columns", "curve_columns", "fit_surfaces",
-           "surface_height", "fit_levels", "fit_curves", "height", "BATCH"]
+__all__ = ["exponents", "monomials", "terms", "model_terms", "plane_value", "term_columns", "curve_columns",
+           "fit_surfaces", "surface_height", "fit_levels", "fit_curves", "height", "BATCH"]
 
 #: Stencils per batch (bounds memory: ``batch * points * terms`` doubles).
 BATCH = 4096
@@ -112,6 +112,31 @@ def term_columns(degree: int, top: int, planar: bool) -> np.ndarray:
     return np.r_[np.arange(q - lin), qt - lin + np.arange(lin)]
 
 
+def plane_value(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``sum_j c_j phi_j(u, v, 0)`` (the terms without ``w``) of fits ``coef (S, q)`` at ``u, v (S, k)``.
+
+    The same as ``model_terms(u, v, 0) @ coef`` without forming the ``(S, k, q)`` terms.
+    """
+    def c(j: int) -> np.ndarray:
+        return coef[:, j, None]
+
+    if planar:
+        out = c(0) * u * u + c(-1) * u
+        pk = u * u
+        for k in range(3, degree + 1):
+            pk = pk * u
+            out += c(k) * pk
+        return out
+    out = c(0) * u * u + c(1) * u * v + c(2) * v * v + c(-2) * u + c(-1) * v
+    prev, col = [u * u, u * v, v * v], 6
+    for _ in range(3, degree + 1):  # the monomials of each degree, u^k, u^(k-1) v, ..., v^k
+        prev = [m * u for m in prev] + [prev[-1] * v]
+        for m in prev:
+            out += c(col) * m
+            col += 1
+    return out
+
+
 def curve_columns(degree: int, top: int) -> np.ndarray:
     """Columns of a degree-``degree`` curve fit's terms (:func:`fit_curves`) among the degree-``top`` fit's."""
     return np.r_[np.arange(degree - 1), top - 1]
@@ -177,7 +202,7 @@ def height_valid(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: 
     in ``w`` (:func:`surface_height`) at every valid point: the implicit
     surface does not turn back over the stencil.
     """
-    C = np.einsum("skq,sq->sk", model_terms(u, v, 0.0 * u, degree, planar), np.nan_to_num(coef))
+    C = plane_value(np.nan_to_num(coef), degree, planar, u, v)
     if planar:
         A, B = coef[:, 2:3], 1.0 + coef[:, 1:2] * u
     else:
@@ -195,7 +220,7 @@ def surface_height(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v
     vertex), or ``-C / B`` where the quadratic has no real root (far outside
     the fit's stencil).
     """
-    C = np.einsum("skq,sq->sk", model_terms(u, v, 0.0 * u, degree, planar), coef)
+    C = plane_value(coef, degree, planar, u, v)
     if planar:
         A, B = coef[:, 2:3], 1.0 + coef[:, 1:2] * u
     else:

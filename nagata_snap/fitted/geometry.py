@@ -341,10 +341,10 @@ class FittedGeometry(NagataGeometry):
         """Height ``(P, k)`` along its sector's normal of corner ``i``'s fit above the straight points ``X``."""
         s = self.corners.sector[patch, i]
         h = self._hv[self.corners.vertex[patch, i]][:, None]
-        d = X - self.x[patch, i][:, None, :]
-        loc = np.einsum("pki,pji->pkj", d, self._frame_s[s]) / h[:, :, None]
-        f = surface_height(self._coef_s[s], self.degree, self._planar, loc[..., 0], loc[..., 1])
-        return (f - loc[..., 2]) * h
+        d = (X - self.x[patch, i][:, None, :]) / h[:, :, None]
+        fr = self._frame_s[s]
+        u, v, w = ((d * fr[:, None, j]).sum(axis=2) for j in range(3))
+        return (surface_height(self._coef_s[s], self.degree, self._planar, u, v) - w) * h
 
     def _guard(self) -> np.ndarray:
         """Sectors ``(S,)`` whose fit disagrees with a neighbouring corner's by more than :data:`GUARD`.
