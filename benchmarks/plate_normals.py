@@ -9,6 +9,8 @@ Nagata mode through ``levels`` uniform refinements, with
 
 * ``jet``: the default estimate (:mod:`nagata_snap.nagata.jets`),
 * ``mwselr``: Max's weighting (the previous default),
+* ``fitted``: :class:`~nagata_snap.FittedGeometry` (degree 4, estimated
+  normals) instead of Nagata patches,
 * ``cad``: the CAD's exact normals, each facet's on its own face
   (``--cad occ``, the default: the ``CadGeometry`` of
   :func:`nagata_snap.cad.mesh_cad`, the file read by OCP, faces and (u, v)
@@ -43,7 +45,7 @@ from occ_reference import GmshFaceNormals, gmsh_curved_faces, gmsh_face_distance
 
 import dolfinx.mesh
 
-from nagata_snap import NagataGeometry, Snapper
+from nagata_snap import FittedGeometry, NagataGeometry, Snapper
 from nagata_snap.mesh.boundary import boundary_facets
 from nagata_snap.cad import mesh_cad
 from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file
@@ -61,9 +63,9 @@ def face_distances(mesh, ft, faces) -> np.ndarray:
     return np.concatenate(out)
 
 
-def run(label, cm, normals, levels, faces, size):
+def run(label, cm, normals, levels, faces, size, cls=NagataGeometry):
     t0 = time.perf_counter()
-    geo = NagataGeometry(cm.mesh, cm.facet_tags, normals=normals)
+    geo = cls(cm.mesh, cm.facet_tags, normals=normals)
     t_geo = time.perf_counter() - t0
     snapper = Snapper(cm.mesh, cm.facet_tags, geo)
     mesh, ft = cm.mesh, cm.facet_tags
@@ -120,9 +122,11 @@ def main() -> None:
             print(f"{'':>8} {'/ size':>12} {'/ size':>12}")
             d = {name: run(name, cm, src, args.levels, faces, size)
                  for name, src in (("jet", None), ("mwselr", "mwselr"), ("cad", cad))}
+            d["fitted"] = run("fitted", cm, None, args.levels, faces, size, FittedGeometry)
             d["plain"] = plain(cm, args.levels, faces, size)
     print(f"\njet / cad {d['jet'] / d['cad']:.2f}, mwselr / cad {d['mwselr'] / d['cad']:.2f}, "
           f"plain / jet {d['plain'] / d['jet']:.1f}")
+    print(f"fitted (degree 4, estimated normals) / jet {d['fitted'] / d['jet']:.3f}")
     print(f"plate_jet_over_cad {d['jet'] / d['cad']:.3f}")
 
 

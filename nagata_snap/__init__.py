@@ -46,6 +46,7 @@ _check_dolfinx()
 
 # after the check, so that a missing or wrong DOLFINx gives its message, not an import error deep inside
 from nagata_snap.cad import CadError, CadGeometry  # noqa: E402
+from nagata_snap.fitted import FittedGeometry  # noqa: E402
 from nagata_snap.mesh.lineage import LineageError  # noqa: E402
 from nagata_snap.mesh.records import Records  # noqa: E402
 from nagata_snap.nagata.geometry import NagataGeometry  # noqa: E402
@@ -54,6 +55,7 @@ from nagata_snap.snapper import InvertedCellsError, Refined, Snapper, SnapReport
 
 __all__ = [
     "NagataGeometry",
+    "FittedGeometry",
     "CadGeometry",
     "CadError",
     "Snapper",

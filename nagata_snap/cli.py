@@ -1,6 +1,7 @@
 """``nagata-snap``: refine a mesh (or a CAD part) and snap its curved boundary.
 
-A thin command line around :class:`~nagata_snap.NagataGeometry`,
+A thin command line around :class:`~nagata_snap.NagataGeometry`
+(:class:`~nagata_snap.FittedGeometry` with ``--surface fitted``),
 :class:`~nagata_snap.cad.CadGeometry` and :class:`~nagata_snap.Snapper`::
 
     nagata-snap part.step --size 5 --levels 2 --output fine.xdmf --plot levels.png
@@ -387,6 +388,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--crease-angle", type=float, default=60.0, metavar="DEG",
                    help="Nagata mode: boundary ridges with a dihedral angle above DEG degrees "
                         "stay sharp (default: 60)")
+    p.add_argument("--surface", choices=("nagata", "fitted"), default="nagata",
+                   help="mesh input without --cad: the surface rebuilt from the coarse boundary, Nagata "
+                        "patches (default) or high-order local fits (nagata_snap.FittedGeometry)")
+    p.add_argument("--degree", type=int, default=4, metavar="P",
+                   help="--surface fitted: polynomial degree of the local fits, 2 to 6 (default: 4)")
     p.add_argument("--output", "-o", metavar="OUT",
                    help="write the refined mesh: OUT.xdmf (mesh + facet tags, XDMF/HDF5) or "
                         "OUT.bp (mesh, VTX/ADIOS2); without it nothing is written")
@@ -408,6 +414,8 @@ def _check_options(args) -> bool:
     """Validate options; returns whether the input is a CAD file."""
     if args.levels < 0:
         raise UserError("--levels must be >= 0")
+    if args.surface == "fitted" and not 2 <= args.degree <= 6:
+        raise UserError(f"--degree must be from 2 to 6 (the fits' polynomial degree), got {args.degree}")
     if args.output is not None:
         ext = os.path.splitext(args.output)[1].lower()
         if ext not in (".xdmf", ".bp"):
@@ -531,15 +539,26 @@ def _run(args, comm) -> None:
     except ValueError as e:
         raise UserError(f"{args.input}: {e}") from None
     t0 = time.perf_counter()
-    if geometry is None:
+    if geometry is not None and args.surface == "fitted":
+        raise UserError("--surface fitted rebuilds the surface from a mesh input; a CAD input or --cad "
+                        "snaps onto the CAD itself (drop --surface or the CAD)")
+    if geometry is None and args.surface == "fitted":
+        what = f"fitted surface of degree {args.degree} (crease angle {args.crease_angle} deg)"
+    elif geometry is None:
         what = f"Nagata patches (crease angle {args.crease_angle} deg)"
     else:
         n = geometry.num_entities
         what = (f"{'faces' if geometry.param_dim == 2 else 'edge curves'} of "
                 f"{args.input if cad_input else args.cad} ({n} {'entity' if n == 1 else 'entities'})")
     try:
-        snap_geometry: SnapGeometry = geometry if geometry is not None else \
-            nagata_snap.NagataGeometry(mesh, ft, tags=tags, crease_angle=args.crease_angle)
+        snap_geometry: SnapGeometry
+        if geometry is not None:
+            snap_geometry = geometry
+        elif args.surface == "fitted":
+            snap_geometry = nagata_snap.FittedGeometry(mesh, ft, tags=tags, crease_angle=args.crease_angle,
+                                                       degree=args.degree)
+        else:
+            snap_geometry = nagata_snap.NagataGeometry(mesh, ft, tags=tags, crease_angle=args.crease_angle)
         snapper = nagata_snap.Snapper(mesh, ft, snap_geometry, tags=tags)
     except Exception as e:
         raise SnapFailure(f"cannot set up snapping of tags {tag_list(tags)}: {type(e).__name__}: {e}") from None

@@ -341,6 +341,8 @@ class NagataGeometry:
             n[snap] = self._supplied_normals(normals, coords[snap], user[snap], n[snap], crease_angle)
         n, crease = _sector_consistent(cn, n)
         self.corner_normal = n
+        # the sector and ridge structure, for geometries built on these patches (FittedGeometry)
+        self.corners, self.crease = cn, crease
         self.coef = self._edge_coefficients(cn, n, crease, eps)
 
     @staticmethod

@@ -1,6 +1,7 @@
 """Snapping loop driver used by the MPI tests.
 
-Usage: python snap_loop.py {dfg|sphere|dfg_iges|cylinder_iges} LEVELS {uniform|adaptive} OUT.npz
+Usage: python snap_loop.py CASE LEVELS {uniform|adaptive} OUT.npz,
+CASE one of dfg, sphere, dfg_iges, cylinder_iges, dfg_fitted, sphere_fitted.
 Rank 0 writes, for every level, the gathered coordinates of all geometry
 nodes (owned nodes only, so each node once) and of the boundary vertices to OUT.npz.
 """
@@ -17,7 +18,7 @@ import make_iges
 
 import dolfinx.mesh
 
-from nagata_snap import NagataGeometry, Snapper
+from nagata_snap import FittedGeometry, NagataGeometry, Snapper
 from nagata_snap.cad import CadGeometry
 from nagata_snap.cad.iges import write_iges
 from nagata_snap.cad.nurbs import cylinder
@@ -28,7 +29,7 @@ outdir = os.path.dirname(os.path.abspath(out))
 if case.startswith("dfg"):
     md = generate.dfg_channel(comm, n_circle=16, h_far=0.1)
     centre, tag = np.array([0.2, 0.2, 0.0]), generate.CYLINDER
-elif case == "sphere":
+elif case.startswith("sphere"):
     md = generate.sphere_in_box(comm, h_sphere=0.35, h_box=0.6)
     centre, tag = np.zeros(3), generate.SPHERE
 else:
@@ -39,6 +40,10 @@ if case == "dfg":
     geometry = NagataGeometry(mesh, ft)
 elif case == "sphere":
     geometry = NagataGeometry(mesh, ft, tags=[tag])
+elif case == "dfg_fitted":
+    geometry = FittedGeometry(mesh, ft)
+elif case == "sphere_fitted":
+    geometry = FittedGeometry(mesh, ft, tags=[tag])
 elif case == "dfg_iges":
     path = os.path.join(outdir, "dfg_circle.igs")
     if comm.rank == 0:
@@ -60,7 +65,7 @@ for k in range(levels):
         mid = dolfinx.mesh.compute_midpoints(
             mesh, tdim, np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32)
         )
-        cells = np.flatnonzero(np.linalg.norm(mid - centre, axis=1) < (0.8 if case == "sphere" else 0.15))
+        cells = np.flatnonzero(np.linalg.norm(mid - centre, axis=1) < (0.8 if case.startswith("sphere") else 0.15))
         mesh.topology.create_connectivity(tdim, 1)
         edges = dolfinx.mesh.compute_incident_entities(mesh.topology, cells.astype(np.int32), tdim, 1)
     mesh0, ft0 = mesh, ft

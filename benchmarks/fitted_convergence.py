@@ -1,0 +1,172 @@
+"""Fitted surface (issue 30) against Nagata's on the same meshes, estimated normals, no CAD.
+
+Irregular gmsh meshes (``MeshSizeMin = MeshSizeMax = h``, h = 0.2, 0.1, ...
+down to ``--hmin``) of the torus R = 1, r = 0.4, the ellipsoid 1 x 0.7 x 0.5
+and the closed cylinder R = 1, height 1 with sharp rims (``crease_angle =
+80``, as :mod:`benchmarks.nagata_convergence`), the whole surface of each.
+For each mesh: the largest distance from the exact surface of the Nagata
+patches and of :class:`~nagata_snap.FittedGeometry` (degree ``--degree``,
+default 4; also degree 3), sampled on a barycentric grid of every facet
+(12 intervals per edge), their observed orders (log2 of successive ratios),
+the ratio fitted / Nagata, the cylinder's rim error (largest distance of the
+samples on the rim edges from the exact circles), the fits' degrees, the
+points whose departure from the facet was bounded, and the set-up and
+placement times (geometry construction; evaluating all facets' grid
+points, as a refinement level's placement does for its new vertices).
+
+2D: polygons inscribed in the ellipse 1 x 0.5 (unequal segments).
+
+Last lines: ``fitted_order_estimated <min finest-pair order over the torus and
+the ellipsoid>`` and ``fitted_over_nagata <max fitted / Nagata error ratio at
+h = 0.05 over the torus and the ellipsoid>`` (the cylinder's is in its table).
+
+Usage: ``python benchmarks/fitted_convergence.py [--hmin 0.025] [--surfaces torus,ellipsoid,cylinder]
+[--degree 4]`` (the default, down to 0.025 on the three surfaces, takes about 4 minutes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "meshes"))
+
+from surfaces import barycentric_grid, ellipse_polygon, gmsh_surface, nagata_surface_error
+
+from nagata_snap import FittedGeometry, NagataGeometry
+
+SURFACES = ("torus", "ellipsoid", "cylinder")
+
+
+def max_distance(geo, dist, per_edge: int = 12) -> tuple[float, float]:
+    """Largest ``dist`` of the sampled surface, and seconds spent evaluating it."""
+    g = barycentric_grid(3, per_edge)
+    err, dt = 0.0, 0.0
+    for lo in range(0, geo.num_patches, 4000):  # bounded memory
+        s = np.arange(lo, min(lo + 4000, geo.num_patches))
+        t0 = time.perf_counter()
+        x = geo.evaluate(s, np.broadcast_to(g, (len(s), *g.shape)))
+        dt += time.perf_counter() - t0
+        err = max(err, float(dist(x).max()))
+    return err, dt
+
+
+def rim_error(geo, per_edge: int = 12) -> float:
+    """Largest distance from the exact rim circles (R = 1, z = +-0.5) of samples on the crease edges."""
+    cr = np.flatnonzero(geo.crease)
+    rf, rv, vid = geo.corners.ridge_facets[cr, 0], geo.corners.ridge_vertices[cr], geo.corners.vertex
+    t = np.linspace(0.0, 1.0, per_edge + 1)
+    lam = np.zeros((len(cr), len(t), 3))
+    for k, w in ((0, 1.0 - t), (1, t)):
+        lam[np.arange(len(cr)), :, np.argmax(vid[rf] == rv[:, k, None], axis=1)] = w
+    x = geo.evaluate(rf, lam)
+    return float(np.hypot(np.hypot(x[..., 0], x[..., 1]) - 1.0, np.abs(x[..., 2]) - 0.5).max())
+
+
+def study(kind: str, hs: list[float], degrees: tuple[int, ...]) -> list[dict]:
+    rows = []
+    for h in hs:
+        p, t, exact, tags = gmsh_surface(kind, h)
+        row: dict = {"h": h, "facets": len(t)}
+        t0 = time.perf_counter()
+        nag = NagataGeometry.from_surface(p, t, tags, crease_angle=80)
+        row["nagata_setup"] = time.perf_counter() - t0
+        row["nagata"], row["nagata_place"] = max_distance(nag, exact.distance)
+        if kind == "cylinder":
+            row["nagata_rim"] = rim_error(nag)
+        for d in degrees:
+            t0 = time.perf_counter()
+            fit = FittedGeometry.from_surface(p, t, tags, crease_angle=80, degree=d)
+            row[f"setup{d}"] = time.perf_counter() - t0
+            row[f"fit{d}"], row[f"place{d}"] = max_distance(fit, exact.distance)
+            row[f"clipped{d}"] = fit.n_clipped
+            row[f"summary{d}"] = fit.fit_summary()
+            if kind == "cylinder":
+                row[f"rim{d}"] = rim_error(fit)
+        rows.append(row)
+        print(f"  {kind} h = {h}: {len(t)} triangles", flush=True)
+    return rows
+
+
+def orders(values: list[float]) -> list[float]:
+    return [float(np.log2(a / b)) for a, b in itertools.pairwise(values)]
+
+
+def print_table(kind: str, rows: list[dict], degrees: tuple[int, ...]) -> None:
+    print(f"\n{kind}: largest distance from the exact surface (order: log2 of successive ratios)")
+    head = f"{'h':>7} {'facets':>7} {'nagata':>10} {'ord':>5}"
+    for d in degrees:
+        head += f" | {'fitted p=' + str(d):>11} {'ord':>5} {'/nagata':>7}"
+    if kind == "cylinder":
+        head += f" | {'rim nagata':>10} {'ord':>5}" + "".join(f" {'rim p=' + str(d):>10} {'ord':>5}" for d in degrees)
+    print(head)
+    on = orders([r["nagata"] for r in rows])
+    of = {d: orders([r[f"fit{d}"] for r in rows]) for d in degrees}
+    if kind == "cylinder":
+        rn = orders([r["nagata_rim"] for r in rows])
+        rd = {d: orders([r[f"rim{d}"] for r in rows]) for d in degrees}
+    for i, r in enumerate(rows):
+        def o(seq, i=i):
+            return f"{seq[i - 1]:5.2f}" if i else " " * 5
+        line = f"{r['h']:7.4f} {r['facets']:7d} {r['nagata']:10.3e} {o(on)}"
+        for d in degrees:
+            line += f" | {r[f'fit{d}']:11.3e} {o(of[d])} {r[f'fit{d}'] / r['nagata']:7.3f}"
+        if kind == "cylinder":
+            line += f" | {r['nagata_rim']:10.3e} {o(rn)}" + "".join(
+                f" {r[f'rim{d}']:10.3e} {o(rd[d])}" for d in degrees)
+        print(line)
+    print("times [s] (set-up, placement of the sampled points): " + "; ".join(
+        f"h={r['h']}: nagata {r['nagata_setup']:.2f} + {r['nagata_place']:.2f}, " + ", ".join(
+            f"p={d} {r[f'setup{d}']:.2f} + {r[f'place{d}']:.2f}" for d in degrees) for r in rows))
+    last = rows[-1]
+    print("fits on the finest mesh: " + "; ".join(
+        f"{last[f'summary{d}']}, bounded points {last[f'clipped{d}']}" for d in degrees))
+
+
+def ellipse_study(ns, degrees) -> None:
+    print("\n2D: polygons inscribed in the ellipse 1 x 0.5 (unequal segments), largest distance")
+    print(f"{'segments':>9} {'nagata':>10} {'ord':>5}" + "".join(f" {'fitted p=' + str(d):>11} {'ord':>5}"
+                                                             for d in degrees))
+    prev = None
+    for n in ns:
+        p, s, exact = ellipse_polygon(n)
+        e = [nagata_surface_error(NagataGeometry.from_surface(p, s), exact.distance)]
+        e += [nagata_surface_error(FittedGeometry.from_surface(p, s, degree=d), exact.distance) for d in degrees]
+        print(f"{n:9d}" + "".join(
+            f" {v:{10 if j == 0 else 11}.3e} " + (f"{np.log2(prev[j] / v):5.2f}" if prev else " " * 5)
+            for j, v in enumerate(e)))
+        prev = e
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--hmin", type=float, default=0.025, help="finest gmsh mesh size (from 0.2, halving)")
+    ap.add_argument("--surfaces", default=",".join(SURFACES), help="comma-separated subset of " + ",".join(SURFACES))
+    ap.add_argument("--degree", type=int, default=4, help="fit degree (degree 3 is shown beside it)")
+    args = ap.parse_args()
+    hs = [0.2]
+    while hs[-1] / 2 >= args.hmin * (1 - 1e-9):
+        hs.append(hs[-1] / 2)
+    degrees = tuple(sorted({args.degree, 3}, reverse=True))
+    surfaces = args.surfaces.split(",")
+    print("meshing and fitting:")
+    res = {kind: study(kind, hs, degrees) for kind in surfaces}
+    for kind in surfaces:
+        print_table(kind, res[kind], degrees)
+    ellipse_study((48, 96, 192, 384), degrees)
+    d = args.degree
+    smooth = [k for k in surfaces if k in ("torus", "ellipsoid")]
+    if smooth and len(hs) > 1:
+        print(f"\nfitted_order_estimated {min(orders([r[f'fit{d}'] for r in res[k]])[-1] for k in smooth):.3f}")
+    at = [r for k in smooth for r in res[k] if abs(r["h"] - 0.05) < 1e-9]
+    if at:
+        print(f"fitted_over_nagata {max(r[f'fit{d}'] / r['nagata'] for r in at):.3f}")
+
+
+if __name__ == "__main__":
+    main()
