@@ -42,6 +42,7 @@ import dolfinx.mesh
 import numpy as np
 import numpy.typing as npt
 
+from nagata_snap.errors import LineageError
 from nagata_snap.mesh.arrays import ramp
 from nagata_snap.mesh.boundary import BoundaryFacets, cell_facet_nodes
 from nagata_snap.mesh.simplex import edge_lengths, facet_measures, local_edges, local_facet_vertices
@@ -68,10 +69,6 @@ _ULPS = 64 * np.finfo(float).eps
 
 #: Children checked by :func:`parent_cells` with ``select`` to pick the indexing.
 SAMPLE = 4096
-
-
-class LineageError(RuntimeError):
-    """The refined mesh is not a refinement of the previous level's mesh."""
 
 
 @dataclass
