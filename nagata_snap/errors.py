@@ -16,11 +16,25 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CadError", "LineageError", "InvertedCellsError", "NormalsError", "NonManifoldError"]
+__all__ = ["CadError", "MeshingError", "LineageError", "InvertedCellsError", "NormalsError",
+           "NonManifoldError"]
 
 
 class CadError(RuntimeError):
     """The mesh boundary does not match the CAD geometry, or the CAD file cannot be used."""
+
+
+class MeshingError(RuntimeError):
+    """gmsh failed to mesh a CAD model (with every option tried).
+
+    Attributes:
+        sizes: the element sizes tried [length unit of the mesh], in order
+            (empty where the error was raised on another process).
+    """
+
+    def __init__(self, message: str, sizes: tuple[float, ...] = ()):
+        super().__init__(message)
+        self.sizes = tuple(sizes)
 
 
 class LineageError(RuntimeError):
