@@ -10,6 +10,7 @@ NURBS of an IGES file.  See :class:`Snapper`.
 import mpi4py.MPI  # noqa: F401
 
 from nagata_snap.cad import CadError, CadGeometry
+from nagata_snap.errors import MeshingError
 from nagata_snap.mesh.lineage import LineageError
 from nagata_snap.mesh.records import Records
 from nagata_snap.nagata.geometry import NagataGeometry
@@ -26,6 +27,7 @@ __all__ = [
     "Records",
     "InvertedCellsError",
     "LineageError",
+    "MeshingError",
     "NonManifoldError",
     "NormalsError",
 ]

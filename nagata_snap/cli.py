@@ -461,8 +461,8 @@ def _cad_input(args: argparse.Namespace, comm: MPI.Comm, say: Callable[..., None
                                 curvature=args.curvature, on_retry=lambda line: say(f"{PROG}: {line}"))
     except MeshingError as e:
         raise UserError(f"{e}; {_next_meshing_step(args, e.sizes)}") from None
-    except (CadError, ValueError, OSError) as e:
-        raise UserError(f"{args.input}: {e}") from None
+    except (CadError, ValueError, OSError) as e:  # the message names the file, or is given it
+        raise UserError(str(e) if str(e).startswith(str(args.input)) else f"{args.input}: {e}") from None
     except RuntimeError as e:
         raise SnapFailure(f"meshing {args.input}: {e}") from None
     tdim = cm.mesh.topology.dim

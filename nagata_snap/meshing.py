@@ -570,7 +570,8 @@ def _classified_nodes(tdim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _candidates(tdim: int, ent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Parametric coordinates on boundary entity ``ent`` of the nodes in its closure.
+    """Parametric coordinates on boundary entity ``ent`` of the nodes in its closure (its
+    boundary and the entities embedded in it).
 
     Returns ``(nodes, params, inner, free)``: sorted input indices ``(n,)``,
     ``(n, pdim)`` parameters (nodes on the face's curves and points
@@ -583,8 +584,12 @@ def _candidates(tdim: int, ent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     param_parts = [np.reshape(uv, (-1, fdim))]
     node_parts, x_parts = [tags.astype(np.int64) - 1], [np.reshape(x, (-1, 3))]
     below = {(d, t) for d, t in gmsh.model.getBoundary([(fdim, ent)], combined=False, oriented=False)}
+    # and the points / curves embedded in it (e.g. a sphere's pole where OpenCASCADE's
+    # degenerate edge was): gmsh's elements of the face use their nodes too
+    below |= {(int(d), int(t)) for d, t in gmsh.model.mesh.getEmbedded(fdim, ent)}
     if fdim == 2:
-        below |= set(gmsh.model.getBoundary(list(below), combined=False, oriented=False))
+        curves = [e for e in below if e[0] == 1]
+        below |= set(gmsh.model.getBoundary(curves, combined=False, oriented=False)) if curves else set()
     for d, t in sorted(below):  # the face's curves and points: a few each
         tags, x, tp = gmsh.model.mesh.getNodes(d, t, includeBoundary=False, returnParametricCoord=True)
         if len(tags):
@@ -675,7 +680,8 @@ def _element_params(tdim: int, ent: int, enodes: np.ndarray) -> np.ndarray:
     nodes, p, inner, free = _candidates(tdim, ent)
     pos = np.searchsorted(nodes, enodes)
     if len(nodes) == 0 or np.any(nodes[np.minimum(pos, len(nodes) - 1)] != enodes):
-        raise MeshingError(f"gmsh's mesh of entity ({fdim}, {ent}) has element nodes off its closure")
+        raise MeshingError(f"gmsh's elements of entity ({fdim}, {ent}) use nodes off its boundary and "
+                           "embedded entities")
     c, fr = p[pos], free[pos]  # (E, nfv, pdim)
     lo, hi, closed = _closed_directions(fdim, ent)
     if closed.any():

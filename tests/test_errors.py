@@ -1,5 +1,6 @@
 """The error classes live in ``nagata_snap.errors`` and are the same classes under their
-older names, so ``except`` clauses written against any of them keep working."""
+older names (and where they are raised), so ``except`` clauses written against any of them
+keep working."""
 
 import importlib
 import pathlib
@@ -18,6 +19,7 @@ OLD_NAMES = {
                            "nagata_snap.smoothing.repair"],
     "NormalsError": ["nagata_snap", "nagata_snap.nagata", "nagata_snap.nagata.normals"],
     "NonManifoldError": ["nagata_snap", "nagata_snap.nagata", "nagata_snap.nagata.normals"],
+    "MeshingError": ["nagata_snap", "nagata_snap.meshing"],
 }
 
 

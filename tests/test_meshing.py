@@ -357,3 +357,28 @@ def test_retry_in_a_callers_gmsh_session(files, monkeypatch):
         assert gmsh.option.getNumber("Mesh.Algorithm") == 8
     finally:
         gmsh.finalize()
+
+
+def test_points_embedded_in_a_face_are_in_its_closure():
+    """gmsh puts a node on a point embedded in a face (a sphere's pole where the file had a
+    degenerate edge, in a CATIA V4 STEP): the face's elements use it, and its parameters on
+    the face map to the point (gmsh.model.getValue, the truth)."""
+    from nagata_snap.meshing import _boundary_table
+
+    with gmsh_session("embedded") as set_option:
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        p = gmsh.model.occ.addPoint(0.5, 0.37, 1.0)
+        gmsh.model.occ.synchronize()
+        top = next(t for _, t in gmsh.model.getEntities(2)
+                   if abs(gmsh.model.getBoundingBox(2, t)[2] - 1.0) < 1e-6
+                   and abs(gmsh.model.getBoundingBox(2, t)[5] - 1.0) < 1e-6)
+        gmsh.model.mesh.embed(0, [p], 2, top)
+        set_option("Mesh.MeshSizeMax", 0.5)
+        gmsh.model.mesh.generate(3)
+        table = _boundary_table(3)
+        node = gmsh.model.mesh.getNodes(0, p)[0][0] - 1
+        rows, cols = np.nonzero(table["keys"] == node)
+        assert len(rows) >= 3 and set(table["entity"][rows].tolist()) == {top}
+        uv = table["params"][rows, cols]  # (k, 2) on the face, one per element using the node
+        S = np.reshape(gmsh.model.getValue(2, top, uv.ravel()), (-1, 3))
+        assert np.abs(S - [0.5, 0.37, 1.0]).max() < 1e-12
