@@ -305,3 +305,19 @@ def test_slivers_mpi():
         assert int(n_parent) == len(prev.cells)
         assert int(n_child) == len(child_facets(mesh0, prev, mesh1, pc).parent), (dim, mode)
         assert int(ranks_with_cells) == 2  # really distributed
+
+
+def test_snapper_refines_a_mesh_with_flat_triangles():
+    """End to end: ``Snapper.refine`` of the 2D sliver mesh (boundary triangles of mean ratio
+    1e-6), two levels, raises nothing and its facet tags are DOLFINx's own transfer."""
+    mesh = sliver_mesh(COMM, 2)
+    mesh.topology.create_entities(1)
+    mesh.topology.create_connectivity(1, 2)
+    ext = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    ft = dolfinx.mesh.meshtags(mesh, 1, ext, np.full(len(ext), 1, np.int32))
+    snapper = Snapper(mesh, ft, NagataGeometry(mesh, ft, tags=[1]), tags=[1])
+    for _ in range(2):
+        mesh1, ft1, pc, pf, _ = snapper.refine(mesh)
+        assert _pairs(ft1) == _pairs(dolfinx.mesh.transfer_meshtag(ft, mesh1, pc, pf))
+        mesh, ft = mesh1, ft1
+    assert COMM.allreduce(len(ft.indices)) == 4 * COMM.allreduce(len(ext))
