@@ -270,11 +270,25 @@ def _diagonal() -> float:
     return math.dist(b[:3], b[3:])
 
 
+def _remove_free_faces() -> None:
+    """Remove the faces that bound no solid from a model with solids.
+
+    gmsh's import of a faces-only IGES file sews the faces into a solid but
+    can keep the unsewn originals beside it; meshed, their nodes belong to no
+    cell, which DOLFINx cannot distribute (it aborts the MPI job).  Such
+    faces are not part of the domain's boundary."""
+    free = [(2, t) for _, t in gmsh.model.getEntities(2) if len(gmsh.model.getAdjacencies(2, t)[0]) == 0]
+    if free:
+        gmsh.model.occ.remove(free, recursive=True)
+        gmsh.model.occ.synchronize()
+
+
 def import_cad(path: str | Path, unit: str = "MM") -> tuple[int, list[int]]:
     """Import a STEP, IGES or BREP file into the current gmsh model (OpenCASCADE) and synchronise.
 
-    Solids are kept (several are fragmented into one conformal model); a
-    faces-only file is sewn into a solid; a file of planar faces in z = 0 and
+    Solids are kept (several are fragmented into one conformal model; faces
+    beside them that bound no solid are removed); a faces-only file is sewn
+    into a solid; a file of planar faces in z = 0 and
     no solid is a 2D part.  STEP and IGES coordinates are converted to
     ``unit`` (a key of ``UNITS_MM``; see the module docstring), BREP
     coordinates are taken as stored.
@@ -303,6 +317,7 @@ def import_cad(path: str | Path, unit: str = "MM") -> tuple[int, list[int]]:
         occ.removeAllDuplicates()  # fragment: a face shared by two solids becomes one face
         occ.synchronize()
     if gmsh.model.getEntities(3):
+        _remove_free_faces()
         return 3, [t for _, t in gmsh.model.getEntities(3)]
     faces = [t for _, t in gmsh.model.getEntities(2)]
     if faces and _planar_in_xy(faces):
@@ -317,6 +332,7 @@ def import_cad(path: str | Path, unit: str = "MM") -> tuple[int, list[int]]:
         raise ValueError(f"{path}: no solid in the file and its {len(faces)} faces do not close "
                          f"into one (sewing tolerance {SEW_TOLERANCE:g} x the model's diagonal); "
                          "a 2D part must be planar faces in the plane z = 0")
+    _remove_free_faces()  # the sewn solid's faces can be copies of the file's
     return 3, vols
 
 
@@ -546,9 +562,28 @@ def _generate(tdim: int, order: int, path: Path, verbose: bool) -> None:
     n_top = sum(len(t) for t in gmsh.model.mesh.getElements(tdim)[1])
     if n_top == 0:
         raise MeshingError(f"gmsh generated no {tdim}D elements")
+    _check_facets_on_cells(tdim, path)
     if order > 1:
         gmsh.model.mesh.setOrder(order)
     gmsh.model.mesh.renumberNodes()  # contiguous tags 1..N, as model_to_mesh expects
+
+
+def _check_facets_on_cells(tdim: int, path: Path) -> None:
+    """Every node of a tagged boundary face must be a node of a cell; else DOLFINx cannot
+    distribute the facet tags (it aborts the MPI job), so the face is named here instead."""
+    cell_nodes = np.concatenate([np.asarray(n) for n in gmsh.model.mesh.getElements(tdim)[2]])
+    loose = []
+    for _, group in gmsh.model.getPhysicalGroups(tdim - 1):
+        for t in gmsh.model.getEntitiesForPhysicalGroup(tdim - 1, group):
+            nodes = np.concatenate([np.asarray(n) for n in gmsh.model.mesh.getElements(tdim - 1, t)[2]] or
+                                   [np.zeros(0, dtype=np.uint64)])
+            if not np.isin(nodes, cell_nodes).all():
+                loose.append(int(t))
+    if loose:
+        raise RuntimeError(f"{path}: gmsh {'surfaces' if tdim == 3 else 'curves'} "
+                           f"{', '.join(map(str, sorted(set(loose))))} are meshed but bound no "
+                           f"{'tetrahedron' if tdim == 3 else 'triangle'} (faces beside the solid, or "
+                           "overlapping faces); remove them from the file or mesh its solids only")
 
 
 # ----------------------------------------------------------------------

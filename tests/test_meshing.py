@@ -131,6 +131,24 @@ def test_mesh_step_part(files, name):
     assert _mesh_measure(cm) == pytest.approx(mass, rel=0.05)  # coarse straight cells
 
 
+CATIA_CONE = os.path.join(HERE, "..", "meshes", "corpus", "cone_catia_v5.igs")
+
+
+def test_faces_beside_the_sewn_solid_removed(monkeypatch):
+    """A faces-only IGES file from CATIA V5 (corpus): gmsh's sewing adds a solid with copies of two
+    of its faces and keeps the originals beside it; meshed, their nodes are in no tetrahedron and
+    DOLFINx aborted the whole MPI job.  They are removed; where such faces remained, the mesher
+    names them (a RuntimeError, not an abort)."""
+    import nagata_snap.meshing as meshing
+
+    cm = mesh_cad_file(CATIA_CONE, MPI.COMM_WORLD)
+    check_on_cad(cm, CATIA_CONE, tol=1e-6)
+    assert len(np.unique(cm.facet_entity)) == 3  # the cone's two halves and its base
+    monkeypatch.setattr(meshing, "_remove_free_faces", lambda: None)
+    with pytest.raises(RuntimeError, match=r"surfaces 1, 2 are meshed but bound no tetrahedron"):
+        mesh_cad_file(CATIA_CONE, MPI.COMM_WORLD)
+
+
 @pytest.mark.parametrize("name,fmt", [("plate_filleted", "brep"), ("revolved", "brep"),
                                       ("profile_2d", "brep"), ("assembly", "iges_brep"),
                                       ("lofted_blade", "iges_brep"), ("plate_holes_2d", "iges")])
