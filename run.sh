@@ -3,8 +3,12 @@
 #   bash run.sh demo         -- flow past a cylinder with snapping (main demo)
 #   bash run.sh test [ARGS]  -- the whole test suite (serial and mpiexec -n 2/3), or the pytest
 #                               ARGS given (files, -k ...)
-#   bash run.sh check        -- ruff, mypy, API reference build, README layout (fails on any problem)
-#   bash run.sh docs [DIR]   -- the API reference (HTML from the docstrings) into DIR (out/api)
+#   bash run.sh check        -- ruff, mypy, documentation site build (with the API reference),
+#                               README and package-map layout (fails on any problem)
+#   bash run.sh docs [DIR]   -- the documentation site (mkdocs, strict) with the pdoc API reference
+#                               in DIR/api, into DIR (out/site)
+#   bash run.sh results [ARGS] -- rerun the benchmarks named on the results pages and write their
+#                               output into docs/pages/results (slow; ARGS: docs/results.py --help)
 set -euo pipefail
 cd "$(dirname "$0")"
 VENV=${NAGATA_SNAP_VENV:-.venv}
@@ -28,12 +32,12 @@ find_python() {
   exit 1
 }
 
-if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import nagata_snap, dolfinx, gmsh, OCP, pytest, hypothesis, matplotlib, ruff, mypy, pdoc' 2>/dev/null; then
+if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import nagata_snap, dolfinx, gmsh, OCP, pytest, hypothesis, matplotlib, ruff, mypy, pdoc, mkdocs' 2>/dev/null; then
   PY=$(find_python)
   echo "setting up $VENV with $($PY --version)" >&2
   $PY -m venv "$VENV"
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q -e ".[test,demo,dev]"
+  "$VENV/bin/python" -m pip install -q -e ".[wheel,cad,test,demo,dev]"
 fi
 case "$VENV" in /*) ;; *) VENV="$PWD/$VENV" ;; esac
 export PATH="$VENV/bin:$PATH"
@@ -46,23 +50,26 @@ check() {
   "$VENV/bin/ruff" check nagata_snap tests benchmarks demos meshes docs || failed+=(ruff)
   echo "== mypy (files and options: [tool.mypy] in pyproject.toml)"
   "$VENV/bin/python" -m mypy || failed+=(mypy)
-  echo "== API reference (pdoc, docs/build_api.py)"
-  api=$(mktemp -d)
-  "$VENV/bin/python" docs/build_api.py "$api" || failed+=(pdoc)
-  rm -rf "$api"
-  echo "== README layout (docs/layout.py)"
+  echo "== documentation site and API reference (mkdocs --strict, pdoc: docs/hooks.py)"
+  site=$(mktemp -d)
+  "$VENV/bin/python" -m mkdocs build --strict --site-dir "$site" || failed+=(docs)
+  rm -rf "$site"
+  echo "== README and package map (docs/layout.py)"
   "$VENV/bin/python" docs/layout.py || failed+=(layout)
   if [ ${#failed[@]} -gt 0 ]; then
     echo "check FAILED: ${failed[*]}" >&2
     return 1
   fi
-  echo "check passed: ruff, mypy, API reference, README layout"
+  echo "check passed: ruff, mypy, documentation site, API reference, README and package map"
 }
 
 case "${1:-test}" in
   demo) shift; exec "$VENV/bin/python" demos/flow_past_cylinder.py "$@" ;;
   test) shift; exec "$VENV/bin/python" -m pytest -q "$@" ;;  # pyproject: testpaths = tests
   check) check ;;
-  docs) exec "$VENV/bin/python" docs/build_api.py "${2:-out/api}" ;;
-  *) echo "usage: bash run.sh {demo|test|check|docs} [args...]" >&2; exit 2 ;;
+  docs) site=${2:-out/site}
+        "$VENV/bin/python" -m mkdocs build --strict --site-dir "$site"
+        echo "documentation: $site/index.html (API reference: $site/api/nagata_snap.html)" ;;
+  results) shift; exec "$VENV/bin/python" docs/results.py "$@" ;;
+  *) echo "usage: bash run.sh {demo|test|check|docs|results} [args...]" >&2; exit 2 ;;
 esac

@@ -38,8 +38,10 @@ Newton iterations: the table prints them as ``transferred/zero``.
 Examples::
 
     python demos/flow_past_cylinder.py
+    python demos/flow_past_cylinder.py                 # plot: out/flow_cd.png
     python demos/flow_past_cylinder.py --levels 4 --theta 0.4 --json out.json --plot cd.png
     mpiexec -n 2 python demos/flow_past_cylinder.py --modes none nagata --out results/
+                                                       # results/flow_cd.png, results/*.bp (VTX)
 """
 
 from __future__ import annotations
@@ -464,10 +466,12 @@ def parse_args(argv=None):
                         help="write every level of every run (dofs, c_D, c_L, dp, relative "
                              "errors, seconds per stage solve/estimate/mark/refine/snap) as JSON")
     parser.add_argument("--plot", metavar="FILE.png",
-                        help="plot the relative c_D error against dofs (log-log, matplotlib) "
-                             "with the regenerated-mesh reference points of DESIGN.md")
+                        help="where to write the plot of the relative c_D error against dofs "
+                             "(log-log, matplotlib, with the regenerated-mesh reference points of "
+                             "DESIGN.md); default DIR/flow_cd.png with --out DIR, else out/flow_cd.png")
+    parser.add_argument("--no-plot", action="store_true", help="write no plot")
     parser.add_argument("--out", metavar="DIR",
-                        help="write each run's final mesh and facet tags (MODE_mesh.xdmf) and "
+                        help="write each run's last level: mesh and facet tags (MODE_mesh.xdmf) and "
                              "velocity, pressure and indicator (MODE_*.bp, VTX) for ParaView; "
                              "dfg_circle.igs is written there too")
     parser.add_argument("--quiet", action="store_true",
@@ -482,6 +486,10 @@ def parse_args(argv=None):
     if args.h_far <= 0.0:
         parser.error("--h-far must be > 0")
     args.modes = [m for m in MODES if m in args.modes]  # fixed order, no duplicates
+    if args.no_plot:
+        args.plot = None
+    elif args.plot is None:
+        args.plot = os.path.join(args.out or "out", "flow_cd.png")
     return args
 
 
@@ -559,8 +567,9 @@ def main(argv=None) -> dict:
             say(comm, f"wrote {args.json}", quiet=args.quiet)
         if args.plot:
             try:
+                os.makedirs(os.path.dirname(os.path.abspath(args.plot)), exist_ok=True)
                 write_plot(args.plot, runs, args.modes, args)
-                say(comm, f"wrote {args.plot}", quiet=args.quiet)
+                say(comm, f"wrote the c_D convergence plot to {os.path.abspath(args.plot)}")
             except ImportError as e:
                 print(f"plot not written: {e} (pip install matplotlib)", file=sys.stderr, flush=True)
     return result

@@ -289,3 +289,27 @@ def test_tag_lists_are_ranges():
     assert tag_list(range(1, 276)) == "1-275"
     assert tag_list([7, 1, 2, 3, 9, 10]) == "1-3, 7, 9, 10"
     assert tag_list([]) == "none"
+
+
+def test_distance_histogram_shows_a_few_hundred_vertices_off_the_cad():
+    """--plot: the count axes are logarithmic, so 300 vertices at 1e-6 of the size show as a
+    bar next to a million on the CAD (on a linear axis they would be 0.03 % of its height)."""
+    from types import SimpleNamespace
+
+    import matplotlib.pyplot as plt
+
+    from nagata_snap.cli import level_figure
+
+    size = 100.0
+    dist = np.concatenate([np.full(1_000_000, 1e-15 * size), np.full(300, 1e-6 * size)])
+    fig = level_figure([(1, SimpleNamespace(quality=None), dist)], SimpleNamespace(size=size))
+    try:
+        ax = fig.axes[2]
+        assert ax.get_yscale() == "log"
+        heights = sorted(p.get_height() for p in ax.patches if p.get_height() > 0)
+        assert heights == [300, 1_000_000]
+        low, high = ax.get_ylim()
+        # the small bar reaches past the middle of the axis (in decades): visible
+        assert (np.log10(300) - np.log10(low)) / (np.log10(high) - np.log10(low)) > 0.4
+    finally:
+        plt.close(fig)

@@ -14,10 +14,10 @@ SPHERE = os.path.join(ROOT, "demos", "sphere_poisson.py")
 TINY_FLOW = ["--levels", "3", "--n-circle", "16", "--h-far", "0.08", "--theta", "0.5"]
 
 
-def run(args, n=1, timeout=300):
+def run(args, n=1, timeout=300, cwd=ROOT):
     exe = [os.path.join(os.path.dirname(sys.executable), "mpiexec"), "-n", str(n)] if n > 1 else []
     r = subprocess.run([*exe, sys.executable, *map(str, args)], capture_output=True, text=True,
-                       timeout=timeout, cwd=ROOT)
+                       timeout=timeout, cwd=cwd)
     assert r.returncode == 0, r.stdout + r.stderr
     return r
 
@@ -105,10 +105,27 @@ def test_flow_outputs(flow):
             assert (out / f"{mode}_{name}.bp").is_dir()
 
 
+def test_flow_writes_its_plot_by_default_and_says_where(tmp_path):
+    """Without --plot the convergence plot goes to DIR/flow_cd.png (--out DIR), and the demo
+    prints that path; --out holds the last level's VTX (velocity, pressure, indicator)."""
+    out = tmp_path / "vtx"
+    r = run([FLOW, "--levels", "1", "--n-circle", "16", "--h-far", "0.08", "--modes", "none",
+             "--out", out])
+    png = out / "flow_cd.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"wrote the c_D convergence plot to {png}" in r.stdout
+    for name in ("velocity", "pressure", "eta"):
+        assert (out / f"none_{name}.bp").is_dir()
+    r = run([FLOW, "--levels", "0", "--n-circle", "16", "--h-far", "0.08", "--modes", "none",
+             "--no-plot"], cwd=tmp_path)
+    assert "convergence plot" not in r.stdout and not (tmp_path / "out").exists()
+
+
 @pytest.mark.mpi
 def test_flow_mpi_matches_serial(flow, tmp_path):
     _, serial, _ = flow
-    run([FLOW, *TINY_FLOW, "--modes", "none", "nagata", "--quiet", "--json", tmp_path / "p.json"], n=2)
+    run([FLOW, *TINY_FLOW, "--modes", "none", "nagata", "--quiet", "--no-plot", "--json", tmp_path / "p.json"],
+        n=2)
     par = json.loads((tmp_path / "p.json").read_text())
     assert par["config"]["mpi_size"] == 2
     for mode in ("none", "nagata"):
@@ -208,3 +225,60 @@ def test_cylinder_3d_demo_mpi(cyl3d, tmp_path):
         assert abs(b["projected"] - a["projected"]) <= 0.01 * a["projected"]
         assert b["cylinder_distance"] <= a["cylinder_distance"] + 1e-12
         assert b["unresolved"] == 0 and b["inverted_after"] == 0
+
+
+ELASTICITY = os.path.join(ROOT, "demos", "cad_elasticity.py")
+
+
+def _elasticity_table(stdout: str) -> dict[str, list[tuple[int, float, float]]]:
+    """``{run: [(dofs, estimator, peak), ...]}`` from the demo's per-level table."""
+    rows: dict[str, list[tuple[int, float, float]]] = {"snapped": [], "plain": []}
+    for line in stdout.splitlines():
+        f = line.split()
+        if len(f) >= 5 and f[0] in rows and f[1].isdigit():
+            assert int(f[1]) == len(rows[f[0]]), line  # levels 0, 1, ... in order
+            rows[f[0]].append((int(f[2]), float(f[3]), float(f[4])))
+    return rows
+
+
+@pytest.mark.mpi
+def test_cad_elasticity_quick_mpi(tmp_path):
+    """``--quick`` under mpiexec -n 2 on the built filleted plate: the outputs are written, every
+    level's figures are finite, and the snapped run's stress at the fillet ends closer than the
+    plain run's to the part's own, computed here on a gmsh mesh of the true geometry graded
+    around the point (``reference_peak``: no refinement, no snapping)."""
+    import cad_elasticity as ce
+    import mpi4py.MPI as MPI
+
+    out = tmp_path / "out"
+    r = run([ELASTICITY, "--quick", "--out", out], n=2, timeout=600)
+    rows = _elasticity_table(r.stdout)
+    levels = len(rows["snapped"])
+    assert levels >= 3 and len(rows["plain"]) == levels
+    for name in ("snapped", "plain"):
+        assert all(np.isfinite(v) and v > 0 for row in rows[name] for v in row), rows[name]
+        dofs = [row[0] for row in rows[name]]
+        assert dofs == sorted(dofs) and dofs[-1] > 2 * dofs[0]
+        eta = [row[1] for row in rows[name]]
+        assert eta[-1] < 0.5 * eta[0]  # the estimator falls under refinement
+    assert rows["snapped"][0] == rows["plain"][0]  # the same coarse mesh and solve
+    for name in ("snapped", "plain"):
+        for what in ("displacement", "von_mises", "mesh"):
+            assert (out / f"{name}_{what}.bp").is_dir()
+    assert (out / "cad_elasticity.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    lines = r.stdout.strip().splitlines()
+    snapped, plain = rows["snapped"][-1][2], rows["plain"][-1][2]
+
+    def rel_change(name):
+        return abs(rows[name][-1][2] - rows[name][-2][2]) / rows[name][-1][2]
+
+    key, value = lines[-1].split()
+    assert key == "cad_elasticity_peak_rel_change"
+    assert float(value) == pytest.approx(rel_change("snapped"), rel=1e-4, abs=1e-9)
+    key, value = lines[-2].split()
+    assert key == "plain_peak_rel_change"
+    assert float(value) == pytest.approx(rel_change("plain"), rel=1e-4, abs=1e-9)
+    step = ce.built_part(tmp_path, MPI.COMM_SELF)
+    ref, _ = ce.reference_peak(step, None, ce.SIGMA0, np.asarray(ce.FILLET_POINT), ce.FILLET_RADIUS,
+                               *ce.REFERENCE_SIZES[1], comm=MPI.COMM_SELF)
+    assert abs(snapped - ref) < abs(plain - ref), (snapped, plain, ref)

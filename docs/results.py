@@ -1,0 +1,102 @@
+"""Rerun the commands named on the results pages and write their output into the pages.
+
+    python docs/results.py                 # every command (slow: well over an hour on 2 cores)
+    python docs/results.py --only snap_loop --only transfer.py
+    python docs/results.py --list          # the commands, by page
+    bash run.sh results [ARGS]             # the same
+
+Each results page (``docs/pages/results/*.md``) ends with blocks of the form::
+
+    <!-- results: python benchmarks/snap_loop.py -->
+    ...
+    <!-- /results -->
+
+For each block whose command is selected, the command is run from the repository root
+(``PYTHONPATH`` = the repository, ``OMP_NUM_THREADS=1``) and everything between the two
+markers is replaced by its standard output, with the date, the wall time and the exit
+status; a command that fails or times out is recorded as such (its last lines of standard
+error included), and the page is written all the same.  Pages are rewritten block by block,
+as each command finishes, so an interrupted run keeps what it measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import re
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PAGES = ROOT / "docs" / "pages" / "results"
+BLOCK = re.compile(r"(<!-- results: (?P<cmd>.+?) -->\n)(?P<body>.*?)(<!-- /results -->)", re.S)
+
+
+def blocks(page: Path) -> list[str]:
+    """The commands of the result blocks of ``page``, in order."""
+    return [m["cmd"] for m in BLOCK.finditer(page.read_text())]
+
+
+def run(cmd: str, timeout: float) -> str:
+    """Run ``cmd`` from the repository root; the Markdown that replaces its block's body."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    argv = shlex.split(cmd)
+    if argv[0] == "python":
+        argv[0] = sys.executable
+    t0 = time.perf_counter()
+    try:
+        r = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+        out, status = r.stdout, f"exit status {r.returncode}"
+        if r.returncode != 0:
+            out += "\n[standard error, last lines]\n" + "\n".join(r.stderr.splitlines()[-20:])
+    except subprocess.TimeoutExpired as e:
+        partial = e.stdout.decode() if isinstance(e.stdout, bytes) else (e.stdout or "")
+        out, status = partial, f"stopped after the time-out of {timeout:.0f} s"
+    seconds = time.perf_counter() - t0
+    when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    fence = "````" if "```" in out else "```"
+    return (f"{fence}text\n$ {cmd}\n{out.rstrip()}\n{fence}\n\n"
+            f"*Run {when}, {seconds:.0f} s wall, {status}.*\n")
+
+
+def update(page: Path, cmd: str, body: str) -> None:
+    """Replace the body of the block of ``cmd`` on ``page``."""
+    text = page.read_text()
+
+    def replace(m: re.Match[str]) -> str:
+        return m[1] + body + m[4] if m["cmd"] == cmd else m[0]
+
+    page.write_text(BLOCK.sub(replace, text))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n", 1)[0])
+    parser.add_argument("--only", action="append", default=[], metavar="TEXT",
+                        help="run only the commands containing TEXT (repeatable)")
+    parser.add_argument("--list", action="store_true", help="list the commands by page and exit")
+    parser.add_argument("--timeout", type=float, default=7200.0, help="seconds per command")
+    args = parser.parse_args(argv)
+    pages = sorted(PAGES.glob("*.md"))
+    todo = [(page, cmd) for page in pages for cmd in blocks(page)
+            if not args.only or any(t in cmd for t in args.only)]
+    if args.list:
+        for page, cmd in todo:
+            print(f"{page.relative_to(ROOT)}: {cmd}")
+        return 0
+    if not todo:
+        print("no results block matches", file=sys.stderr)
+        return 1
+    for page, cmd in todo:
+        print(f"{page.relative_to(ROOT)}: {cmd} ...", flush=True)
+        body = run(cmd, args.timeout)
+        update(page, cmd, body)
+        print(f"  {body.rstrip().splitlines()[-1]}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
