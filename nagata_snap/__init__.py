@@ -46,6 +46,7 @@ _check_dolfinx()
 
 # after the check, so that a missing or wrong DOLFINx gives its message, not an import error deep inside
 from nagata_snap.cad import CadError, CadGeometry  # noqa: E402
+from nagata_snap.errors import MeshingError  # noqa: E402
 from nagata_snap.fitted import FittedGeometry  # noqa: E402
 from nagata_snap.mesh.lineage import LineageError  # noqa: E402
 from nagata_snap.mesh.records import Records  # noqa: E402
@@ -64,6 +65,7 @@ __all__ = [
     "Records",
     "InvertedCellsError",
     "LineageError",
+    "MeshingError",
     "NonManifoldError",
     "NormalsError",
 ]

@@ -27,10 +27,17 @@ face.  ``--plot FILE.png`` draws per level the histograms of the changed
 cells' quality (minimum angle, mean ratio) and of the boundary vertices'
 distance from the CAD.
 
+Where gmsh fails to mesh a CAD input with the options given (e.g. "Invalid
+boundary mesh (overlapping facets)"), the command retries with half the
+size, curvature sizing toggled and other gmsh algorithms
+(:data:`nagata_snap.meshing.RETRIES`), printing each retry; if all fail,
+the error names gmsh's failures and the flags to try next.  gmsh's and
+OpenCASCADE's own console output is kept off the terminal.
+
 Exit status: 0 on success, 2 for unusable input (missing or unreadable
-files, unknown tags, bad options), 1 if snapping itself fails (e.g. cells
-would invert); the reason is printed as ``nagata-snap: error: ...`` on
-standard error.
+files, unknown tags, bad options, a part gmsh cannot mesh with them), 1 if
+snapping itself fails (e.g. cells would invert); the reason is printed as
+``nagata-snap: error: ...`` on standard error.
 """
 
 from __future__ import annotations
@@ -443,21 +450,33 @@ def _check_options(args) -> bool:
     return cad_input
 
 
+def _next_meshing_step(args: argparse.Namespace, sizes: Sequence[float]) -> str:
+    """What to try when gmsh could not mesh the CAD input with any retry: the flags."""
+    smaller = f"--size {min(sizes) / 2:.3g}" if sizes else "a smaller --size"
+    curvature = "--curvature 0" if args.curvature > 0 else "--curvature 12"
+    return (f"next, try {smaller} (or smaller), or {curvature}; or mesh the part yourself (gmsh) and "
+            f"snap that mesh onto the file: {PROG} part.msh --tags ... --cad {args.input}")
+
+
 def _cad_input(args: argparse.Namespace, comm: MPI.Comm, say: Callable[..., None]) -> _Input:
-    """Mesh the CAD input with gmsh; its geometry, facets matched to the faces."""
+    """Mesh the CAD input with gmsh (with its retries); its geometry, facets matched to the faces."""
     from nagata_snap.cad import CadError, mesh_cad
+    from nagata_snap.errors import MeshingError
 
     t0 = time.perf_counter()
     try:
         cm, geometry = mesh_cad(args.input, comm, unit=(args.unit or "MM").upper(), size=args.size,
-                                curvature=args.curvature)
-    except (CadError, ValueError, OSError) as e:
-        raise UserError(f"{args.input}: {e}") from None
+                                curvature=args.curvature, on_retry=lambda line: say(f"{PROG}: {line}"))
+    except MeshingError as e:
+        raise UserError(f"{e}; {_next_meshing_step(args, e.sizes)}") from None
+    except (CadError, ValueError, OSError) as e:  # the message names the file, or is given it
+        raise UserError(str(e) if str(e).startswith(str(args.input)) else f"{args.input}: {e}") from None
     except RuntimeError as e:
         raise SnapFailure(f"meshing {args.input}: {e}") from None
     tdim = cm.mesh.topology.dim
     assert geometry.model is not None  # mesh_cad reads the file: the geometry has its model
-    say(f"{PROG}: meshed {args.input} with gmsh (size {cm.size:.4g} {cm.unit or ''}): "
+    retried = f", {cm.meshed_with}" if cm.meshed_with else ""
+    say(f"{PROG}: meshed {args.input} with gmsh (size {cm.size:.4g} {cm.unit or ''}{retried}): "
         f"{cm.mesh.topology.index_map(tdim).size_global} cells ({tdim}D); CAD "
         f"{geometry.model.summary()} ({time.perf_counter() - t0:.2f} s)")
     return cm.mesh, cm.facet_tags, geometry, geometry.tags

@@ -60,9 +60,12 @@ here is restored.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import math
+import os
+import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -73,10 +76,12 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx.io import gmsh as _dxgmsh
 
+from nagata_snap.errors import MeshingError
 from nagata_snap.mesh.boundary import BoundaryFacets, boundary_facets
 from nagata_snap.mesh.parallel import collective
 
-__all__ = ["CadMesh", "EntityInfo", "mesh_cad_file", "import_cad", "gmsh_session", "CAD_SUFFIXES"]
+__all__ = ["CadMesh", "EntityInfo", "MeshAttempt", "MeshingError", "RETRIES", "mesh_cad_file", "import_cad",
+           "gmsh_session", "CAD_SUFFIXES"]
 
 #: file suffixes :func:`mesh_cad_file` reads, and gmsh's name of each format
 CAD_SUFFIXES = {".step": "step", ".stp": "step", ".igs": "iges", ".iges": "iges",
@@ -156,6 +161,8 @@ class CadMesh:
         path: the file.
         times: seconds per stage on the gmsh process (``import``, ``mesh``,
             ``table``) and on every process (``distribute``, ``match``).
+        meshed_with: the retry (:data:`RETRIES`) that meshed the model, in
+            words; ``""``: the options asked for.
     """
 
     mesh: dolfinx.mesh.Mesh
@@ -172,6 +179,7 @@ class CadMesh:
     model_size: float
     path: Path
     times: dict[str, float] = field(default_factory=dict)
+    meshed_with: str = ""
 
 
 # ----------------------------------------------------------------------
@@ -223,6 +231,38 @@ def gmsh_session(model_name: str, options: dict[str, float | str] | None = None
             if previous:
                 with contextlib.suppress(Exception):
                     gmsh.model.setCurrent(previous)
+
+
+@contextlib.contextmanager
+def console_off(off: bool = True) -> Iterator[None]:
+    """File descriptors 1 and 2 to ``/dev/null`` while inside (with ``off``).
+
+    gmsh's own log obeys ``General.Terminal``, but the OpenCASCADE inside gmsh
+    prints to the process's standard output directly (the IGES reader's
+    "Total number of loaded entities", coloured), so only the descriptors
+    can keep it off the user's terminal.  Python's and C's buffers are
+    flushed on the way in and out, so nothing written before or inside
+    comes out elsewhere.
+    """
+    if not off:
+        yield
+        return
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    libc.fflush(None)
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        libc.fflush(None)
+        for fd, old in zip((1, 2), saved, strict=True):
+            os.dup2(old, fd)
+            os.close(old)
+        os.close(null)
 
 
 def _diagonal() -> float:
@@ -306,7 +346,8 @@ def _read_shapes(path: Path, unit: str) -> None:
         for target in ("MM", ""):  # "": the static was never set in this process, so it is MM
             gmsh.option.setString("Geometry.OCCTargetUnit", target if fmt != "brep" else "")
             try:
-                gmsh.model.occ.importShapes(str(path), highestDimOnly=True, format=fmt)
+                with console_off():  # OpenCASCADE's readers print past General.Terminal
+                    gmsh.model.occ.importShapes(str(path), highestDimOnly=True, format=fmt)
                 break
             except Exception as exc:
                 if target == "MM" and "target unit" in str(exc):
@@ -389,6 +430,53 @@ def _mesh_options(size: float, min_size: float, curvature: float, order: int, ve
     }
 
 
+@dataclass(frozen=True)
+class MeshAttempt:
+    """A change to the meshing options asked for, tried when gmsh fails with them.
+
+    Attributes:
+        size_scale: factor on the element size (and on the smallest size).
+        toggle_curvature: curvature sizing off if it was on, on
+            (:data:`RETRY_CURVATURE` elements per 2 pi) if it was off.
+        options: gmsh options set on top of the others (another algorithm).
+        tdim: the model dimension it applies to (None: both).
+    """
+
+    size_scale: float = 1.0
+    toggle_curvature: bool = False
+    options: dict[str, float] = field(default_factory=dict)
+    tdim: int | None = None
+
+    def curvature(self, asked: float) -> float:
+        """Elements per 2 pi of curvature for this attempt, given the ``asked`` value."""
+        return (0.0 if asked > 0 else RETRY_CURVATURE) if self.toggle_curvature else asked
+
+    def describe(self, asked: float) -> str:
+        """The change in words (``asked``: the curvature sizing asked for)."""
+        parts = [] if self.size_scale == 1.0 else [f"{self.size_scale:g} x the element size"]
+        if self.toggle_curvature:
+            parts.append("curvature sizing off" if asked > 0 else
+                         f"curvature sizing on ({RETRY_CURVATURE:g} elements per 2 pi)")
+        parts += [f"{_ALGORITHMS.get((k, v), k)} ({k} = {v:g})" for k, v in self.options.items()]
+        return ", ".join(parts) or "the options asked for"
+
+
+#: elements per 2 pi of curvature where a retry switches curvature sizing on
+RETRY_CURVATURE = 12.0
+#: the names of the gmsh algorithms the retries use
+_ALGORITHMS: dict[tuple[str, float], str] = {("Mesh.Algorithm", 1): "gmsh's MeshAdapt surface algorithm",
+               ("Mesh.Algorithm3D", 10): "gmsh's HXT volume algorithm"}
+#: what :func:`mesh_cad_file` tries, in this order, when gmsh fails to mesh the model with
+#: the options asked for (e.g. "Invalid boundary mesh (overlapping facets)" at a coarse
+#: size): each attempt changes one thing from the options asked for
+RETRIES = (
+    MeshAttempt(size_scale=0.5),
+    MeshAttempt(toggle_curvature=True),
+    MeshAttempt(options={"Mesh.Algorithm": 1}),
+    MeshAttempt(options={"Mesh.Algorithm3D": 10}, tdim=3),
+)
+
+
 def _physical_groups(tdim: int, tops: list[int], per_face: bool) -> None:
     """One group per top entity (tag = entity tag); one per boundary face, or one (tag 1) for all."""
     for t in tops:
@@ -401,6 +489,64 @@ def _physical_groups(tdim: int, tops: list[int], per_face: bool) -> None:
         gmsh.model.addPhysicalGroup(tdim - 1, sorted({t for _, t in outer}), 1, name="boundary")
 
 
+def _mesh_with_retries(path: Path, unit: str, tdim: int, tops: list[int], per_face_tags: bool, h: float,
+                       h_min: float, curvature: float, order: int, verbose: bool,
+                       retries: Sequence[MeshAttempt], on_retry: Callable[[str], None] | None,
+                       set_option, times: dict[str, float], own_gmsh: bool) -> tuple[dict, float, str]:
+    """Mesh the imported model with the options asked for, then with each of ``retries`` until
+    one gives a mesh (and its boundary table).
+
+    A failed attempt can leave gmsh unusable (a retry, even of the file
+    imported afresh into a new model, then generates no 3D elements), so every
+    retry restarts gmsh where this call initialised it (``own_gmsh``; else it
+    only imports the file into a new model) and imports the file again.
+
+    Returns:
+        ``(table, size, what)``: the boundary table, the element size used,
+        and the retry that worked in words (``""``: the options asked for).
+
+    Raises:
+        MeshingError: every attempt failed; names gmsh's failure of each.
+    """
+    attempts = [MeshAttempt()] + [r for r in retries if r.tdim in (None, tdim)]
+    failures: list[str] = []
+    sizes: list[float] = []
+    for k, a in enumerate(attempts):
+        if k:
+            name = gmsh.model.getCurrent()
+            if own_gmsh:
+                gmsh.finalize()
+                gmsh.initialize(argv=[], readConfigFiles=False, interruptible=False)
+                gmsh.option.setNumber("General.Terminal", 1 if verbose else 0)
+            else:
+                gmsh.model.remove()
+            gmsh.model.add(name)
+            import_cad(path, unit)
+        _physical_groups(tdim, tops, per_face_tags)
+        size = h * a.size_scale
+        options = {**_mesh_options(size, h_min * a.size_scale, a.curvature(curvature), order, verbose),
+                   **a.options}
+        for key, value in options.items():
+            set_option(key, value)
+        try:
+            t0 = time.perf_counter()
+            with console_off(not verbose):
+                _generate(tdim, order, path, verbose)
+            times["mesh"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            table = _boundary_table(tdim)
+            times["table"] = time.perf_counter() - t0
+            return table, size, "" if k == 0 else a.describe(curvature)
+        except MeshingError as e:
+            sizes.append(size)
+            failures.append(f"{a.describe(curvature)} (size {size:.4g}): {e}")
+            if on_retry is not None and k + 1 < len(attempts):
+                on_retry(f"gmsh failed to mesh {path.name} with {failures[-1]}; retrying with "
+                         f"{attempts[k + 1].describe(curvature)}")
+    raise MeshingError(f"{path}: gmsh could not mesh the model with " + "; nor with ".join(failures),
+                       tuple(sizes))
+
+
 def _generate(tdim: int, order: int, path: Path, verbose: bool) -> None:
     """Mesh dimension by dimension (progress printed with ``verbose``)."""
     for d in range(1, tdim + 1):
@@ -408,14 +554,14 @@ def _generate(tdim: int, order: int, path: Path, verbose: bool) -> None:
         try:
             gmsh.model.mesh.generate(d)
         except Exception as exc:
-            raise RuntimeError(f"{path}: gmsh failed to mesh dimension {d}: {exc}") from None
+            raise MeshingError(f"gmsh failed to mesh dimension {d}: {exc}") from None
         if verbose:
             n = sum(len(t) for t in gmsh.model.mesh.getElements(d)[1])
             print(f"nagata_snap.meshing: {path.name}: {d}D mesh, {n} elements, "
                   f"{time.perf_counter() - t0:.2f} s", flush=True)
     n_top = sum(len(t) for t in gmsh.model.mesh.getElements(tdim)[1])
     if n_top == 0:
-        raise RuntimeError(f"{path}: gmsh generated no {tdim}D elements")
+        raise MeshingError(f"gmsh generated no {tdim}D elements")
     _check_facets_on_cells(tdim, path)
     if order > 1:
         gmsh.model.mesh.setOrder(order)
@@ -459,7 +605,8 @@ def _classified_nodes(tdim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _candidates(tdim: int, ent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Parametric coordinates on boundary entity ``ent`` of the nodes in its closure.
+    """Parametric coordinates on boundary entity ``ent`` of the nodes in its closure (its
+    boundary and the entities embedded in it).
 
     Returns ``(nodes, params, inner, free)``: sorted input indices ``(n,)``,
     ``(n, pdim)`` parameters (nodes on the face's curves and points
@@ -472,8 +619,12 @@ def _candidates(tdim: int, ent: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     param_parts = [np.reshape(uv, (-1, fdim))]
     node_parts, x_parts = [tags.astype(np.int64) - 1], [np.reshape(x, (-1, 3))]
     below = {(d, t) for d, t in gmsh.model.getBoundary([(fdim, ent)], combined=False, oriented=False)}
+    # and the points / curves embedded in it (e.g. a sphere's pole where OpenCASCADE's
+    # degenerate edge was): gmsh's elements of the face use their nodes too
+    below |= {(int(d), int(t)) for d, t in gmsh.model.mesh.getEmbedded(fdim, ent)}
     if fdim == 2:
-        below |= set(gmsh.model.getBoundary(list(below), combined=False, oriented=False))
+        curves = [e for e in below if e[0] == 1]
+        below |= set(gmsh.model.getBoundary(curves, combined=False, oriented=False)) if curves else set()
     for d, t in sorted(below):  # the face's curves and points: a few each
         tags, x, tp = gmsh.model.mesh.getNodes(d, t, includeBoundary=False, returnParametricCoord=True)
         if len(tags):
@@ -564,7 +715,8 @@ def _element_params(tdim: int, ent: int, enodes: np.ndarray) -> np.ndarray:
     nodes, p, inner, free = _candidates(tdim, ent)
     pos = np.searchsorted(nodes, enodes)
     if len(nodes) == 0 or np.any(nodes[np.minimum(pos, len(nodes) - 1)] != enodes):
-        raise RuntimeError(f"gmsh entity ({fdim}, {ent}): element nodes missing from its closure")
+        raise MeshingError(f"gmsh's elements of entity ({fdim}, {ent}) use nodes off its boundary and "
+                           "embedded entities")
     c, fr = p[pos], free[pos]  # (E, nfv, pdim)
     lo, hi, closed = _closed_directions(fdim, ent)
     if closed.any():
@@ -690,6 +842,8 @@ def mesh_cad_file(
     rank: int = 0,
     partitioner: Callable | None = None,
     verbose: bool = False,
+    retries: Sequence[MeshAttempt] = RETRIES,
+    on_retry: Callable[[str], None] | None = None,
 ) -> CadMesh:
     """Mesh a STEP, IGES or BREP file with gmsh (OpenCASCADE) into a DOLFINx mesh.
 
@@ -717,6 +871,11 @@ def mesh_cad_file(
         partitioner: passed to :func:`dolfinx.io.gmsh.model_to_mesh` (None:
             DOLFINx's default, no ghost cells).
         verbose: print gmsh's log and the time per meshing stage (on ``rank``).
+        retries: what to try, in order, if gmsh fails to mesh the model with
+            the options asked for (:data:`RETRIES`; ``()``: nothing); the first
+            that works is used (:attr:`CadMesh.meshed_with` says which).
+        on_retry: called on ``rank`` with a line saying what failed and what
+            is tried next, before each retry (None: silent).
 
     Returns:
         :class:`CadMesh` (per-facet arrays over this process's owned exterior facets).
@@ -725,7 +884,9 @@ def mesh_cad_file(
         FileNotFoundError: no such file.
         ValueError: unknown suffix, unreadable or empty file, no solid (3D) and
             no planar face in z = 0 (2D), bad ``size`` / ``order``.
-        RuntimeError: gmsh failed to mesh the model.
+        MeshingError: gmsh failed to mesh the model, with the options asked
+            for and with every retry (a ``RuntimeError``; the message names
+            gmsh's failure of each attempt).
         All on every process of ``comm``.
     """
     path = Path(path)
@@ -735,11 +896,13 @@ def mesh_cad_file(
         if value is not None and not (value > 0 and math.isfinite(value)):
             raise ValueError(f"{name} must be a positive length, got {value}")
     root = comm.rank == rank
+    own_gmsh = root and not gmsh.isInitialized()  # a retry may restart it
     session = gmsh_session(f"cad:{path.name}") if root else contextlib.nullcontext()
     times: dict[str, float] = {}
     with session as set_option:
         table = collective(comm, _mesh_on_root if root else lambda *a: None, path, size, size_factor,
-                           min_size, curvature, per_face_tags, order, unit, verbose, times, set_option)
+                           min_size, curvature, per_face_tags, order, unit, verbose, times, set_option,
+                           retries, on_retry, own_gmsh)
         table = comm.bcast(table, root=rank)
         t0 = time.perf_counter()
         data = _dxgmsh.model_to_mesh(gmsh.model if root else None, comm, rank, gdim=table["tdim"],
@@ -752,11 +915,12 @@ def mesh_cad_file(
     # _physical_groups always adds physical groups of the cells and of the facets
     assert data.facet_tags is not None and data.cell_tags is not None
     return CadMesh(data.mesh, data.facet_tags, data.cell_tags, facets, entity, params, ndim, ntag,
-                   table["entities"], table["unit"], table["size"], table["model_size"], path, times)
+                   table["entities"], table["unit"], table["size"], table["model_size"], path, times,
+                   table["meshed_with"])
 
 
 def _mesh_on_root(path, size, size_factor, min_size, curvature, per_face_tags, order, unit, verbose, times,
-                  set_option) -> dict:
+                  set_option, retries, on_retry, own_gmsh) -> dict:
     """Import, mesh and tabulate on the gmsh process (options through ``set_option``)."""
     set_option("General.Terminal", 1 if verbose else 0)
     t0 = time.perf_counter()
@@ -765,15 +929,8 @@ def _mesh_on_root(path, size, size_factor, min_size, curvature, per_face_tags, o
     model_size = _diagonal()
     h = float(size) if size is not None else size_factor * model_size
     h_min = h / 50.0 if min_size is None else float(min_size)
-    for key, value in _mesh_options(h, h_min, curvature, order, verbose).items():
-        set_option(key, value)
-    _physical_groups(tdim, tops, per_face_tags)
-    t0 = time.perf_counter()
-    _generate(tdim, order, path, verbose)
-    times["mesh"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    table = _boundary_table(tdim)
-    times["table"] = time.perf_counter() - t0
-    table.update(tdim=tdim, size=h, model_size=model_size,
+    table, h, meshed_with = _mesh_with_retries(path, unit, tdim, tops, per_face_tags, h, h_min, curvature,
+                                               order, verbose, retries, on_retry, set_option, times, own_gmsh)
+    table.update(tdim=tdim, size=h, model_size=model_size, meshed_with=meshed_with,
                  unit=None if CAD_SUFFIXES[path.suffix.lower()] == "brep" else unit.upper())
     return table

@@ -180,6 +180,77 @@ def test_cad_input_to_xdmf_with_plot(step, tmp_path):
     assert out.exists() and png.exists() and png.stat().st_size > 10_000
     mesh, ft = read_xdmf(out)
     assert mesh.topology.index_map(3).size_global > 64 * 300 and len(np.unique(ft.values)) == 18
+    assert_only_our_lines(r.stdout + r.stderr)
+
+
+def assert_only_our_lines(text):
+    """Every line printed is the command's own: none of gmsh's or OpenCASCADE's console output."""
+    lines = text.splitlines()
+    assert lines and all(line.startswith("nagata-snap: ") for line in lines), text
+    for foreign in ("Info", "Warning :", "*****", "Error :"):
+        assert foreign not in text, text
+
+
+def test_iges_input_prints_only_its_lines(tmp_path):
+    """OpenCASCADE's IGES reader prints entity counts unless silenced; gmsh logs its import."""
+    import parts
+
+    iges = parts.write_part("box_fillet_chamfer", tmp_path, ("iges",))["iges"]
+    r = cli(iges, "--size", 20, "--curvature", 4, "--levels", 1)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert_only_our_lines(r.stdout + r.stderr)
+
+
+OVERLAP = "Invalid boundary mesh (overlapping facets) on surface 3 surface 7"
+
+
+def _fail_3d(monkeypatch, fail):
+    """gmsh's 3D meshing raises its overlapping-facets error on the calls ``fail(k)`` picks."""
+    import gmsh
+
+    real, calls = gmsh.model.mesh.generate, [0]
+
+    def generate(dim=3):
+        if dim == 3:
+            calls[0] += 1
+            if fail(calls[0] - 1):
+                raise Exception(OVERLAP)
+        return real(dim)
+
+    monkeypatch.setattr(gmsh.model.mesh, "generate", generate)
+
+
+def test_cad_input_retries_when_gmsh_fails(step, monkeypatch, capfd):
+    """In this process, gmsh failing once: the command says what failed and what it retries,
+    snaps the retried mesh, and nothing but its own lines reaches the terminal (file
+    descriptors 1 and 2, so also the reader process and gmsh's C++ output)."""
+    from nagata_snap import cli as cli_module
+
+    _fail_3d(monkeypatch, lambda k: k == 0)
+    rc = cli_module.main([str(step), "--size", "20", "--curvature", "4", "--levels", "1"])
+    out, err = capfd.readouterr()
+    assert rc == 0, out + err
+    retry = [line for line in out.splitlines() if "retrying" in line]
+    assert len(retry) == 1 and OVERLAP in retry[0] and "with the options asked for (size 20)" in retry[0]
+    assert retry[0].endswith("retrying with 0.5 x the element size")
+    assert "(size 10 MM, 0.5 x the element size)" in out
+    assert "0 boundary vertices left short" in out
+    assert_only_our_lines(out + err)
+
+
+def test_cad_input_every_retry_fails(step, monkeypatch, capfd):
+    """gmsh failing every time: exit 2, an error naming gmsh's failure and the flags to try."""
+    from nagata_snap import cli as cli_module
+
+    _fail_3d(monkeypatch, lambda k: True)
+    rc = cli_module.main([str(step), "--size", "20", "--curvature", "4", "--levels", "1"])
+    out, err = capfd.readouterr()
+    assert rc == 2
+    assert err.startswith("nagata-snap: error: ") and OVERLAP in err and "gmsh could not mesh" in err
+    assert "next, try --size 5 (or smaller), or --curvature 0" in err
+    assert f"--cad {step}" in err
+    assert out.count("retrying with") == 4
+    assert_only_our_lines(out + err)
 
 
 def test_cad_input_errors(step, tmp_path):

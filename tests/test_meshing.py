@@ -278,3 +278,125 @@ def test_verbose_progress(files, capfd):
         assert f"nagata_snap.meshing: thin_wall.step: {d}D mesh," in out
     mesh_cad_file(files["thin_wall"]["step"], MPI.COMM_SELF)
     assert "nagata_snap.meshing" not in capfd.readouterr().out
+
+
+# ----------------------------------------------------------------------
+# retries when gmsh fails
+# ----------------------------------------------------------------------
+OVERLAP = "Invalid boundary mesh (overlapping facets) on surface 3 surface 7"
+
+
+def _failing_generate(monkeypatch, fail):
+    """Make ``gmsh.model.mesh.generate(d)`` raise gmsh's error where ``fail(call, d)`` says so
+    (calls counted from 0 over the 3D steps), else mesh as gmsh does."""
+    real = gmsh.model.mesh.generate
+    calls = {"3d": 0}
+
+    def generate(dim=3):
+        if dim == 3:
+            k = calls["3d"]
+            calls["3d"] += 1
+            if fail(k):
+                raise Exception(OVERLAP)
+        return real(dim)
+
+    monkeypatch.setattr(gmsh.model.mesh, "generate", generate)
+    return calls
+
+
+def test_retry_after_gmsh_failure(files, monkeypatch):
+    """The first attempt fails as gmsh does on some parts at the default size: the retry with
+    half the size meshes the part, says what it retries, and gives the mesh that size gives."""
+    path = files["box_fillet_chamfer"]["step"]
+    direct = mesh_cad_file(path, MPI.COMM_SELF, size_factor=0.05)  # what the retry must give
+    lines = []
+    calls = _failing_generate(monkeypatch, lambda k: k == 0)
+    cm = mesh_cad_file(path, MPI.COMM_SELF, on_retry=lines.append)
+    assert calls["3d"] == 2
+    assert len(lines) == 1 and OVERLAP in lines[0] and "the options asked for" in lines[0]
+    assert "retrying with 0.5 x the element size" in lines[0]
+    assert cm.meshed_with == "0.5 x the element size"
+    assert cm.size == pytest.approx(direct.size, rel=1e-12)
+    assert cm.mesh.topology.index_map(3).size_global == direct.mesh.topology.index_map(3).size_global
+    np.testing.assert_allclose(_mesh_measure(cm), _mesh_measure(direct), rtol=1e-12)
+    check_on_cad(cm, path)
+
+
+def test_each_retry_changes_one_option(files, monkeypatch):
+    """All but the last retry fail: each line names the attempt that failed and the next; the
+    last one (HXT volume algorithm, the size asked for) meshes the part."""
+    path = files["box_fillet_chamfer"]["step"]
+    lines = []
+    _failing_generate(monkeypatch, lambda k: k < 4)
+    cm = mesh_cad_file(path, MPI.COMM_SELF, curvature=12, on_retry=lines.append)
+    assert [ln.split("; retrying with ")[1] for ln in lines] == [
+        "0.5 x the element size", "curvature sizing off",
+        "gmsh's MeshAdapt surface algorithm (Mesh.Algorithm = 1)",
+        "gmsh's HXT volume algorithm (Mesh.Algorithm3D = 10)"]
+    assert cm.meshed_with == "gmsh's HXT volume algorithm (Mesh.Algorithm3D = 10)"
+    assert cm.size == pytest.approx(0.1 * cm.model_size, rel=1e-12)
+    check_on_cad(cm, path)
+    assert not gmsh.isInitialized()  # the session is closed after the retries
+
+
+def test_every_retry_fails(files, monkeypatch):
+    """gmsh fails every time: the error names gmsh's failure for every attempt and its size."""
+    from nagata_snap.errors import MeshingError
+
+    path = files["box_fillet_chamfer"]["step"]
+    _failing_generate(monkeypatch, lambda k: True)
+    with pytest.raises(MeshingError) as e:
+        mesh_cad_file(path, MPI.COMM_SELF, size=20.0)
+    msg = str(e.value)
+    assert msg.count(OVERLAP) == 5 and "with the options asked for (size 20)" in msg
+    assert "nor with 0.5 x the element size (size 10)" in msg and "curvature sizing off" in msg
+    assert e.value.sizes == (20.0, 10.0, 20.0, 20.0, 20.0)
+    assert isinstance(e.value, RuntimeError)  # callers catching gmsh's RuntimeError still do
+    with pytest.raises(MeshingError):  # no retries asked for: the first failure is final
+        mesh_cad_file(path, MPI.COMM_SELF, size=20.0, retries=())
+
+
+def test_retry_in_a_callers_gmsh_session(files, monkeypatch):
+    """In a gmsh session the caller opened, a retry re-imports into a new model instead of
+    restarting gmsh: the caller's model and options are left as they were."""
+    path = files["box_fillet_chamfer"]["step"]
+    gmsh.initialize(argv=[], readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("mine")
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.Algorithm", 8)
+        _failing_generate(monkeypatch, lambda k: k == 0)
+        cm = mesh_cad_file(path, MPI.COMM_SELF)
+        assert cm.meshed_with == "0.5 x the element size"
+        assert gmsh.isInitialized() and gmsh.model.getCurrent() == "mine"
+        assert gmsh.model.getEntities(3) == [(3, 1)]
+        assert gmsh.option.getNumber("Mesh.Algorithm") == 8
+    finally:
+        gmsh.finalize()
+
+
+def test_points_embedded_in_a_face_are_in_its_closure():
+    """gmsh puts a node on a point embedded in a face (a sphere's pole where the file had a
+    degenerate edge, in a CATIA V4 STEP): the face's elements use it, and its parameters on
+    the face map to the point (gmsh.model.getValue, the truth)."""
+    from nagata_snap.meshing import _boundary_table
+
+    with gmsh_session("embedded") as set_option:
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        p = gmsh.model.occ.addPoint(0.5, 0.37, 1.0)
+        gmsh.model.occ.synchronize()
+        top = next(t for _, t in gmsh.model.getEntities(2)
+                   if abs(gmsh.model.getBoundingBox(2, t)[2] - 1.0) < 1e-6
+                   and abs(gmsh.model.getBoundingBox(2, t)[5] - 1.0) < 1e-6)
+        gmsh.model.mesh.embed(0, [p], 2, top)
+        set_option("Mesh.MeshSizeMax", 0.5)
+        gmsh.model.mesh.generate(3)
+        table = _boundary_table(3)
+        node = gmsh.model.mesh.getNodes(0, p)[0][0] - 1
+        rows, cols = np.nonzero(table["keys"] == node)
+        assert len(rows) >= 3 and set(table["entity"][rows].tolist()) == {top}
+        uv = table["params"][rows, cols]  # (k, 2) on the face, one per element using the node
+        S = np.reshape(gmsh.model.getValue(2, top, uv.ravel()), (-1, 3))
+        assert np.abs(S - [0.5, 0.37, 1.0]).max() < 1e-12

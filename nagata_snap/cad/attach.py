@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -39,13 +39,11 @@ import numpy.typing as npt
 from nagata_snap.cad.errors import CadError
 from nagata_snap.cad.params import contiguous
 from nagata_snap.cad.slots import MERGE_RTOL, box_pairs, facet_array, longest_edge, vertex_groups
+from nagata_snap.cad.stage import StageGeometry
 from nagata_snap.mesh.arrays import best_per_group, norms, pack_rows, ramp, row_index, unique_rows
 from nagata_snap.mesh.records import Records
 
-if TYPE_CHECKING:
-    from nagata_snap.cad.geometry import CadGeometry
-
-__all__ = ["MeshHints", "attach", "attach_local", "search_faces", "on_faces", "edge_channels"]
+__all__ = ["MeshHints", "AttachGeometry", "attach", "attach_local", "search_faces", "on_faces", "edge_channels"]
 
 @dataclass(frozen=True)
 class MeshHints:
@@ -124,7 +122,19 @@ class MeshHints:
         return None if (hit < 0).any() else hit
 
 
-def attach(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
+class AttachGeometry(StageGeometry, Protocol):
+    """What attaching reads of :class:`~nagata_snap.cad.geometry.CadGeometry` beyond
+    :class:`~nagata_snap.cad.stage.StageGeometry`."""
+
+    @property
+    def _hints(self) -> MeshHints | None: ...
+    @property
+    def _analytic(self) -> np.ndarray: ...
+    @property
+    def _sizes(self) -> np.ndarray: ...
+
+
+def attach(geo: AttachGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
            faces: npt.ArrayLike | None, seeds: npt.ArrayLike | None, comm: Any = None) -> Records:
     """Records of the coarse mesh's boundary facets (collective with topology and ``comm``).
 
@@ -167,7 +177,7 @@ def attach(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike |
     return records
 
 
-def _check_kind(geo: CadGeometry, nfv: int) -> None:
+def _check_kind(geo: AttachGeometry, nfv: int) -> None:
     """Facets of ``nfv`` vertices need entities of dimension ``nfv - 1``."""
     d = geo.param_dim
     if nfv - 1 != d:
@@ -196,7 +206,7 @@ def facet_edge_keys(ids: np.ndarray, root: np.ndarray) -> np.ndarray:
     return out.reshape(-1, 3)
 
 
-def attach_local(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
+def attach_local(geo: AttachGeometry, facet_points: npt.ArrayLike, nodes: npt.ArrayLike | None,
                  faces: npt.ArrayLike | None, seeds: npt.ArrayLike | None
                  ) -> tuple[Records, np.ndarray | None]:
     """Records without CAD-edge channels, and (with topology) the facet-edge keys ``(3 nf, 3)``."""
@@ -230,7 +240,7 @@ def attach_local(geo: CadGeometry, facet_points: npt.ArrayLike, nodes: npt.Array
     return Records(root, params), keys
 
 
-def check_attached(geo: CadGeometry, fp: np.ndarray, root: np.ndarray, score: np.ndarray, tol: np.ndarray,
+def check_attached(geo: AttachGeometry, fp: np.ndarray, root: np.ndarray, score: np.ndarray, tol: np.ndarray,
                    h: np.ndarray, given: bool) -> None:
     """Raise :class:`CadError` naming the worst facet if a facet's ``score`` exceeds its ``tol``.
 
@@ -266,7 +276,7 @@ def check_attached(geo: CadGeometry, fp: np.ndarray, root: np.ndarray, score: np
     )
 
 
-def vertex_candidates(geo: CadGeometry, V: np.ndarray, tv: np.ndarray
+def vertex_candidates(geo: AttachGeometry, V: np.ndarray, tv: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Projections of distinct vertices ``V (nv, 3)`` onto their candidate entities.
 
@@ -300,7 +310,7 @@ def vertex_candidates(geo: CadGeometry, V: np.ndarray, tv: np.ndarray
     return pv, pe, par, dist
 
 
-def search_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, tol: np.ndarray
+def search_faces(geo: AttachGeometry, fp: np.ndarray, gid: np.ndarray, tol: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Global search: per facet the entity nearest to all its vertices.
 
@@ -346,7 +356,7 @@ def search_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, tol: np.ndar
     return ce[choice].astype(np.int64), params, dmax[choice]
 
 
-def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.ArrayLike,
+def on_faces(geo: AttachGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.ArrayLike,
              seeds: npt.ArrayLike | None, tol: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Parameters of every facet vertex on a given entity (known faces, optional seeds).
 
@@ -405,7 +415,7 @@ def on_faces(geo: CadGeometry, fp: np.ndarray, gid: np.ndarray, faces: npt.Array
 SEED_RTOL = 1e-13
 
 
-def seed_is_point(geo: CadGeometry, X: np.ndarray, ent: np.ndarray, seeds: np.ndarray
+def seed_is_point(geo: AttachGeometry, X: np.ndarray, ent: np.ndarray, seeds: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
     """``(ok (n,) bool, dist (n,))``: entity ``ent`` at ``seeds (n, d)`` is the point ``X (n, 3)``
     (within :data:`SEED_RTOL` of the entity's size), so the seed is the vertex's closest

@@ -1,9 +1,5 @@
-"""The error of CAD mode (a module of its own so that every stage can raise it)."""
+"""The error of CAD mode, for the modules of ``nagata_snap.cad`` (defined in :mod:`nagata_snap.errors`)."""
 
-from __future__ import annotations
+from nagata_snap.errors import CadError
 
 __all__ = ["CadError"]
-
-
-class CadError(RuntimeError):
-    """The mesh boundary does not match the CAD geometry, or the CAD file cannot be used."""

@@ -1,6 +1,6 @@
 """CAD edges and corners: the topology arrays and the moves of feature vertices onto them.
 
-A 3D model's edges and vertices (:class:`CadTopology`) are gathered as
+A 3D model's edges and vertices (:class:`~nagata_snap.cad.stage.CadTopology`) are gathered as
 arrays over the geometry's faces, so that the feature vertices of all
 facets are found at once (:class:`~nagata_snap.mesh.arrays.Ragged` lists:
 the edge curves and CAD vertices of each face, the faces of each feature).
@@ -22,19 +22,13 @@ to the nearest point of the intersection of the tangent planes there
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
-
 import numpy as np
 
 from nagata_snap.cad.params import unit_normals, unwrap
-from nagata_snap.cad.projection import GlobalSearcher
-from nagata_snap.mesh.arrays import Ragged, best_per_group
+from nagata_snap.cad.stage import StageGeometry
+from nagata_snap.mesh.arrays import best_per_group
 
-if TYPE_CHECKING:
-    from nagata_snap.cad.geometry import CadGeometry
-    from nagata_snap.cad.topology import CadModel
-
-__all__ = ["CadTopology", "nearest_features", "onto_feature", "intersect", "shared_entity_vertices"]
+__all__ = ["nearest_features", "onto_feature", "intersect", "shared_entity_vertices"]
 
 #: an edge vertex (on facets of several entities) counts as on all of them within
 #: this fraction of the model size
@@ -46,55 +40,7 @@ EDGE_SWEEPS = 8
 TANGENT_RCOND = 2e-2
 
 
-class CadTopology:
-    """Edges and vertices of a 3D model, as arrays over the geometry's faces.
-
-    Attributes:
-        curves: 3D curves of the non-degenerate edges (their order = curve index).
-        curve_of_edge: ``(ne,)`` curve index of each model edge (-1 if degenerate).
-        face_curves: per face: curve indices of its edges (:class:`Ragged`).
-        face_vertices: per face: indices into :attr:`points` of its CAD vertices (:class:`Ragged`).
-        points: ``(nv, 3)`` CAD vertices.
-        feature_faces: the faces of each curve's edge (rows ``0..nc-1``), then
-            the faces around each CAD vertex (rows ``nc + v``) (:class:`Ragged`).
-        searcher: closest points on given edges (closed form / Newton); None without curves.
-        lo, hi: ``(nc, 3)`` bounding boxes of the curves.
-    """
-
-    def __init__(self, model: CadModel):
-        edges = model.edges
-        curve_of_edge = [-1] * len(edges)  # Python lists in the set-up loops (no numpy call per face)
-        self.curves: list[Any] = []
-        for i, e in enumerate(edges):
-            if e.curve is not None:
-                curve_of_edge[i] = len(self.curves)
-                self.curves.append(e.curve)
-        self.curve_of_edge = np.array(curve_of_edge, dtype=np.int64)
-        self.points = model.vertices
-        ends = [e.vertices for e in edges]
-        face_curves, face_vertices = [], []
-        for f in model.faces:  # loop over CAD faces (set-up)
-            own = f.edges.tolist()
-            face_curves.append([curve_of_edge[e] for e in own if curve_of_edge[e] >= 0])
-            face_vertices.append(sorted({v for e in own for v in ends[e] if v >= 0}))
-        curve_faces = [edges[i].faces for i, c in enumerate(curve_of_edge) if c >= 0]
-        around: list[list[int]] = [[] for _ in range(len(self.points))]
-        for f, vs in enumerate(face_vertices):  # faces in order, each vertex once: sorted lists
-            for v in vs:
-                around[v].append(f)
-        self.face_curves, self.face_vertices = Ragged(face_curves), Ragged(face_vertices)
-        self.feature_faces = Ragged(curve_faces + around)
-        self.searcher = GlobalSearcher(self.curves) if self.curves else None
-        # the curves' boxes, as the searcher has them
-        self.lo = np.zeros((0, 3)) if self.searcher is None else self.searcher.bbox_lo
-        self.hi = np.zeros((0, 3)) if self.searcher is None else self.searcher.bbox_hi
-
-    def feature_rows(self, fid: np.ndarray) -> np.ndarray:
-        """Rows of :attr:`feature_faces` of features ``fid`` (``c + 1``: curve ``c``, ``-(v + 1)``: vertex ``v``)."""
-        return np.where(fid > 0, fid - 1, len(self.curves) - fid - 1)
-
-
-def nearest_features(geo: CadGeometry, ent: np.ndarray, X: np.ndarray, hs: np.ndarray,
+def nearest_features(geo: StageGeometry, ent: np.ndarray, X: np.ndarray, hs: np.ndarray,
                      cls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions of edge and corner slots: nearest edge curve / CAD vertex of their face.
 
@@ -142,7 +88,7 @@ def nearest_features(geo: CadGeometry, ent: np.ndarray, X: np.ndarray, hs: np.nd
     return out, fid
 
 
-def onto_feature(geo: CadGeometry, reps: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,
+def onto_feature(geo: StageGeometry, reps: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,
                  fid: np.ndarray, hs: np.ndarray) -> float:
     """Move feature vertices onto the intersection of their edge's (vertex's) faces.
 
@@ -184,7 +130,7 @@ def truncated_lstsq(N: np.ndarray, res: np.ndarray, rcond: float = TANGENT_RCOND
     return np.einsum("gk,gkj->gj", coef, Vt)
 
 
-def _on_entities(geo: CadGeometry, x: np.ndarray, gpos: np.ndarray, pe: np.ndarray, seeds: np.ndarray
+def _on_entities(geo: StageGeometry, x: np.ndarray, gpos: np.ndarray, pe: np.ndarray, seeds: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Projections of points ``x (G, 3)`` onto their entities (pairs ``(gpos, pe)``, ``(m,)``).
 
@@ -206,7 +152,7 @@ def _on_entities(geo: CadGeometry, x: np.ndarray, gpos: np.ndarray, pe: np.ndarr
     return pp, px, score
 
 
-def intersect(geo: CadGeometry, x0: np.ndarray, gpos: np.ndarray, pe: np.ndarray, seeds: np.ndarray,
+def intersect(geo: StageGeometry, x0: np.ndarray, gpos: np.ndarray, pe: np.ndarray, seeds: np.ndarray,
               hg: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gauss-Newton onto the intersection of several entities per point.
 
@@ -260,7 +206,7 @@ def intersect(geo: CadGeometry, x0: np.ndarray, gpos: np.ndarray, pe: np.ndarray
 
 
 def shared_entity_vertices(
-    geo: CadGeometry, gid: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,
+    geo: StageGeometry, gid: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,
     X: np.ndarray, hs: np.ndarray,
 ) -> tuple[int, float]:
     """Geometries without topology: put vertices shared by facets of several entities onto all of them.

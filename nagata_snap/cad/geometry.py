@@ -90,7 +90,6 @@ from nagata_snap.cad import attach as _attach
 from nagata_snap.cad import place as _place
 from nagata_snap.cad.attach import MeshHints
 from nagata_snap.cad.errors import CadError
-from nagata_snap.cad.features import CadTopology
 from nagata_snap.cad.params import unit_normals
 from nagata_snap.cad.projection import (
     GlobalSearcher,
@@ -99,6 +98,7 @@ from nagata_snap.cad.projection import (
     is_analytic,
     normalize_params,
 )
+from nagata_snap.cad.stage import CadTopology
 from nagata_snap.cad.trimming import TRIM_RTOL, TrimLoops
 from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.arrays import Groups

@@ -29,7 +29,6 @@ without the jump test and the fallbacks onto other entities.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -37,13 +36,11 @@ import numpy.typing as npt
 from nagata_snap.cad.features import nearest_features, onto_feature, shared_entity_vertices
 from nagata_snap.cad.params import unwrap
 from nagata_snap.cad.slots import MERGE_RTOL, box_pairs, facet_array, longest_edge, vertex_groups
+from nagata_snap.cad.stage import StageGeometry
 from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.arrays import best_per_group, unique_rows
 from nagata_snap.mesh.corners import corner_vertices
 from nagata_snap.mesh.records import Records
-
-if TYPE_CHECKING:
-    from nagata_snap.cad.geometry import CadGeometry
 
 __all__ = ["Slots", "Projection", "place", "project", "slots_of", "seeded_projection", "on_root",
            "retry_facet_seeds", "retry_samples", "reject_left_face", "nearby_entities", "any_entity",
@@ -132,7 +129,7 @@ class Merged:
     n_left: int = 0
 
 
-def slots_of(geo: CadGeometry, records: Records, points: npt.ArrayLike, what: str) -> Slots:
+def slots_of(geo: StageGeometry, records: Records, points: npt.ArrayLike, what: str) -> Slots:
     """Validated and flattened slots of ``records`` at ``points (nf, nfv, 3)`` (``what`` names them).
 
     Raises:
@@ -157,7 +154,7 @@ def slots_of(geo: CadGeometry, records: Records, points: npt.ArrayLike, what: st
                  np.repeat(longest_edge(st), nfv))
 
 
-def seeded_projection(geo: CadGeometry, ent: np.ndarray, X: np.ndarray, seeds: np.ndarray
+def seeded_projection(geo: StageGeometry, ent: np.ndarray, X: np.ndarray, seeds: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Seeded projection of ``X (n, 3)`` onto entities ``ent (n,)`` from ``seeds (n, d)``.
 
@@ -172,7 +169,7 @@ def seeded_projection(geo: CadGeometry, ent: np.ndarray, X: np.ndarray, seeds: n
     return par[inv], proj[inv], dist[inv], its, conv[inv]
 
 
-def on_root(geo: CadGeometry, s: Slots, jump: bool = True) -> Projection:
+def on_root(geo: StageGeometry, s: Slots, jump: bool = True) -> Projection:
     """Projection of every slot onto its facet's entity, with fallbacks on that entity.
 
     Seeded Newton (closed form on analytic entities); where it fails (or,
@@ -190,7 +187,7 @@ def on_root(geo: CadGeometry, s: Slots, jump: bool = True) -> Projection:
     return p
 
 
-def retry_facet_seeds(geo: CadGeometry, s: Slots, p: Projection, jump: bool) -> None:
+def retry_facet_seeds(geo: StageGeometry, s: Slots, p: Projection, jump: bool) -> None:
     """Invalid slots: Newton from the facet's other vertices' parameters and their mean (in place)."""
     bad = np.flatnonzero(~p.valid)
     if not bad.size:
@@ -208,7 +205,7 @@ def retry_facet_seeds(geo: CadGeometry, s: Slots, p: Projection, jump: bool) -> 
     p.par[i], p.proj[i], p.dist[i], p.valid[i] = cp[r], cx[r], cd[r], True
 
 
-def retry_samples(geo: CadGeometry, s: Slots, p: Projection, jump: bool) -> None:
+def retry_samples(geo: StageGeometry, s: Slots, p: Projection, jump: bool) -> None:
     """Invalid slots: Newton from the entity's own search samples (in place; a closer
     result is kept even if not acceptable)."""
     bad = np.flatnonzero(~p.valid)
@@ -222,7 +219,7 @@ def retry_samples(geo: CadGeometry, s: Slots, p: Projection, jump: bool) -> None
     p.valid[bad[good]] = True
 
 
-def reject_left_face(geo: CadGeometry, s: Slots, p: Projection) -> int:
+def reject_left_face(geo: StageGeometry, s: Slots, p: Projection) -> int:
     """Geometries without topology: a result beyond its face's trimming loops becomes invalid
     (it falls back to other entities); returns how many."""
     if geo._accept is None:
@@ -232,7 +229,7 @@ def reject_left_face(geo: CadGeometry, s: Slots, p: Projection) -> int:
     return int(left.sum())
 
 
-def nearby_entities(geo: CadGeometry, s: Slots, p: Projection) -> None:
+def nearby_entities(geo: StageGeometry, s: Slots, p: Projection) -> None:
     """Geometries without topology: invalid slots try their own entity and the entities whose
     bounding box is within an edge length, from their search samples (in place).
 
@@ -268,7 +265,7 @@ def nearby_entities(geo: CadGeometry, s: Slots, p: Projection) -> None:
     p.proj[i[closer]], p.dist[i[closer]] = qx[r[closer]], qd[r[closer]]
 
 
-def any_entity(geo: CadGeometry, s: Slots, p: Projection) -> None:
+def any_entity(geo: StageGeometry, s: Slots, p: Projection) -> None:
     """Geometries without topology: invalid slots take the global search over all entities (in place)."""
     bad = np.flatnonzero(~p.valid)
     if not bad.size:
@@ -288,7 +285,7 @@ def any_entity(geo: CadGeometry, s: Slots, p: Projection) -> None:
     p.par[bad[sr]] = gp[sr]
 
 
-def unwrap_to_seeds(geo: CadGeometry, s: Slots, par: np.ndarray) -> np.ndarray:
+def unwrap_to_seeds(geo: StageGeometry, s: Slots, par: np.ndarray) -> np.ndarray:
     """``par (ns, d)`` unwrapped relative to the seeds (contiguous within the facet); facets
     with non-finite seeds relative to their first vertex."""
     nf, nfv = s.shape
@@ -304,7 +301,7 @@ def unwrap_to_seeds(geo: CadGeometry, s: Slots, par: np.ndarray) -> np.ndarray:
     return par
 
 
-def feature_slots(geo: CadGeometry, s: Slots, p: Projection, gid: np.ndarray
+def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, int]:
     """Edge and corner slots (with topology) and their positions on the features.
 
@@ -362,7 +359,7 @@ def representatives(gid: np.ndarray, cls: np.ndarray, p: Projection) -> np.ndarr
     return best_per_group(gid, (-np.minimum(cls, 2), ~p.valid, ~p.on_root, p.dist), int(gid.max()) + 1)
 
 
-def reparametrise(geo: CadGeometry, s: Slots, par: np.ndarray, proj: np.ndarray, idx: np.ndarray
+def reparametrise(geo: StageGeometry, s: Slots, par: np.ndarray, proj: np.ndarray, idx: np.ndarray
                   ) -> np.ndarray:
     """Parameters of the slots ``idx (k,)`` at their new position ``proj`` on their own entity.
 
@@ -381,7 +378,7 @@ def reparametrise(geo: CadGeometry, s: Slots, par: np.ndarray, proj: np.ndarray,
     return dd
 
 
-def merge(geo: CadGeometry, s: Slots, p: Projection) -> Merged:
+def merge(geo: StageGeometry, s: Slots, p: Projection) -> Merged:
     """One position per mesh vertex; CAD edges and corners; parameters of every slot.
 
     Every slot of a vertex gets the position of its representative
@@ -416,7 +413,7 @@ def merge(geo: CadGeometry, s: Slots, p: Projection) -> Merged:
     return m
 
 
-def place(geo: CadGeometry, records: Records, straight: npt.ArrayLike
+def place(geo: StageGeometry, records: Records, straight: npt.ArrayLike
           ) -> tuple[np.ndarray, Records, PlaceReport]:
     """Snapped positions, records and report: see :meth:`nagata_snap.cad.geometry.CadGeometry.place`."""
     s = slots_of(geo, records, straight, "straight")
@@ -451,7 +448,7 @@ def place(geo: CadGeometry, records: Records, straight: npt.ArrayLike
     return p.proj.reshape(nf, nfv, 3), s.records(p.par), report
 
 
-def project(geo: CadGeometry, records: Records, points: npt.ArrayLike) -> tuple[np.ndarray, Records]:
+def project(geo: StageGeometry, records: Records, points: npt.ArrayLike) -> tuple[np.ndarray, Records]:
     """Closest points on each facet's own entity: see :meth:`nagata_snap.cad.geometry.CadGeometry.project`."""
     s = slots_of(geo, records, points, "points")
     nf, nfv = s.shape

@@ -305,7 +305,7 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
         CadError: the file is missing or not a CAD file, OpenCASCADE cannot
             read or convert it, crashed or did not finish in time.
     """
-    from nagata_snap.cad.geometry import CadError
+    from nagata_snap.errors import CadError
 
     path = os.fspath(path)
     if not os.path.isfile(path):

@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Any
 import mpi4py.MPI as MPI
 import numpy as np
 
+from nagata_snap.errors import CadError
+
 if TYPE_CHECKING:
     from nagata_snap.geometry import PlaceReport, SnapGeometry
     from nagata_snap.mesh.records import Records
@@ -58,8 +60,6 @@ def collective_place(
     pts, recs, report = collective(comm, geometry.place, records, straight)
     unresolved = comm.allreduce(report.n_unresolved)
     if unresolved:
-        from nagata_snap.cad import CadError
-
         raise CadError(
             f"{unresolved} {what} have no acceptable projection onto the CAD geometry (Newton "
             "and every fallback failed or landed farther than the local edge length); nothing "

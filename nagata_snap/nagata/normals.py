@@ -56,6 +56,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
 
+from nagata_snap.errors import NonManifoldError, NormalsError
 from nagata_snap.nagata.jets import _angle, fit_sector_normals, padded_rows
 
 __all__ = [
@@ -78,14 +79,6 @@ CREASE_FLOOR = 1.0 / 3.0
 #: more than ``CREASE_RATIO`` times the largest turn next to it on either side
 #: (2 cuts coarse torus meshes, whose facets turn unevenly with direction).
 CREASE_RATIO = 3.0
-
-
-class NormalsError(ValueError):
-    """Normals that are zero, NaN, or opposite where they must agree."""
-
-
-class NonManifoldError(ValueError):
-    """A boundary ridge (2D vertex, 3D edge) shared by other than two boundary facets."""
 
 
 @dataclass

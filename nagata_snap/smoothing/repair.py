@@ -68,6 +68,7 @@ import dolfinx.mesh
 import mpi4py.MPI
 import numpy as np
 
+from nagata_snap.errors import InvertedCellsError
 from nagata_snap.mesh.simplex import (
     cell_columns,
     cells_touching,
@@ -103,21 +104,6 @@ TAPER_LAYERS = 2
 #: of its straight (reference) value: the optimise stage improves it when it
 #: can (the check's floor is ``min(min_quality, 0.5 q_ref)``, far below).
 POOR_RATIO = 0.7
-
-
-class InvertedCellsError(RuntimeError):
-    """Smoothing and repair could not produce a valid mesh.
-
-    Attributes:
-        cells: (m,) int64 global cell indices (``topology.index_map(tdim)``
-            numbering) of the offending cells, identical on all ranks.
-        count: global number of offending cells.
-    """
-
-    def __init__(self, message: str, cells: np.ndarray | None = None, count: int = 0):
-        super().__init__(message)
-        self.cells = np.asarray([] if cells is None else cells, dtype=np.int64)
-        self.count = int(count)
 
 
 @dataclasses.dataclass
