@@ -82,6 +82,7 @@ def run_one(mode: str, path: str, size: float, curvature: int, levels: int) -> N
         else:
             tdim = mesh.topology.dim
             t_r = time.perf_counter()
+            mesh.topology.create_entities(1)  # (refine needs the edges; Snapper.refine creates them too)
             new, parent_cell, parent_facet = dolfinx.mesh.refine(
                 mesh, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
             t_ref = time.perf_counter() - t_r

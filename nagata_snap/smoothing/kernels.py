@@ -34,9 +34,12 @@ import numpy as np
 __all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+#: per-cell helpers, inlined into their callers (numba IR), so that a call with a
+#: literal dimension has constant loop bounds that LLVM unrolls
+_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 
 
-@_jit
+@_inline
 def _shape(x: np.ndarray, cell: np.ndarray, Bc: np.ndarray, d: int, S: np.ndarray) -> None:
     """``S[c, j] = sum_k (x[cell[k + 1], c] - x[cell[0], c]) W^-1[k, j]`` (in place; ``W^-1 = B[1:]``)."""
     for c in range(d):
@@ -48,7 +51,7 @@ def _shape(x: np.ndarray, cell: np.ndarray, Bc: np.ndarray, d: int, S: np.ndarra
             S[c, j] = s
 
 
-@_jit
+@_inline
 def _det_cof(S: np.ndarray, d: int, C: np.ndarray) -> float:
     """``det S``, and its cofactor matrix into ``C``."""
     if d == 2:
@@ -63,7 +66,7 @@ def _det_cof(S: np.ndarray, d: int, C: np.ndarray) -> float:
     return S[0, 0] * C[0, 0] + S[1, 0] * C[1, 0] + S[2, 0] * C[2, 0]
 
 
-@_jit
+@_inline
 def _h(sigma: float, r: float, delta: float) -> float:
     """Escobar's regularised determinant ``(sigma + r) / 2`` (cancellation-free for sigma < 0)."""
     if sigma < 0.0:
@@ -94,7 +97,7 @@ def energy_value(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float
     return F, sig
 
 
-@_jit
+@_inline
 def _cell_hessian(S: np.ndarray, C: np.ndarray, sigma: float, r: float, a: float, b: float,
                   Bk: np.ndarray, sk: np.ndarray, d: int, Sv: np.ndarray, Cv: np.ndarray,
                   Bs: np.ndarray, P: np.ndarray, Hk: np.ndarray) -> None:
@@ -156,18 +159,10 @@ def _cell_hessian(S: np.ndarray, C: np.ndarray, sigma: float, r: float, a: float
                         Hk[w, e, v, c] = Hk[v, c, w, e]
 
 
-@_jit
-def energy_terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float,
-                 hessian: bool, scale: np.ndarray
-                 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    """``(F, gradient (n, d), sigma (m,), cell Hessians (m, d+1, d, d+1, d))``.
-
-    With ``hessian`` False the Hessian array is ``(0, d+1, d, d+1, d)``.  Each
-    cell's Hessian block ``[v, c, w, e]`` is multiplied by
-    ``scale[k, v] * scale[k, w]`` (``scale (m, d + 1)``; ones for the
-    Hessian in coordinates, the node scales for scaled variables).
-    """
-    m, n, d = cells.shape[0], x.shape[0], x.shape[1]
+@_inline
+def _terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float, hessian: bool,
+           scale: np.ndarray, d: int, g: np.ndarray, sig: np.ndarray, Hx: np.ndarray) -> float:
+    """The loop of :func:`energy_terms` over the cells; returns ``F``."""
     nv = d + 1
     S = np.empty((d, d))
     C = np.empty((d, d))
@@ -176,11 +171,8 @@ def energy_terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float,
     Cv = np.empty((nv, d))
     Bs = np.empty((nv, d))
     P = np.empty((nv, d))
-    g = np.zeros((n, d))
-    sig = np.empty(m)
-    Hx = np.empty((m if hessian else 0, nv, d, nv, d))
     F = 0.0
-    for k in range(m):
+    for k in range(cells.shape[0]):
         cell, Bk = cells[k], B[k]
         _shape(x, cell, Bk, d, S)
         sigma = _det_cof(S, d, C)
@@ -205,9 +197,31 @@ def energy_terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float,
                 for j in range(d):
                     s += dS[c, j] * Bk[v, j]
                 g[node, c] += s
-        if not hessian:
-            continue
-        _cell_hessian(S, C, sigma, r, a, b, Bk, scale[k], d, Sv, Cv, Bs, P, Hx[k])
+        if hessian:
+            _cell_hessian(S, C, sigma, r, a, b, Bk, scale[k], d, Sv, Cv, Bs, P, Hx[k])
+    return F
+
+
+@_jit
+def energy_terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float,
+                 hessian: bool, scale: np.ndarray
+                 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """``(F, gradient (n, d), sigma (m,), cell Hessians (m, d+1, d, d+1, d))``.
+
+    With ``hessian`` False the Hessian array is ``(0, d+1, d, d+1, d)``.  Each
+    cell's Hessian block ``[v, c, w, e]`` is multiplied by
+    ``scale[k, v] * scale[k, w]`` (``scale (m, d + 1)``; ones for the
+    Hessian in coordinates, the node scales for scaled variables).
+    """
+    m, n, d = cells.shape[0], x.shape[0], x.shape[1]
+    nv = d + 1
+    g = np.zeros((n, d))
+    sig = np.empty(m)
+    Hx = np.empty((m if hessian else 0, nv, d, nv, d))
+    if d == 3:  # (a literal dimension: the inlined loops have constant bounds)
+        F = _terms(x, cells, B, delta, hessian, scale, 3, g, sig, Hx)
+    else:
+        F = _terms(x, cells, B, delta, hessian, scale, 2, g, sig, Hx)
     return F, g, sig, Hx
 
 
