@@ -113,7 +113,11 @@ def _lame(nu: float) -> tuple[float, float]:
 
 def _summed_blocks(G: np.ndarray, w: np.ndarray | None, model: str, nu: float, c: np.ndarray,
                    a: np.ndarray, b: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Node-pair blocks of the P1 stiffness matrix, summed over the cells sharing the pair.
+    """Node-pair blocks of the P1 stiffness matrix, summed over the cells sharing the pair (numpy).
+
+    The reference formulation of the compiled
+    :func:`~nagata_snap.smoothing.kernels.band_blocks` that :func:`_band_matrix`
+    uses (``tests/test_kernels.py`` compares them; ``benchmarks/guard_kernels.py`` times them).
 
     Args:
         G: (nc, nv, gdim) hat-function gradients; w: (nc,) ``E |K|``.
