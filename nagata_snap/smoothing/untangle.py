@@ -431,7 +431,7 @@ class _Problem:
         ok = (cv[:, :, None, None, None] >= 0) & (cv[:, None, None, :, None] >= 0)
         ii, jj = np.broadcast_arrays(ii, jj)
         ok = np.broadcast_to(ok, ii.shape)
-        self._hmask = ok
+        self._hidx = np.flatnonzero(ok.ravel())  # (flat positions: take is faster than a mask)
         self._r, self._c = ii[ok], jj[ok]
         on_diag = ii[ok] == jj[ok]
         self._diag_src, self._diag_pos = np.flatnonzero(on_diag), ii[ok][on_diag]
@@ -476,7 +476,7 @@ class _Problem:
         if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
             R = self.R[self.cells.cells[self.rot]]  # (k, d + 1, d, d)
             Hz[self.rot] = np.einsum("mvca,mvcwe,mweb->mvawb", R, Hz[self.rot], R)
-        hv = Hz[self._hmask]
+        hv = Hz.reshape(-1).take(self._hidx)
         gz[self.dead] = 0.0
         return F, gz, hv
 
