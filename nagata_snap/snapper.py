@@ -161,8 +161,11 @@ class Snapper:
         tags: facet tag values to snap; default ``geometry.tags``, or all tags
             if that is None.
         smoothing: interior smoothing after the boundary moved: ``'elastic'``
-            (default; stiffened linear-elastic extension in a band of cells,
-            PETSc CG + Jacobi), ``'laplace'`` (Jacobi averaging sweeps) or ``'none'``.
+            (default: a few Jacobi averaging sweeps over a band of cells, and the
+            stiffened linear-elastic extension, PETSc CG + Jacobi, only near the
+            cells they leave bad or poor; ``smoothing_options={"first_sweeps": 0}``
+            solves it over the whole band), ``'laplace'`` (Jacobi averaging
+            sweeps to convergence) or ``'none'``.
         repair: on inverted or degenerate cells, untangle the neighbourhood of
             the bad cells (interior nodes), then let nearby snapped boundary
             vertices slide on the geometry, then, as the last resort, move the

@@ -14,7 +14,7 @@ import dolfinx
 import dolfinx.mesh
 
 from nagata_snap.smoothing.quality import inverted_cells, mean_ratio
-from nagata_snap.smoothing.repair import InvertedCellsError, RepairResult, repair
+from nagata_snap.smoothing.repair import FIRST_SWEEPS, InvertedCellsError, RepairResult, repair
 from nagata_snap.smoothing.smooth import smooth
 
 COMM = MPI.COMM_SELF
@@ -265,7 +265,8 @@ def test_box_3d_elastic():
 
 def test_repair_accepts_valid_smoothing(pushed):
     msh, x_ref, left, fixed = pushed
-    r = repair(msh, x_ref, msh.geometry.x, left, fixed)
+    # the elastic band everywhere (first_sweeps=0): exactly the smoother's result
+    r = repair(msh, x_ref, msh.geometry.x, left, fixed, first_sweeps=0)
     assert isinstance(r, RepairResult)
     assert r.stage == "smooth"
     assert r.n_inverted_unsmoothed > 0 and r.n_inverted_smoothed == 0
@@ -274,6 +275,18 @@ def test_repair_accepts_valid_smoothing(pushed):
     np.testing.assert_array_equal(r.x, smooth(msh, x_ref, left, fixed))
     assert r.report.n_inverted_after == 0 and r.report.n_inverted_before > 0
     assert r.report.n_shortfall == 0
+    # the default: sweeps over the band first, the elastic solve only near cells left bad or poor
+    r = repair(msh, x_ref, msh.geometry.x, left, fixed)
+    assert r.stage in ("smooth", "optimise") and r.report.n_inverted_after == 0
+    first = r.attempts[0]
+    assert first["stage"] == "smooth" and first["method"] == "laplace"
+    assert first["sweeps"] == FIRST_SWEEPS
+    swept = smooth(msh, x_ref, left, fixed, method="laplace", sweeps=FIRST_SWEEPS)
+    if len(r.attempts) == 1:  # nothing bad or poor after the sweeps: their result as it is
+        np.testing.assert_array_equal(r.x, swept)
+    else:  # the elastic solve near the trouble: only nodes of its band differ from the sweeps
+        assert r.attempts[1]["method"] == "elastic"
+        assert r.attempts[1]["cells"] <= r.attempts[0]["cells"]
 
 
 def test_repair_untangles_when_band_too_narrow():
@@ -337,11 +350,12 @@ def test_repair_impossible_raises():
     msg = str(e)
     assert f"{e.count} cell(s)" in msg and str(int(e.cells[0])) in msg
     # independent re-check: the named cells are bad when the node is moved
-    # min_fraction of the way and the first smoother (the default elastic
-    # band) is re-solved, the repair's final round
+    # min_fraction of the way and the first smoother (by default the sweeps
+    # over the band) is re-solved, the repair's final round
     msh_c, _, _, _ = square_push(0.0)
     msh_c.geometry.x[mid] = x_ref[mid] + 0.9 * (x_t[mid] - x_ref[mid])
-    x_c = smooth(msh_c, x_ref, np.array([mid], np.int32), fixed)
+    x_c = smooth(msh_c, x_ref, np.array([mid], np.int32), fixed, method="laplace",
+                 sweeps=FIRST_SWEEPS)
     cells = msh.geometry.dofmaps[0]
     q_ref = mean_ratio(x_ref, cells, 2)
     bad = set(inverted_cells(x_c, x_ref, cells, 2).tolist())
@@ -420,16 +434,24 @@ def test_mpi_matches_serial():
         assert out["ghost_ok"], out
         assert out["n_inverted"] == 0, out
         if "report_par" in out:
-            # the same repair: stage, every vertex's fraction (the moved nodes bit for
-            # bit), counts.  The interior of this extreme case (the left side pushed
-            # through the right one) is the nonlinear optimiser's: an input perturbed
-            # by round-off may end in another of its equally good minima, so there
-            # only validity is compared
-            assert out["report_par"] == out["report_ser"]
-            assert out["report_maxdiff"] < 1e-10
+            # The same repair up to what round-off may change, by design rather than by
+            # the luck of summation order.  The distributed band solve (CG, PETSc's
+            # parallel sums) gives the serial result to round-off only; the partial
+            # stage's bisection on t decides valid / invalid per trial from the
+            # nonlinear optimiser's result on that input, and in this extreme case
+            # (the left side pushed through the right one) a trial at the edge of
+            # validity may go either way.  So: the same stage, the same counts of
+            # cells, inversions before / after (0) and moved vertices; vertices left
+            # short on both; each moved vertex's fraction, and the largest
+            # shortfall, within one bisection step (2^-6 of the push, the default
+            # bisection_steps=6) of the serial run's; the interior only valid.
+            par, ser = dict(out["report_par"]), dict(out["report_ser"])
+            assert par.pop("n_shortfall") > 0 and ser.pop("n_shortfall") > 0
+            assert par == ser
+            step = 1.3 * 2.0 ** -6
+            assert out["report_maxdiff"] <= step + 1e-12, out
             assert out["stage"] == ["partial", "partial"]
-            assert out["report_par"]["n_shortfall"] > 0
-            assert out["maxdiff_moved"] < 1e-12, out
+            assert out["maxdiff_moved"] <= step + 1e-12, out
         else:
             assert out["maxdiff"] < 1e-10, out
 

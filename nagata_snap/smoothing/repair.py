@@ -6,9 +6,20 @@ quality floor) or raises :class:`InvertedCellsError`.  It runs these stages
 and stops at the first that leaves no bad cell:
 
 ``smooth`` (:func:`_linear`)
-    The requested smoother of :mod:`nagata_snap.smoothing.smooth` (stiffened linear
-    elasticity by default) on the band of cells around the moved vertices:
-    the fast path, and the start of every later stage.
+    The requested smoother of :mod:`nagata_snap.smoothing.smooth` on the band
+    of cells around the moved vertices: the start of every later stage.
+    With ``method='elastic'`` (the default) the cost follows the trouble:
+    first ``first_sweeps`` (:data:`FIRST_SWEEPS`) Jacobi sweeps of
+    graph-Laplacian averaging over the whole band (the ``'laplace'``
+    smoother, a few sparse matrix-vector products); only if that leaves
+    bad or poor cells is the stiffened linear-elastic extension solved, on
+    the band of the moved vertices near them (:data:`ELASTIC_NEAR` layers
+    around the bad / poor cells; the other moved vertices and the swept
+    interior are its Dirichlet data).  After a refinement the snapping
+    moves are O(h^2), so usually no cell is bad or poor and the level
+    costs the sweeps and the checks (``benchmarks/guard_quality.py``
+    compares the changed cells' quality with and without the elastic
+    solve everywhere).
 ``optimise`` (:func:`_optimise`)
     No cell is bad, but some changed cells are *poor* (their mean ratio fell
     below :data:`POOR_RATIO` of the straight cell's): one attempt of the
@@ -76,7 +87,8 @@ from nagata_snap.mesh.simplex import (
     local_facet_vertices,
     signed_volumes,
 )
-from nagata_snap.smoothing.band import auto_layers, max_layers, prepare
+from nagata_snap.smoothing.band import auto_layers, expand, max_layers, prepare
+from nagata_snap.smoothing.kernels import volume_mean_ratio
 from nagata_snap.smoothing.neighbourhood import Neighbourhood, layer_distance
 from nagata_snap.smoothing.quality import QualityReport, inverted_mask, mean_ratio
 from nagata_snap.smoothing.slide import SlideFacets, SlidingBoundary
@@ -84,7 +96,7 @@ from nagata_snap.smoothing.smooth import Smoother, add_time, smooth_options
 from nagata_snap.smoothing.untangle import optimise, targets, volume_ratio_min
 
 __all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "SLIDE_LAYERS",
-           "TAPER_LAYERS"]
+           "TAPER_LAYERS", "FIRST_SWEEPS", "ELASTIC_NEAR"]
 
 #: Neighbourhood widths (vertex layers around the bad cells) of the untangle
 #: attempts; the slide stage reuses the last neighbourhood gathered.
@@ -104,6 +116,11 @@ TAPER_LAYERS = 2
 #: of its straight (reference) value: the optimise stage improves it when it
 #: can (the check's floor is ``min(min_quality, 0.5 q_ref)``, far below).
 POOR_RATIO = 0.7
+#: Jacobi sweeps of the first, cheap smoothing over the band (``method='elastic'``).
+FIRST_SWEEPS = 8
+#: Vertex layers around the bad / poor cells within which moved vertices
+#: drive the local elastic solve after the sweeps.
+ELASTIC_NEAR = 2
 
 
 @dataclasses.dataclass
@@ -121,8 +138,8 @@ class RepairResult:
             stage that produced the valid mesh.
         n_inverted_unsmoothed: global number of bad cells with the boundary
             moved and no smoothing.
-        n_inverted_smoothed: global number of bad cells after the first
-            smoothing attempt.
+        n_inverted_smoothed: global number of bad cells after the smooth
+            stage (the sweeps, and the elastic solve near the cells they left bad or poor).
         attempts: one dict per attempt: ``stage``, ``layers``, ``cells`` and
             ``nodes`` (global number of cells it worked on and of nodes it
             moved), ``seconds``, ``n_bad`` (bad cells left), and per stage
@@ -216,9 +233,9 @@ class _Guard:
         changed[nodes] = np.any(x[nodes] != self.x_ref[nodes], axis=1)
         cand = pool[cells_touching(changed, pcols)]
         self._ref_data(cand)
-        sub = self.cells[cand]
-        badc = inverted_mask(signed_volumes(x, sub, self.gdim), self._v_ref[cand], self.rel_floor)
-        q = mean_ratio(x, sub, self.gdim)
+        vol, q = volume_mean_ratio(np.ascontiguousarray(x, dtype=np.float64), self.cells[cand],
+                                   self.gdim)
+        badc = inverted_mask(vol, self._v_ref[cand], self.rel_floor)
         if self.min_quality > 0:
             badc |= q < self._q_floor[cand]
         ratio = q / np.maximum(self._q_ref[cand], 1e-300)
@@ -252,12 +269,22 @@ class _Guard:
 # ---------------------------------------------------------------------------
 
 
-def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[float, int], ...]
+def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[float, int], ...],
+            first_sweeps: int | None = None
             ) -> tuple[np.ndarray, np.ndarray, int, Smoother]:
-    """Stage ``smooth``: the band smoother (then the optional ``stiffen`` schedule)."""
-    schedule = [(method, o)] + [("elastic", dict(o, exponent=o["exponent"] + dp,
-                                                 layers=np.asarray(o["layers"]) * int(mult)))
-                                for dp, mult in stiffen]
+    """Stage ``smooth``: the band smoother (then the optional ``stiffen`` schedule).
+
+    With ``method='elastic'`` and ``first_sweeps``: the sweeps over the band
+    first, the elastic solve only near the bad or poor cells they leave
+    (:func:`_elastic_near`).  Returns ``(x, bad, nbad, smoother)``, the
+    smoother over the whole band (the partial stage re-solves it).
+    """
+    first: list[tuple[str, dict[str, Any]]] = [(method, o)]
+    if method == "elastic" and first_sweeps:
+        first = [("laplace", dict(o, sweeps=int(first_sweeps)))]
+    schedule = first + [("elastic", dict(o, exponent=o["exponent"] + dp,
+                                         layers=np.asarray(o["layers"]) * int(mult)))
+                        for dp, mult in stiffen]
     sm = None
     for k, (meth, oo) in enumerate(schedule):
         t0 = time.perf_counter()
@@ -269,13 +296,53 @@ def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[floa
         g.pool[sm.cells] = True
         bad, nbad = g.check(x)
         band = sm.band
+        extra = {"sweeps": int(oo["sweeps"])} if meth == "laplace" and oo["sweeps"] else {}
         g.log("smooth" if k == 0 else "stiffen", t0, nbad, method=meth, exponent=oo["exponent"],
               layers=max_layers(oo["layers"], g.comm), cells=band.n_cells_global if band else 0,
-              nodes=band.n_free_global if band else 0)
+              nodes=band.n_free_global if band else 0, **extra)
+        if k == 0 and meth != method and (nbad or g.n_poor):
+            x, bad, nbad = _elastic_near(g, x, bad, nbad, o)
         if nbad == 0:
             break
     assert sm is not None  # the schedule has at least the first smoother
     return x, bad, nbad, sm
+
+
+def _elastic_near(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, o: dict[str, Any]
+                  ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The elastic band smoother driven by the moved vertices near the bad / poor cells only.
+
+    The moved vertices within :data:`ELASTIC_NEAR` layers of the bad or poor
+    cells prescribe their displacement; the other moved vertices, and the
+    outer layer of the band, keep their coordinates in ``x`` (the swept
+    mesh).  Kept if it leaves no more bad cells and, without bad cells, does
+    not lower the worst quality ratio.
+    """
+    t0 = time.perf_counter()
+    seeds = bad | g.poor
+    mark = np.zeros(g.sync.n, dtype=bool)
+    mark[g.cells[seeds].reshape(-1)] = True
+    near, _, _ = expand(g.cells, g.sync.any(mark), ELASTIC_NEAR, g.sync, g.cols)
+    moved = g.moved_mask & near
+    fixed = g.fixed_mask | (g.moved_mask & ~near)
+    worst, n_poor, poor = g.worst, g.n_poor, g.poor
+    sm = Smoother(g.mesh, g.x_ref, moved, fixed, g.sync, "elastic", o, g.timings, g.cols)
+    try:
+        xn = sm.run(x)
+    finally:
+        sm.destroy()
+    g.pool[sm.cells] = True
+    bn, nb = g.check(xn)
+    band = sm.band
+    keep = nb < nbad or (nb == nbad and (nb > 0 or g.worst >= worst))
+    g.log("smooth", t0, nb, method="elastic", exponent=o["exponent"],
+          layers=max_layers(o["layers"], g.comm), cells=band.n_cells_global if band else 0,
+          nodes=band.n_free_global if band else 0, kept=keep)
+    if keep:
+        return xn, bn, nb
+    g.check(x)  # (restores poor, n_poor and worst of x)
+    assert g.n_poor == n_poor and np.array_equal(g.poor, poor)
+    return x, bad, nbad
 
 
 class _Local:
@@ -570,7 +637,8 @@ def _result(g: _Guard, x: np.ndarray, alpha: np.ndarray, stage: str, n_unsmoothe
                                       shortfall=short_all[own_moved], scope=scope)
         g.timings["report"] = time.perf_counter() - t0
         rep.timings["report"] = g.comm.allreduce(g.timings["report"], op=mpi4py.MPI.MAX)
-    n_smoothed = g.attempts[0]["n_bad"] if g.attempts else 0
+    smoothed = [a["n_bad"] for a in g.attempts if a["stage"] == "smooth" and a.get("kept", True)]
+    n_smoothed = smoothed[-1] if smoothed else 0
     return RepairResult(x=x, fraction=np.asarray(alpha[idx] if idx.size else np.zeros(0)),
                         shortfall=np.asarray(short_all[idx] if idx.size else np.zeros(0)),
                         stage=stage, n_inverted_unsmoothed=n_unsmoothed,
@@ -590,7 +658,8 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
            stiffen: tuple[tuple[float, int], ...] = (),
            allow_partial: bool = True, min_fraction: float = 0.0,
            bisection_steps: int = 6, implicate_layers: int = 1, max_rounds: int = 5,
-           report: bool | str = True, **opts) -> RepairResult:
+           report: bool | str = True, first_sweeps: int | None = FIRST_SWEEPS,
+           **opts) -> RepairResult:
     """Smooth, guard against inverted / degenerate cells, repair or fail.
 
     Collective on ``mesh.comm``. Neither ``mesh`` nor any input array is
@@ -626,6 +695,10 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
         report: build a :class:`QualityReport`: ``True`` or ``"changed"``
             (metrics over the cells snapping / smoothing changed, O(band)),
             ``"all"`` (every cell, O(mesh)) or ``False`` (none).
+        first_sweeps: with ``method='elastic'``, Jacobi sweeps over the band
+            before the elastic solve, which then runs only near the cells
+            still bad or poor (stage ``smooth`` above); 0 or None: the
+            elastic solve over the whole band.
         **opts: smoothing options of :func:`~nagata_snap.smoothing.smooth.smooth`
             (``layers``, ``exponent``, ...).
 
@@ -641,8 +714,8 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
     if o["layers"] == "auto":
         o["layers"] = auto_layers(g.x_ref, g.disp, g.cells, g.pool, g.sync)
     _, n_unsmoothed = g.check(g.x_tgt)
-    x, bad, nbad, sm = _linear(g, method, o, stiffen)
-    stage = "smooth" if len(g.attempts) == 1 else "stiffen"
+    x, bad, nbad, sm = _linear(g, method, o, stiffen, first_sweeps)
+    stage = "stiffen" if any(a["stage"] == "stiffen" for a in g.attempts) else "smooth"
     alpha = np.ones(g.sync.n)
     try:
         if nbad == 0 and untangle and g.n_poor and method != "none":

@@ -113,7 +113,11 @@ def _lame(nu: float) -> tuple[float, float]:
 
 def _summed_blocks(G: np.ndarray, w: np.ndarray | None, model: str, nu: float, c: np.ndarray,
                    a: np.ndarray, b: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Node-pair blocks of the P1 stiffness matrix, summed over the cells sharing the pair.
+    """Node-pair blocks of the P1 stiffness matrix, summed over the cells sharing the pair (numpy).
+
+    The reference formulation of the compiled
+    :func:`~nagata_snap.smoothing.kernels.band_blocks` that :func:`_band_matrix`
+    uses (``tests/test_kernels.py`` compares them; ``benchmarks/guard_kernels.py`` times them).
 
     Args:
         G: (nc, nv, gdim) hat-function gradients; w: (nc,) ``E |K|``.
@@ -224,31 +228,39 @@ def _stiffness(comm: MPI.Comm, x_ref: np.ndarray, cells: np.ndarray, gdim: int, 
 
 
 def _band_matrix(comm: MPI.Comm, band: Band, G: np.ndarray, weight: np.ndarray | None, model: str,
-                 nu: float, gid: np.ndarray, free: np.ndarray) -> PETSc.Mat:
+                 nu: float, gid: np.ndarray, free: np.ndarray, cells: np.ndarray) -> PETSc.Mat:
     """The assembled distributed matrix ``K_ff`` over the band's free nodes (collective).
 
     ``gid (nc, nv)``: global free-node number of each cell vertex (-1 if
-    constrained); ``free = gid >= 0``.  The blocks of free-free vertex pairs
-    are summed per node pair (sorted keys, so PETSc's COO set-up sees each
-    entry once, in order).
+    constrained); ``free = gid >= 0``; ``cells (nc, nv)`` local node
+    numbers.  Each process sums the free-free blocks of its cells per node
+    pair with the compiled kernel :func:`~nagata_snap.smoothing.kernels.band_blocks`
+    (straight into block rows, no per-(cell, pair) temporary), one block
+    row per free node of its cells; PETSc's COO set-up adds the rows of
+    nodes owned elsewhere to their owners'.
     """
+    from nagata_snap.smoothing.kernels import band_blocks
+
     gdim = G.shape[2]
-    c, a, b = np.nonzero(free[:, :, None] & free[:, None, :])
-    n_free = band.n_free_global
-    key = gid[c, a] * n_free + gid[c, b]
-    order = np.argsort(key)
-    key = key[order]
-    start = np.flatnonzero(np.r_[key.size > 0, key[1:] != key[:-1]])
-    blocks = _summed_blocks(G, weight, model, nu, c[order], a[order], b[order], start)
-    rn, cn = np.divmod(key[start], n_free)
-    rows, cols, vals = _scalar_coo(rn, cn, blocks)
+    nodes = np.unique(cells[free]) if comm.size > 1 else band.own_free
+    row_of = np.full(band.gid.size, -1, dtype=np.int64)
+    row_of[nodes] = np.arange(nodes.size)
+    rows = np.where(free, row_of[cells], -1)
+    mu, lmbda = _lame(nu)
+    kind = {"elastic": 0, "harmonic": 1, "graph": 2}[model]
+    w = np.zeros(G.shape[0]) if weight is None else weight
+    indptr, cn, blocks = band_blocks(G, w, rows, np.where(free, gid, -1), kind, mu, lmbda,
+                                     int(nodes.size), int(band.n_free_global))
+    rn = np.repeat(band.gid[nodes], np.diff(indptr))
+    rows_s, cols_s, vals = _scalar_coo(rn, cn, blocks)
+    del rn, cn, blocks
     n_loc = band.own_free.size * gdim
     # (petsc4py takes an mpi4py communicator; its stub lists only PETSc.Comm)
     A = PETSc.Mat().create(comm)  # type: ignore[arg-type]
     A.setSizes(((n_loc, PETSc.DETERMINE), (n_loc, PETSc.DETERMINE)))
     A.setType(PETSc.Mat.Type.AIJ)
     # (petsc4py takes integer arrays; its stub says Sequence[int], which ndarray is not)
-    A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))  # type: ignore[arg-type]
+    A.setPreallocationCOO(rows_s.astype(PETSc.IntType), cols_s.astype(PETSc.IntType))  # type: ignore[arg-type]
     # (petsc4py's stub types addv as InsertMode, but its members are typed int)
     A.setValuesCOO(vals, addv=PETSc.InsertMode.ADD_VALUES)  # type: ignore[arg-type]
     A.assemble()
@@ -319,7 +331,7 @@ class _BandSolver:
         # global unknowns of the free vertices of each cell, (c, a, i) order
         free_dof = np.repeat(self.free[:, :, None], gdim, axis=2)
         self.gdof = (gid[:, :, None] * gdim + np.arange(gdim))[free_dof]
-        self.A = _band_matrix(comm, band, G, weight, model, nu, gid, self.free)
+        self.A = _band_matrix(comm, band, G, weight, model, nu, gid, self.free, cells)
         self.b, self.x = self.A.createVecRight(), self.A.createVecLeft()
         self.ksp, self.solver = _band_ksp(comm, self.A, model, solver, rtol, sweeps, petsc_options)
         self.n_fallback = 0

@@ -70,8 +70,9 @@ import numpy as np
 from petsc4py import PETSc
 
 from nagata_snap.mesh.simplex import cell_columns, edge_matrices, inverse_small
+from nagata_snap.smoothing import kernels
 
-__all__ = ["targets", "energy", "optimise", "OptimiseResult", "volume_ratio_min", "EPS",
+__all__ = ["targets", "energy", "energy_numpy", "optimise", "OptimiseResult", "volume_ratio_min", "EPS",
            "DELTA_MIN", "SLIDE_STEP"]
 
 #: ``eps`` of the regularisation schedule ``delta^2 = eps (eps - sigma_min)``
@@ -84,6 +85,13 @@ DELTA_MIN = 1e-4
 #: and iteration (edge lengths).
 GTOL = 1e-10
 MAX_STEP = 4.0
+#: Newton: relative decrease of ``F`` per iteration below which a round stops
+#: (final round at ``delta = DELTA_MIN``; untangling rounds).  Near the
+#: minimum a Newton step lowers ``F`` by about ``g^T H^-1 g / 2``, so 1e-9
+#: relative leaves the nodes within about ``sqrt(2e-9 F / lambda_min)`` of the
+#: minimum, far below the quality differences that matter.
+FTOL_FINAL = 1e-9
+FTOL_UNTANGLE = 1e-10
 #: Largest tangential move of a sliding node per call, in units of its
 #: shortest edge (the tangent plane is a good model of the surface there).
 SLIDE_STEP = 0.3
@@ -124,6 +132,8 @@ class _Cells:
                   for i in range(self.d)]
         self.B = np.concatenate([-winv.sum(axis=1, keepdims=True), winv], axis=1)  # (m, d+1, d)
         self.cells = cells
+        self.cells64 = np.ascontiguousarray(cells, dtype=np.int64)
+        self.ones = np.ones(cells.shape, dtype=np.float64)
 
     def shape(self, x: np.ndarray) -> list[list[np.ndarray]]:
         """Entries of ``S = A W^-1``."""
@@ -151,6 +161,29 @@ def _det_cof(S: list[list[np.ndarray]]) -> tuple[np.ndarray, list[list[np.ndarra
 def energy(x: np.ndarray, cells: np.ndarray | None, winv: np.ndarray | None, delta: float,
            grad: bool = True, prepared: _Cells | None = None, hessian: bool = False) -> tuple[Any, ...]:
     """``F = sum eta_delta(S_K)``, its gradient, the volume ratios, and the cell Hessians.
+
+    The compiled kernels of :mod:`nagata_snap.smoothing.kernels`; the same
+    arguments and results as :func:`energy_numpy` (to rounding).
+    """
+    if prepared is None:
+        if cells is None or winv is None:
+            raise ValueError("energy needs cells and winv, or prepared")
+        prepared = _Cells(cells, winv, x.shape[0])
+    xc = np.ascontiguousarray(x, dtype=np.float64)
+    if not grad:
+        F, sigma = kernels.energy_value(xc, prepared.cells64, prepared.B, float(delta))
+        return float(F), None, sigma
+    F, g, sigma, Hx = kernels.energy_terms(xc, prepared.cells64, prepared.B, float(delta),
+                                           bool(hessian), prepared.ones)
+    return (float(F), g, sigma, Hx) if hessian else (float(F), g, sigma)
+
+
+def energy_numpy(x: np.ndarray, cells: np.ndarray | None, winv: np.ndarray | None, delta: float,
+                 grad: bool = True, prepared: _Cells | None = None,
+                 hessian: bool = False) -> tuple[Any, ...]:
+    """``F = sum eta_delta(S_K)``, its gradient, the volume ratios, and the cell Hessians (numpy).
+
+    The reference formulation of :func:`energy`, batched over the cells.
 
     Args:
         x: ``(n, d)`` coordinates; cells: ``(m, d + 1)``; winv: ``(m, d, d)``
@@ -295,11 +328,11 @@ def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> n
     """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps).
 
     Stops at a gradient below ``GTOL`` (scaled variables), or when an
-    iteration lowers ``F`` by less than ``ftol`` relative: not at all in the
-    final round (``delta = DELTA_MIN``), 1e-10 in an untangling round,
-    whose minimum is only a step towards the next ``delta``.
+    iteration lowers ``F`` by less than ``ftol`` relative: :data:`FTOL_FINAL`
+    in the final round (``delta = DELTA_MIN``), :data:`FTOL_UNTANGLE` in an
+    untangling round, whose minimum is only a step towards the next ``delta``.
     """
-    ftol = 0.0 if delta == DELTA_MIN else 1e-10
+    ftol = FTOL_FINAL if delta == DELTA_MIN else FTOL_UNTANGLE
     F, g, hv = pb.evaluate(z, delta)
     mu = 0.0
     for _ in range(max_iterations):
@@ -380,6 +413,7 @@ class _Problem:
             self.lim[pos] = np.where(live, SLIDE_STEP, 0.0)
         self.R, self.s = E, scale[self.nodes]  # x = x0 + s R z
         self.E = E * self.s[:, None, None]
+        self._sv = np.ascontiguousarray(self.s[self.cells.cells], dtype=np.float64)  # (m, d + 1)
         self.Em = self.E[self.moving]
         is_slide = np.zeros(self.nodes.size, dtype=bool)
         if si.size:
@@ -397,7 +431,7 @@ class _Problem:
         ok = (cv[:, :, None, None, None] >= 0) & (cv[:, None, None, :, None] >= 0)
         ii, jj = np.broadcast_arrays(ii, jj)
         ok = np.broadcast_to(ok, ii.shape)
-        self._hmask = ok
+        self._hidx = np.flatnonzero(ok.ravel())  # (flat positions: take is faster than a mask)
         self._r, self._c = ii[ok], jj[ok]
         on_diag = ii[ok] == jj[ok]
         self._diag_src, self._diag_pos = np.flatnonzero(on_diag), ii[ok][on_diag]
@@ -435,15 +469,14 @@ class _Problem:
     def evaluate(self, z: np.ndarray, delta: float) -> tuple[float, np.ndarray, np.ndarray]:
         """``(F, gradient (size,), Hessian values)`` in the variables ``z`` (values for :meth:`solve`)."""
         self.count += 1
-        F, g, _, Hx = energy(self.coords(z), None, None, delta, prepared=self.cells,
-                             hessian=True)
+        cc = self.cells
+        F, g, _, Hz = kernels.energy_terms(self.coords(z), cc.cells64, cc.B, float(delta), True,
+                                           self._sv)  # Hessian blocks times s_v s_w
         gz = np.einsum("kcd,kc->kd", self.Em, g[self.moving]).ravel()
-        sv = self.s[self.cells.cells]  # (m, d + 1)
-        Hz = Hx * (sv[:, :, None, None, None] * sv[:, None, None, :, None])
         if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
             R = self.R[self.cells.cells[self.rot]]  # (k, d + 1, d, d)
             Hz[self.rot] = np.einsum("mvca,mvcwe,mweb->mvawb", R, Hz[self.rot], R)
-        hv = Hz[self._hmask]
+        hv = Hz.reshape(-1).take(self._hidx)
         gz[self.dead] = 0.0
         return F, gz, hv
 
@@ -475,7 +508,8 @@ class _Problem:
     def sigma_min(self, z: np.ndarray) -> float:
         if self.cells.cols[0].size == 0:
             return np.inf
-        return float(_det_cof(self.cells.shape(self.coords(z)))[0].min())
+        x = np.ascontiguousarray(self.coords(z))
+        return float(kernels.energy_value(x, self.cells.cells64, self.cells.B, DELTA_MIN)[1].min())
 
 
 def volume_ratio_min(x: np.ndarray, cells: np.ndarray, winv: np.ndarray) -> float:

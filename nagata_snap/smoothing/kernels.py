@@ -1,0 +1,359 @@
+"""Compiled per-cell kernels of the guard (numba): the untangling energy, its derivatives, cell quality.
+
+The numpy formulations (:func:`nagata_snap.smoothing.untangle.energy_numpy`,
+:func:`nagata_snap.smoothing.quality.mean_ratio`, the band matrix of
+:mod:`nagata_snap.smoothing.smooth`) stay the reference: these kernels
+compute the same formulas one cell at a time, in registers, without the
+``(m, d, d, d, d)`` temporaries of the batched numpy products (the results
+agree to rounding; ``tests/test_kernels.py``).  ``benchmarks/guard_kernels.py``
+prints microseconds per cell for both.
+
+Why numba rather than UFL forms compiled by FFCx: the energy is a sum over a
+small, gathered set of cells (the neighbourhood of the bad cells) with
+per-cell targets ``W^-1`` and a regularisation ``delta`` that changes
+between rounds; assembling it with DOLFINx would need a sub-mesh of the
+neighbourhood and a function space on it per problem, whose set-up costs
+more than the evaluations (the same reason the band system is not
+assembled by DOLFINx, see :mod:`nagata_snap.smoothing.smooth`), and the
+Hessian of the regularised mean ratio is not a bilinear form FFCx can
+generate without the nonlinear expression being rewritten by hand anyway.
+numba compiles the plain loops here once per machine (``cache=True``: the
+machine code is kept beside the module in ``__pycache__``).
+
+Conventions: ``x (n, d)`` coordinates, ``cells (m, d + 1)`` int64 node
+indices, ``B (m, d + 1, d)`` with ``S = sum_v x_v (x) B_v`` the shape matrix
+of :mod:`nagata_snap.smoothing.untangle` (``B_0 = -sum_k W^-1_k``,
+``B_{k+1} = W^-1_k``), ``d`` 2 or 3.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks"]
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+#: per-cell helpers, inlined into their callers (numba IR), so that a call with a
+#: literal dimension has constant loop bounds that LLVM unrolls
+_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+
+
+@_inline
+def _shape(x: np.ndarray, cell: np.ndarray, Bc: np.ndarray, d: int, S: np.ndarray) -> None:
+    """``S[c, j] = sum_k (x[cell[k + 1], c] - x[cell[0], c]) W^-1[k, j]`` (in place; ``W^-1 = B[1:]``)."""
+    for c in range(d):
+        x0 = x[cell[0], c]
+        for j in range(d):
+            s = 0.0
+            for k in range(d):
+                s += (x[cell[k + 1], c] - x0) * Bc[k + 1, j]
+            S[c, j] = s
+
+
+@_inline
+def _det_cof(S: np.ndarray, d: int, C: np.ndarray) -> float:
+    """``det S``, and its cofactor matrix into ``C``."""
+    if d == 2:
+        C[0, 0], C[0, 1] = S[1, 1], -S[1, 0]
+        C[1, 0], C[1, 1] = -S[0, 1], S[0, 0]
+        return S[0, 0] * C[0, 0] + S[1, 0] * C[1, 0]
+    for c in range(3):
+        c1, c2 = (c + 1) % 3, (c + 2) % 3
+        for j in range(3):
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            C[c, j] = S[c1, j1] * S[c2, j2] - S[c1, j2] * S[c2, j1]
+    return S[0, 0] * C[0, 0] + S[1, 0] * C[1, 0] + S[2, 0] * C[2, 0]
+
+
+@_inline
+def _h(sigma: float, r: float, delta: float) -> float:
+    """Escobar's regularised determinant ``(sigma + r) / 2`` (cancellation-free for sigma < 0)."""
+    if sigma < 0.0:
+        return 2.0 * delta * delta / (r - sigma)
+    return 0.5 * (sigma + r)
+
+
+@_jit
+def energy_value(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float
+                 ) -> tuple[float, np.ndarray]:
+    """``(F, sigma (m,))``: the energy ``sum_K eta_delta`` and the volume ratios."""
+    m, d = cells.shape[0], x.shape[1]
+    S = np.empty((d, d))
+    C = np.empty((d, d))
+    sig = np.empty(m)
+    F = 0.0
+    for k in range(m):
+        _shape(x, cells[k], B[k], d, S)
+        sigma = _det_cof(S, d, C)
+        r = np.sqrt(sigma * sigma + 4.0 * delta * delta)
+        hp = _h(sigma, r, delta) ** (-2.0 / d)
+        s2 = 0.0
+        for c in range(d):
+            for j in range(d):
+                s2 += S[c, j] * S[c, j]
+        F += s2 * hp / d
+        sig[k] = sigma
+    return F, sig
+
+
+@_inline
+def _cell_hessian(S: np.ndarray, C: np.ndarray, sigma: float, r: float, a: float, b: float,
+                  Bk: np.ndarray, sk: np.ndarray, d: int, Sv: np.ndarray, Cv: np.ndarray,
+                  Bs: np.ndarray, P: np.ndarray, Hk: np.ndarray) -> None:
+    """One cell's Hessian ``Hk[v, c, w, e] = sum_jl B_vj (d^2 eta / dS_cj dS_el) B_wl s_v s_w``.
+
+    The terms of ``d^2 eta / dS^2`` (module docstring of the untangle
+    module) contracted with ``B`` one by one: with ``Sv = S B_v`` and
+    ``Cv = cof(S) B_v`` (``d``-vectors per vertex), ``a I`` gives
+    ``a (B_v . B_w) delta_ce``, ``C (x) C`` gives ``Cv_c Cw_e``, ``S (x) C + C (x) S``
+    gives ``Sv_c Cw_e + Cv_c Sw_e``, and ``d cof / d S`` gives, in 3D,
+    ``e_cep (S (B_v x B_w))_p`` (in 2D ``e_ce (B_v x B_w)``): about 40
+    operations per vertex pair instead of the ``d^4`` product.
+    """
+    nv = d + 1
+    cc = 2.0 * b / (d * r) + b * sigma / (r * r)
+    cs = 2.0 * a / (d * r)
+    for v in range(nv):  # every term is bilinear in (B_v, B_w): scale B_v by s_v first
+        for j in range(d):
+            Bs[v, j] = sk[v] * Bk[v, j]
+        for c in range(d):
+            s1 = 0.0
+            s2 = 0.0
+            for j in range(d):
+                s1 += S[c, j] * Bs[v, j]
+                s2 += C[c, j] * Bs[v, j]
+            Sv[v, c] = s1
+            Cv[v, c] = s2
+            P[v, c] = cc * s2 - cs * s1
+    for v in range(nv):
+        for w in range(v, nv):  # the upper triangle of vertex pairs, mirrored
+            bb = 0.0
+            for j in range(d):
+                bb += Bs[v, j] * Bs[w, j]
+            for c in range(d):
+                for e in range(d):
+                    Hk[v, c, w, e] = Cv[v, c] * P[w, e] - cs * Sv[v, c] * Cv[w, e]
+                Hk[v, c, w, c] += a * bb
+            if d == 2:
+                x2 = b * (Bs[v, 0] * Bs[w, 1] - Bs[v, 1] * Bs[w, 0])
+                Hk[v, 0, w, 1] -= x2
+                Hk[v, 1, w, 0] += x2
+            else:
+                u0 = Bs[v, 1] * Bs[w, 2] - Bs[v, 2] * Bs[w, 1]
+                u1 = Bs[v, 2] * Bs[w, 0] - Bs[v, 0] * Bs[w, 2]
+                u2 = Bs[v, 0] * Bs[w, 1] - Bs[v, 1] * Bs[w, 0]
+                t0 = b * (S[0, 0] * u0 + S[0, 1] * u1 + S[0, 2] * u2)
+                t1 = b * (S[1, 0] * u0 + S[1, 1] * u1 + S[1, 2] * u2)
+                t2 = b * (S[2, 0] * u0 + S[2, 1] * u1 + S[2, 2] * u2)
+                # - b e_cep t_p: (0,1) t2, (1,2) t0, (2,0) t1, antisymmetric in (c, e)
+                Hk[v, 0, w, 1] -= t2
+                Hk[v, 1, w, 0] += t2
+                Hk[v, 1, w, 2] -= t0
+                Hk[v, 2, w, 1] += t0
+                Hk[v, 2, w, 0] -= t1
+                Hk[v, 0, w, 2] += t1
+            if w != v:
+                for c in range(d):
+                    for e in range(d):
+                        Hk[w, e, v, c] = Hk[v, c, w, e]
+
+
+@_inline
+def _terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float, hessian: bool,
+           scale: np.ndarray, d: int, g: np.ndarray, sig: np.ndarray, Hx: np.ndarray) -> float:
+    """The loop of :func:`energy_terms` over the cells; returns ``F``."""
+    nv = d + 1
+    S = np.empty((d, d))
+    C = np.empty((d, d))
+    dS = np.empty((d, d))
+    Sv = np.empty((nv, d))
+    Cv = np.empty((nv, d))
+    Bs = np.empty((nv, d))
+    P = np.empty((nv, d))
+    F = 0.0
+    for k in range(cells.shape[0]):
+        cell, Bk = cells[k], B[k]
+        _shape(x, cell, Bk, d, S)
+        sigma = _det_cof(S, d, C)
+        r = np.sqrt(sigma * sigma + 4.0 * delta * delta)
+        hp = _h(sigma, r, delta) ** (-2.0 / d)
+        s2 = 0.0
+        for c in range(d):
+            for j in range(d):
+                s2 += S[c, j] * S[c, j]
+        eta = s2 * hp / d
+        F += eta
+        sig[k] = sigma
+        a = (2.0 / d) * hp
+        b = (2.0 / d) * eta / r
+        for c in range(d):
+            for j in range(d):
+                dS[c, j] = a * S[c, j] - b * C[c, j]
+        for v in range(nv):
+            node = cell[v]
+            for c in range(d):
+                s = 0.0
+                for j in range(d):
+                    s += dS[c, j] * Bk[v, j]
+                g[node, c] += s
+        if hessian:
+            _cell_hessian(S, C, sigma, r, a, b, Bk, scale[k], d, Sv, Cv, Bs, P, Hx[k])
+    return F
+
+
+@_jit
+def energy_terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float,
+                 hessian: bool, scale: np.ndarray
+                 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """``(F, gradient (n, d), sigma (m,), cell Hessians (m, d+1, d, d+1, d))``.
+
+    With ``hessian`` False the Hessian array is ``(0, d+1, d, d+1, d)``.  Each
+    cell's Hessian block ``[v, c, w, e]`` is multiplied by
+    ``scale[k, v] * scale[k, w]`` (``scale (m, d + 1)``; ones for the
+    Hessian in coordinates, the node scales for scaled variables).
+    """
+    m, n, d = cells.shape[0], x.shape[0], x.shape[1]
+    nv = d + 1
+    g = np.zeros((n, d))
+    sig = np.empty(m)
+    Hx = np.empty((m if hessian else 0, nv, d, nv, d))
+    if d == 3:  # (a literal dimension: the inlined loops have constant bounds)
+        F = _terms(x, cells, B, delta, hessian, scale, 3, g, sig, Hx)
+    else:
+        F = _terms(x, cells, B, delta, hessian, scale, 2, g, sig, Hx)
+    return F, g, sig, Hx
+
+
+@_jit
+def volume_mean_ratio(x: np.ndarray, cells: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(signed volumes (m,), mean ratios (m,))`` of P1 cells (``x (n, 3)``).
+
+    The formulas of :func:`nagata_snap.mesh.simplex.signed_volumes` and
+    :func:`nagata_snap.smoothing.quality.mean_ratio` (0 for a cell with
+    no finite ratio, at most 1).
+    """
+    m = cells.shape[0]
+    vol = np.empty(m)
+    q = np.empty(m)
+    e = np.empty((d + 1, 3))
+    for k in range(m):
+        cell = cells[k]
+        for v in range(d + 1):
+            for c in range(d):
+                e[v, c] = x[cell[v], c]
+        l2 = 0.0
+        for v in range(d + 1):
+            for w in range(v + 1, d + 1):
+                for c in range(d):
+                    t = e[w, c] - e[v, c]
+                    l2 += t * t
+        if d == 2:
+            ax, ay = e[1, 0] - e[0, 0], e[1, 1] - e[0, 1]
+            bx, by = e[2, 0] - e[0, 0], e[2, 1] - e[0, 1]
+            V = 0.5 * (ax * by - ay * bx)
+            qq = 4.0 * np.sqrt(3.0) * abs(V) / l2
+        else:
+            ax, ay, az = e[1, 0] - e[0, 0], e[1, 1] - e[0, 1], e[1, 2] - e[0, 2]
+            bx, by, bz = e[2, 0] - e[0, 0], e[2, 1] - e[0, 1], e[2, 2] - e[0, 2]
+            cx, cy, cz = e[3, 0] - e[0, 0], e[3, 1] - e[0, 1], e[3, 2] - e[0, 2]
+            V = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)) / 6.0
+            qq = 12.0 * np.cbrt(3.0 * abs(V)) ** 2 / l2
+        vol[k] = V
+        q[k] = min(qq, 1.0) if np.isfinite(qq) else 0.0
+    return vol, q
+
+
+@_jit
+def band_blocks(G: np.ndarray, w: np.ndarray, row: np.ndarray, col: np.ndarray, model: int,
+                mu: float, lmbda: float, n_rows: int, n_cols: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The band matrix's free-free node blocks, summed per node pair, as block CSR.
+
+    Args:
+        G: ``(nc, nv, d)`` hat-function gradients; w: ``(nc,)`` ``E |K|``.
+        row: ``(nc, nv)`` block row of each cell vertex (``0..n_rows-1``, -1: not a row).
+        col: ``(nc, nv)`` block column of each cell vertex (``0..n_cols-1``, -1: constrained).
+        model: 0 elastic, 1 harmonic, 2 graph (the models of ``smooth._summed_blocks``).
+
+    Returns:
+        ``(indptr (n_rows + 1,), columns (nnzb,), blocks (nnzb, d, d))``, columns
+        ascending within each row.  The contributions to a block are added in
+        ascending cell order, so the result depends only on the cells' order.
+        Temporaries: the row -> cell adjacency (``nc nv`` integers) and one
+        marker per column; no per-(cell, pair) array.
+    """
+    nc, nv, d = G.shape[0], G.shape[1], G.shape[2]
+    # row -> cells adjacency (ascending cells)
+    rp = np.zeros(n_rows + 1, dtype=np.int64)
+    for k in range(nc):
+        for a in range(nv):
+            if row[k, a] >= 0 and col[k, a] >= 0:
+                rp[row[k, a] + 1] += 1
+    for r in range(n_rows):
+        rp[r + 1] += rp[r]
+    rc = np.empty(rp[n_rows], dtype=np.int64)  # packed cell * nv + local vertex
+    fill = rp[:-1].copy()
+    for k in range(nc):
+        for a in range(nv):
+            r = row[k, a]
+            if r >= 0 and col[k, a] >= 0:
+                rc[fill[r]] = k * nv + a
+                fill[r] += 1
+    # pass 1: distinct columns per row
+    mark = np.full(n_cols, -1, dtype=np.int64)
+    indptr = np.zeros(n_rows + 1, dtype=np.int64)
+    for r in range(n_rows):
+        n = 0
+        for t in range(rp[r], rp[r + 1]):
+            k = rc[t] // nv
+            for b in range(nv):
+                cb = col[k, b]
+                if cb >= 0 and mark[cb] != r:
+                    mark[cb] = r
+                    n += 1
+        indptr[r + 1] = indptr[r] + n
+    # pass 2: columns (ascending) and summed blocks
+    cols = np.empty(indptr[n_rows], dtype=np.int64)
+    blocks = np.zeros((indptr[n_rows], d, d))
+    mark[:] = -1
+    P = np.empty((d, d))
+    for r in range(n_rows):
+        lo = indptr[r]
+        n = 0
+        for t in range(rp[r], rp[r + 1]):
+            k = rc[t] // nv
+            for b in range(nv):
+                cb = col[k, b]
+                if cb >= 0 and mark[cb] < lo:
+                    mark[cb] = lo + n
+                    cols[lo + n] = cb
+                    n += 1
+        cols[lo:lo + n].sort()
+        for q in range(n):
+            mark[cols[lo + q]] = lo + q
+        for t in range(rp[r], rp[r + 1]):
+            k, a = rc[t] // nv, rc[t] % nv
+            for b in range(nv):
+                cb = col[k, b]
+                if cb < 0:
+                    continue
+                blk = blocks[mark[cb]]
+                if model == 2:
+                    val = (nv - 1.0) if a == b else -1.0
+                    for i in range(d):
+                        blk[i, i] += val
+                    continue
+                tr = 0.0
+                for i in range(d):
+                    for j in range(d):
+                        P[i, j] = G[k, a, i] * (w[k] * G[k, b, j])
+                    tr += P[i, i]
+                for i in range(d):
+                    for j in range(d):
+                        if model == 1:
+                            if i == j:
+                                blk[i, j] += tr
+                        else:
+                            blk[i, j] += mu * ((tr if i == j else 0.0) + P[j, i]) + lmbda * P[i, j]
+    return indptr, cols, blocks
