@@ -205,6 +205,7 @@ def snap_case(path: str, levels: int, out: str) -> None:
         res["mesh_seconds"] = time.perf_counter() - t0
         res["cells0"] = cm.mesh.topology.index_map(cm.mesh.topology.dim).size_global
         res["summary"] = geo.model.summary() if geo.model is not None else ""
+        res["meshed_with"] = getattr(cm, "meshed_with", "")  # the mesher's retry that worked, if any
     except Exception as e:  # the refusal is the result: its message is what the user reads
         res["error"] = f"meshing/reading: {type(e).__name__}: {e}"
         if comm.rank == 0:
@@ -352,7 +353,8 @@ def _snap_rows(path: str, size: float, timeout: float) -> tuple[bool, str]:
         print(f"  snapping: refused: {serial['error']}")
         return "try" in serial["error"], "refused (the error must say what to try)"
     par = run_case(path, 1, 2, timeout)
-    print(f"  coarse mesh {serial.get('cells0', 0)} cells ({serial.get('mesh_seconds', 0):.1f} s)")
+    retry = f", gmsh retry: {serial['meshed_with']}" if serial.get("meshed_with") else ""
+    print(f"  coarse mesh {serial.get('cells0', 0)} cells ({serial.get('mesh_seconds', 0):.1f} s{retry})")
     ok = "error" not in serial and "error" not in par and len(serial["levels"]) == 2
     for k, lv in enumerate(serial["levels"], 1):
         tm = lv["times"]
