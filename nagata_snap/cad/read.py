@@ -617,10 +617,11 @@ def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
     which it defers near the boundary).
 
     Returns:
-        ``uv (k, 2)``, ``points (k, 3)`` (at ``uv`` clamped into the surface's domain in its
-        open directions, as the package's surfaces clamp), ``normals (k, 3)`` (NaN where the surface's
+        ``uv (k, 2)``, ``points (k, 3)`` (a B-spline's at ``uv`` clamped into its knots in its
+        open directions, as the package's B-splines clamp), ``normals (k, 3)`` (NaN where the surface's
         normal is undefined), ``state (k,)`` (0 in, 1 out, 2 on), ``kind (k,)`` (0 grid,
-        1 on a p-curve, whose state is 2 without asking, 2 beside one), ``offset`` (the 3D distance of the points beside
+        1 on a p-curve, whose state is 2 without asking, 2 beside one), ``offset``
+        (for a converted face also ``gap (k,)``, :func:`_gaps`) (the 3D distance of the points beside
         the p-curves from them) and ``time`` (seconds).
     """
     from OCP.gp import gp_Pnt, gp_Pnt2d, gp_Vec, gp_Vec2d
@@ -671,10 +672,15 @@ def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
     cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
     IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
     sign = -1.0 if reversed_ else 1.0
-    # evaluated inside the surface's domain in its open directions (a p-curve may leave a
-    # B-spline's knots by its tolerance; both sides clamp there), classified where they are
-    ulo, uhi = (-math.inf, math.inf) if a.IsUPeriodic() else (a.FirstUParameter(), a.LastUParameter())
-    vlo, vhi = (-math.inf, math.inf) if a.IsVPeriodic() else (a.FirstVParameter(), a.LastVParameter())
+    # a B-spline's points inside its knots in its open directions (a p-curve may leave them
+    # by its tolerance; both sides clamp there), classified where they are; other surfaces
+    # extrapolate, as ours do
+    ulo, uhi, vlo, vhi = (-math.inf, math.inf) * 2
+    if int(a.GetType()) in (o.BSPLINE_SURFACE, o.BEZIER_SURFACE):
+        if not a.IsUPeriodic():
+            ulo, uhi = a.FirstUParameter(), a.LastUParameter()
+        if not a.IsVPeriodic():
+            vlo, vhi = a.FirstVParameter(), a.LastVParameter()
     for (u, v), k in zip(params, kind, strict=True):  # the samples (OpenCASCADE's points, normals, states)
         a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
         points += p.Coord()
@@ -842,7 +848,26 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
     if fallback is not None:
         out["fallback"] = "nurbs" if basis is None else fallback
     if check:
-        out["check"] = _checks(pface, out["reversed"], uv)
+        out["check"] = c = _checks(pface, out["reversed"], uv)
+        if convert:  # the converted face's points against the face's own surface
+            t0 = time.perf_counter()
+            c["gap"] = _gaps(face, c["points"], (c["kind"] != 2) | (c["state"] == 0))
+            c["time"] += time.perf_counter() - t0
+    return out
+
+
+def _gaps(face, points: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """``(k,)`` distance of ``points[which]`` from ``face``'s own surface
+    (``GeomAPI_ProjectPointOnSurf``; 0 elsewhere): how far a face converted by
+    ``BRepBuilderAPI_NurbsConvert``, whose parameters may differ from the face's, is from it."""
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt
+
+    geo = _occ().BRep_Tool.Surface_s(face)
+    out = np.zeros(len(points))
+    for k in np.flatnonzero(which).tolist():  # a few samples of a converted face
+        pr = GeomAPI_ProjectPointOnSurf(gp_Pnt(*points[k].tolist()), geo)
+        out[k] = pr.LowerDistance() if pr.NbPoints() else math.inf
     return out
 
 

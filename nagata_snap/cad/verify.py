@@ -13,6 +13,9 @@ on a few of its p-curves and two beside each, across the p-curve), and
   beside them that OpenCASCADE puts inside): our surface at OpenCASCADE's parameters (through the face's
   affine parameter map, where its description has one) within
   :data:`POINT_RTOL` of the model size of OpenCASCADE's point;
+  (a face converted with ``BRepBuilderAPI_NurbsConvert``, whose parameters differ
+  from the face's, is compared with OpenCASCADE's conversion, and the conversion's
+  points must lie on the face's own surface within the same tolerance);
 * **normals**: our outward unit normal (the face's orientation applied)
   within :data:`NORMAL_TOL` of OpenCASCADE's, where both are defined;
 * **point-in-face**: our :class:`~nagata_snap.cad.trimming.TrimLoops` agree
@@ -92,7 +95,7 @@ class FaceCheck:
 
 def _samples(data: dict) -> tuple[np.ndarray, ...]:
     """All faces' OpenCASCADE samples concatenated: ``(face, uv, points, normals, state, kind,
-    offset)``, ``offset`` per sample (its face's)."""
+    offset, gap)``, ``offset`` per sample (its face's), ``gap`` 0 but on converted faces."""
     checks = [f["check"] for f in data["faces"]]
     n = np.array([len(c["uv"]) for c in checks], dtype=np.int64)
     face = np.repeat(np.arange(len(checks)), n)
@@ -101,8 +104,10 @@ def _samples(data: dict) -> tuple[np.ndarray, ...]:
         return np.concatenate([np.asarray(c[key]).reshape(-1, *shape) for c in checks] + [np.zeros((0, *shape))])
 
     offset = np.repeat(np.array([float(c["offset"]) for c in checks]), n)
+    gap = np.concatenate([np.asarray(c.get("gap", np.zeros(len(c["uv"]))), dtype=float) for c in checks]
+                         + [np.zeros(0)])
     return (face, cat("uv", (2,)), cat("points", (3,)), cat("normals", (3,)), cat("state", ()).astype(np.int64),
-            cat("kind", ()).astype(np.int64), offset)
+            cat("kind", ()).astype(np.int64), offset, gap)
 
 
 def _mapped(model: CadModel, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -144,12 +149,14 @@ def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
     Returns:
         per face its :class:`FaceCheck`.
     """
-    face, uv, Pocc, Nocc, state, kind, offset = _samples(data)
+    face, uv, Pocc, Nocc, state, kind, offset, gap = _samples(data)
     nf = len(model.faces)
     params = _mapped(model, face, uv)
     P, N = _ours(model, face, params)
     size = max(model.size, 1e-300)
-    dp = np.linalg.norm(P - Pocc, axis=1) / size
+    # (a face converted by OpenCASCADE is checked against its conversion, and the conversion
+    # against the face's own surface: the gap)
+    dp = (np.linalg.norm(P - Pocc, axis=1) + gap) / size
     dp = np.where(np.isfinite(dp), dp, np.inf)
     dn = np.linalg.norm(N - Nocc, axis=1)
     dn = np.where(np.isnan(dn), 0.0, dn)  # (where either normal is undefined)
@@ -183,12 +190,16 @@ def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
                       None if i not in first else (float(first[i][0]), float(first[i][1]))) for i in range(nf)]
 
 
-def _failure(path: str, data: dict, c: FaceCheck, tried: list[str]) -> str:
-    s = data["faces"][c.face]["surface"]
-    kind = s["type"] if "source" not in s else f"{s['type']} (from a {s['source']})"
-    return (f"{path}: face {c.face} ({kind} surface) does not match OpenCASCADE's face after trying "
-            f"{', '.join(['its description', *tried])}: {c.deviation()}; the file cannot be used safely "
-            "(report it, or repair the face in a CAD system)")
+def _kind(desc: dict) -> str:
+    """A surface description's type in words (``"cylinder (from a SurfaceOfRevolution)"``)."""
+    return desc["type"] if "source" not in desc else f"{desc['type']} (from a {desc['source']})"
+
+
+def _failure(path: str, first: dict, c: FaceCheck) -> str:
+    """The message of a face (first read as ``first``) that failed every description."""
+    return (f"{path}: face {c.face} ({_kind(first)} surface) does not match OpenCASCADE's face, "
+            f"neither as read nor re-read {', '.join(f'as its {k}' for k in FALLBACKS)}: {c.deviation()}; "
+            "the file cannot be used safely (report it, or repair the face in a CAD system)")
 
 
 def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
@@ -236,6 +247,8 @@ def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = 
             raise CadError(msg if data["path"] in msg else f"{data['path']}: {msg}") from None
         t1 = time.perf_counter()
         checks = check_faces(model, data)
+        if not passes:
+            first = [f["surface"] for f in data["faces"]]
         # our side: the checks, and the rebuilds of the model after the first
         spent += time.perf_counter() - (t0 if passes else t1)
         passes += 1
@@ -247,7 +260,7 @@ def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = 
             level = 0 if used is None else FALLBACKS.index(used) + 1
             if level >= len(FALLBACKS):
                 if strict:
-                    raise CadError(_failure(data["path"], data, c, [f"its {k}" for k in FALLBACKS]))
+                    raise CadError(_failure(data["path"], first[c.face], c))
                 failed[c.face] = c
                 continue
             todo[c.face] = FALLBACKS[level]
