@@ -599,13 +599,38 @@ def _approximated(face, size: float, uv: Sequence[float]) -> dict | None:
 
 
 #: OpenCASCADE's samples per face for its verification (:func:`_checks`): a
-#: ``CHECK_GRID x CHECK_GRID`` grid over the face's ``(u, v)`` box, and on up to
-#: ``CHECK_USES`` edge uses a point of the p-curve and two beside it
+#: ``CHECK_GRID x CHECK_GRID`` grid over the face's ``(u, v)`` box, and on one edge use of
+#: every wire and others up to ``CHECK_USES`` in all a point of the p-curve and two beside it
 CHECK_GRID = 4
-CHECK_USES = 6
+CHECK_USES = 4
 #: the points beside a p-curve are this fraction of the face's extent (or ten times the
 #: edge's tolerance, if more) off it, across the p-curve
 CHECK_OFFSET = 1e-3
+
+
+def _check_uses(face) -> list:
+    """The edge uses :func:`_checks` samples: the first (non-degenerate) one of every wire of
+    the face (every loop is checked), then others spread over the face's uses, up to
+    :data:`CHECK_USES` in all."""
+    o = _occ()
+    wires = []
+    ex = o.TopExp_Explorer(face, o.WIRE)
+    while ex.More():
+        uses = []
+        ee = o.TopExp_Explorer(ex.Current(), o.EDGE)
+        while ee.More():
+            e = o.TopoDS.Edge(ee.Current())
+            if not o.BRep_Tool.Degenerated_s(e):
+                uses.append(e)
+            ee.Next()
+        wires.append(uses)
+        ex.Next()
+    picked = [w[0] for w in wires if w]
+    rest = [e for w in wires for e in w[1:]]
+    extra = CHECK_USES - len(picked)
+    if extra > 0 and rest:
+        picked += rest[::max(1, math.ceil(len(rest) / extra))][:extra]
+    return picked
 
 
 def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
@@ -642,17 +667,9 @@ def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
         c = p.Coord()
         lo, hi = list(map(min, lo, c)), list(map(max, hi, c))
     extent = math.dist(lo, hi) if math.isfinite(lo[0]) else 0.0
-    edges = []
-    ex = o.TopExp_Explorer(face, o.EDGE)
-    while ex.More():
-        e = o.TopoDS.Edge(ex.Current())
-        if not o.BRep_Tool.Degenerated_s(e):
-            edges.append(e)
-        ex.Next()
-    step = max(1, math.ceil(len(edges) / CHECK_USES))
     p2, d2 = gp_Pnt2d(), gp_Vec2d()
     offset = CHECK_OFFSET * extent
-    for e in edges[::step]:  # loop over a few edge uses (their p-curves)
+    for e in _check_uses(face):  # loop over a few edge uses (their p-curves)
         c = o.BRepAdaptor_Curve2d(e, face)
         c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
         u, v = p2.Coord()

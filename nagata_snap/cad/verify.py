@@ -168,16 +168,16 @@ def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
     bad = np.zeros(len(face), dtype=bool)
     trims = model.trim_loops()
     if trims is not None and len(face):
+        # our polygons (even-odd) against the classifier, and every sample on a p-curve on
+        # our face; the distance from our loops (less their band) is asked only where they
+        # disagree: a sample on a p-curve outside our polygon must be within the band, any
+        # other disagreement counts where the sample is farther than the band from our loops
+        ins = trims.inside(face, params, band=False)
         on = kind == 1
-        if on.any():
-            bad[on] = ~trims.inside(face[on], params[on])  # on a p-curve: on our face, within the band
-        # elsewhere: our polygons (even-odd) against the classifier; a disagreement counts
-        # where the sample is farther than the band from our loops (asked of those only)
-        ask = np.flatnonzero(~on & (state != 2))
+        ask = np.flatnonzero((on & ~ins) | (~on & (state != 2) & (ins != (state == 0))))
         if ask.size:
-            ask = ask[trims.inside(face[ask], params[ask], band=False) != (state[ask] == 0)]
-        if ask.size:
-            bad[ask] = trims.loop_distance(face[ask], params[ask]) > 0.25 * offset[ask]
+            ld = trims.loop_distance(face[ask], params[ask])
+            bad[ask] = np.where(on[ask], ld > 0.0, ld > 0.25 * offset[ask])
     else:  # no face is trimmed: every sample is on its face
         bad = state == 1
     point = np.zeros(nf)
