@@ -361,10 +361,12 @@ class TrimLoops:
                 shifts = [s + k * d for s in shifts for k in (0.0, -1.0, 1.0)]
         return shifts
 
-    def loop_distance(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:
+    def loop_distance(self, ent: npt.ArrayLike, params: npt.ArrayLike, enough: float | None = None) -> np.ndarray:
         """``(n,)`` distance (length units) of ``params (n, 2)`` from the nearest trimming
         loop of face ``ent (n,)``, less the loop's band, inside or outside (``inf`` for an
-        untrimmed face): where it is positive, :meth:`inside` does not depend on the band."""
+        untrimmed face): where it is positive, :meth:`inside` does not depend on the band.
+        ``enough``: a point whose distance at the wrapped parameter is at most this is not
+        tested one period either side (its value is then an upper bound)."""
         from nagata_snap.cad.projection import normalize_params
 
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
@@ -378,8 +380,15 @@ class TrimLoops:
             sel = rows[g.order[gs]]
             q0 = normalize_params(self.entities[e], params[sel])
             su, sv = self._scales(e, q0)
-            every = np.arange(len(sel))
-            out[sel] = np.min([self._beyond(e, q0 + sh, su, sv, every) for sh in self._shifts(e)], axis=0)
+            best = np.full(len(sel), np.inf)
+            todo = np.arange(len(sel))
+            for sh in self._shifts(e):  # the first is 0
+                best[todo] = np.minimum(best[todo], self._beyond(e, q0 + sh, su, sv, todo))
+                if enough is not None:
+                    todo = todo[best[todo] > enough]
+                if todo.size == 0:
+                    break
+            out[sel] = best
         return out
 
     def excess(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:

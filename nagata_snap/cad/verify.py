@@ -176,7 +176,7 @@ def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
         on = kind == 1
         ask = np.flatnonzero((on & ~ins) | (~on & (state != 2) & (ins != (state == 0))))
         if ask.size:
-            ld = trims.loop_distance(face[ask], params[ask])
+            ld = trims.loop_distance(face[ask], params[ask], enough=0.0)
             bad[ask] = np.where(on[ask], ld > 0.0, ld > 0.25 * offset[ask])
     else:  # no face is trimmed: every sample is on its face
         bad = state == 1
