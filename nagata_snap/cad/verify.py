@@ -276,4 +276,6 @@ def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = 
          "worst_normal": max((c.normal for c in checks), default=0.0), "passes": passes, "time": spent}
     model.verification = data["verification"] = v
     model.times["verify"] = spent
+    for f in data["faces"]:  # (not needed further, e.g. not broadcast to the other ranks)
+        f.pop("check", None)
     return data, model
