@@ -46,7 +46,8 @@ FORMATS = dict.fromkeys(CASES, ("brep", "step", "igs"))
 FORMATS["offset_cylinder"] = ("brep", "step")
 #: corpus files whose closest points are checked here (small, of different kinds)
 CORPUS_CLOSEST = ("as1_tu_203_assembly.stp", "torus_bspline_harmonyware.igs", "component8_sheet.step",
-                  "cone_ideas_11_msbo.igs", "primitives_catia_v4_debis.stp", "offset_tube_lstc_occ63.igs")
+                  "cone_ideas_11_msbo.igs", "primitives_catia_v4_debis.stp", "offset_tube_lstc_occ63.igs",
+                  "screw_euclid_netgen.step")
 
 
 @pytest.fixture(scope="module")
@@ -285,3 +286,23 @@ def test_closest_points_agree_with_occ_on_corpus(name):
     occ = OccShape(path)
     r = closest_agreement(geo, occ, pushed_points(path, 300, size=occ.size))
     assert r["agree"] >= 0.999 * r["n"] and r["wrong_face"] == 0, r
+
+
+def test_spindle_torus_closest_point_on_its_face_box():
+    """A spindle torus (r > R, a rounded screw head): the closed-form closest point is the
+    nearest of the two meridian circles in the point's half-plane that lies in the face's
+    ``(u, v)`` box: against a dense sampling of the box, never farther (to the sampling's
+    resolution), and the foot is the surface's point at the returned parameters."""
+    from scipy.spatial import cKDTree
+
+    from nagata_snap.cad.surfaces import Torus
+
+    t = Torus([0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], 0.5, 1.0, np.array([[0, 2 * np.pi], [-2.0, 2.0]]))
+    X = np.random.default_rng(0).normal(size=(2000, 3))
+    uv, S, d = t.closest(X)
+    assert np.abs(S - t.evaluate(uv[:, 0], uv[:, 1])[0]).max() < 1e-12
+    assert np.abs(np.linalg.norm(S - X, axis=1) - d).max() < 1e-12
+    uu, vv = np.meshgrid(np.linspace(0, 2 * np.pi, 600), np.linspace(-2, 2, 600))
+    brute, _ = cKDTree(t.evaluate(uu.ravel(), vv.ravel())[0]).query(X)
+    assert (d <= brute + 1e-12).all()
+    assert (t._in_box(uv[:, 0], uv[:, 1]) | (d < brute - 1e-3)).all()
