@@ -12,7 +12,11 @@ the ratios comparable on a shared machine, where one run of each at different mo
                                      [--stages]
 
 Printed per part and format: the three times [ms] and the ratios of the revision and of this
-checkout to OpenCASCADE's import.  ``--stages``: also ``read_shape`` of the revision and of this
+checkout to OpenCASCADE's import, and this checkout's verification of the faces against
+OpenCASCADE (:mod:`nagata_snap.cad.verify`, part of its time; the best of each side over the
+rounds): OpenCASCADE's samples (``times["check"]``, in the reader), our side of the checks
+(``times["verify"]``) and their sum over OpenCASCADE's import.  ``--files``: CAD files
+(e.g. of meshes/corpus) instead of the parts.  ``--stages``: also ``read_shape`` of the revision and of this
 checkout, interleaved likewise, and the best time of each of its stages (``times``: ``read``,
 ``heal``, ``convert``; measured with the same clock) and of the whole call.
 """
@@ -63,6 +67,7 @@ def main() -> None:
     add_part_options(ap)
     ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--wall", action="store_true", help="wall time instead of CPU time")
+    ap.add_argument("--files", default="", help="comma-separated CAD files instead of --parts")
     ap.add_argument("--stages", action="store_true",
                     help="also read_shape's stage times, the revision's and this checkout's")
     args = ap.parse_args()
@@ -80,7 +85,7 @@ def main() -> None:
     import nagata_snap_ref.cad.read as ref_read
 
     def occ(path: str) -> None:
-        r = STEPControl_Reader() if path.endswith(".step") else IGESControl_Reader()
+        r = STEPControl_Reader() if path.lower().endswith((".step", ".stp")) else IGESControl_Reader()
         r.ReadFile(path)
         r.TransferRoots()
         r.OneShape()
@@ -92,36 +97,51 @@ def main() -> None:
     stages = ("read", "heal", "convert", "total")
     tmp = tempfile.mkdtemp(prefix="read_vs_ref_parts_")
     print(f"{'part':20s} {'format':9s} {'OCC':>7s} {args.ref:>7s} {'this':>7s}   ratio {args.ref:>5s} {'this':>5s}"
-          f"   ({'wall' if args.wall else 'CPU'} ms, best of {args.rounds})", file=out, flush=True)
-    for name in args.parts.split(","):
-        for fmt in args.formats.split(","):
-            f = fmt if fmt == "step" else ("iges" if parts.PARTS[name].iges_faces_solid else "iges_brep")
-            path = str(parts.write_part(name, tmp, (f,))[f])
-            runs = {"occ": lambda p=path: occ(p), "ref": lambda p=path: ref.CadGeometry.from_file(p, isolate=False),
-                    "this": lambda p=path: new.CadGeometry.from_file(p, isolate=False)}
-            best = dict.fromkeys(runs, float("inf"))
-            for g in runs.values():
-                g()  # first calls (imports, caches) are not timed
+          f"   verify: {'OCC':>7s} {'ours':>7s} {'/OCC':>5s}   ({'wall' if args.wall else 'CPU'} ms, best of "
+          f"{args.rounds}; verification: wall)", file=out, flush=True)
+    if args.files:
+        cases = [(os.path.basename(p), os.path.splitext(p)[1][1:], p) for p in args.files.split(",")]
+    else:
+        cases = []
+        for name in args.parts.split(","):
+            for fmt in args.formats.split(","):
+                f = fmt if fmt == "step" else ("iges" if parts.PARTS[name].iges_faces_solid else "iges_brep")
+                cases.append((name, f, str(parts.write_part(name, tmp, (f,))[f])))
+    for name, f, path in cases:
+        checks = {"check": float("inf"), "verify": float("inf")}
+
+        def this(p=path, checks=checks):
+            t = new.CadGeometry.from_file(p, isolate=False).model.times
+            for k in checks:
+                checks[k] = min(checks[k], t.get(k, float("nan")))
+
+        runs = {"occ": lambda p=path: occ(p), "ref": lambda p=path: ref.CadGeometry.from_file(p, isolate=False),
+                "this": this}
+        best = dict.fromkeys(runs, float("inf"))
+        for g in runs.values():
+            g()  # first calls (imports, caches) are not timed
+        for _ in range(args.rounds):
+            for k, g in runs.items():
+                t0 = clock()
+                g()
+                best[k] = min(best[k], clock() - t0)
+        o = best["occ"]
+        ver = checks["check"] + checks["verify"]
+        print(f"{name:20s} {f:9s} {1e3 * o:7.2f} {1e3 * best['ref']:7.2f} {1e3 * best['this']:7.2f}   "
+              f"      {best['ref'] / o:5.2f} {best['this'] / o:5.2f}           {1e3 * checks['check']:7.2f} "
+              f"{1e3 * checks['verify']:7.2f} {ver / o:5.2f}", file=out, flush=True)
+        if args.stages:
+            reads = {"ref": lambda p=path: ref_read.read_shape(p), "this": lambda p=path: new_read.read_shape(p)}
+            st = {k: dict.fromkeys(stages, float("inf")) for k in reads}
             for _ in range(args.rounds):
-                for k, g in runs.items():
+                for k, g in reads.items():
                     t0 = clock()
-                    g()
-                    best[k] = min(best[k], clock() - t0)
-            o = best["occ"]
-            print(f"{name:20s} {f:9s} {1e3 * o:7.2f} {1e3 * best['ref']:7.2f} {1e3 * best['this']:7.2f}   "
-                  f"      {best['ref'] / o:5.2f} {best['this'] / o:5.2f}", file=out, flush=True)
-            if args.stages:
-                reads = {"ref": lambda p=path: ref_read.read_shape(p), "this": lambda p=path: new_read.read_shape(p)}
-                st = {k: dict.fromkeys(stages, float("inf")) for k in reads}
-                for _ in range(args.rounds):
-                    for k, g in reads.items():
-                        t0 = clock()
-                        times = {**g()["times"], "total": -t0}
-                        times["total"] += clock()
-                        for s in stages:
-                            st[k][s] = min(st[k][s], times[s])
-                print(f"{'':20s} {'read_shape':9s} " + "  ".join(
-                    f"{s} {1e3 * st['ref'][s]:.2f} -> {1e3 * st['this'][s]:.2f}" for s in stages), file=out, flush=True)
+                    times = {**g()["times"], "total": -t0}
+                    times["total"] += clock()
+                    for s in stages:
+                        st[k][s] = min(st[k][s], times[s])
+            print(f"{'':20s} {'read_shape':9s} " + "  ".join(
+                f"{s} {1e3 * st['ref'][s]:.2f} -> {1e3 * st['this'][s]:.2f}" for s in stages), file=out, flush=True)
 
 
 if __name__ == "__main__":

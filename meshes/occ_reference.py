@@ -45,6 +45,7 @@ class OccShape:
         self.shape, info = load_shape(path, unit, heal=not self.joined)
         self.size = info["size"]
         fm, em, _, _ = shape_maps(self.shape)
+        self._fmap = fm
         self.faces = [TopoDS.Face(fm.FindKey(i)) for i in range(1, fm.Extent() + 1)]
         edges = [TopoDS.Edge(em.FindKey(i)) for i in range(1, em.Extent() + 1)]
         self.edges = [edges[e["source"]] for e in data["edges"]]
@@ -107,6 +108,44 @@ class OccShape:
             if not d[k] <= accept:
                 d[k] = min(d[k], self._extrema(f, p))
         return d
+
+    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
+        ``(distance (n,), face (n,))``, ``face`` the index (as the model's) of the face the
+        closest point lies on, ``-1`` where it lies on an edge or a vertex (on two faces or
+        more).  ``BRepExtrema_DistShapeShape`` against the shape's faces, the distance refined
+        on the face found (:meth:`face_distance`, against Extrema's error near seams)."""
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.gp import gp_Pnt
+        from OCP.TopAbs import TopAbs_FACE
+
+        from OCP.BRep import BRep_Builder
+        from OCP.TopoDS import TopoDS_Compound
+
+        comp, b = TopoDS_Compound(), BRep_Builder()  # the faces only: a solid's inside is at distance 0
+        b.MakeCompound(comp)
+        for f in self.faces:
+            b.Add(comp, f)
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        d = np.full(len(points), np.inf)
+        face = np.full(len(points), -1, dtype=np.int64)
+        for k, p in enumerate(points):  # loop over points (OCC queries)
+            ds = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex(), comp)
+            if not ds.IsDone() or ds.NbSolution() == 0:
+                continue
+            d[k] = ds.Value()
+            faces = set()
+            for j in range(1, ds.NbSolution() + 1):
+                s = ds.SupportOnShape2(j)
+                if s.ShapeType() == TopAbs_FACE:
+                    faces.add(self._fmap.FindIndex(s) - 1)
+                else:
+                    faces.add(-1)
+            if len(faces) == 1 and -1 not in faces:
+                face[k] = faces.pop()
+                d[k] = min(d[k], self.face_distance([face[k]], [p])[0])
+        return d, face
 
     def edge_distance(self, edges, points, accept: float = 0.0) -> np.ndarray:
         """``(n,)`` distance of each point to OCC's closest point on edge ``edges[i]``
@@ -182,3 +221,60 @@ class GmshFaceNormals:
             n = gmsh.model.getNormal(int(face), records.params[sel].ravel())
             out[sel] = np.reshape(n, (-1, records.params.shape[1], 3))
         return out
+
+
+def pushed_points(path: str, n: int = 400, rel: float = 1e-3, seed: int = 0, size: float | None = None
+                  ) -> np.ndarray:
+    """``(m, 3)`` points ``rel`` of the model size off the surface nodes of a gmsh mesh of ``path``
+    (``m <= n`` chosen at random), along gmsh's (OpenCASCADE's) normal of the node's face, to either
+    side at random: the closest-point benchmark's and tests' query points.  ``size``: the model
+    size (default: gmsh's bounding box diagonal)."""
+    import gmsh
+
+    rng = np.random.default_rng(seed)
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.open(path)
+        lo = np.array(gmsh.model.getBoundingBox(-1, -1))
+        diag = float(np.linalg.norm(lo[3:] - lo[:3])) if size is None else size
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.05 * diag)
+        gmsh.model.mesh.generate(2)
+        X, N = [], []
+        for _, tag in gmsh.model.getEntities(2):  # loop over gmsh faces
+            _, xyz, uv = gmsh.model.mesh.getNodes(2, tag, includeBoundary=False, returnParametricCoord=True)
+            if len(xyz) == 0:
+                continue
+            X.append(np.reshape(xyz, (-1, 3)))
+            N.append(np.reshape(gmsh.model.getNormal(tag, uv), (-1, 3)))
+    finally:
+        gmsh.finalize()
+    X, N = np.concatenate(X), np.concatenate(N)
+    pick = rng.permutation(len(X))[:n]
+    side = rng.choice([-1.0, 1.0], size=len(pick))
+    return X[pick] + (rel * diag * side)[:, None] * N[pick]
+
+
+def closest_agreement(geo, occ: OccShape, points: np.ndarray, rtol: float = 1e-8) -> dict:
+    """How far the package's global ``closest_point`` agrees with OpenCASCADE's on ``points``.
+
+    A point agrees where our distance is within ``rtol`` of the model size of
+    OpenCASCADE's (a closest point on another face at the same distance agrees:
+    equidistant faces); ``wrong_face``: points found at a distance more than that
+    beyond OpenCASCADE's, where OpenCASCADE's closest point lies on another face.
+
+    Returns:
+        ``{"n", "found", "agree", "wrong_face", "worst" (largest |difference| / size),
+        "bad" (indices of the disagreeing points)}``.
+    """
+    ent, _, dist = geo.closest_point(points)
+    d_occ, f_occ = occ.closest(points)
+    tol = rtol * occ.size
+    diff = np.abs(dist - d_occ)
+    agree = diff <= tol
+    found = ent >= 0
+    wrong = found & ~agree & (f_occ >= 0) & (f_occ != ent)
+    fin = np.isfinite(diff)
+    return {"n": len(points), "found": int(found.sum()), "agree": int(agree.sum()), "wrong_face": int(wrong.sum()),
+            "worst": float(diff[fin].max() / occ.size) if fin.any() else float("inf"),
+            "bad": np.flatnonzero(~agree)}

@@ -227,9 +227,7 @@ class CadGeometry:
             if arr is not None and len(arr) != n:
                 raise ValueError(f"{name} has {len(arr)} entries for {n} entities")
         if self.model is not None and self.param_dim == 2:
-            loops = [[lp.points for lp in f.loops] for f in self.model.faces]
-            bands = [[lp.band for lp in f.loops] for f in self.model.faces]
-            return TrimLoops(self.entities, loops, bands, rtol) if any(loops) else None
+            return self.model.trim_loops(rtol)
         has = any(t is not None for t in (trim_loops or [])) or any(h for h in (trim_holes or []))
         if not has:
             return None
@@ -317,13 +315,14 @@ class CadGeometry:
                 entity of the kind needed.
         """
         from nagata_snap.cad.topology import CadModel
-        from nagata_snap.cad.worker import read_cad
+        from nagata_snap.cad.verify import read_verified
 
         data: dict | None = None
+        model: CadModel | None = None
         err: str | None = None
         if comm is None or comm.rank == 0:
             try:
-                data = read_cad(path, unit=unit, heal=heal, isolate=isolate, timeout=timeout)
+                data, model = read_verified(path, unit=unit, heal=heal, isolate=isolate, timeout=timeout)
             except CadError as e:
                 err = str(e)
         if comm is not None:
@@ -332,7 +331,8 @@ class CadGeometry:
             raise CadError(err)
         assert data is not None  # read_cad returns the model's data or raises
         try:
-            model = CadModel.from_data(data)
+            if model is None:  # (the other ranks: the model of rank 0's verified data)
+                model = CadModel.from_data(data)
             return cls.from_model(model, dim=dim, **kwargs)
         except ValueError as e:  # geometry OpenCASCADE accepted but that cannot be used
             msg = str(e)

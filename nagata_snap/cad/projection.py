@@ -735,11 +735,42 @@ def sample_entity(
         P = u[:, None]
     else:
         per_span = 6 if per_span is None else per_span
-        u = _direction_samples(_distinct_knots(entity, 0), per_span, min_per_direction)
-        v = _direction_samples(_distinct_knots(entity, 1), per_span, min_per_direction)
-        uu, vv = np.meshgrid(u, v, indexing="ij")
-        P = np.stack([uu.ravel(), vv.ravel()], axis=1)
+        ku, kv = _distinct_knots(entity, 0), _distinct_knots(entity, 1)
+        u = _direction_samples(ku, per_span, min_per_direction)
+        v = _direction_samples(kv, per_span, min_per_direction)
+        P = _grid(u, v)
+        X = evaluate_params(entity, P, 0)
+        # about as dense in 3D along u as along v: a direction whose samples lie farther apart
+        # than the other's (by more than a factor 2) gets that many times more (at most
+        # MAX_ANISOTROPY): on a thin torus' tube the nearest samples of a point would
+        # otherwise all lie on one row far from it, seeding Newton onto the wrong side
+        G = X.reshape(len(u), len(v), 3)
+        su = float(np.linalg.norm(np.diff(G, axis=0), axis=2).mean()) if len(u) > 1 else 0.0
+        sv = float(np.linalg.norm(np.diff(G, axis=1), axis=2).mean()) if len(v) > 1 else 0.0
+        if min(su, sv) > 0 and max(su, sv) > 2.0 * min(su, sv):
+            f = int(min(math.ceil(max(su, sv) / min(su, sv)), MAX_ANISOTROPY))
+            if su > sv:
+                u = _direction_samples(ku, per_span * f, min_per_direction * f)
+            else:
+                v = _direction_samples(kv, per_span * f, min_per_direction * f)
+            P = _grid(u, v)
+            X = evaluate_params(entity, P, 0)
+        return P, X
     return P, evaluate_params(entity, P, 0)
+
+
+#: times more seeds :meth:`GlobalSearcher._past_saddles` tries where Newton stopped at a saddle
+SADDLE_SEEDS = 6
+#: ... and where its best result is farther than this many times the entity's sample spacing
+SADDLE_SPACING = 0.25
+#: most times more samples :func:`sample_entity` puts along a surface's sparser direction
+MAX_ANISOTROPY = 16
+
+
+def _grid(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``(len(u) len(v), 2)``: the parameter grid ``u x v``, ``u`` major."""
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    return np.stack([uu.ravel(), vv.ravel()], axis=1)
 
 
 class GlobalSearcher:
@@ -843,6 +874,15 @@ class GlobalSearcher:
         """``(s,)`` entity of each grid sample."""
         return self._all_samples()[2]
 
+    def _spacing(self, e: int) -> float:
+        """Mean distance from each search sample of entity ``e`` to its nearest other sample."""
+        if not hasattr(self, "_spacings"):
+            self._spacings: dict[int, float] = {}
+        if e not in self._spacings:
+            X = self.entity_samples(e)[1]
+            self._spacings[e] = float(self._entity_tree(e).query(X, k=2)[0][:, 1].mean()) if len(X) > 1 else 0.0
+        return self._spacings[e]
+
     def _entity_tree(self, e: int) -> cKDTree:
         if e not in self._trees:
             self._trees[e] = cKDTree(self.entity_samples(e)[1])
@@ -922,7 +962,103 @@ class GlobalSearcher:
             empty = (np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0))
             return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
+        pt, ent, params, dist = self._nearer_boxes(X, pt, ent, params, dist, k_seeds, accept)
+        pt, ent, params, dist = self._past_saddles(X, pt, ent, params, dist, k_seeds, accept)
         return _pick(n, pt, ent, params, dist, (ent, params), accept)
+
+    def _past_saddles(self, X: np.ndarray, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray,
+                      k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
+        """The results ``(pt, ent, params, dist)``, with more Newton runs where a point's best
+        result on a surface that is not analytic is a saddle or a maximum of the distance.
+
+        Newton finds stationary points of the distance; from seeds all on one side
+        of a point (the nearest samples of a point inside a narrow region of a
+        B-spline face can all lie on one iso-line around it) it can stop at a
+        saddle, or at a local minimum farther than the samples resolve.  Where the
+        Hessian of ``|S - x|^2 / 2`` (``J^T J + (S - x) . S_ij``) at a point's best
+        result is not positive definite, or the result is farther than
+        :data:`SADDLE_SPACING` times the entity's sample spacing (a point close to the
+        surface between sparse samples), Newton runs again on that entity from its
+        :data:`SADDLE_SEEDS` times more nearest samples.
+        """
+        if self.param_dim != 2 or len(pt) == 0:
+            return pt, ent, params, dist
+        ok = np.ones(len(pt), dtype=bool) if accept is None else np.asarray(accept(ent, params), dtype=bool)
+        best = best_per_group(pt, (~ok, dist), len(X))
+        best = best[best >= 0]
+        analytic = np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)])
+        best = best[~analytic[ent[best]] & (dist[best] > 0)]
+        if best.size == 0:
+            return pt, ent, params, dist
+        saddle = np.zeros(len(best), dtype=bool)
+        g = Groups(ent[best])
+        for e, sl in g:  # loop over the entities of those results
+            rows = best[g.order[sl]]
+            S, T, H = evaluate_params(self.entities[e], normalize_params(self.entities[e], params[rows]), 2)
+            r = S - X[pt[rows]]
+            A = np.einsum("nac,nbc->nab", T, T) + np.einsum("nc,nabc->nab", r, H)
+            det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+            saddle[g.order[sl]] = (det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | \
+                (dist[rows] > SADDLE_SPACING * self._spacing(e))
+        rows = best[saddle]
+        if rows.size == 0:
+            return pt, ent, params, dist
+        k = SADDLE_SEEDS * (self.k_seeds if k_seeds is None else int(k_seeds))
+        par, _, d = self.search_on(X[pt[rows]], ent[rows], k)[:3]
+        return (np.concatenate([pt, pt[rows]]), np.concatenate([ent, ent[rows]]), np.concatenate([params, par]),
+                np.concatenate([dist, d]))
+
+    def _box_classes(self) -> list[tuple[np.ndarray, float, cKDTree]]:
+        """The entities grouped by the size of their bounding boxes (half-diagonals within a
+        factor 2): per group its entities, largest half-diagonal and KD-tree of box centres."""
+        if not hasattr(self, "_boxes"):
+            half = 0.5 * np.linalg.norm(self.bbox_hi - self.bbox_lo, axis=1)
+            cls = np.floor(np.log2(np.maximum(half, 1e-300))).astype(np.int64)
+            centre = 0.5 * (self.bbox_hi + self.bbox_lo)
+            g = Groups(cls)
+            self._boxes = [(g.order[sl], float(half[g.order[sl]].max()), cKDTree(centre[g.order[sl]]))
+                           for _, sl in g]
+        return self._boxes
+
+    def _nearer_boxes(self, X: np.ndarray, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray,
+                      k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
+        """The Newton results ``(pt, ent, params, dist)`` of the seeded search, with those on
+        every entity whose bounding box is nearer to a point than the point's best (accepted)
+        result and that no seed of the point tried (:meth:`search_on`: closed form on analytic
+        entities, the entity's own nearest samples on NURBS).
+
+        The nearest grid samples of a point can all lie on small, densely sampled faces
+        while its closest point is on a large, coarsely sampled one (a plane beside the
+        holes drilled into it): a bound, not the samples, decides which entities compete.
+        """
+        n = len(X)
+        ok = np.ones(len(pt), dtype=bool) if accept is None else np.asarray(accept(ent, params), dtype=bool)
+        best = np.full(n, np.inf)
+        np.minimum.at(best, pt[ok], dist[ok])
+        r = np.where(np.isfinite(best), best, self.size) * (1.0 + 1e-9) + 1e-12 * self.size
+        E = len(self.entities)
+        new_pt, new_ent = [], []
+        for members, half, tree in self._box_classes():  # loop over box-size classes (a few dozen at most)
+            hits = tree.query_ball_point(X, r + half)
+            cnt = np.fromiter(map(len, hits), dtype=np.int64, count=n)
+            if not cnt.any():
+                continue
+            p = np.repeat(np.arange(n), cnt)
+            e = members[np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if h])]
+            gap = np.linalg.norm(np.maximum(np.maximum(self.bbox_lo[e] - X[p], X[p] - self.bbox_hi[e]), 0.0), axis=1)
+            keep = gap <= r[p]
+            new_pt.append(p[keep])
+            new_ent.append(e[keep])
+        if not new_pt:
+            return pt, ent, params, dist
+        p, e = np.concatenate(new_pt), np.concatenate(new_ent)
+        fresh = ~np.isin(p * E + e, pt * E + ent)
+        p, e = p[fresh], e[fresh]
+        if p.size == 0:
+            return pt, ent, params, dist
+        par, _, d = self.search_on(X[p], e, k_seeds)[:3]
+        return (np.concatenate([pt, p]), np.concatenate([ent, e]), np.concatenate([params, par]),
+                np.concatenate([dist, d]))
 
     def search_all(
         self, points: npt.ArrayLike, k_seeds: int | None = None

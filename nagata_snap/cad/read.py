@@ -120,8 +120,8 @@ def _occ() -> SimpleNamespace:
     from OCP.Geom2dConvert import Geom2dConvert
     from OCP.GeomAbs import GeomAbs_CurveType as C
     from OCP.GeomAbs import GeomAbs_SurfaceType as S
-    from OCP.GeomConvert import GeomConvert, GeomConvert_SurfToAnaSurf
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_Orientation, TopAbs_VERTEX, TopAbs_WIRE
+    from OCP.GeomConvert import GeomConvert, GeomConvert_ApproxSurface, GeomConvert_SurfToAnaSurf
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_Orientation, TopAbs_VERTEX, TopAbs_WIRE
     from OCP.TopExp import TopExp, TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
@@ -132,10 +132,11 @@ def _occ() -> SimpleNamespace:
         Geom_TrimmedCurve=Geom_TrimmedCurve, Geom2d_TrimmedCurve=Geom2d_TrimmedCurve,
         Geom2dConvert=Geom2dConvert, GeomConvert=GeomConvert, TopExp=TopExp, TopExp_Explorer=TopExp_Explorer,
         ElSLib=ElSLib, GeomConvert_SurfToAnaSurf=GeomConvert_SurfToAnaSurf,
+        GeomConvert_ApproxSurface=GeomConvert_ApproxSurface,
         Geom_RectangularTrimmedSurface=Geom_RectangularTrimmedSurface,
         ELEMENTARY=(("plane", Geom_Plane), ("cylinder", Geom_CylindricalSurface), ("cone", Geom_ConicalSurface),
                     ("sphere", Geom_SphericalSurface), ("torus", Geom_ToroidalSurface)),
-        TopoDS=TopoDS, WIRE=TopAbs_WIRE, EDGE=TopAbs_EDGE, VERTEX=TopAbs_VERTEX,
+        TopoDS=TopoDS, WIRE=TopAbs_WIRE, EDGE=TopAbs_EDGE, VERTEX=TopAbs_VERTEX, FACE=TopAbs_FACE,
         REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
         LINE=int(C.GeomAbs_Line), CIRCLE=int(C.GeomAbs_Circle), BSPLINE_CURVE=int(C.GeomAbs_BSplineCurve),
         BSPLINE_SURFACE=int(S.GeomAbs_BSplineSurface), BEZIER_SURFACE=int(S.GeomAbs_BezierSurface),
@@ -536,6 +537,185 @@ def _surface(face, size: float = 1.0, uv: Sequence[float] | None = None) -> tupl
     return {"type": name}, True
 
 
+def _basis(face, size: float, uv: Sequence[float]) -> dict | None:
+    """Description of the surface a face's surface trims or offsets, with the face's
+    parameters, or None if it neither trims nor offsets one (or that one cannot be described).
+
+    A ``Geom_RectangularTrimmedSurface`` has its basis surface's parameters, and
+    ``Geom_OffsetSurface.Surface()`` is the equivalent surface (an offset plane,
+    cylinder, ... with the same parameters) where OpenCASCADE knows one; the
+    result is described as an elementary or B-spline surface, else as in
+    :func:`_surface` (recognised analytic surface, B-spline twin).
+    """
+    from OCP.Geom import Geom_BSplineSurface, Geom_OffsetSurface
+
+    o = _occ()
+    geo = o.BRep_Tool.Surface_s(face)  # with the face's location applied
+    changed = False
+    for _ in range(8):  # (a chain of wrappers: trimmed offset of a trimmed ...)
+        if isinstance(geo, o.Geom_RectangularTrimmedSurface):
+            geo = geo.BasisSurface()
+        elif isinstance(geo, Geom_OffsetSurface) and geo.Surface() is not None:
+            geo = geo.Surface()
+        else:
+            break
+        changed = True
+    if not changed:
+        return None
+    if isinstance(geo, Geom_BSplineSurface):
+        return _bspline_surface(geo)
+    desc = _elementary(geo) or _recognised(geo, size, uv) or _bspline_twin(geo, size, uv)
+    if desc is not None:
+        desc.setdefault("source", "basis")
+    return desc
+
+
+#: tolerance of :func:`_approximated`, relative to the model size
+APPROX_RTOL = 1e-10
+
+
+def _approximated(face, size: float, uv: Sequence[float]) -> dict | None:
+    """A B-spline within :data:`APPROX_RTOL` of the model size of the face's surface over its
+    ``(u, v)`` box, with the surface's parameters (``GeomConvert_ApproxSurface``), or None.
+
+    For surfaces no NURBS reproduces (an offset of a B-spline surface), whose
+    ``BRepBuilderAPI_NurbsConvert`` is an approximation to OpenCASCADE's own
+    tolerance (~1e-7 of the size).
+    """
+    from OCP.GeomAbs import GeomAbs_Shape
+
+    o = _occ()
+    geo = o.Geom_RectangularTrimmedSurface(o.BRep_Tool.Surface_s(face), *uv)
+    try:
+        ap = o.GeomConvert_ApproxSurface(geo, APPROX_RTOL * size, GeomAbs_Shape.GeomAbs_C2, GeomAbs_Shape.GeomAbs_C2,
+                                         9, 9, 400, 1)
+    except Exception:  # OpenCASCADE's construction errors: not approximable this way
+        return None
+    if not (ap.IsDone() or ap.HasResult()) or not ap.MaxError() <= APPROX_RTOL * size * 10:
+        return None
+    desc = _bspline_surface(ap.Surface())
+    desc["source"] = "approximation"
+    return desc
+
+
+#: OpenCASCADE's samples per face for its verification (:func:`_checks`): a
+#: ``CHECK_GRID x CHECK_GRID`` grid over the face's ``(u, v)`` box, and on one edge use of
+#: every wire and others up to ``CHECK_USES`` in all a point of the p-curve and two beside it
+CHECK_GRID = 4
+CHECK_USES = 4
+#: the points beside a p-curve are this fraction of the face's extent (or ten times the
+#: edge's tolerance, if more) off it, across the p-curve
+CHECK_OFFSET = 1e-3
+
+
+def _check_uses(face) -> list:
+    """The edge uses :func:`_checks` samples: the first (non-degenerate) one of every wire of
+    the face (every loop is checked), then others spread over the face's uses, up to
+    :data:`CHECK_USES` in all."""
+    o = _occ()
+    wires = []
+    ex = o.TopExp_Explorer(face, o.WIRE)
+    while ex.More():
+        uses = []
+        ee = o.TopExp_Explorer(ex.Current(), o.EDGE)
+        while ee.More():
+            e = o.TopoDS.Edge(ee.Current())
+            if not o.BRep_Tool.Degenerated_s(e):
+                uses.append(e)
+            ee.Next()
+        wires.append(uses)
+        ex.Next()
+    picked = [w[0] for w in wires if w]
+    rest = [e for w in wires for e in w[1:]]
+    extra = CHECK_USES - len(picked)
+    if extra > 0 and rest:
+        picked += rest[::max(1, math.ceil(len(rest) / extra))][:extra]
+    return picked
+
+
+def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
+    """OpenCASCADE's samples of a face, against which :mod:`nagata_snap.cad.verify`
+    checks its conversion: parameters in the face's own ``(u, v)`` (those of its
+    description's p-curves), OpenCASCADE's point, outward unit normal and face
+    classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
+    built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
+    which it defers near the boundary).
+
+    Returns:
+        ``uv (k, 2)``, ``points (k, 3)`` (a B-spline's at ``uv`` clamped into its knots in its
+        open directions, as the package's B-splines clamp), ``normals (k, 3)`` (NaN where the surface's
+        normal is undefined), ``state (k,)`` (0 in, 1 out, 2 on), ``kind (k,)`` (0 grid,
+        1 on a p-curve, whose state is 2 without asking, 2 beside one), ``offset``
+        (for a converted face also ``gap (k,)``, :func:`_gaps`) (the 3D distance of the points beside
+        the p-curves from them) and ``time`` (seconds).
+    """
+    from OCP.gp import gp_Pnt, gp_Pnt2d, gp_Vec, gp_Vec2d
+    from OCP.IntTools import IntTools_FClass2d
+    from OCP.TopAbs import TopAbs_State
+
+    t0 = time.perf_counter()
+    o = _occ()
+    a = o.BRepAdaptor_Surface(face, False)
+    u0, u1, v0, v1 = uv
+    fr = [(i + 0.5) / CHECK_GRID for i in range(CHECK_GRID)]
+    params = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
+    kind = [0] * len(params)
+    p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
+    lo, hi = [math.inf] * 3, [-math.inf] * 3
+    for u, v in params:  # the grid's extent (the face's, roughly)
+        a.D0(u, v, p)
+        c = p.Coord()
+        lo, hi = list(map(min, lo, c)), list(map(max, hi, c))
+    extent = math.dist(lo, hi) if math.isfinite(lo[0]) else 0.0
+    p2, d2 = gp_Pnt2d(), gp_Vec2d()
+    offset = CHECK_OFFSET * extent
+    for e in _check_uses(face):  # loop over a few edge uses (their p-curves)
+        c = o.BRepAdaptor_Curve2d(e, face)
+        c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
+        u, v = p2.Coord()
+        params.append((u, v))
+        kind.append(1)
+        if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
+            continue
+        a.D1(u, v, p, su, sv)
+        nu, nv = -d2.Y(), d2.X()
+        length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
+        if not length > 0:
+            continue
+        off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
+        params += [(u + off * nu, v + off * nv), (u - off * nu, v - off * nv)]
+        kind += [2, 2]
+    points, normals, state = [], [], []
+    cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
+    IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
+    sign = -1.0 if reversed_ else 1.0
+    # a B-spline's points inside its knots in its open directions (a p-curve may leave them
+    # by its tolerance; both sides clamp there), classified where they are; other surfaces
+    # extrapolate, as ours do
+    ulo, uhi, vlo, vhi = (-math.inf, math.inf) * 2
+    if int(a.GetType()) in (o.BSPLINE_SURFACE, o.BEZIER_SURFACE):
+        if not a.IsUPeriodic():
+            ulo, uhi = a.FirstUParameter(), a.LastUParameter()
+        if not a.IsVPeriodic():
+            vlo, vhi = a.FirstVParameter(), a.LastVParameter()
+    for (u, v), k in zip(params, kind, strict=True):  # the samples (OpenCASCADE's points, normals, states)
+        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+        points += p.Coord()
+        n = su.Crossed(sv)
+        m = n.Magnitude()
+        normals += [sign * x / m for x in n.Coord()] if m > 1e-12 * su.Magnitude() * sv.Magnitude() and m > 0 \
+            else [math.nan] * 3
+        if k == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
+            state.append(2)
+            continue
+        st = cls.Perform(gp_Pnt2d(u, v))
+        state.append(0 if st == IN else 1 if st == OUT else 2)
+    k = len(params)
+    return {"uv": np.array(params, dtype=float).reshape(k, 2), "points": np.array(points).reshape(k, 3),
+            "normals": np.array(normals).reshape(k, 3), "state": np.array(state, dtype=np.int8),
+            "kind": np.array(kind, dtype=np.int8), "offset": offset, "time": time.perf_counter() - t0}
+
+
 def _described(a, dim: int, other, known: tuple[float, float, int] | None = None) -> dict:
     """Description of a curve adaptor (3D edge or 2D p-curve, ``dim`` 3 or 2) with its range.
 
@@ -632,12 +812,29 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
     return wires
 
 
-def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | None = None) -> dict:
+def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | None = None,
+          fallback: str | None = None, check: bool = True) -> dict:
     """Surface, bounds, orientation and wires of one face (converting it if needed);
-    ``degenerate``: see :func:`_wires`."""
+    ``degenerate``: see :func:`_wires`.
+
+    ``fallback``: ``"basis"`` describes the surface the face's own one trims or offsets
+    (:func:`_basis`), ``"nurbs"`` converts the face with ``BRepBuilderAPI_NurbsConvert``
+    (``converted``), ``"approx"`` approximates its surface closely (:func:`_approximated`);
+    where the one asked for does not apply, ``"nurbs"`` (the face's ``fallback`` says which
+    was used); asked for by :mod:`nagata_snap.cad.verify` for a face whose first
+    description failed its check.  ``check``: add OpenCASCADE's samples of the face
+    (``"check"``, :func:`_checks`).
+    """
     o = _occ()
     uv = o.BRepTools.UVBounds_s(face)
-    surface, convert = _surface(face, size, uv)
+    basis = _basis(face, size, uv) if fallback == "basis" else \
+        _approximated(face, size, uv) if fallback == "approx" else None
+    if basis is not None:
+        surface, convert = basis, False
+    elif fallback is not None:  # nothing to unwrap (or approximate): OpenCASCADE's NURBS
+        surface, convert = {"type": o.SURFACE_NAMES[int(o.BRepAdaptor_Surface(face, False).GetType())]}, True
+    else:
+        surface, convert = _surface(face, size, uv)
     pface, edge_of = face, (lambda e: e)
     if convert:  # (rare: the class is imported here)
         from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
@@ -658,13 +855,37 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
         def edge_of(e, conv=conv):  # the converted edge, used as the original (seams!)
             return o.TopoDS.Edge(conv.ModifiedShape(e).Oriented(e.Orientation()))
         uv = o.BRepTools.UVBounds_s(pface)
-    return {
+    out = {
         "surface": surface,
         "uv": tuple(uv),
         "reversed": int(face.Orientation()) == o.REVERSED,
         "converted": convert,
         "wires": _wires(face, pface, edge_map, edge_of, degenerate),
     }
+    if fallback is not None:
+        out["fallback"] = "nurbs" if basis is None else fallback
+    if check:
+        out["check"] = c = _checks(pface, out["reversed"], uv)
+        if convert:  # the converted face's points against the face's own surface
+            t0 = time.perf_counter()
+            c["gap"] = _gaps(face, c["points"], (c["kind"] != 2) | (c["state"] == 0))
+            c["time"] += time.perf_counter() - t0
+    return out
+
+
+def _gaps(face, points: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """``(k,)`` distance of ``points[which]`` from ``face``'s own surface
+    (``GeomAPI_ProjectPointOnSurf``; 0 elsewhere): how far a face converted by
+    ``BRepBuilderAPI_NurbsConvert``, whose parameters may differ from the face's, is from it."""
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt
+
+    geo = _occ().BRep_Tool.Surface_s(face)
+    out = np.zeros(len(points))
+    for k in np.flatnonzero(which).tolist():  # a few samples of a converted face
+        pr = GeomAPI_ProjectPointOnSurf(gp_Pnt(*points[k].tolist()), geo)
+        out[k] = pr.LowerDistance() if pr.NbPoints() else math.inf
+    return out
 
 
 def _ancestors(kind, maps_child, maps_parent) -> list[list[int]]:
@@ -813,7 +1034,7 @@ def _ends(edges: list, vmap) -> list[tuple[int, int]]:
     return out
 
 
-def _walk(shape, size: float) -> dict:
+def _walk(shape, size: float, fallback: dict[int, str] | None = None, check: bool = True) -> dict:
     """``vertices``, ``vertex_tolerance``, ``edges``, ``faces`` and ``num_solids`` of a shape."""
     from OCP.BRep import BRep_Tool
     from OCP.TopAbs import TopAbs_FACE
@@ -832,7 +1053,9 @@ def _walk(shape, size: float) -> dict:
             "degenerate": BRep_Tool.Degenerated_s(e),
             "source": i,
         })
-    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size) for i in range(1, fmap.Extent() + 1)]
+    fb = fallback or {}
+    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size, None, fb.get(i - 1), check)
+             for i in range(1, fmap.Extent() + 1)]
     solids = _ancestors(TopAbs_FACE, fmap, smap)
     for f, s in zip(faces, solids, strict=True):
         f["solids"] = s
@@ -928,7 +1151,8 @@ _ZERO_FRAME = (0.0,) * 6
 _VOID_BOX = (math.nan,) * 6
 
 
-def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
+def _walk_joined(shape, size: float, times: dict, fallback: dict[int, str] | None = None,
+                 check: bool = True) -> tuple[dict | None, dict]:
     """Walk an unsewn shape and sew it by :mod:`nagata_snap.cad.sewing` (no OpenCASCADE sewing).
 
     Returns:
@@ -956,7 +1180,8 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
         return None, {"join": "; ".join(why)}
     occ_faces = [TopoDS.Face(fmap.FindKey(i)) for i in range(1, fmap.Extent() + 1)]
     degenerate = copies.degenerate.tolist()
-    faces = [_face(f, i, emap, size, degenerate) for i, f in enumerate(occ_faces)]
+    fb = fallback or {}
+    faces = [_face(f, i, emap, size, degenerate, fb.get(i), check) for i, f in enumerate(occ_faces)]
     t2 = time.perf_counter()
     j = sewing.join_faces(joined, _face_uses(faces, occ_faces), ~copies.degenerate)
     t3 = time.perf_counter()
@@ -982,7 +1207,8 @@ def _walk_joined(shape, size: float, times: dict) -> tuple[dict | None, dict]:
 
 
 def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
-               sew: bool | None = None, join: bool = True) -> dict:
+               sew: bool | None = None, join: bool = True, fallback: dict[int, str] | None = None,
+               check: bool = True) -> dict:
     """Read a STEP, IGES or BREP file into plain data (see the module docstring).
 
     Args:
@@ -1003,6 +1229,10 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
             outward oriented shells), else with OpenCASCADE; ``False``: always
             with OpenCASCADE.  ``healed["method"]`` says which (``"join"`` or
             ``"occ"``), ``healed["join"]`` why the join was not used.
+        fallback: per face index ``"basis"``, ``"nurbs"`` or ``"approx"``: describe that face otherwise
+            (see :func:`_face`; :mod:`nagata_snap.cad.verify` asks for it).
+        check: add OpenCASCADE's samples of every face (``face["check"]``,
+            :func:`_checks`); their time is ``times["check"]``, not part of ``convert``.
 
     Every edge has a ``source``: the index of the edge whose 3D curve it is in
     the shape walked: the file's unsewn shape (:func:`load_shape` with
@@ -1024,7 +1254,7 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
             healed = {}
             if join:
                 try:
-                    data, healed = _walk_joined(shape, size, times)
+                    data, healed = _walk_joined(shape, size, times, fallback, check)
                 except Exception as err:  # OpenCASCADE's sewing decides about odd shapes
                     healed = {"join": f"{type(err).__name__}: {err}"}
             if data is None:  # OpenCASCADE sews; healed["join"]: why the join did not
@@ -1038,8 +1268,10 @@ def read_shape(path: str | os.PathLike, unit: str = "MM", heal: bool = True,
             times["heal"] = time.perf_counter() - t0
         if data is None:
             t0 = time.perf_counter()
-            data = _walk(shape, size)
+            data = _walk(shape, size, fallback, check)
             times["convert"] = time.perf_counter() - t0
+        times["check"] = sum(f["check"]["time"] for f in data["faces"]) if check else 0.0
+        times["convert"] -= times["check"]
     except ReadError as err:
         raise ReadError(f"{path}: {err}") from None
     return {"path": path, "format": info["format"], "unit": info["unit"], "file_units": info["file_units"],

@@ -760,7 +760,40 @@ class Torus(AnalyticSurface):
             v[tube] = seed(tube, 1)
             a[tube], b[tube] = self.major + r * np.cos(v[tube]), r * np.sin(v[tube])
         t -= r
-        return u, v, self._foot(x, y, rho, u, a, b, axis), np.abs(t, out=t)
+        t = np.abs(t, out=t)
+        if self.can_degenerate:  # a spindle torus: its other meridian circle is in this half-plane too
+            u, v, a, b, t = self._other_circle(x, y, z, rho, u, v, a, b, t)
+        return u, v, self._foot(x, y, rho, u, a, b, axis), t
+
+    def _other_circle(self, x, y, z, rho, u, v, a, b, t):
+        """On a spindle or horn torus (``r >= R``) the meridian circle of ``u + pi`` reaches into
+        the half-plane of ``u``: its nearest point (``(u + pi, v2)``, signed radial coordinate
+        ``-(R + r cos v2)`` along ``e(u)``) is taken where it lies in the face's ``(u, v)`` box
+        and the first does not, or where both or neither do and it is nearer.  (The face of a
+        rounded screw head is such a torus' outer part: the first circle's point, on the
+        inner part, would be off the face, and the face never found.)"""
+        R, r = self.major, self.minor
+        w2 = -rho - R
+        t2 = _norm2(w2, z)
+        v0 = self.bounds[1, 0]
+        v2 = _wrap(np.arctan2(z, w2), v0)
+        u2 = self.bounds[0, 0] + np.mod(u + np.pi - self.bounds[0, 0], TWO_PI)
+        d2 = np.abs(t2 - r)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(t2 > 1e-300, r / t2, 0.0)
+        a2 = -(R + w2 * f)
+        b2 = z * f
+        take = (self._in_box(u2, v2) & ~self._in_box(u, v)) | \
+            ((self._in_box(u2, v2) == self._in_box(u, v)) & (d2 < t))
+        return (np.where(take, u2, u), np.where(take, v2, v), np.where(take, a2, a), np.where(take, b2, b),
+                np.where(take, d2, t))
+
+    def _in_box(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Parameters (wrapped from the box's lower corner) inside the face's ``(u, v)`` box."""
+        lo, hi = self.bounds[:, 0], self.bounds[:, 1]
+        uu = lo[0] + np.mod(u - lo[0], TWO_PI)
+        vv = lo[1] + np.mod(v - lo[1], TWO_PI)
+        return (uu <= hi[0] + 1e-12) & (vv <= hi[1] + 1e-12)
 
     def _normal_local(self, u, v):
         sign = np.sign(self.major + self.minor * np.cos(v))

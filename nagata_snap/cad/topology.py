@@ -960,6 +960,22 @@ class CadModel:
         self.times = dict(times or {})
         self.num_solids = int(num_solids)
         self.healed = dict(healed or {})
+        #: the check of the faces against OpenCASCADE (:mod:`nagata_snap.cad.verify`), if done
+        self.verification = None
+        self._trim_loops = {}
+
+    def trim_loops(self, rtol: float | None = None):
+        """The faces' :class:`~nagata_snap.cad.trimming.TrimLoops` (built once per ``rtol``,
+        default :data:`~nagata_snap.cad.trimming.TRIM_RTOL`), or None where no face is trimmed."""
+        from nagata_snap.cad.trimming import TRIM_RTOL, TrimLoops
+
+        rtol = TRIM_RTOL if rtol is None else float(rtol)
+        if rtol not in self._trim_loops:
+            loops = [[lp.points for lp in f.loops] for f in self.faces]
+            bands = [[lp.band for lp in f.loops] for f in self.faces]
+            self._trim_loops[rtol] = TrimLoops([f.surface for f in self.faces], loops, bands, rtol) \
+                if any(loops) else None
+        return self._trim_loops[rtol]
 
     @classmethod
     def from_data(cls, data: dict) -> CadModel:
@@ -1020,10 +1036,12 @@ class CadModel:
             e.faces = tuple(sorted(u))
         times = dict(data.get("times", {}))
         times["build"] = time.perf_counter() - t0
-        return cls(faces, edges, data["vertices"], path=path, format=data.get("format", ""),
-                   unit=data.get("unit", ""), file_units=data.get("file_units", ()),
-                   size=data.get("size", 0.0), times=times,
-                   num_solids=data.get("num_solids", 0), healed=data.get("healed"))
+        model = cls(faces, edges, data["vertices"], path=path, format=data.get("format", ""),
+                    unit=data.get("unit", ""), file_units=data.get("file_units", ()),
+                    size=data.get("size", 0.0), times=times,
+                    num_solids=data.get("num_solids", 0), healed=data.get("healed"))
+        model.verification = data.get("verification")
+        return model
 
     def curve_edges(self) -> np.ndarray:
         """Indices of the edges with a 3D curve (not degenerate)."""
@@ -1045,7 +1063,17 @@ class CadModel:
         free = sum(not f.solids for f in self.faces) if self.num_solids else 0
         return (f"{len(self.faces)} faces ({what}{f'; {free} on no solid' if free else ''}), "
                 f"{len(self.curve_edges())} edges, {len(self.vertices)} vertices, {self.num_solids} solids, "
-                f"unit {self.unit}")
+                f"unit {self.unit}{self._verified()}")
+
+    def _verified(self) -> str:
+        """The summary's words on the verification (:mod:`nagata_snap.cad.verify`)."""
+        v = self.verification
+        if v is None:
+            return "; faces not verified against OpenCASCADE"
+        fb = v["fell_back"]
+        how = ", ".join(f"{n} to {k}" for k, n in sorted(v["fallbacks"].items()) if n)
+        return (f"; faces verified against OpenCASCADE: {v['verified']} passed, {fb} fell back"
+                f"{f' ({how})' if how else ''}, {v['failed']} failed")
 
     def __repr__(self) -> str:
         return f"CadModel({self.path!r}: {self.summary()})"

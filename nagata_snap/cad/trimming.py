@@ -328,10 +328,15 @@ class TrimLoops:
             cross += _crossings(P, q, slabs)
         ex = np.full(len(q), -np.inf)
         out = np.flatnonzero(cross % 2 == 0)
-        if out.size == 0:
-            return ex
+        if out.size:
+            ex[out] = self._beyond(e, q, su, sv, out)
+        return ex
+
+    def _beyond(self, e: int, q: np.ndarray, su: np.ndarray, sv: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """``(len(out),)`` distance (length units, through the metric ``su, sv``) of the points
+        ``q[out]`` from the nearest loop segment of face ``e``, less that segment's band."""
         best = np.full(out.size, np.inf)
-        for P, seg, band, _ in loops:
+        for P, seg, band, _ in self._loops[e]:
             step = max(1, CHUNK // len(P))
             for i in range(0, out.size, step):  # chunks bound the (c, k, 2) work arrays
                 sel = out[i:i + step]
@@ -343,8 +348,48 @@ class TrimLoops:
                 r = qq - t[:, :, None] * ss
                 d = np.sqrt(np.einsum("ckj,ckj->ck", r, r)) - band[None]
                 best[i:i + step] = np.minimum(best[i:i + step], d.min(axis=1))
-        ex[out] = best
-        return ex
+        return best
+
+    def _shifts(self, e: int) -> list[np.ndarray]:
+        """The parameter shifts under which face ``e``'s loops are tested: 0 first, then one
+        period either way in each closed direction (at most 9)."""
+        shifts = [np.zeros(2)]
+        for a in range(2):
+            if np.isfinite(self._period[e, a]):
+                d = np.zeros(2)
+                d[a] = self._period[e, a]
+                shifts = [s + k * d for s in shifts for k in (0.0, -1.0, 1.0)]
+        return shifts
+
+    def loop_distance(self, ent: npt.ArrayLike, params: npt.ArrayLike, enough: float | None = None) -> np.ndarray:
+        """``(n,)`` distance (length units) of ``params (n, 2)`` from the nearest trimming
+        loop of face ``ent (n,)``, less the loop's band, inside or outside (``inf`` for an
+        untrimmed face): where it is positive, :meth:`inside` does not depend on the band.
+        ``enough``: a point whose distance at the wrapped parameter is at most this is not
+        tested one period either side (its value is then an upper bound)."""
+        from nagata_snap.cad.projection import normalize_params
+
+        ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        out = np.full(len(ent), np.inf)
+        if len(ent) == 0:
+            return out
+        params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
+        rows = np.flatnonzero(self.trimmed[ent])
+        g = Groups(ent[rows])
+        for e, gs in g:  # loop over trimmed entities
+            sel = rows[g.order[gs]]
+            q0 = normalize_params(self.entities[e], params[sel])
+            su, sv = self._scales(e, q0)
+            best = np.full(len(sel), np.inf)
+            todo = np.arange(len(sel))
+            for sh in self._shifts(e):  # the first is 0
+                best[todo] = np.minimum(best[todo], self._beyond(e, q0 + sh, su, sv, todo))
+                if enough is not None:
+                    todo = todo[best[todo] > enough]
+                if todo.size == 0:
+                    break
+            out[sel] = best
+        return out
 
     def excess(self, ent: npt.ArrayLike, params: npt.ArrayLike) -> np.ndarray:
         """``(n,)`` distance (length units) of ``params (n, 2)`` outside face ``ent (n,)``.
@@ -366,12 +411,7 @@ class TrimLoops:
             sel = rows[g.order[gs]]
             q0 = normalize_params(self.entities[e], params[sel])
             su, sv = self._scales(e, q0)
-            shifts = [np.zeros(2)]
-            for a in range(2):
-                if np.isfinite(self._period[e, a]):
-                    d = np.zeros(2)
-                    d[a] = self._period[e, a]
-                    shifts = [s + k * d for s in shifts for k in (0.0, -1.0, 1.0)]
+            shifts = self._shifts(e)
             best = np.full(len(sel), np.inf)
             todo = np.arange(len(sel))
             for sh in shifts:  # at most 9 (both directions closed); the first is 0
@@ -385,7 +425,9 @@ class TrimLoops:
 
     def inside(self, ent: npt.ArrayLike, params: npt.ArrayLike, band: bool = True) -> np.ndarray:
         """``(n,)`` bool: ``params`` lies on face ``ent`` (within its band; without
-        ``band``: inside the polygons, even-odd, at the wrapped parameter only)."""
+        ``band``: inside the polygons, even-odd, at the wrapped parameter or one period
+        either side, as the band test: a face's loops may cross the period's end, as those
+        of a periodic B-spline face whose parameters run past its knots' period do)."""
         if band:
             return self.excess(ent, params) <= 0.0
         from nagata_snap.cad.projection import normalize_params
@@ -398,8 +440,15 @@ class TrimLoops:
         for e, gs in g:  # loop over trimmed entities
             sel = rows[g.order[gs]]
             q = normalize_params(self.entities[e], params[sel])
-            cross = sum(_crossings(P, q, slabs) for P, _, _, slabs in self._loops[e])
-            out[sel] = cross % 2 == 1
+            res = np.zeros(len(sel), dtype=bool)
+            todo = np.arange(len(sel))
+            for sh in self._shifts(e):  # at most 9 (both directions closed); the first is 0
+                qs = q[todo] + sh
+                res[todo] = sum(_crossings(P, qs, slabs) for P, _, _, slabs in self._loops[e]) % 2 == 1
+                todo = todo[~res[todo]]
+                if todo.size == 0:
+                    break
+            out[sel] = res
         return out
 
     def loop_points(self, e: int) -> np.ndarray | None:

@@ -291,12 +291,13 @@ def shutdown() -> None:
 
 
 def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
-             timeout: float | None = None) -> dict:
+             timeout: float | None = None, fallback: dict[int, str] | None = None,
+             check: bool = True) -> dict:
     """Read a CAD file with OpenCASCADE: :func:`nagata_snap.cad.read.read_shape`'s data.
 
     Args:
         path: STEP, IGES or BREP file.
-        unit, heal: see :func:`~nagata_snap.cad.read.read_shape`.
+        unit, heal, fallback, check: see :func:`~nagata_snap.cad.read.read_shape`.
         isolate: read in a forked child of the reader server (see the module
             docstring); ``False`` reads in this process.
         timeout: seconds (isolated reads only); default 60 s plus 30 s per MB.
@@ -314,7 +315,7 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
         from nagata_snap.cad import read
 
         try:
-            return read.read_shape(path, unit=unit, heal=heal)
+            return read.read_shape(path, unit=unit, heal=heal, fallback=fallback, check=check)
         except read.ReadError as e:
             raise CadError(str(e)) from None
         except Exception as e:  # OpenCASCADE's exceptions arrive as Python exceptions
@@ -322,8 +323,8 @@ def read_cad(path, *, unit: str = "MM", heal: bool = True, isolate: bool = True,
     if timeout is None:
         timeout = 60.0 + 30.0 * os.path.getsize(path) / 1e6
     try:
-        status, payload = _CLIENT.request(os.path.abspath(path), {"unit": unit, "heal": heal},
-                                          float(timeout))
+        kwargs = {"unit": unit, "heal": heal, "fallback": fallback, "check": check}
+        status, payload = _CLIENT.request(os.path.abspath(path), kwargs, float(timeout))
     except RuntimeError as e:
         raise CadError(f"{path}: {e}") from None
     if status == "ok":
