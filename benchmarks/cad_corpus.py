@@ -26,14 +26,18 @@ the script measures, against OpenCASCADE's own results:
   ``Snapper.refine``): 2 levels serial and 1 under ``mpiexec -n 2``: the
   boundary vertices left short, the largest distance of a snapped vertex
   from OpenCASCADE's trimmed face it is recorded on over the model size
-  (max, not a percentile), ``(lineage + place + smooth+check + tags) /
+  (max, not a percentile; where it exceeds 1e-9 of the size, whether the vertex
+  lies on a CAD edge or vertex of that face whose OpenCASCADE tolerance covers
+  it: the faces of a file written with a tolerance meet only within it), ``(lineage + place + smooth+check + tags) /
   refine`` per level, and the largest distance between the serial and the
   parallel level-1 boundary vertices (matched one to one).
 
 A file passes when its closest points agree on >= 99.9 % with none wrong,
 its read time meets the target, and it either snaps (2 levels, 0 short,
 every vertex within 1e-9 of the size, MPI = serial to 1e-12 of the size) or
-is refused with an error that names the problem (meshing, reading).  Last
+is refused with an error that names the problem (meshing, reading); a vertex
+farther than 1e-9 of the size from its face counts only beyond the file's own
+tolerance of the edge it lies on.  Last
 line: ``cad_corpus_ok <passed>/<files>``.
 
     python benchmarks/cad_corpus.py [--files a.step,b.igs] [--points 1000] [--no-snap] [--timeout 1200]
@@ -246,8 +250,41 @@ def _level_row(snapper, rep, occ, size: float, comm) -> dict:
         d = occ.face_distance(F[first], P[first], accept=1e-10 * size,
                               params=U[first])
         row["dist"] = float(d.max(initial=0.0)) / size
+        far = np.flatnonzero(d > 1e-9 * size)
+        gap = file_gaps(occ, F[first][far], P[first][far], size)
+        row["beyond_tolerance"] = int(np.count_nonzero(d[far] > gap))
+        row["in_gaps"] = int(len(far) - row["beyond_tolerance"])
         row["boundary"] = np.unique(np.round(P, 12), axis=0).tolist()
     return row
+
+
+def file_gaps(occ, faces: np.ndarray, points: np.ndarray, size: float) -> np.ndarray:
+    """``(n,)`` how far each point may be from its face because the file's faces do not meet:
+    the tolerance OpenCASCADE gives the face's edge (or vertex) whose tolerance tube holds the
+    point, else 1e-9 of the size.  The faces of a file written with a tolerance of 1e-5 meet
+    only within it: OpenCASCADE takes a point within an edge's tolerance to be on the edge,
+    and a snapped vertex on that edge can be on one face and that far from the other."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_VERTEX
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+    from OCP.gp import gp_Pnt
+
+    out = np.full(len(points), 1e-9 * size)
+    for k, (f, p) in enumerate(zip(faces, points, strict=True)):
+        v = BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex()
+        for kind, cast, tol in ((TopAbs_EDGE, TopoDS.Edge, BRep_Tool.Tolerance_s),
+                                (TopAbs_VERTEX, TopoDS.Vertex, BRep_Tool.Tolerance_s)):
+            ex = TopExp_Explorer(occ.faces[int(f)], kind)
+            while ex.More():
+                sub = cast(ex.Current())
+                ext = BRepExtrema_DistShapeShape(v, sub)
+                if ext.IsDone() and ext.Value() <= max(tol(sub), 1e-9 * size):  # in the edge's tube
+                    out[k] = max(out[k], tol(sub))
+                ex.Next()
+    return out
 
 
 def run_case(path: str, levels: int, nproc: int, timeout: float) -> dict:
@@ -359,9 +396,10 @@ def _snap_rows(path: str, size: float, timeout: float) -> tuple[bool, str]:
     for k, lv in enumerate(serial["levels"], 1):
         tm = lv["times"]
         ratio = sum(tm.get(s, 0.0) for s in OVERHEAD) / max(tm["refine"], 1e-12)
-        print(f"  level {k}: {lv['cells']} cells, short {lv['short']}, max dist/size {lv['dist']:.1e}, "
-              f"refine {tm['refine']:.2f} s, overhead/refine {ratio:.2f}")
-        ok &= lv["short"] == 0 and lv["dist"] <= 1e-9
+        print(f"  level {k}: {lv['cells']} cells, short {lv['short']}, max dist/size {lv['dist']:.1e} "
+              f"({lv['in_gaps']} vertices farther than 1e-9 of it but on a CAD edge within its tolerance, "
+              f"{lv['beyond_tolerance']} beyond), refine {tm['refine']:.2f} s, overhead/refine {ratio:.2f}")
+        ok &= lv["short"] == 0 and lv["beyond_tolerance"] == 0
     for res, what in ((serial, "serial"), (par, "mpiexec -n 2")):
         if "error" in res:
             print(f"  {what}: {res['error']}")
