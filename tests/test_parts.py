@@ -127,10 +127,9 @@ def test_part_round_trip(written, name, fmt):
             faces, mass = parts.measure(tdim)
         except ValueError:
             tdim, faces, mass = None, None, None
-    if fmt == "iges" and not part.iges_faces_solid:
-        # documented limitation: faces-only IGES does not give the solid(s) back
-        assert tdim is None or faces != ref_faces or mass != pytest.approx(ref_mass, rel=1e-4) \
-            or len(tops) != (2 if name == "assembly" else 1)
+    if fmt == "iges" and not part.iges_faces_solid and (tdim is None or faces != ref_faces):
+        # documented limitation: faces-only IGES does not always give the solid(s) back (since
+        # the faces left beside a sewn solid are removed, the revolved and seamed parts do)
         return
     assert tdim == part.dim
     assert faces == ref_faces
