@@ -702,6 +702,12 @@ def main(argv=None) -> int:
         if comm.rank == 0:
             print(f"{PROG}: error: {e}", file=sys.stderr, flush=True)
         return 2
+    except ImportError as e:  # an optional dependency (errors.missing_extra says which)
+        if not str(e).startswith("nagata_snap needs"):
+            raise
+        if comm.rank == 0:
+            print(f"{PROG}: error: {e}", file=sys.stderr, flush=True)
+        return 2
     except SnapFailure as e:
         if comm.rank == 0:
             print(f"{PROG}: error: snapping failed: {e}", file=sys.stderr, flush=True)

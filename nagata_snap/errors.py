@@ -14,10 +14,12 @@ the reader process without the package, and its error becomes a
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 __all__ = ["CadError", "MeshingError", "LineageError", "InvertedCellsError", "NormalsError",
-           "NonManifoldError"]
+           "NonManifoldError", "missing_extra"]
 
 
 class CadError(RuntimeError):
@@ -62,3 +64,23 @@ class NormalsError(ValueError):
 
 class NonManifoldError(ValueError):
     """A boundary ridge (2D vertex, 3D edge) shared by other than two boundary facets."""
+
+
+def missing_extra(module: str, purpose: str) -> ImportError:
+    """The error for an optional dependency of the ``cad`` extra that is not installed.
+
+    Args:
+        module: the module that failed to import (``"gmsh"``, ``"OCP"``).
+        purpose: what needs it, completing "nagata_snap needs <module> <purpose>".
+
+    Returns:
+        An :class:`ImportError` whose message gives the install line for pip
+        (PyPI wheels) and for conda-forge, to be raised ``from`` the original error.
+    """
+    package = {"OCP": "cadquery-ocp (module OCP)"}.get(module, module)
+    return ImportError(
+        f"nagata_snap needs {package} {purpose}, and it cannot be imported in this Python "
+        f"({sys.executable}).  Install the CAD extra: pip install 'nagata_snap[cad]' "
+        "(gmsh and cadquery-ocp from PyPI; in a conda environment the same pip line works, "
+        "or conda install -c conda-forge gmsh python-gmsh ocp)."
+    )

@@ -70,15 +70,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import dolfinx.mesh
-import gmsh
 import mpi4py.MPI as MPI
 import numpy as np
 import numpy.typing as npt
-from dolfinx.io import gmsh as _dxgmsh
 
-from nagata_snap.errors import MeshingError
+from nagata_snap.errors import MeshingError, missing_extra
 from nagata_snap.mesh.boundary import BoundaryFacets, boundary_facets
 from nagata_snap.mesh.parallel import collective
+
+try:
+    import gmsh
+    from dolfinx.io import gmsh as _dxgmsh
+except ImportError as _e:  # the [cad] extra
+    raise missing_extra("gmsh", "to mesh CAD files") from _e
 
 __all__ = ["CadMesh", "EntityInfo", "MeshAttempt", "MeshingError", "RETRIES", "mesh_cad_file", "import_cad",
            "gmsh_session", "CAD_SUFFIXES"]

@@ -69,3 +69,37 @@ def test_dependencies_match_what_import_needs():
     # ... but the extras bring them
     assert any(d.startswith("dolfinx-solver-real") for d in extras["wheel"])
     assert {d.split(">")[0] for d in extras["cad"]} == {"gmsh", "cadquery-ocp"}
+
+
+def _hide_cad_extra(tmp_path) -> dict:
+    """An environment whose ``gmsh`` and ``OCP`` fail to import (in child processes too)."""
+    (tmp_path / "OCP").mkdir()
+    (tmp_path / "OCP" / "__init__.py").write_text("raise ImportError('No module named OCP')\n")
+    (tmp_path / "gmsh.py").write_text("raise ImportError('No module named gmsh')\n")
+    return dict(os.environ, PYTHONPATH=f"{tmp_path}{os.pathsep}{ROOT}")
+
+
+CORPUS_STEP = os.path.join(ROOT, "meshes", "corpus", "bolt_catia_v5_cax_if.stp")
+
+
+def test_cli_without_the_cad_extra_says_what_to_install(tmp_path):
+    """The CLI on a STEP file without gmsh: an error line with the install command, exit 2."""
+    r = subprocess.run([sys.executable, "-m", "nagata_snap.cli", CORPUS_STEP, "--levels", "1"],
+                       capture_output=True, text=True, timeout=300, env=_hide_cad_extra(tmp_path))
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    assert "needs gmsh" in r.stderr and "pip install 'nagata_snap[cad]'" in r.stderr
+
+
+def test_cad_read_without_occ_says_what_to_install(tmp_path):
+    """CadGeometry.from_file without OpenCASCADE: a CadError with the install command."""
+    code = ("import mpi4py.MPI\nimport nagata_snap\n"
+            "try:\n"
+            f"    nagata_snap.CadGeometry.from_file({CORPUS_STEP!r})\n"
+            "except nagata_snap.CadError as e:\n"
+            "    print('CadError:', e)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                       env=_hide_cad_extra(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "CadError:" in r.stdout and "OCP" in r.stdout
+    assert "pip install 'nagata_snap[cad]'" in r.stdout

@@ -254,8 +254,10 @@ class _Client:
         msg = _recv(self.proc.stdout.fileno(), time.monotonic() + 300.0)
         if msg is None or msg[0] != "ready":
             self.stop()
-            raise RuntimeError("the CAD reader process did not start (is OCP, package "
-                               "cadquery-ocp, installed for this Python?)")
+            raise RuntimeError(
+                f"the CAD reader process did not start: OpenCASCADE (module OCP, package "
+                f"cadquery-ocp) cannot be imported by {sys.executable}.  Install the CAD "
+                "extra: pip install 'nagata_snap[cad]'")
 
     def stop(self) -> None:
         if self.proc is not None:
