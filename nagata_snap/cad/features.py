@@ -26,9 +26,9 @@ import numpy as np
 
 from nagata_snap.cad.params import unit_normals, unwrap
 from nagata_snap.cad.stage import StageGeometry
-from nagata_snap.mesh.arrays import best_per_group
+from nagata_snap.mesh.arrays import best_per_group, ramp
 
-__all__ = ["nearest_features", "onto_feature", "intersect", "shared_entity_vertices"]
+__all__ = ["nearest_features", "feature_holds_faces", "onto_feature", "intersect", "shared_entity_vertices"]
 
 #: an edge vertex (on facets of several entities) counts as on all of them within
 #: this fraction of the model size
@@ -86,6 +86,34 @@ def nearest_features(geo: StageGeometry, ent: np.ndarray, X: np.ndarray, hs: np.
         out[todo[hit]] = res[1][best[hit]]
         fid[todo[hit]] = crv[best[hit]] + 1
     return out, fid
+
+
+def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, ent: np.ndarray,
+                        idx: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the feature of slot ``idx (k,)`` lies on every face its vertex is on.
+
+    Per slot: ``fid (ns,)`` feature (``c + 1`` edge curve ``c``, ``-(v + 1)``
+    CAD vertex ``v``), ``gid (ns,)`` vertex, ``ent (ns,)`` face.  A vertex on
+    facets of faces ``A`` and ``B`` belongs on a CAD edge (vertex) of both;
+    the nearest edge curve of ``A`` need not be one: where two solids of an
+    assembly touch, the mesher's fragments meet along a line that is no edge
+    of either file face.
+    """
+    top = geo.topology
+    assert top is not None
+    ne = geo.num_entities
+    pairs = np.unique(gid.astype(np.int64) * ne + ent)  # (vertex, face), sorted by vertex
+    pv, pf = pairs // ne, pairs % ne
+    lo = np.searchsorted(pv, gid[idx], side="left")
+    cnt = np.searchsorted(pv, gid[idx], side="right") - lo
+    faces = pf[np.repeat(lo, cnt) + ramp(cnt)]  # the faces of each slot's vertex
+    rows = np.repeat(top.feature_rows(fid[idx]), cnt)
+    fcnt, fflat = top.feature_faces.take(np.arange(len(top.feature_faces.counts)))
+    fkeys = np.sort(np.repeat(np.arange(len(fcnt)), fcnt) * ne + fflat)
+    key = rows * ne + faces
+    at = np.minimum(np.searchsorted(fkeys, key), len(fkeys) - 1)
+    miss = fkeys[at] != key if len(fkeys) else np.ones(len(key), dtype=bool)
+    return np.bincount(np.repeat(np.arange(len(idx)), cnt), weights=miss, minlength=len(idx)) == 0
 
 
 def onto_feature(geo: StageGeometry, reps: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,

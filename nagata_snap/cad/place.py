@@ -33,7 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.cad.features import nearest_features, onto_feature, shared_entity_vertices
+from nagata_snap.cad.features import (
+    feature_holds_faces,
+    nearest_features,
+    onto_feature,
+    shared_entity_vertices,
+)
 from nagata_snap.cad.params import unwrap
 from nagata_snap.cad.slots import MERGE_RTOL, box_pairs, facet_array, longest_edge, vertex_groups
 from nagata_snap.cad.stage import StageGeometry
@@ -302,7 +307,7 @@ def unwrap_to_seeds(geo: StageGeometry, s: Slots, par: np.ndarray) -> np.ndarray
 
 
 def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, int]:
+                  ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     """Edge and corner slots (with topology) and their positions on the features.
 
     A slot is on an edge (corner) if its record's CAD-edge channels put it on
@@ -317,16 +322,22 @@ def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
     off the vertex) and the edge slots whose record is at a CAD vertex (a
     seam's end on a closed edge) go to the CAD vertex where the record is.
 
+    A feature counts only if it lies on every face the slot's vertex is on
+    (:func:`~nagata_snap.cad.features.feature_holds_faces`); the slots whose
+    nearest feature does not are ``loose``: their vertex goes onto the
+    intersection of its own faces (as without topology).
+
     Returns:
-        ``(cls (ns,), fid (ns,), n_left)``: 0 face, 1 edge, 2 corner; the
-        feature (``c + 1`` edge curve ``c``, ``-(v + 1)`` CAD vertex ``v``, 0
-        none); the face slots found outside their loops.
+        ``(cls (ns,), fid (ns,), n_left, loose (ns,))``: 0 face, 1 edge, 2
+        corner; the feature (``c + 1`` edge curve ``c``, ``-(v + 1)`` CAD
+        vertex ``v``, 0 none); the face slots found outside their loops; the
+        loose slots.
     """
     ns = len(s.ent)
     fid = np.zeros(ns, dtype=np.int64)
     chan = s.chan.reshape(ns, -1)
     if geo.topology is None or not chan.shape[1]:
-        return np.zeros(ns, dtype=np.int64), fid, 0
+        return np.zeros(ns, dtype=np.int64), fid, 0, np.zeros(ns, dtype=bool)
     cls = np.count_nonzero(chan == 1.0, axis=1)  # 0 face, 1 edge, >= 2 corner
     n_left = 0
     if geo.trims is not None:
@@ -335,11 +346,17 @@ def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
         cls[off] = 1
         n_left = int(off.size)
     feat = np.flatnonzero(cls > 0)
+    loose = np.zeros(ns, dtype=bool)
     if feat.size:
         fx, ff = nearest_features(geo, s.ent[feat], s.X[feat], s.hs[feat], cls[feat])
         ok = ff != 0
-        p.proj[feat[ok]] = fx[ok]
         fid[feat] = ff
+        found = feat[ok]
+        holds = feature_holds_faces(geo, fid, gid, s.ent, found)
+        loose[found[~holds]] = True  # on faces that share no CAD edge there: intersect them
+        fid[found[~holds]] = 0
+        ok[ok] = holds
+        p.proj[feat[ok]] = fx[ok]
         cls[feat[~ok]] = 0
     is_corner = corner_vertices(gid, s.ent, int(gid.max()) + 1, geo.param_dim + 1,
                                 edge=np.where(fid > 0, fid - 1, -1))
@@ -347,10 +364,14 @@ def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
     if corner.size:
         at = geo.evaluate(s.ent[corner], s.seed[corner][:, None]).reshape(-1, 3)
         fx, ff = nearest_features(geo, s.ent[corner], at, s.hs[corner], np.full(corner.size, 2))
-        hit = ff < 0
+        hit = np.flatnonzero(ff < 0)
+        fid_c = np.zeros(ns, dtype=np.int64)
+        fid_c[corner[hit]] = ff[hit]
+        hit = hit[feature_holds_faces(geo, fid_c, gid, s.ent, corner[hit])]
         c = corner[hit]
         p.proj[c], fid[c], cls[c] = fx[hit], ff[hit], 2
-    return cls, fid, n_left
+        loose[c] = False
+    return cls, fid, n_left, loose
 
 
 def representatives(gid: np.ndarray, cls: np.ndarray, p: Projection) -> np.ndarray:
@@ -391,7 +412,7 @@ def merge(geo: StageGeometry, s: Slots, p: Projection) -> Merged:
     ``p.proj``, ``p.par`` and ``p.dist`` (from ``s.X``).
     """
     gid = vertex_groups(s.X, MERGE_RTOL * geo.size)
-    cls, fid, n_left = feature_slots(geo, s, p, gid)
+    cls, fid, n_left, loose = feature_slots(geo, s, p, gid)
     m = Merged(gid, representatives(gid, cls, p), n_left=n_left)
     rep = m.rep_of_group[gid]
     feat_slot = cls[rep] > 0
@@ -409,6 +430,12 @@ def merge(geo: StageGeometry, s: Slots, p: Projection) -> Merged:
             m.gap = max(m.gap, float(dd[feat_slot[redo]].max(initial=0.0)))
     if geo.topology is None:
         m.n_edge, m.gap = shared_entity_vertices(geo, gid, s.ent, p.proj, p.par, s.X, s.hs)
+    elif loose.any():  # feature vertices whose faces share no CAD edge nearby
+        sel = np.flatnonzero(np.isin(gid, gid[loose]))
+        proj, par = p.proj[sel], p.par[sel]
+        n, gap = shared_entity_vertices(geo, gid[sel], s.ent[sel], proj, par, s.X[sel], s.hs[sel])
+        p.proj[sel], p.par[sel] = proj, par
+        m.n_edge, m.gap = m.n_edge + n, max(m.gap, gap)
     p.dist = np.linalg.norm(p.proj - s.X, axis=1)
     return m
 
