@@ -335,7 +335,10 @@ def import_cad(path: str | Path, unit: str = "MM") -> tuple[int, list[int]]:
     if not vols:
         raise ValueError(f"{path}: no solid in the file and its {len(faces)} faces do not close "
                          f"into one (sewing tolerance {SEW_TOLERANCE:g} x the model's diagonal); "
-                         "a 2D part must be planar faces in the plane z = 0")
+                         "a 2D part must be planar faces in the plane z = 0.  To try next: export the "
+                         "solid (not only its faces) from your CAD system, or mesh the region these "
+                         "faces bound yourself (e.g. gmsh with the faces as its boundary) and snap "
+                         "that mesh onto the file (nagata-snap part.msh --cad FILE)")
     _remove_free_faces()  # the sewn solid's faces can be copies of the file's
     return 3, vols
 

@@ -254,7 +254,8 @@ def test_bad_input(tmp_path, files):
         gmsh.model.occ.remove([(2, 2), (2, 3)], recursive=True)
         gmsh.model.occ.synchronize()
         gmsh.write(str(shell))
-    with pytest.raises(ValueError, match=r"shell\.step: no solid in the file and its 1 faces do not close"):
+    with pytest.raises(ValueError, match=r"shell\.step: no solid in the file and its 1 faces do not close"
+                       r"(.|\n)*To try next: export the solid"):
         mesh_cad_file(shell, MPI.COMM_WORLD)
 
 
