@@ -633,13 +633,26 @@ def _check_uses(face) -> list:
     return picked
 
 
-def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
+def _check_grid(surface: dict, convert: bool, fallback: str | None) -> int:
+    """Samples per direction of a face's check grid (:func:`_checks`): :data:`CHECK_GRID`, but
+    for a face whose description is OpenCASCADE's own analytic primitive (its axes and radii
+    copied, not recognised from another surface nor a fallback), whose conversion is exact by
+    construction: 2 for a plane (affine in ``(u, v)``: three points fix it), 3 for a cylinder,
+    cone, sphere or torus (three distinct angles fix ``a cos + b sin + c``).  Every face keeps
+    its samples on and beside its p-curves."""
+    if convert or fallback is not None or "source" in surface or surface["type"] not in _PRIMITIVES:
+        return CHECK_GRID
+    return 2 if surface["type"] == "plane" else 3
+
+
+def _checks(face, reversed_: bool, uv: Sequence[float], grid: int = CHECK_GRID) -> dict:
     """OpenCASCADE's samples of a face, against which :mod:`nagata_snap.cad.verify`
     checks its conversion: parameters in the face's own ``(u, v)`` (those of its
     description's p-curves), OpenCASCADE's point, outward unit normal and face
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
-    which it defers near the boundary).
+    which it defers near the boundary).  ``grid``: samples per direction of the grid over
+    the face's ``(u, v)`` box (:func:`_check_grid`).
 
     Returns:
         ``uv (k, 2)``, ``points (k, 3)`` (a B-spline's at ``uv`` clamped into its knots in its
@@ -657,38 +670,10 @@ def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
     o = _occ()
     a = o.BRepAdaptor_Surface(face, False)
     u0, u1, v0, v1 = uv
-    fr = [(i + 0.5) / CHECK_GRID for i in range(CHECK_GRID)]
+    fr = [(i + 0.5) / grid for i in range(grid)]
     params = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
     kind = [0] * len(params)
     p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
-    lo, hi = [math.inf] * 3, [-math.inf] * 3
-    for u, v in params:  # the grid's extent (the face's, roughly)
-        a.D0(u, v, p)
-        c = p.Coord()
-        lo, hi = list(map(min, lo, c)), list(map(max, hi, c))
-    extent = math.dist(lo, hi) if math.isfinite(lo[0]) else 0.0
-    p2, d2 = gp_Pnt2d(), gp_Vec2d()
-    offset = CHECK_OFFSET * extent
-    for e in _check_uses(face):  # loop over a few edge uses (their p-curves)
-        c = o.BRepAdaptor_Curve2d(e, face)
-        c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
-        u, v = p2.Coord()
-        params.append((u, v))
-        kind.append(1)
-        if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
-            continue
-        a.D1(u, v, p, su, sv)
-        nu, nv = -d2.Y(), d2.X()
-        length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
-        if not length > 0:
-            continue
-        off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
-        params += [(u + off * nu, v + off * nv), (u - off * nu, v - off * nv)]
-        kind += [2, 2]
-    points, normals, state = [], [], []
-    cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
-    IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
-    sign = -1.0 if reversed_ else 1.0
     # a B-spline's points inside its knots in its open directions (a p-curve may leave them
     # by its tolerance; both sides clamp there), classified where they are; other surfaces
     # extrapolate, as ours do
@@ -698,21 +683,55 @@ def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
             ulo, uhi = a.FirstUParameter(), a.LastUParameter()
         if not a.IsVPeriodic():
             vlo, vhi = a.FirstVParameter(), a.LastVParameter()
-    for (u, v), k in zip(params, kind, strict=True):  # the samples (OpenCASCADE's points, normals, states)
+    D: list[float] = []  # per sample its point, S_u and S_v (flat)
+
+    def d1(u: float, v: float) -> None:
         a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
-        points += p.Coord()
-        n = su.Crossed(sv)
-        m = n.Magnitude()
-        normals += [sign * x / m for x in n.Coord()] if m > 1e-12 * su.Magnitude() * sv.Magnitude() and m > 0 \
-            else [math.nan] * 3
-        if k == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
-            state.append(2)
+        D.extend(p.Coord() + su.Coord() + sv.Coord())
+
+    for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
+        d1(u, v)
+    # the face's extent, roughly: the grid's, scaled to the span of a CHECK_GRID grid's
+    G = np.array(D).reshape(-1, 3, 3)[:, 0]
+    span = (CHECK_GRID - 1) / CHECK_GRID / ((grid - 1) / grid) if grid > 1 else 1.0
+    extent = span * float(np.linalg.norm(G.max(axis=0) - G.min(axis=0))) if np.isfinite(G).all() else 0.0
+    p2, d2 = gp_Pnt2d(), gp_Vec2d()
+    offset = CHECK_OFFSET * extent
+    for e in _check_uses(face):  # loop over a few edge uses (their p-curves)
+        c = o.BRepAdaptor_Curve2d(e, face)
+        c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
+        u, v = p2.Coord()
+        params.append((u, v))
+        kind.append(1)
+        d1(u, v)
+        if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
             continue
-        st = cls.Perform(gp_Pnt2d(u, v))
-        state.append(0 if st == IN else 1 if st == OUT else 2)
+        a.D1(u, v, p, su, sv)
+        nu, nv = -d2.Y(), d2.X()
+        length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
+        if not length > 0:
+            continue
+        off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
+        for s in (off, -off):
+            params.append((u + s * nu, v + s * nv))
+            kind.append(2)
+            d1(u + s * nu, v + s * nv)
     k = len(params)
-    return {"uv": np.array(params, dtype=float).reshape(k, 2), "points": np.array(points).reshape(k, 3),
-            "normals": np.array(normals).reshape(k, 3), "state": np.array(state, dtype=np.int8),
+    X = np.array(D).reshape(k, 3, 3)
+    n = np.cross(X[:, 1], X[:, 2])
+    m = np.linalg.norm(n, axis=1)
+    ok = (m > 1e-12 * np.linalg.norm(X[:, 1], axis=1) * np.linalg.norm(X[:, 2], axis=1)) & (m > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = np.where(ok[:, None], (-1.0 if reversed_ else 1.0) * n / m[:, None], np.nan)
+    cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
+    IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
+    state = np.full(k, 2, dtype=np.int8)  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
+    for i, ((u, v), kd) in enumerate(zip(params, kind, strict=True)):  # the classifier's states
+        if kd != 1:
+            st = cls.Perform(gp_Pnt2d(u, v))
+            state[i] = 0 if st == IN else 1 if st == OUT else 2
+    return {"uv": np.array(params, dtype=float).reshape(k, 2), "points": np.ascontiguousarray(X[:, 0]),
+            "normals": normals, "state": state,
             "kind": np.array(kind, dtype=np.int8), "offset": offset, "time": time.perf_counter() - t0}
 
 
@@ -865,7 +884,7 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
     if fallback is not None:
         out["fallback"] = "nurbs" if basis is None else fallback
     if check:
-        out["check"] = c = _checks(pface, out["reversed"], uv)
+        out["check"] = c = _checks(pface, out["reversed"], uv, _check_grid(surface, convert, fallback))
         if convert:  # the converted face's points against the face's own surface
             t0 = time.perf_counter()
             c["gap"] = _gaps(face, c["points"], (c["kind"] != 2) | (c["state"] == 0))
