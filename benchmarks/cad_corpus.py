@@ -29,7 +29,8 @@ the script measures, against OpenCASCADE's own results:
   from OpenCASCADE's trimmed face it is recorded on over the model size
   (max, not a percentile; where it exceeds 1e-9 of the size, whether the vertex
   lies on a CAD edge or vertex of that face whose OpenCASCADE tolerance covers
-  it: the faces of a file written with a tolerance meet only within it), ``(lineage + place + smooth+check + tags) /
+  it, :func:`nagata_snap.cad.tolerance.count_far`, as the CLI's summary: the faces of a file written
+  with a tolerance meet only within it), ``(lineage + place + smooth+check + tags) /
   refine`` per level, and the largest distance between the serial and the
   parallel level-1 boundary vertices (matched one to one).
 
@@ -67,6 +68,7 @@ from occ_reference import OccShape  # noqa: E402
 
 from nagata_snap.cad import CadGeometry  # noqa: E402
 from nagata_snap.cad.read import _quiet  # noqa: E402
+from nagata_snap.cad.tolerance import count_far  # noqa: E402
 
 #: stages of Snapper.refine beyond the refinement itself
 OVERHEAD = ("lineage", "place", "smooth+check", "tags")
@@ -256,41 +258,11 @@ def _level_row(snapper, rep, occ, size: float, comm) -> dict:
         d = occ.face_distance(F[first], P[first], accept=1e-10 * size,
                               params=U[first])
         row["dist"] = float(d.max(initial=0.0)) / size
-        far = np.flatnonzero(d > 1e-9 * size)
-        gap = file_gaps(occ, F[first][far], P[first][far], size)
-        row["beyond_tolerance"] = int(np.count_nonzero(d[far] > gap))
-        row["in_gaps"] = int(len(far) - row["beyond_tolerance"])
+        far, within = count_far(snapper.geometry.model, F[first], P[first], d, size)
+        row["beyond_tolerance"] = far - within
+        row["in_gaps"] = within
         row["boundary"] = np.unique(np.round(P, 12), axis=0).tolist()
     return row
-
-
-def file_gaps(occ, faces: np.ndarray, points: np.ndarray, size: float) -> np.ndarray:
-    """``(n,)`` how far each point may be from its face because the file's faces do not meet:
-    the tolerance OpenCASCADE gives the face's edge (or vertex) whose tolerance tube holds the
-    point, else 1e-9 of the size.  The faces of a file written with a tolerance of 1e-5 meet
-    only within it: OpenCASCADE takes a point within an edge's tolerance to be on the edge,
-    and a snapped vertex on that edge can be on one face and that far from the other."""
-    from OCP.BRep import BRep_Tool
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_VERTEX
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-    from OCP.gp import gp_Pnt
-
-    out = np.full(len(points), 1e-9 * size)
-    for k, (f, p) in enumerate(zip(faces, points, strict=True)):
-        v = BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex()
-        for kind, cast, tol in ((TopAbs_EDGE, TopoDS.Edge, BRep_Tool.Tolerance_s),
-                                (TopAbs_VERTEX, TopoDS.Vertex, BRep_Tool.Tolerance_s)):
-            ex = TopExp_Explorer(occ.faces[int(f)], kind)
-            while ex.More():
-                sub = cast(ex.Current())
-                ext = BRepExtrema_DistShapeShape(v, sub)
-                if ext.IsDone() and ext.Value() <= max(tol(sub), 1e-9 * size):  # in the edge's tube
-                    out[k] = max(out[k], tol(sub))
-                ex.Next()
-    return out
 
 
 def run_case(path: str, levels: int, nproc: int, timeout: float) -> dict:
