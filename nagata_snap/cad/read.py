@@ -645,19 +645,21 @@ def _check_grid(surface: dict, convert: bool, fallback: str | None) -> int:
     return 2 if surface["type"] == "plane" else 3
 
 
-def _checks(face, reversed_: bool, uv: Sequence[float], grid: int = CHECK_GRID) -> dict:
+def _checks(face, uv: Sequence[float], grid: int = CHECK_GRID) -> dict:
     """OpenCASCADE's samples of a face, against which :mod:`nagata_snap.cad.verify`
     checks its conversion: parameters in the face's own ``(u, v)`` (those of its
-    description's p-curves), OpenCASCADE's point, outward unit normal and face
+    description's p-curves), OpenCASCADE's point and first derivatives and face
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
     which it defers near the boundary).  ``grid``: samples per direction of the grid over
-    the face's ``(u, v)`` box (:func:`_check_grid`).
+    the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
+    per sample; the arithmetic on the samples is :mod:`~nagata_snap.cad.verify`'s, on all
+    faces' at once.)
 
     Returns:
-        ``uv (k, 2)``, ``points (k, 3)`` (a B-spline's at ``uv`` clamped into its knots in its
-        open directions, as the package's B-splines clamp), ``normals (k, 3)`` (NaN where the surface's
-        normal is undefined), ``state (k,)`` (0 in, 1 out, 2 on), ``kind (k,)`` (0 grid,
+        ``uv (k, 2)``, ``d1 (k, 3, 3)``: the surface's point, ``S_u`` and ``S_v`` (a B-spline's at
+        ``uv`` clamped into its knots in its open directions, as the package's B-splines clamp),
+        ``state (k,)`` (0 in, 1 out, 2 on), ``kind (k,)`` (0 grid,
         1 on a p-curve, whose state is 2 without asking, 2 beside one), ``offset``
         (for a converted face also ``gap (k,)``, :func:`_gaps`) (the 3D distance of the points beside
         the p-curves from them) and ``time`` (seconds).
@@ -684,17 +686,16 @@ def _checks(face, reversed_: bool, uv: Sequence[float], grid: int = CHECK_GRID) 
         if not a.IsVPeriodic():
             vlo, vhi = a.FirstVParameter(), a.LastVParameter()
     D: list[float] = []  # per sample its point, S_u and S_v (flat)
-
-    def d1(u: float, v: float) -> None:
-        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
-        D.extend(p.Coord() + su.Coord() + sv.Coord())
-
     for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
-        d1(u, v)
+        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+        D += p.Coord()
+        D += su.Coord()
+        D += sv.Coord()
     # the face's extent, roughly: the grid's, scaled to the span of a CHECK_GRID grid's
-    G = np.array(D).reshape(-1, 3, 3)[:, 0]
+    xs, ys, zs = D[0::9], D[1::9], D[2::9]
     span = (CHECK_GRID - 1) / CHECK_GRID / ((grid - 1) / grid) if grid > 1 else 1.0
-    extent = span * float(np.linalg.norm(G.max(axis=0) - G.min(axis=0))) if np.isfinite(G).all() else 0.0
+    extent = span * math.dist((min(xs), min(ys), min(zs)), (max(xs), max(ys), max(zs)))
+    extent = extent if math.isfinite(extent) else 0.0
     p2, d2 = gp_Pnt2d(), gp_Vec2d()
     offset = CHECK_OFFSET * extent
     for e in _check_uses(face):  # loop over a few edge uses (their p-curves)
@@ -703,10 +704,12 @@ def _checks(face, reversed_: bool, uv: Sequence[float], grid: int = CHECK_GRID) 
         u, v = p2.Coord()
         params.append((u, v))
         kind.append(1)
-        d1(u, v)
+        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+        D += p.Coord()
+        D += su.Coord()
+        D += sv.Coord()
         if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
             continue
-        a.D1(u, v, p, su, sv)
         nu, nv = -d2.Y(), d2.X()
         length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
         if not length > 0:
@@ -715,24 +718,23 @@ def _checks(face, reversed_: bool, uv: Sequence[float], grid: int = CHECK_GRID) 
         for s in (off, -off):
             params.append((u + s * nu, v + s * nv))
             kind.append(2)
-            d1(u + s * nu, v + s * nv)
-    k = len(params)
-    X = np.array(D).reshape(k, 3, 3)
-    n = np.cross(X[:, 1], X[:, 2])
-    m = np.linalg.norm(n, axis=1)
-    ok = (m > 1e-12 * np.linalg.norm(X[:, 1], axis=1) * np.linalg.norm(X[:, 2], axis=1)) & (m > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normals = np.where(ok[:, None], (-1.0 if reversed_ else 1.0) * n / m[:, None], np.nan)
+            a.D1(min(max(u + s * nu, ulo), uhi), min(max(v + s * nv, vlo), vhi), p, su, sv)
+            D += p.Coord()
+            D += su.Coord()
+            D += sv.Coord()
     cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
     IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
-    state = np.full(k, 2, dtype=np.int8)  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
-    for i, ((u, v), kd) in enumerate(zip(params, kind, strict=True)):  # the classifier's states
-        if kd != 1:
-            st = cls.Perform(gp_Pnt2d(u, v))
-            state[i] = 0 if st == IN else 1 if st == OUT else 2
-    return {"uv": np.array(params, dtype=float).reshape(k, 2), "points": np.ascontiguousarray(X[:, 0]),
-            "normals": normals, "state": state,
-            "kind": np.array(kind, dtype=np.int8), "offset": offset, "time": time.perf_counter() - t0}
+    state = []
+    for (u, v), kd in zip(params, kind, strict=True):  # the classifier's states
+        if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
+            state.append(2)
+            continue
+        st = cls.Perform(gp_Pnt2d(u, v))
+        state.append(0 if st == IN else 1 if st == OUT else 2)
+    k = len(params)
+    return {"uv": np.array(params, dtype=float).reshape(k, 2), "d1": np.array(D).reshape(k, 3, 3),
+            "state": np.array(state, dtype=np.int8), "kind": np.array(kind, dtype=np.int8), "offset": offset,
+            "time": time.perf_counter() - t0}
 
 
 def _described(a, dim: int, other, known: tuple[float, float, int] | None = None) -> dict:
@@ -884,10 +886,10 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
     if fallback is not None:
         out["fallback"] = "nurbs" if basis is None else fallback
     if check:
-        out["check"] = c = _checks(pface, out["reversed"], uv, _check_grid(surface, convert, fallback))
+        out["check"] = c = _checks(pface, uv, _check_grid(surface, convert, fallback))
         if convert:  # the converted face's points against the face's own surface
             t0 = time.perf_counter()
-            c["gap"] = _gaps(face, c["points"], (c["kind"] != 2) | (c["state"] == 0))
+            c["gap"] = _gaps(face, c["d1"][:, 0], (c["kind"] != 2) | (c["state"] == 0))
             c["time"] += time.perf_counter() - t0
     return out
 

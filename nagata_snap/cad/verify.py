@@ -95,7 +95,9 @@ class FaceCheck:
 
 def _samples(data: dict) -> tuple[np.ndarray, ...]:
     """All faces' OpenCASCADE samples concatenated: ``(face, uv, points, normals, state, kind,
-    offset, gap)``, ``offset`` per sample (its face's), ``gap`` 0 but on converted faces."""
+    offset, gap)``, ``offset`` per sample (its face's), ``gap`` 0 but on converted faces; the
+    outward unit normals (NaN where ``S_u x S_v`` vanishes) from the samples' derivatives and
+    the faces' orientations, for all samples at once."""
     checks = [f["check"] for f in data["faces"]]
     n = np.array([len(c["uv"]) for c in checks], dtype=np.int64)
     face = np.repeat(np.arange(len(checks)), n)
@@ -106,7 +108,14 @@ def _samples(data: dict) -> tuple[np.ndarray, ...]:
     offset = np.repeat(np.array([float(c["offset"]) for c in checks]), n)
     gap = np.concatenate([np.asarray(c.get("gap", np.zeros(len(c["uv"]))), dtype=float) for c in checks]
                          + [np.zeros(0)])
-    return (face, cat("uv", (2,)), cat("points", (3,)), cat("normals", (3,)), cat("state", ()).astype(np.int64),
+    D = cat("d1", (3, 3))
+    N = np.cross(D[:, 1], D[:, 2])
+    m = np.linalg.norm(N, axis=1)
+    ok = (m > 1e-12 * np.linalg.norm(D[:, 1], axis=1) * np.linalg.norm(D[:, 2], axis=1)) & (m > 0)
+    sign = np.where(np.array([bool(f["reversed"]) for f in data["faces"]] + [False]), -1.0, 1.0)[face]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        N = np.where(ok[:, None], N * (sign / m)[:, None], np.nan)
+    return (face, cat("uv", (2,)), np.ascontiguousarray(D[:, 0]), N, cat("state", ()).astype(np.int64),
             cat("kind", ()).astype(np.int64), offset, gap)
 
 
