@@ -608,23 +608,11 @@ CHECK_USES = 4
 CHECK_OFFSET = 1e-3
 
 
-def _check_uses(face) -> list:
-    """The edge uses :func:`_checks` samples: the first (non-degenerate) one of every wire of
-    the face (every loop is checked), then others spread over the face's uses, up to
+def _check_uses(wires: Sequence[Sequence[tuple]]) -> list[tuple]:
+    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor)`` pairs of each
+    wire's non-degenerate uses (as :func:`_wires` walked them): the first one of every wire
+    (every loop is checked), then others spread over the face's uses, up to
     :data:`CHECK_USES` in all."""
-    o = _occ()
-    wires = []
-    ex = o.TopExp_Explorer(face, o.WIRE)
-    while ex.More():
-        uses = []
-        ee = o.TopExp_Explorer(ex.Current(), o.EDGE)
-        while ee.More():
-            e = o.TopoDS.Edge(ee.Current())
-            if not o.BRep_Tool.Degenerated_s(e):
-                uses.append(e)
-            ee.Next()
-        wires.append(uses)
-        ex.Next()
     picked = [w[0] for w in wires if w]
     rest = [e for w in wires for e in w[1:]]
     extra = CHECK_USES - len(picked)
@@ -645,14 +633,15 @@ def _check_grid(surface: dict, convert: bool, fallback: str | None) -> int:
     return 2 if surface["type"] == "plane" else 3
 
 
-def _checks(face, uv: Sequence[float], grid: int = CHECK_GRID) -> dict:
+def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: int = CHECK_GRID) -> dict:
     """OpenCASCADE's samples of a face, against which :mod:`nagata_snap.cad.verify`
     checks its conversion: parameters in the face's own ``(u, v)`` (those of its
     description's p-curves), OpenCASCADE's point and first derivatives and face
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
-    which it defers near the boundary).  ``grid``: samples per direction of the grid over
-    the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
+    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor)`` pairs of
+    every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
+    grid over the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
     per sample; the arithmetic on the samples is :mod:`~nagata_snap.cad.verify`'s, on all
     faces' at once.)
 
@@ -698,8 +687,7 @@ def _checks(face, uv: Sequence[float], grid: int = CHECK_GRID) -> dict:
     extent = extent if math.isfinite(extent) else 0.0
     p2, d2 = gp_Pnt2d(), gp_Vec2d()
     offset = CHECK_OFFSET * extent
-    for e in _check_uses(face):  # loop over a few edge uses (their p-curves)
-        c = o.BRepAdaptor_Curve2d(e, face)
+    for e, c in _check_uses(uses):  # loop over a few edge uses (their p-curves)
         c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
         u, v = p2.Coord()
         params.append((u, v))
@@ -781,22 +769,27 @@ def _curve3d(edge, adaptor: tuple | None = None) -> dict | None:
     return _described(adaptor[0], 3, other, adaptor[1:])
 
 
-def _curve2d(edge, face) -> dict:
-    """Description of the p-curve of an (oriented) edge on a face, with its range."""
+def _curve2d(edge, face, adaptor=None) -> dict:
+    """Description of the p-curve of an (oriented) edge on a face, with its range
+    (``adaptor``: its ``BRepAdaptor_Curve2d``, if made already)."""
     o = _occ()
 
     def other(t0, t1):
         geo = o.BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
         return o.Geom2dConvert.CurveToBSplineCurve_s(o.Geom2d_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve2d(edge, face), 2, other)
+    return _described(o.BRepAdaptor_Curve2d(edge, face) if adaptor is None else adaptor, 2, other)
 
 
 # ----------------------------------------------------------------------
 # topology
 # ----------------------------------------------------------------------
-def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = None) -> list[dict]:
+def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = None,
+           uses_out: list | None = None) -> list[dict]:
     """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
+
+    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor)`` pairs of each wire's
+    non-degenerate uses are appended, one list per wire (the uses :func:`_checks` samples).
 
     ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
     faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
@@ -816,20 +809,27 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
     wires = []
     for w in ws:  # loop over the face's wires
         uses = []
+        mine = []
         we = o.BRepTools_WireExplorer(w, face)
         while we.More():
             e = we.Current()
             i = edge_map.FindIndex(e) - 1
             deg = tool.Degenerated_s(e) if degenerate is None else degenerate[i]
+            pe = edge_of(e)
+            a = o.BRepAdaptor_Curve2d(pe, pface)
             uses.append({
                 "edge": i,
                 "reversed": int(e.Orientation()) == o.REVERSED,
                 "seam": tool.IsClosed_s(e, face) if degenerate is None or deg else False,
                 "degenerate": deg,
-                "pcurve": _curve2d(edge_of(e), pface),
+                "pcurve": _curve2d(pe, pface, a),
             })
+            if not deg:
+                mine.append((pe, a))
             we.Next()
         wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
+        if uses_out is not None:
+            uses_out.append(mine)
     return wires
 
 
@@ -857,6 +857,7 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
     else:
         surface, convert = _surface(face, size, uv)
     pface, edge_of = face, (lambda e: e)
+    checked: list[list[tuple]] = []  # the uses the check samples (_wires walks them)
     if convert:  # (rare: the class is imported here)
         from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
 
@@ -881,12 +882,12 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
         "uv": tuple(uv),
         "reversed": int(face.Orientation()) == o.REVERSED,
         "converted": convert,
-        "wires": _wires(face, pface, edge_map, edge_of, degenerate),
+        "wires": _wires(face, pface, edge_map, edge_of, degenerate, checked),
     }
     if fallback is not None:
         out["fallback"] = "nurbs" if basis is None else fallback
     if check:
-        out["check"] = c = _checks(pface, uv, _check_grid(surface, convert, fallback))
+        out["check"] = c = _checks(pface, uv, checked, _check_grid(surface, convert, fallback))
         if convert:  # the converted face's points against the face's own surface
             t0 = time.perf_counter()
             c["gap"] = _gaps(face, c["d1"][:, 0], (c["kind"] != 2) | (c["state"] == 0))

@@ -579,12 +579,13 @@ class TrimLoops:
         segment of the entity's loops less its band, all queries at once (in chunks of
         :data:`CHUNK` (query, segment) pairs)."""
         qi, Q = self._shifted(ent, q)
-        off = self._table.off
-        first = off[self._loop_start[ent[qi]]]
-        cnt = off[self._loop_start[ent[qi] + 1]] - first  # the entity's loop vertices: contiguous
+        off, start = self._table.off, self._loop_start
+        assert start is not None  # (the caller's condition)
+        first = off[start[ent[qi]]]
+        cnt = off[start[ent[qi] + 1]] - first  # the entity's loop vertices: contiguous
         best = np.empty(len(Q))
         work = np.cumsum(cnt)
-        cuts = np.searchsorted(work, np.arange(CHUNK, int(work[-1]), CHUNK)) if len(work) else []
+        cuts = np.searchsorted(work, np.arange(CHUNK, int(work[-1]), CHUNK)) if len(work) else np.zeros(0, np.int64)
         for rows in np.split(np.arange(len(Q)), cuts):  # chunks bound the (pair, 2) work arrays
             if rows.size == 0:
                 continue
@@ -608,6 +609,7 @@ class TrimLoops:
         :meth:`_shifts` against its entity's loops, all at once (one :meth:`_SlabTable.crossings`)."""
         qi, Q = self._shifted(ent, q)
         # every (shifted query, loop of its entity) pair
+        assert self._loop_start is not None  # (the caller's condition)
         start = self._loop_start[ent[qi]]
         nl = self._loop_start[ent[qi] + 1] - start
         pair = np.repeat(np.arange(len(Q)), nl)
