@@ -599,7 +599,8 @@ def _approximated(face, size: float, uv: Sequence[float]) -> dict | None:
 
 
 #: OpenCASCADE's samples per face for its verification (:func:`_checks`): a
-#: ``CHECK_GRID x CHECK_GRID`` grid over the face's ``(u, v)`` box, and on one edge use of
+#: ``CHECK_GRID x CHECK_GRID`` grid over the face's ``(u, v)`` box (coarser on OpenCASCADE's
+#: own analytic primitives, :func:`_check_grid`), and on one edge use of
 #: every wire and others up to ``CHECK_USES`` in all a point of the p-curve and two beside it
 CHECK_GRID = 4
 CHECK_USES = 4

@@ -5,8 +5,9 @@ Our fast projection rests on our own representation of OpenCASCADE's faces
 polygons from the p-curves); a face converted wrongly would snap vertices
 onto the wrong surface without a word.  So the reader (:mod:`nagata_snap.cad.read`,
 where the OpenCASCADE shape exists) samples every face
-(:func:`~nagata_snap.cad.read._checks`: a grid over its ``(u, v)`` box, a point
-on a few of its p-curves and two beside each, across the p-curve), and
+(:func:`~nagata_snap.cad.read._checks`: a grid over its ``(u, v)`` box, 4 x 4, or 3 x 3
+and 2 x 2 on OpenCASCADE's own analytic primitives and planes, which those fix; a point
+on a p-curve of every wire and of a few more and two beside each, across the p-curve), and
 :func:`check_faces` compares, on all samples of all faces at once:
 
 * **points** (on the face: the grid samples, those on the p-curves and those
