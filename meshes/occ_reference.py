@@ -169,6 +169,37 @@ class OccShape:
                 d[k] = min(d[k], self._extrema(e, p))
         return d
 
+    def tolerance_gaps(self, faces, points, rtol: float = 1e-9) -> np.ndarray:
+        """``(n,)`` OpenCASCADE's answer to :func:`nagata_snap.cad.tolerance.tolerance_gaps`: the
+        largest ``BRep_Tool::Tolerance`` of an edge or vertex of face ``faces[i]`` whose
+        tolerance tube (``BRepExtrema`` distance within the tolerance, at least ``rtol`` of the
+        size) holds ``points[i]``, else ``rtol`` of the size."""
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.TopAbs import TopAbs_EDGE, TopAbs_VERTEX
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopoDS import TopoDS
+        from OCP.gp import gp_Pnt
+
+        floor = rtol * self.size
+        out = np.full(len(points), floor)
+        for k, (f, p) in enumerate(zip(faces, np.asarray(points, dtype=float), strict=True)):
+            v = BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex()
+            for kind, cast in ((TopAbs_EDGE, TopoDS.Edge), (TopAbs_VERTEX, TopoDS.Vertex)):
+                ex = TopExp_Explorer(self.faces[int(f)], kind)
+                while ex.More():
+                    sub = cast(ex.Current())
+                    tol = BRep_Tool.Tolerance_s(sub)
+                    if kind == TopAbs_EDGE and BRep_Tool.Degenerated_s(sub):
+                        ex.Next()
+                        continue
+                    ext = BRepExtrema_DistShapeShape(v, sub)
+                    if ext.IsDone() and ext.Value() <= max(tol, floor):  # in its tolerance tube
+                        out[k] = max(out[k], tol)
+                    ex.Next()
+        return out
+
 
 def gmsh_face_distance(face: int, points: np.ndarray) -> np.ndarray:
     """``(k,)`` distance of ``points (k, 3)`` from gmsh face ``face`` (OpenCASCADE closest point)."""

@@ -531,19 +531,40 @@ class _Heartbeat:
         self.thread.join()
 
 
+def _snapped_vertices(snapper) -> tuple[np.ndarray, np.ndarray]:
+    """``(x (nf, nfv, 3), face (nf,))``: the vertices of this process's snapped boundary
+    facets and the CAD face (entity) each facet's record names."""
+    lv = snapper._level
+    sel = np.flatnonzero(lv.snapped)
+    return lv.mesh.geometry.x[lv.boundary.nodes[sel]], lv.records.root
+
+
 def boundary_distance(snapper) -> np.ndarray:
     """Distance of each snapped boundary facet vertex from its CAD face (this process's facets).
 
     The vertex is projected onto its own face (:meth:`CadGeometry.project`,
     seeded by its record); a vertex moved only part of the way is that far off.
     """
-    lv = snapper._level
-    sel = np.flatnonzero(lv.snapped)
-    x = lv.mesh.geometry.x[lv.boundary.nodes[sel]]
+    x, _ = _snapped_vertices(snapper)
     if len(x) == 0:
         return np.zeros(0)
-    on, _ = snapper.geometry.project(lv.records, x)
+    on, _ = snapper.geometry.project(snapper._level.records, x)
     return np.linalg.norm(on - x, axis=2).ravel()
+
+
+def boundary_far(snapper, dist: np.ndarray, comm) -> tuple[int, int]:
+    """``(far, within)`` over all processes: the snapped boundary facet vertices farther than
+    :data:`~nagata_snap.cad.tolerance.FAR_RTOL` of the model size from their face (``dist``:
+    :func:`boundary_distance`), and how many of them lie inside the tolerance tube of an edge
+    or vertex of that face and no farther than its tolerance
+    (:func:`~nagata_snap.cad.tolerance.count_far`: the file's faces meet only within it)."""
+    from nagata_snap.cad.tolerance import count_far
+
+    x, face = _snapped_vertices(snapper)
+    geometry = snapper.geometry
+    far, within = count_far(getattr(geometry, "model", None), np.repeat(face, x.shape[1]), x.reshape(-1, 3),
+                            dist, geometry.size)
+    return comm.allreduce(far), comm.allreduce(within)
 
 
 def _run(args, comm) -> None:
@@ -603,7 +624,8 @@ def _run(args, comm) -> None:
                 say("  geometry: " + report.geometry.summary())
         dist = boundary_distance(snapper) if cad and (args.plot or level == args.levels) else None
         history.append((level, report, dist))
-    _summary(say, comm, snapper, history, cad)
+    far = boundary_far(snapper, history[-1][2], comm) if cad and history and history[-1][2] is not None else None
+    _summary(say, comm, snapper, history, far)
     if args.plot is not None and history:
         t0 = time.perf_counter()
         everything = [(lv, rep, None if d is None else np.concatenate(comm.allgather(d)))
@@ -624,8 +646,9 @@ def _run(args, comm) -> None:
         say(f"{PROG}: wrote {args.output}: {what} ({time.perf_counter() - t0:.2f} s)")
 
 
-def _summary(say, comm, snapper, history, cad: bool) -> None:
-    """Last line(s): vertices left short of the geometry, largest distance from the CAD."""
+def _summary(say, comm, snapper, history, far: tuple[int, int] | None) -> None:
+    """Last line(s): vertices left short of the geometry, largest distance from the CAD
+    (``far``: :func:`boundary_far` of the last level, None without a CAD)."""
     if not history:
         return
     level, report, dist = history[-1]
@@ -633,12 +656,13 @@ def _summary(say, comm, snapper, history, cad: bool) -> None:
     line = (f"{PROG}: summary: {level} level{'s' if level > 1 else ''}, {report.num_cells} cells; "
             f"{report.partially_moved} boundary vertices left short of the geometry in the last "
             f"level ({short} over all levels, max shortfall {report.max_shortfall:.3e})")
-    if cad and dist is not None:
+    if far is not None and dist is not None:
         dmax = comm.allreduce(float(dist.max(initial=0.0)), op=MPI.MAX)
         size = snapper.geometry.size
-        off = comm.allreduce(int(np.count_nonzero(dist > 1e-9 * size)))
+        off, within = far
+        inside = f" ({within} of them inside the file's own edge tolerances)" if off else ""
         line += (f"; max distance of a boundary vertex from its CAD face {dmax:.3e} "
-                 f"({dmax / size:.1e} of the model size; {off} farther than 1e-9 of it)")
+                 f"({dmax / size:.1e} of the model size; {off} farther than 1e-9 of it{inside})")
     say(line)
 
 

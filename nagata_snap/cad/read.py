@@ -599,7 +599,8 @@ def _approximated(face, size: float, uv: Sequence[float]) -> dict | None:
 
 
 #: OpenCASCADE's samples per face for its verification (:func:`_checks`): a
-#: ``CHECK_GRID x CHECK_GRID`` grid over the face's ``(u, v)`` box, and on one edge use of
+#: ``CHECK_GRID x CHECK_GRID`` grid over the face's ``(u, v)`` box (coarser on OpenCASCADE's
+#: own analytic primitives, :func:`_check_grid`), and on one edge use of
 #: every wire and others up to ``CHECK_USES`` in all a point of the p-curve and two beside it
 CHECK_GRID = 4
 CHECK_USES = 4
@@ -608,23 +609,11 @@ CHECK_USES = 4
 CHECK_OFFSET = 1e-3
 
 
-def _check_uses(face) -> list:
-    """The edge uses :func:`_checks` samples: the first (non-degenerate) one of every wire of
-    the face (every loop is checked), then others spread over the face's uses, up to
+def _check_uses(wires: Sequence[Sequence[tuple]]) -> list[tuple]:
+    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor)`` pairs of each
+    wire's non-degenerate uses (as :func:`_wires` walked them): the first one of every wire
+    (every loop is checked), then others spread over the face's uses, up to
     :data:`CHECK_USES` in all."""
-    o = _occ()
-    wires = []
-    ex = o.TopExp_Explorer(face, o.WIRE)
-    while ex.More():
-        uses = []
-        ee = o.TopExp_Explorer(ex.Current(), o.EDGE)
-        while ee.More():
-            e = o.TopoDS.Edge(ee.Current())
-            if not o.BRep_Tool.Degenerated_s(e):
-                uses.append(e)
-            ee.Next()
-        wires.append(uses)
-        ex.Next()
     picked = [w[0] for w in wires if w]
     rest = [e for w in wires for e in w[1:]]
     extra = CHECK_USES - len(picked)
@@ -633,18 +622,34 @@ def _check_uses(face) -> list:
     return picked
 
 
-def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
+def _check_grid(surface: dict, convert: bool, fallback: str | None) -> int:
+    """Samples per direction of a face's check grid (:func:`_checks`): :data:`CHECK_GRID`, but
+    for a face whose description is OpenCASCADE's own analytic primitive (its axes and radii
+    copied, not recognised from another surface nor a fallback), whose conversion is exact by
+    construction: 2 for a plane (affine in ``(u, v)``: three points fix it), 3 for a cylinder,
+    cone, sphere or torus (three distinct angles fix ``a cos + b sin + c``).  Every face keeps
+    its samples on and beside its p-curves."""
+    if convert or fallback is not None or "source" in surface or surface["type"] not in _PRIMITIVES:
+        return CHECK_GRID
+    return 2 if surface["type"] == "plane" else 3
+
+
+def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: int = CHECK_GRID) -> dict:
     """OpenCASCADE's samples of a face, against which :mod:`nagata_snap.cad.verify`
     checks its conversion: parameters in the face's own ``(u, v)`` (those of its
-    description's p-curves), OpenCASCADE's point, outward unit normal and face
+    description's p-curves), OpenCASCADE's point and first derivatives and face
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
-    which it defers near the boundary).
+    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor)`` pairs of
+    every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
+    grid over the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
+    per sample; the arithmetic on the samples is :mod:`~nagata_snap.cad.verify`'s, on all
+    faces' at once.)
 
     Returns:
-        ``uv (k, 2)``, ``points (k, 3)`` (a B-spline's at ``uv`` clamped into its knots in its
-        open directions, as the package's B-splines clamp), ``normals (k, 3)`` (NaN where the surface's
-        normal is undefined), ``state (k,)`` (0 in, 1 out, 2 on), ``kind (k,)`` (0 grid,
+        ``uv (k, 2)``, ``d1 (k, 3, 3)``: the surface's point, ``S_u`` and ``S_v`` (a B-spline's at
+        ``uv`` clamped into its knots in its open directions, as the package's B-splines clamp),
+        ``state (k,)`` (0 in, 1 out, 2 on), ``kind (k,)`` (0 grid,
         1 on a p-curve, whose state is 2 without asking, 2 beside one), ``offset``
         (for a converted face also ``gap (k,)``, :func:`_gaps`) (the 3D distance of the points beside
         the p-curves from them) and ``time`` (seconds).
@@ -657,38 +662,10 @@ def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
     o = _occ()
     a = o.BRepAdaptor_Surface(face, False)
     u0, u1, v0, v1 = uv
-    fr = [(i + 0.5) / CHECK_GRID for i in range(CHECK_GRID)]
+    fr = [(i + 0.5) / grid for i in range(grid)]
     params = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
     kind = [0] * len(params)
     p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
-    lo, hi = [math.inf] * 3, [-math.inf] * 3
-    for u, v in params:  # the grid's extent (the face's, roughly)
-        a.D0(u, v, p)
-        c = p.Coord()
-        lo, hi = list(map(min, lo, c)), list(map(max, hi, c))
-    extent = math.dist(lo, hi) if math.isfinite(lo[0]) else 0.0
-    p2, d2 = gp_Pnt2d(), gp_Vec2d()
-    offset = CHECK_OFFSET * extent
-    for e in _check_uses(face):  # loop over a few edge uses (their p-curves)
-        c = o.BRepAdaptor_Curve2d(e, face)
-        c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
-        u, v = p2.Coord()
-        params.append((u, v))
-        kind.append(1)
-        if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
-            continue
-        a.D1(u, v, p, su, sv)
-        nu, nv = -d2.Y(), d2.X()
-        length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
-        if not length > 0:
-            continue
-        off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
-        params += [(u + off * nu, v + off * nv), (u - off * nu, v - off * nv)]
-        kind += [2, 2]
-    points, normals, state = [], [], []
-    cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
-    IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
-    sign = -1.0 if reversed_ else 1.0
     # a B-spline's points inside its knots in its open directions (a p-curve may leave them
     # by its tolerance; both sides clamp there), classified where they are; other surfaces
     # extrapolate, as ours do
@@ -698,22 +675,55 @@ def _checks(face, reversed_: bool, uv: Sequence[float]) -> dict:
             ulo, uhi = a.FirstUParameter(), a.LastUParameter()
         if not a.IsVPeriodic():
             vlo, vhi = a.FirstVParameter(), a.LastVParameter()
-    for (u, v), k in zip(params, kind, strict=True):  # the samples (OpenCASCADE's points, normals, states)
+    D: list[float] = []  # per sample its point, S_u and S_v (flat)
+    for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
         a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
-        points += p.Coord()
-        n = su.Crossed(sv)
-        m = n.Magnitude()
-        normals += [sign * x / m for x in n.Coord()] if m > 1e-12 * su.Magnitude() * sv.Magnitude() and m > 0 \
-            else [math.nan] * 3
-        if k == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
+        D += p.Coord()
+        D += su.Coord()
+        D += sv.Coord()
+    # the face's extent, roughly: the grid's, scaled to the span of a CHECK_GRID grid's
+    xs, ys, zs = D[0::9], D[1::9], D[2::9]
+    span = (CHECK_GRID - 1) / CHECK_GRID / ((grid - 1) / grid) if grid > 1 else 1.0
+    extent = span * math.dist((min(xs), min(ys), min(zs)), (max(xs), max(ys), max(zs)))
+    extent = extent if math.isfinite(extent) else 0.0
+    p2, d2 = gp_Pnt2d(), gp_Vec2d()
+    offset = CHECK_OFFSET * extent
+    for e, c in _check_uses(uses):  # loop over a few edge uses (their p-curves)
+        c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
+        u, v = p2.Coord()
+        params.append((u, v))
+        kind.append(1)
+        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+        D += p.Coord()
+        D += su.Coord()
+        D += sv.Coord()
+        if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
+            continue
+        nu, nv = -d2.Y(), d2.X()
+        length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
+        if not length > 0:
+            continue
+        off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
+        for s in (off, -off):
+            params.append((u + s * nu, v + s * nv))
+            kind.append(2)
+            a.D1(min(max(u + s * nu, ulo), uhi), min(max(v + s * nv, vlo), vhi), p, su, sv)
+            D += p.Coord()
+            D += su.Coord()
+            D += sv.Coord()
+    cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
+    IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
+    state = []
+    for (u, v), kd in zip(params, kind, strict=True):  # the classifier's states
+        if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
             state.append(2)
             continue
         st = cls.Perform(gp_Pnt2d(u, v))
         state.append(0 if st == IN else 1 if st == OUT else 2)
     k = len(params)
-    return {"uv": np.array(params, dtype=float).reshape(k, 2), "points": np.array(points).reshape(k, 3),
-            "normals": np.array(normals).reshape(k, 3), "state": np.array(state, dtype=np.int8),
-            "kind": np.array(kind, dtype=np.int8), "offset": offset, "time": time.perf_counter() - t0}
+    return {"uv": np.array(params, dtype=float).reshape(k, 2), "d1": np.array(D).reshape(k, 3, 3),
+            "state": np.array(state, dtype=np.int8), "kind": np.array(kind, dtype=np.int8), "offset": offset,
+            "time": time.perf_counter() - t0}
 
 
 def _described(a, dim: int, other, known: tuple[float, float, int] | None = None) -> dict:
@@ -760,22 +770,27 @@ def _curve3d(edge, adaptor: tuple | None = None) -> dict | None:
     return _described(adaptor[0], 3, other, adaptor[1:])
 
 
-def _curve2d(edge, face) -> dict:
-    """Description of the p-curve of an (oriented) edge on a face, with its range."""
+def _curve2d(edge, face, adaptor=None) -> dict:
+    """Description of the p-curve of an (oriented) edge on a face, with its range
+    (``adaptor``: its ``BRepAdaptor_Curve2d``, if made already)."""
     o = _occ()
 
     def other(t0, t1):
         geo = o.BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
         return o.Geom2dConvert.CurveToBSplineCurve_s(o.Geom2d_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve2d(edge, face), 2, other)
+    return _described(o.BRepAdaptor_Curve2d(edge, face) if adaptor is None else adaptor, 2, other)
 
 
 # ----------------------------------------------------------------------
 # topology
 # ----------------------------------------------------------------------
-def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = None) -> list[dict]:
+def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = None,
+           uses_out: list | None = None) -> list[dict]:
     """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
+
+    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor)`` pairs of each wire's
+    non-degenerate uses are appended, one list per wire (the uses :func:`_checks` samples).
 
     ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
     faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
@@ -795,20 +810,27 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
     wires = []
     for w in ws:  # loop over the face's wires
         uses = []
+        mine = []
         we = o.BRepTools_WireExplorer(w, face)
         while we.More():
             e = we.Current()
             i = edge_map.FindIndex(e) - 1
             deg = tool.Degenerated_s(e) if degenerate is None else degenerate[i]
+            pe = edge_of(e)
+            a = o.BRepAdaptor_Curve2d(pe, pface)
             uses.append({
                 "edge": i,
                 "reversed": int(e.Orientation()) == o.REVERSED,
                 "seam": tool.IsClosed_s(e, face) if degenerate is None or deg else False,
                 "degenerate": deg,
-                "pcurve": _curve2d(edge_of(e), pface),
+                "pcurve": _curve2d(pe, pface, a),
             })
+            if not deg:
+                mine.append((pe, a))
             we.Next()
         wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
+        if uses_out is not None:
+            uses_out.append(mine)
     return wires
 
 
@@ -836,6 +858,7 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
     else:
         surface, convert = _surface(face, size, uv)
     pface, edge_of = face, (lambda e: e)
+    checked: list[list[tuple]] = []  # the uses the check samples (_wires walks them)
     if convert:  # (rare: the class is imported here)
         from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
 
@@ -860,15 +883,15 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
         "uv": tuple(uv),
         "reversed": int(face.Orientation()) == o.REVERSED,
         "converted": convert,
-        "wires": _wires(face, pface, edge_map, edge_of, degenerate),
+        "wires": _wires(face, pface, edge_map, edge_of, degenerate, checked),
     }
     if fallback is not None:
         out["fallback"] = "nurbs" if basis is None else fallback
     if check:
-        out["check"] = c = _checks(pface, out["reversed"], uv)
+        out["check"] = c = _checks(pface, uv, checked, _check_grid(surface, convert, fallback))
         if convert:  # the converted face's points against the face's own surface
             t0 = time.perf_counter()
-            c["gap"] = _gaps(face, c["points"], (c["kind"] != 2) | (c["state"] == 0))
+            c["gap"] = _gaps(face, c["d1"][:, 0], (c["kind"] != 2) | (c["state"] == 0))
             c["time"] += time.perf_counter() - t0
     return out
 

@@ -941,6 +941,8 @@ class CadModel:
         faces: list of :class:`Face`.
         edges: list of :class:`Edge`.
         vertices: ``(nv, 3)`` vertex points.
+        vertex_tolerance: ``(nv,)`` OpenCASCADE's tolerance of each vertex (length units; 0
+            where not known).
         path, format, unit, file_units: where it came from and its units
             (``unit``: of the coordinates here; ``file_units``: the file's own).
         size: diagonal of the shape's bounding box.
@@ -950,10 +952,12 @@ class CadModel:
     """
 
     def __init__(self, faces, edges, vertices, *, path="", format="", unit="", file_units=(),
-                 size=0.0, times=None, num_solids=0, healed=None):
+                 size=0.0, times=None, num_solids=0, healed=None, vertex_tolerance=None):
         self.faces = list(faces)
         self.edges = list(edges)
         self.vertices = np.asarray(vertices, dtype=float).reshape(-1, 3)
+        self.vertex_tolerance = (np.zeros(len(self.vertices)) if vertex_tolerance is None
+                                 else np.asarray(vertex_tolerance, dtype=float).reshape(len(self.vertices)))
         self.path, self.format, self.unit = path, format, unit
         self.file_units = list(file_units)
         self.size = float(size)
@@ -1039,7 +1043,8 @@ class CadModel:
         model = cls(faces, edges, data["vertices"], path=path, format=data.get("format", ""),
                     unit=data.get("unit", ""), file_units=data.get("file_units", ()),
                     size=data.get("size", 0.0), times=times,
-                    num_solids=data.get("num_solids", 0), healed=data.get("healed"))
+                    num_solids=data.get("num_solids", 0), healed=data.get("healed"),
+                    vertex_tolerance=data.get("vertex_tolerance"))
         model.verification = data.get("verification")
         return model
 

@@ -104,6 +104,56 @@ class _Slabs:
     def _many(cls, P: np.ndarray, m: np.ndarray, off: np.ndarray, nxt: np.ndarray) -> list[_Slabs]:
         """:meth:`many` of the polygons ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows
         (``off``, ``nxt``: :func:`_closing` of ``m``)."""
+        return cls._split(_SlabTable.build(P, m, off, nxt))
+
+    @classmethod
+    def _split(cls, tab: _SlabTable) -> list[_Slabs]:
+        """Every polygon's :class:`_Slabs`, slices of the table of all of them."""
+        out = []
+        f, s0 = tab.first.tolist(), tab.ptr[tab.first].tolist()
+        for i, (a, b, c) in enumerate(zip(tab.y0.tolist(), tab.n.tolist(), tab.dy.tolist(), strict=True)):
+            sl = cls.__new__(cls)  # (loop over polygons)
+            sl.y0, sl.n, sl.dy = a, b, c
+            sl.seg, sl.ptr = tab.seg[s0[i]:s0[i + 1]], tab.ptr[f[i]:f[i + 1] + 1] - s0[i]
+            out.append(sl)
+        return out
+
+    def candidates(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(point, edge)`` pairs to test for query ordinates ``y``."""
+        t = (y - self.y0) / self.dy
+        inside = (t > -1.0) & (t < self.n)  # the slabs trunc(t) in 0..n-1; NaN is outside
+        s = np.where(inside, t, 0.0).astype(np.int64)
+        cnt = np.where(inside, self.ptr[s + 1] - self.ptr[s], 0)
+        pt = np.repeat(np.arange(len(y)), cnt)
+        off = ramp(cnt)
+        return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
+
+
+class _SlabTable:
+    """The :class:`_Slabs` of many polygons in one table, for crossing tests of queries on
+    different polygons at once (:meth:`crossings`).
+
+    Attributes:
+        y0, dy, n: ``(w,)`` per polygon its slabs ``[y0 + i dy, y0 + (i + 1) dy)``, ``i < n``.
+        first: ``(w + 1,)`` number of each polygon's first slab in the table.
+        seg, ptr: CSR lists of the edges (numbered within their polygon) spanning each slab.
+        P, off, nxt: the polygons' vertices, :func:`_closing`'s offsets and next vertices.
+    """
+
+    y0: np.ndarray
+    dy: np.ndarray
+    n: np.ndarray
+    first: np.ndarray
+    seg: np.ndarray
+    ptr: np.ndarray
+    P: np.ndarray
+    off: np.ndarray
+    nxt: np.ndarray
+
+    @classmethod
+    def build(cls, P: np.ndarray, m: np.ndarray, off: np.ndarray, nxt: np.ndarray) -> _SlabTable:
+        """The table of the polygons ``P (sum m, 2)``, polygon ``i`` the next ``m[i]`` rows
+        (``off``, ``nxt``: :func:`_closing` of ``m``)."""
         lid = np.arange(len(m)).repeat(m)
         y = P[:, 1]
         ends = np.empty((2, len(P)))  # the lower and upper ordinate of each edge
@@ -130,24 +180,62 @@ class _Slabs:
         seg = seg[(slab.astype(np.uint16) if first[-1] <= 0xFFFF else slab).argsort(kind="stable")]
         ptr = np.zeros(int(first[-1]) + 1, dtype=np.int64)
         np.bincount(slab, minlength=int(first[-1])).cumsum(out=ptr[1:])
-        out = []
-        f, s0 = first.tolist(), ptr[first].tolist()
-        for i, (a, b, c) in enumerate(zip(y0.tolist(), n.tolist(), dy.tolist(), strict=True)):  # loop over polygons
-            sl = cls.__new__(cls)
-            sl.y0, sl.n, sl.dy = a, b, c
-            sl.seg, sl.ptr = seg[s0[i]:s0[i + 1]], ptr[f[i]:f[i + 1] + 1] - s0[i]
-            out.append(sl)
-        return out
+        tab = cls.__new__(cls)
+        tab.y0, tab.dy, tab.n, tab.first, tab.seg, tab.ptr = y0, dy, n, first, seg, ptr
+        tab.P, tab.off, tab.nxt = P, off, nxt
+        return tab
 
-    def candidates(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(point, edge)`` pairs to test for query ordinates ``y``."""
-        t = (y - self.y0) / self.dy
-        inside = (t > -1.0) & (t < self.n)  # the slabs trunc(t) in 0..n-1; NaN is outside
-        s = np.where(inside, t, 0.0).astype(np.int64)
+    def crossings(self, loop: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """``(m,)``: edges of polygon ``loop[i]`` crossed by the ray ``+x`` from ``pts[i]``
+        (``pts (m, 2)``), as :func:`_crossings` with the polygon's slabs, for all at once."""
+        x, y = pts[:, 0], pts[:, 1]
+        t = (y - self.y0[loop]) / self.dy[loop]
+        inside = (t > -1.0) & (t < self.n[loop])  # the slabs trunc(t) in 0..n-1; NaN is outside
+        s = self.first[loop] + np.where(inside, t, 0.0).astype(np.int64)
         cnt = np.where(inside, self.ptr[s + 1] - self.ptr[s], 0)
-        pt = np.repeat(np.arange(len(y)), cnt)
-        off = ramp(cnt)
-        return pt, self.seg[np.repeat(self.ptr[s], cnt) + off]
+        pt = np.repeat(np.arange(len(pts)), cnt)
+        edge = self.off[loop[pt]] + self.seg[np.repeat(self.ptr[s], cnt) + ramp(cnt)]
+        a, b = self.P[edge], self.P[self.nxt[edge]]
+        yq = y[pt]
+        ay, by = a[:, 1], b[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xint = a[:, 0] + (yq - ay) * (b[:, 0] - a[:, 0]) / (by - ay)
+        hit = ((ay > yq) != (by > yq)) & (x[pt] < xint)
+        return np.bincount(pt[hit], minlength=len(pts))
+
+
+#: the parameter shifts of :meth:`TrimLoops._shifts`, in periods: 0 and one either way in each direction
+_SHIFTS = np.array([(du, dv) for du in (0.0, -1.0, 1.0) for dv in (0.0, -1.0, 1.0)])
+
+
+class _Domains:
+    """The parameter domains of many surfaces, to wrap or clamp the parameters of points on
+    different surfaces at once (:func:`~nagata_snap.cad.projection.normalize_params` of each).
+
+    Attributes:
+        ok: every entity has two parameters (surfaces): :meth:`normalize` applies.
+    """
+
+    def __init__(self, entities: Sequence):
+        from nagata_snap.cad.projection import entity_limits, entity_periods
+
+        self.ok = all(e.param_dim == 2 for e in entities)
+        if not self.ok or not entities:
+            return
+        self.lo = np.array([e.bounds[:, 0] for e in entities], dtype=float)
+        self.period = np.array([entity_periods(e) for e in entities], dtype=float)
+        self.limits = np.array([entity_limits(e) for e in entities], dtype=float)
+
+    def normalize(self, ent: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """``(n, 2)``: ``params`` of points on entities ``ent`` wrapped into ``[lo, lo + period)``
+        in closed directions (where outside ``[lo, lo + period]``), clamped to the limits in open ones."""
+        p = np.array(params, dtype=float)
+        lo, per, lim = self.lo[ent], self.period[ent], self.limits[ent]
+        closed = np.isfinite(per)
+        with np.errstate(invalid="ignore"):
+            out = closed & ((p < lo) | (p > lo + per))
+            wrapped = lo + np.mod(p - lo, np.where(closed, per, 1.0))
+        return np.where(out, wrapped, np.where(closed, p, np.clip(p, lim[..., 0], lim[..., 1])))
 
 
 def _closing(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -205,7 +293,9 @@ class TrimLoops:
         ent, m, P, band = self._checked(loops, bands) if fast is None else fast
         off, nxt = _closing(m)
         seg = P[nxt] - P  # the edge vectors of all loops
-        slabs = _Slabs._many(P, m, off, nxt)
+        self._table = _SlabTable.build(P, m, off, nxt)
+        self._seg, self._band = seg, band
+        slabs = _Slabs._split(self._table)
         o = off.tolist()
         self._loops: list[list[tuple]] = [[] for _ in range(n)]
         for i, (e, sl) in enumerate(zip(ent, slabs, strict=True)):  # loop over loops (their records)
@@ -213,6 +303,10 @@ class TrimLoops:
             self._loops[e].append((P[a:b], seg[a:b], band[a:b], sl))
         self.trimmed = np.array([bool(lp) for lp in self._loops])
         self._period = np.array([entity_periods(ent) for ent in self.entities])
+        # each entity's loops (numbered as the table's, by entity: they were gathered so)
+        lent = np.asarray(ent, dtype=np.int64)
+        self._loop_start = np.searchsorted(lent, np.arange(n + 1)) if (np.diff(lent) >= 0).all() else None
+        self._domain = _Domains(self.entities)
 
     def _checked(self, loops: Sequence[Sequence[np.ndarray]], bands: Sequence[Sequence[np.ndarray]] | None
                  ) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray]:
@@ -361,12 +455,14 @@ class TrimLoops:
                 shifts = [s + k * d for s in shifts for k in (0.0, -1.0, 1.0)]
         return shifts
 
-    def loop_distance(self, ent: npt.ArrayLike, params: npt.ArrayLike, enough: float | None = None) -> np.ndarray:
+    def loop_distance(self, ent: npt.ArrayLike, params: npt.ArrayLike, enough: float | None = None,
+                      scales: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """``(n,)`` distance (length units) of ``params (n, 2)`` from the nearest trimming
         loop of face ``ent (n,)``, less the loop's band, inside or outside (``inf`` for an
         untrimmed face): where it is positive, :meth:`inside` does not depend on the band.
         ``enough``: a point whose distance at the wrapped parameter is at most this is not
-        tested one period either side (its value is then an upper bound)."""
+        tested one period either side (its value is then an upper bound).  ``scales``: ``|S_u|,
+        |S_v|`` ``(n,)`` at the points, where known (else evaluated here)."""
         from nagata_snap.cad.projection import normalize_params
 
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
@@ -375,6 +471,18 @@ class TrimLoops:
             return out
         params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
         rows = np.flatnonzero(self.trimmed[ent])
+        if self._loop_start is not None and self._domain.ok and rows.size:
+            q0 = self._domain.normalize(ent[rows], params[rows])
+            if scales is not None:
+                su, sv = np.asarray(scales[0], dtype=float)[rows], np.asarray(scales[1], dtype=float)[rows]
+            else:
+                g = Groups(ent[rows])
+                su, sv = np.empty(len(rows)), np.empty(len(rows))
+                for e, gs in g:  # loop over trimmed entities (their metric at the points)
+                    sel = g.order[gs]
+                    su[sel], sv[sel] = self._scales(e, q0[sel])
+            out[rows] = self._distance_all(ent[rows], q0, su, sv)
+            return out
         g = Groups(ent[rows])
         for e, gs in g:  # loop over trimmed entities
             sel = rows[g.order[gs]]
@@ -436,6 +544,11 @@ class TrimLoops:
         params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
         out = np.ones(len(ent), dtype=bool)
         rows = np.flatnonzero(self.trimmed[ent])
+        if self._loop_start is not None and self._domain.ok:
+            for i in range(0, len(rows), CHUNK // 8):  # chunks bound the (query, edge) work arrays
+                sel = rows[i:i + CHUNK // 8]
+                out[sel] = self._inside_all(ent[sel], self._domain.normalize(ent[sel], params[sel]))
+            return out
         g = Groups(ent[rows])
         for e, gs in g:  # loop over trimmed entities
             sel = rows[g.order[gs]]
@@ -450,6 +563,59 @@ class TrimLoops:
                     break
             out[sel] = res
         return out
+
+    def _shifted(self, ent: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(qi (k,), Q (k, 2))``: every query of ``q (n, 2)`` (on entities ``ent``) at every shift
+        of :meth:`_shifts` (``qi``: the query's row, ascending)."""
+        per = self._period[ent]
+        closed = np.isfinite(per)
+        valid = ((_SHIFTS[None, :, 0] == 0) | closed[:, None, 0]) & ((_SHIFTS[None, :, 1] == 0) | closed[:, None, 1])
+        qi, sj = np.nonzero(valid)
+        return qi, q[qi] + _SHIFTS[sj] * np.where(closed, per, 0.0)[qi]
+
+    def _distance_all(self, ent: np.ndarray, q: np.ndarray, su: np.ndarray, sv: np.ndarray) -> np.ndarray:
+        """``(n,)`` :meth:`loop_distance` (every shift tested) of the wrapped parameters ``q (n, 2)``
+        on the trimmed entities ``ent``, through the metric ``su, sv (n,)``: the distance from every
+        segment of the entity's loops less its band, all queries at once (in chunks of
+        :data:`CHUNK` (query, segment) pairs)."""
+        qi, Q = self._shifted(ent, q)
+        off, start = self._table.off, self._loop_start
+        assert start is not None  # (the caller's condition)
+        first = off[start[ent[qi]]]
+        cnt = off[start[ent[qi] + 1]] - first  # the entity's loop vertices: contiguous
+        best = np.empty(len(Q))
+        work = np.cumsum(cnt)
+        cuts = np.searchsorted(work, np.arange(CHUNK, int(work[-1]), CHUNK)) if len(work) else np.zeros(0, np.int64)
+        for rows in np.split(np.arange(len(Q)), cuts):  # chunks bound the (pair, 2) work arrays
+            if rows.size == 0:
+                continue
+            c = cnt[rows]
+            pair = np.repeat(np.arange(len(rows)), c)
+            j = np.repeat(first[rows], c) + ramp(c)
+            k = qi[rows][pair]
+            S = np.stack([su[k], sv[k]], axis=1)  # the metric
+            qq = (Q[rows][pair] - self._table.P[j]) * S
+            ss = self._seg[j] * S
+            L2 = np.maximum(np.einsum("kj,kj->k", ss, ss), 1e-300)
+            t = np.clip(np.einsum("kj,kj->k", qq, ss) / L2, 0.0, 1.0)
+            r = qq - t[:, None] * ss
+            d = np.sqrt(np.einsum("kj,kj->k", r, r)) - self._band[j]
+            best[rows] = np.minimum.reduceat(d, np.cumsum(c) - c)
+        return np.minimum.reduceat(best, np.flatnonzero(np.r_[True, qi[1:] != qi[:-1]]))
+
+    def _inside_all(self, ent: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """``(n,)`` :meth:`inside` (no band) of the wrapped parameters ``q (n, 2)`` on the trimmed
+        entities ``ent (n,)``: the even-odd test of every query at every shift of
+        :meth:`_shifts` against its entity's loops, all at once (one :meth:`_SlabTable.crossings`)."""
+        qi, Q = self._shifted(ent, q)
+        # every (shifted query, loop of its entity) pair
+        assert self._loop_start is not None  # (the caller's condition)
+        start = self._loop_start[ent[qi]]
+        nl = self._loop_start[ent[qi] + 1] - start
+        pair = np.repeat(np.arange(len(Q)), nl)
+        cross = self._table.crossings(np.repeat(start, nl) + ramp(nl), Q[pair])
+        odd = np.bincount(pair, weights=cross, minlength=len(Q)).astype(np.int64) % 2 == 1
+        return np.bincount(qi[odd], minlength=len(ent)) > 0
 
     def loop_points(self, e: int) -> np.ndarray | None:
         """All loop vertices of surface ``e`` ``(k, 2)``, or ``None`` if untrimmed."""

@@ -5,8 +5,9 @@ Our fast projection rests on our own representation of OpenCASCADE's faces
 polygons from the p-curves); a face converted wrongly would snap vertices
 onto the wrong surface without a word.  So the reader (:mod:`nagata_snap.cad.read`,
 where the OpenCASCADE shape exists) samples every face
-(:func:`~nagata_snap.cad.read._checks`: a grid over its ``(u, v)`` box, a point
-on a few of its p-curves and two beside each, across the p-curve), and
+(:func:`~nagata_snap.cad.read._checks`: a grid over its ``(u, v)`` box, 4 x 4, or 3 x 3
+and 2 x 2 on OpenCASCADE's own analytic primitives and planes, which those fix; a point
+on a p-curve of every wire and of a few more and two beside each, across the p-curve), and
 :func:`check_faces` compares, on all samples of all faces at once:
 
 * **points** (on the face: the grid samples, those on the p-curves and those
@@ -95,7 +96,9 @@ class FaceCheck:
 
 def _samples(data: dict) -> tuple[np.ndarray, ...]:
     """All faces' OpenCASCADE samples concatenated: ``(face, uv, points, normals, state, kind,
-    offset, gap)``, ``offset`` per sample (its face's), ``gap`` 0 but on converted faces."""
+    offset, gap)``, ``offset`` per sample (its face's), ``gap`` 0 but on converted faces; the
+    outward unit normals (NaN where ``S_u x S_v`` vanishes) from the samples' derivatives and
+    the faces' orientations, for all samples at once."""
     checks = [f["check"] for f in data["faces"]]
     n = np.array([len(c["uv"]) for c in checks], dtype=np.int64)
     face = np.repeat(np.arange(len(checks)), n)
@@ -106,7 +109,14 @@ def _samples(data: dict) -> tuple[np.ndarray, ...]:
     offset = np.repeat(np.array([float(c["offset"]) for c in checks]), n)
     gap = np.concatenate([np.asarray(c.get("gap", np.zeros(len(c["uv"]))), dtype=float) for c in checks]
                          + [np.zeros(0)])
-    return (face, cat("uv", (2,)), cat("points", (3,)), cat("normals", (3,)), cat("state", ()).astype(np.int64),
+    D = cat("d1", (3, 3))
+    N = np.cross(D[:, 1], D[:, 2])
+    m = np.linalg.norm(N, axis=1)
+    ok = (m > 1e-12 * np.linalg.norm(D[:, 1], axis=1) * np.linalg.norm(D[:, 2], axis=1)) & (m > 0)
+    sign = np.where(np.array([bool(f["reversed"]) for f in data["faces"]] + [False]), -1.0, 1.0)[face]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        N = np.where(ok[:, None], N * (sign / m)[:, None], np.nan)
+    return (face, cat("uv", (2,)), np.ascontiguousarray(D[:, 0]), N, cat("state", ()).astype(np.int64),
             cat("kind", ()).astype(np.int64), offset, gap)
 
 
@@ -122,24 +132,35 @@ def _mapped(model: CadModel, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out
 
 
-def _ours(model: CadModel, face: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Our points ``(n, 3)`` and outward unit normals ``(n, 3)`` (NaN where undefined) of faces
-    ``face`` at our parameters ``params (n, 2)`` (one evaluation per face, of all its samples)."""
+def _ours(model: CadModel, face: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Our points ``(n, 3)``, outward unit normals ``(n, 3)`` (NaN where undefined) and
+    ``|S_u|, |S_v|`` ``(n,)`` of faces ``face`` at our parameters ``params (n, 2)``: the planes'
+    all at once (their affine frames, :class:`~nagata_snap.cad.projection.AffineBatch`), every
+    other face by one evaluation of all its samples."""
+    from nagata_snap.cad.projection import AffineBatch
+
+    T = np.empty((len(face), 2, 3))
     P = np.empty((len(face), 3))
-    N = np.empty((len(face), 3))
-    g = Groups(face)
-    for i, sl in g:  # loop over faces (each a different surface)
-        rows = g.order[sl]
-        s = model.faces[i].surface
-        X, T = evaluate_params(s, normalize_params(s, params[rows]), 1)
-        n = np.cross(T[:, 0], T[:, 1])
-        m = np.linalg.norm(n, axis=1)
-        scale = np.linalg.norm(T[:, 0], axis=1) * np.linalg.norm(T[:, 1], axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            n = np.where((m > 1e-12 * scale)[:, None] & (m > 0)[:, None], n / m[:, None], np.nan)
-        P[rows] = X
-        N[rows] = -n if model.faces[i].reversed else n
-    return P, N
+    surfaces = [f.surface for f in model.faces]
+    aff = AffineBatch(surfaces)
+    flat = aff.has[face]
+    if flat.any():  # S(p) = origin + p @ axes (planes have no limits: nothing to wrap or clamp)
+        e = face[flat]
+        P[flat] = aff.origin[e] + np.einsum("nd,ndc->nc", params[flat], aff.axes[e])
+        T[flat] = aff.axes[e]
+    rows = np.flatnonzero(~flat)
+    g = Groups(face[rows])
+    for i, sl in g:  # loop over the other faces (each a different surface)
+        r = rows[g.order[sl]]
+        s = surfaces[i]
+        P[r], T[r] = evaluate_params(s, normalize_params(s, params[r]), 1)
+    n = np.cross(T[:, 0], T[:, 1])
+    m = np.linalg.norm(n, axis=1)
+    su, sv = np.linalg.norm(T[:, 0], axis=1), np.linalg.norm(T[:, 1], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = np.where((m > 1e-12 * su * sv)[:, None] & (m > 0)[:, None], n / m[:, None], np.nan)
+    flip = np.array([f.reversed for f in model.faces] + [False])[face]
+    return P, np.where(flip[:, None], -n, n), su, sv
 
 
 def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
@@ -152,7 +173,7 @@ def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
     face, uv, Pocc, Nocc, state, kind, offset, gap = _samples(data)
     nf = len(model.faces)
     params = _mapped(model, face, uv)
-    P, N = _ours(model, face, params)
+    P, N, su, sv = _ours(model, face, params)
     size = max(model.size, 1e-300)
     # (a face converted by OpenCASCADE is checked against its conversion, and the conversion
     # against the face's own surface: the gap)
@@ -176,7 +197,7 @@ def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
         on = kind == 1
         ask = np.flatnonzero((on & ~ins) | (~on & (state != 2) & (ins != (state == 0))))
         if ask.size:
-            ld = trims.loop_distance(face[ask], params[ask], enough=0.0)
+            ld = trims.loop_distance(face[ask], params[ask], enough=0.0, scales=(su[ask], sv[ask]))
             bad[ask] = np.where(on[ask], ld > 0.0, ld > 0.25 * offset[ask])
     else:  # no face is trimmed: every sample is on its face
         bad = state == 1

@@ -1,0 +1,123 @@
+"""Where a file's faces meet only within its tolerances: how far a point may be from its face.
+
+A STEP or IGES file is written with a tolerance: OpenCASCADE gives every edge
+and vertex its own (``BRep_Tool::Tolerance``, kept in :class:`~nagata_snap.cad.topology.Edge`'s
+``tolerance`` and :attr:`CadModel.vertex_tolerance <nagata_snap.cad.topology.CadModel>`)
+and takes a point within that distance of an edge (its *tolerance tube*) to be
+on the edge.  Two faces that share an edge therefore meet only within its
+tolerance: at a corner of a CATIA file the vertex can be 4.5e-5 mm off one of
+its faces while OpenCASCADE calls the shape valid.  A snapped boundary vertex on
+such an edge, placed on one face, is that far from the other one, and a
+distance report that counts it as off its face cries wolf.
+
+:func:`tolerance_gaps` gives each point the distance the file itself allows:
+the largest tolerance of an edge of its face (or of a vertex of those edges)
+whose tube holds the point, else ``rtol`` of the model size;
+:func:`count_far` counts the points farther than ``rtol`` of the size from their
+face and those of them the file's tolerances explain.  The CLI's summary
+(:func:`nagata_snap.cli.boundary_far`) and ``benchmarks/cad_corpus.py`` both use it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from nagata_snap.cad.projection import evaluate_params, normalize_params, project_points
+from nagata_snap.cad.topology import CadModel
+
+__all__ = ["FAR_RTOL", "tolerance_gaps", "count_far"]
+
+#: a point farther than this from its face, relative to the model size, is reported
+FAR_RTOL = 1e-9
+#: samples of an edge curve's range whose nearest seeds the projection onto it
+SEED_SAMPLES = 33
+
+
+def _curve_distance(curve, X: np.ndarray) -> np.ndarray:
+    """``(m,)`` distance of ``X (m, 3)`` from the (bounded) 3D curve of an edge (length units):
+    closed form for lines and circles, else Newton from the nearest of
+    :data:`SEED_SAMPLES` samples of its range."""
+    t0, t1 = curve.bounds[0]
+    t = normalize_params(curve, np.linspace(t0, t1, SEED_SAMPLES)[:, None])
+    S = evaluate_params(curve, t, 0)
+    t = t[:, 0]
+    seeds = t[np.argmin(np.linalg.norm(X[:, None, :] - S[None], axis=2), axis=1)]
+    res = project_points(curve, X, seeds[:, None])
+    return np.asarray(res.distance, dtype=float)
+
+
+def tolerance_gaps(model: CadModel, faces: npt.ArrayLike, points: npt.ArrayLike,
+                   rtol: float = FAR_RTOL) -> np.ndarray:
+    """How far each point may be from its face because the file's faces meet only within
+    the file's tolerances.
+
+    Args:
+        model: the CAD model (its edges' and vertices' tolerances).
+        faces: ``(n,)`` the face of each point (index into ``model.faces``).
+        points: ``(n, 3)`` the points (length units of the model).
+        rtol: the distance allowed anywhere, relative to ``model.size``.
+
+    Returns:
+        ``(n,)`` (length units): the largest tolerance of an edge of the point's face, or of
+        a vertex of those edges, whose tolerance tube (radius the tolerance, at least
+        ``rtol`` of the size) holds the point; ``rtol`` of the size where none does.
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1)
+    X = np.asarray(points, dtype=float).reshape(len(faces), 3)
+    floor = rtol * model.size
+    gap = np.full(len(faces), floor)
+    if len(faces) == 0:
+        return gap
+    # (point, edge) pairs: every edge with a curve bounding the point's face
+    fe = [model.faces[i].edges for i in range(len(model.faces))]
+    count = np.array([len(e) for e in fe], dtype=np.int64)
+    start = np.concatenate([[0], count.cumsum()])
+    flat = np.concatenate([*fe, np.zeros(0, dtype=np.int64)])
+    n = count[faces]
+    pt = np.repeat(np.arange(len(faces)), n)
+    edge = flat[np.repeat(start[faces], n) + (np.arange(n.sum()) - np.repeat(n.cumsum() - n, n))]
+    etol = np.array([e.tolerance for e in model.edges] + [0.0])
+    d = np.full(len(pt), np.inf)
+    order = np.argsort(edge, kind="stable")
+    cut = np.flatnonzero(np.diff(edge[order])) + 1
+    for rows in np.split(order, cut) if len(order) else []:  # loop over the edges concerned
+        d[rows] = _curve_distance(model.edges[int(edge[rows[0]])].curve, X[pt[rows]])
+    inside = d <= np.maximum(etol[edge], floor)
+    np.maximum.at(gap, pt[inside], etol[edge[inside]])
+    # (point, vertex) pairs: the end vertices of those edges
+    ends = np.array([e.vertices for e in model.edges], dtype=np.int64).reshape(-1, 2)
+    vp, vv = np.repeat(pt, 2), ends[edge].reshape(-1)
+    ok = vv >= 0
+    vp, vv = vp[ok], vv[ok]
+    vtol = model.vertex_tolerance[vv]
+    inside = np.linalg.norm(X[vp] - model.vertices[vv], axis=1) <= np.maximum(vtol, floor)
+    np.maximum.at(gap, vp[inside], vtol[inside])
+    return gap
+
+
+def count_far(model: CadModel | None, faces: npt.ArrayLike, points: npt.ArrayLike, dist: npt.ArrayLike,
+              size: float, rtol: float = FAR_RTOL) -> tuple[int, int]:
+    """The points farther than ``rtol`` of the size from their face, and how many of them
+    the file's own tolerances explain.
+
+    Args:
+        model: the CAD model, or None (no tolerances known: none is explained).
+        faces, points: as :func:`tolerance_gaps`.
+        dist: ``(n,)`` each point's distance from its face (length units).
+        size: the model size (length units).
+        rtol: as :func:`tolerance_gaps`.
+
+    Returns:
+        ``(far, within)``: points with ``dist > rtol * size``, and of them those within
+        the gap :func:`tolerance_gaps` allows them (inside the tolerance tube of an edge
+        or vertex of their face, and no farther from it than that tolerance).
+    """
+    dist = np.asarray(dist, dtype=float).reshape(-1)
+    far = np.flatnonzero(dist > rtol * size)
+    if model is None or far.size == 0:
+        return int(far.size), 0
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1)[far]
+    X = np.asarray(points, dtype=float).reshape(-1, 3)[far]
+    gap = tolerance_gaps(model, faces, X, rtol)
+    return int(far.size), int(np.count_nonzero(dist[far] <= gap))
