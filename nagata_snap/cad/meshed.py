@@ -36,6 +36,9 @@ __all__ = ["mesh_cad", "use_cad_mesh", "match_entities"]
 
 #: gmsh samples must lie on their matched face within this fraction of the model size
 MATCH_RTOL = 1e-7
+#: a gmsh entity whose samples lie on no trimmed face matches the face whose surface holds them
+#: and whose loops they leave by less than this fraction of the entity's box diagonal
+LOOP_SLACK = 0.05
 
 
 def match_entities(geometry: CadGeometry, entities: dict) -> dict:
@@ -73,6 +76,8 @@ def match_entities(geometry: CadGeometry, entities: dict) -> dict:
             if de < best_d:
                 best, best_d, best_p = int(e), de, res_e[0]
         if best is None or not best_d <= tol:
+            best, best_p = _nearly_inside(geometry, P[rows], info.bbox, tol)
+        if best is None:
             raise CadError(
                 f"gmsh {'surface' if d == 2 else 'curve'} {info.tag} ({info.kind}) lies on no "
                 f"{'face' if d == 2 else 'edge'} of {geometry.model.path if geometry.model else 'the CAD'}"
@@ -81,6 +86,31 @@ def match_entities(geometry: CadGeometry, entities: dict) -> dict:
         assert best_p is not None  # set with best
         out[int(info.tag)] = (best, _same_params(geometry, best, info.params, best_p))
     return out
+
+
+def _nearly_inside(geometry: CadGeometry, P: np.ndarray, bbox: np.ndarray, tol: float
+                   ) -> tuple[int | None, np.ndarray | None]:
+    """The face whose surface holds the samples ``P (m, 3)`` of a gmsh entity (within ``tol``) and
+    whose trimming loops they leave least, if by less than :data:`LOOP_SLACK` of the entity's box.
+
+    gmsh meshes a face in its parameter plane between the chords of its loops, so
+    on a sliver face (a thread's end: 0.04 mm wide) its inner nodes can lie outside
+    the exact loops; they are still on the face's surface.  ``bbox (2, 3)``: gmsh's
+    box of the entity.  Returns ``(face, the samples' parameters on it)`` or ``(None, None)``.
+    """
+    slack = LOOP_SLACK * float(np.linalg.norm(bbox[1] - bbox[0]))
+    best, best_x, best_p = None, np.inf, None
+    for e, ent in enumerate(geometry.entities):  # loop over faces (only for an unmatched entity)
+        lo, hi = ent.bbox
+        if not (np.all(lo - tol <= P) and np.all(hi + tol >= P)):
+            continue
+        par, _, dist = geometry.searcher.search_on(P, np.full(len(P), e))[:3]
+        if not dist.max() <= tol:
+            continue
+        out = 0.0 if geometry.trims is None else float(np.max(geometry.trims.excess(np.full(len(P), e), par)))
+        if out < best_x:
+            best, best_x, best_p = e, out, par
+    return (best, best_p) if best_x <= slack else (None, None)
 
 
 def _same_params(geometry: CadGeometry, e: int, gmsh_params: np.ndarray, ours: np.ndarray) -> bool:
