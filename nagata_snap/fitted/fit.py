@@ -41,8 +41,9 @@ import numpy as np
 
 from nagata_snap.nagata.jets import _basis, _weighted_lstsq
 
-__all__ = ["exponents", "monomials", "terms", "model_terms", "plane_value", "term_columns", "curve_columns",
-           "fit_surfaces", "surface_height", "fit_levels", "fit_curves", "height", "BATCH"]
+__all__ = ["exponents", "monomials", "terms", "model_terms", "plane_value", "term_columns",
+           "fit_surfaces", "surface_height", "fit_levels", "fit_curves", "height", "BATCH",
+           "MIN_CREASE_SINE"]
 
 #: Stencils per batch (bounds memory: ``batch * points * terms`` doubles).
 BATCH = 4096
@@ -135,11 +136,6 @@ def plane_value(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: n
             out += c(col) * m
             col += 1
     return out
-
-
-def curve_columns(degree: int, top: int) -> np.ndarray:
-    """Columns of a degree-``degree`` curve fit's terms (:func:`fit_curves`) among the degree-``top`` fit's."""
-    return np.r_[np.arange(degree - 1), top - 1]
 
 
 def fit_surfaces(
@@ -237,6 +233,7 @@ def fit_levels(
     stencil: Callable[[int], tuple[np.ndarray, np.ndarray]],
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray, int, bool], np.ndarray],
     S: int, columns: Callable[[int], np.ndarray], q: int, comps: int = 1,
+    equations: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fits of ``S`` stencils trying ``levels = [(degree, width, variant), ...]`` in turn.
 
@@ -250,7 +247,8 @@ def fit_levels(
         ``(coef (S, comps, q), degree (S,), level (S,))``: coefficients padded to
         the ``q`` terms of the first level's degree (zeros for the terms a lower
         degree lacks), the degree each fit got (0: none, coefficients 0) and
-        the index of its level (-1: none).
+        the index of its level (-1: none).  ``equations(mask) -> (n,)``: the
+    equations per component a stencil gives (default: its points).
     """
     coef = np.zeros((S, comps, q))
     got = np.zeros(S, dtype=np.int64)
@@ -265,7 +263,8 @@ def fit_levels(
         idx, mask = cache[width]
         cols = columns(degree)
         for lo in range(0, S, BATCH):
-            enough = mask[lo:lo + BATCH].sum(axis=1) >= len(cols) + EXTRA_POINTS
+            mk = mask[lo:lo + BATCH]
+            enough = (mk.sum(axis=1) if equations is None else equations(mk)) >= len(cols) + EXTRA_POINTS
             sel = lo + np.flatnonzero(todo[lo:lo + BATCH] & enough)
             if len(sel) == 0:
                 continue
@@ -280,28 +279,79 @@ def fit_levels(
     return coef, got, level
 
 
+#: Slope equations of a crease curve fit are used where the two faces' normals
+#: are at least this far apart (sine of the angle): at a tangency (G1) line
+#: their cross product, the curve's tangent, is not determined.
+MIN_CREASE_SINE = 0.2
+
+
 def fit_curves(
     x0: np.ndarray, tangent: np.ndarray, normals: tuple[np.ndarray, np.ndarray], pts: np.ndarray,
-    mask: np.ndarray, h: np.ndarray, degree: int,
+    mask: np.ndarray, h: np.ndarray, degree: int, sides: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Curve fits: offsets ``y1, y2`` of degree ``degree`` in the abscissa along ``tangent``.
+    """Curve fits: each offset ``y_k`` (along ``normals[k]``) as a planar implicit fit in the abscissa.
+
+    In the plane of ``tangent`` and ``normals[k]`` the projected curve is fitted
+    as :func:`fit_surfaces` fits a planar curve, ``y + sum_j c_j phi_j(s, y) = 0``
+    with the conic and the powers ``s^3 .. s^degree`` (:func:`model_terms`): a
+    planar circle (a fillet's rim, a hole's edge) projects to a conic in each
+    such plane, so the fit is exact on it however few segments it has, where a
+    polynomial graph over the chord of a quarter arc of 3 segments is 3x less
+    accurate than Nagata's curve.
 
     Args:
         x0: ``(S, 3)`` curve points the fits pass through; tangent: ``(S, 3)``
             unit chords; normals: two ``(S, 3)`` unit vectors completing the frame.
         pts, mask: ``(S, m, 3)``, ``(S, m)`` the other points of each curve.
         h: ``(S,)`` length scale.
-        degree: ``>= 1``.
+        degree: ``>= 2``.
+        sides: optional ``(S, m + 1, 2, 3)``: the two faces' unit normals at
+            ``x0`` (row 0) and at each point of ``pts``; where they are at least
+            :data:`MIN_CREASE_SINE` apart their cross product is the curve's
+            tangent there, an equation ``dF/ds (t . T) + dF/dy (t . n_k) = 0``
+            each (Hermite data: a chain of 3 segments between corners fits degree 4).
 
     Returns:
-        ``(S, 2, degree)`` coefficients of ``s^2 .. s^degree, s`` per offset
-        (order of :func:`exponents` planar; scaled by ``h``), NaN where undetermined.
+        ``(S, 2, q)`` coefficients (:func:`terms` planar) per offset, scaled by
+        ``h``; NaN where undetermined, with fewer than ``q + EXTRA_POINTS``
+        equations (a tangency line has no slope equations) or no height
+        function near ``x0``.
     """
-    exps = exponents(degree, True)
     d = pts - x0[:, None, :]
-    s = np.einsum("smi,si->sm", d, tangent) / h[:, None]
+    u = np.einsum("smi,si->sm", d, tangent) / h[:, None]
     wt = _weights(np.einsum("smi,smi->sm", d, d), h, mask)
-    P = monomials(s, 0.0 * s, exps)
-    free = np.zeros(len(exps), dtype=bool)  # no penalty while determined (see fit_surfaces)
-    out = [_weighted_lstsq(P, np.einsum("smi,si->sm", d, nrm) / h[:, None], wt, free, 1) for nrm in normals]
-    return np.stack(out, axis=1)
+    q = terms(degree, True)
+    out = np.full((len(x0), 2, q), np.nan)
+    t = None
+    count = mask.sum(axis=1)
+    if sides is not None:
+        t = np.cross(sides[..., 0, :], sides[..., 1, :])
+        st = np.linalg.norm(t, axis=-1)
+        t = t / np.where(st > 0, st, 1.0)[..., None]
+        ws = np.where(np.concatenate([np.ones((len(x0), 1), dtype=bool), mask], axis=1) & (st >= MIN_CREASE_SINE),
+                      np.concatenate([np.ones((len(x0), 1)), wt], axis=1), 0.0)
+        us = np.concatenate([np.zeros((len(x0), 1)), u], axis=1)
+        tT = np.einsum("smi,si->sm", t, tangent)
+        count = count + (ws > 0).sum(axis=1)
+    for k, nrm in enumerate(normals):
+        w = np.einsum("smi,si->sm", d, nrm) / h[:, None]
+        P, z, W = model_terms(u, 0.0 * u, w, degree, True), -w, wt
+        if t is not None:  # slope rows: phi_u (t . T) + phi_w (t . n_k), right side -(t . n_k)
+            tn = np.einsum("smi,si->sm", t, nrm)
+            ws_ = np.concatenate([np.zeros((len(x0), 1)), w], axis=1)  # heights (0 at x0)
+            pu, pw = _planar_term_derivatives(us, ws_, degree)
+            P = np.concatenate([P, pu * tT[..., None] + pw * tn[..., None]], axis=1)
+            z = np.concatenate([z, -tn], axis=1)
+            W = np.concatenate([W, ws], axis=1)
+        c = _weighted_lstsq(P, z, W, np.zeros(q, dtype=bool), 1)
+        c[~height_valid(c, degree, True, u, 0.0 * u, mask) | (count < q + EXTRA_POINTS)] = np.nan
+        out[:, k] = c
+    return out
+
+
+def _planar_term_derivatives(u: np.ndarray, w: np.ndarray, degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """``d/du`` and ``d/dw`` ``(..., q)`` of the planar :func:`model_terms` ``u^2, uw, w^2, u^3 .. u^degree, u``."""
+    zero, one = 0.0 * u, 1.0 + 0.0 * u
+    du = [2.0 * u, w, zero, *(k * u ** (k - 1) for k in range(3, degree + 1)), one]
+    dw = [zero, u, 2.0 * w, *(zero for _ in range(3, degree + 1)), zero]
+    return np.stack(du, axis=-1), np.stack(dw, axis=-1)

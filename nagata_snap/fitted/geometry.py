@@ -44,12 +44,9 @@ import numpy as np
 import numpy.typing as npt
 
 from nagata_snap.fitted.fit import (
-    curve_columns,
-    exponents,
     fit_curves,
     fit_levels,
     fit_surfaces,
-    height,
     surface_height,
     term_columns,
     terms,
@@ -221,7 +218,6 @@ class FittedGeometry(NagataGeometry):
         self.fit_explicit = (level >= 0) & np.array([e for _, _, e in levels])[np.maximum(level, 0)]
         self._coords, self._hv, self._frame_s, self._coef_s = coords, hv, frame, coef[:, 0]
         self._planar = planar
-        self._curve_exps = exponents(self._curve_top(), True)
         self.n_clipped = 0
         self._use_nagata = np.zeros(S, dtype=bool)
         self._use_nagata = self._guard()
@@ -256,12 +252,22 @@ class FittedGeometry(NagataGeometry):
         nb[two, 0] = both[order][first]
         nb[two, 1] = both[order][first + 1]
 
+        # crease edges by their sorted end vertices, to name each step of a walk
+        keys = E[:, 0] * len(coords) + E[:, 1]
+        korder = np.argsort(keys)
+
+        def edge_of(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            k = np.minimum(u, v) * len(coords) + np.maximum(u, v)
+            return korder[np.minimum(np.searchsorted(keys[korder], k), len(keys) - 1)]
+
         def walk(prev: np.ndarray, cur: np.ndarray, ok: np.ndarray, steps: int) -> np.ndarray:
+            """Edge ends ``2 e + k`` (vertex ``E[e, k]`` reached along crease edge ``e``), -1 past the chain."""
             out = np.full((len(cur), steps), -1, dtype=np.int64)
             for k in range(steps):  # a few steps along the crease, all ends at once
                 ok = ok & (cur >= 0) & (cur != a)
-                out[:, k] = np.where(ok, cur, -1)
                 c = np.maximum(cur, 0)
+                e = edge_of(np.maximum(prev, 0), c)
+                out[:, k] = np.where(ok, 2 * e + (E[e, 1] == c), -1)
                 nxt = np.where(nb[c, 0] == prev, nb[c, 1], nb[c, 0])
                 ok = ok & (deg[c] == 2)
                 prev, cur = cur, nxt
@@ -277,22 +283,37 @@ class FittedGeometry(NagataGeometry):
         tangent = coords[b] - coords[a]
         tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
         n1, n2 = _frame(tangent)
+        # the faces' normals on both sides at each edge end (end j = 2 e + k: vertex a[j])
+        side_n = self._crease_side_normals(cr, E).reshape(-1, 2, 3)
 
         def fit(sel, idx, mask, d, _):
-            return fit_curves(coords[a[sel]], tangent[sel], (n1[sel], n2[sel]), coords[idx], mask,
-                              hv[a[sel]], d)
+            N = np.concatenate([side_n[sel][:, None], side_n[idx]], axis=1)
+            return fit_curves(coords[a[sel]], tangent[sel], (n1[sel], n2[sel]), coords[a[idx]], mask,
+                              hv[a[sel]], d, sides=N)
 
         top = self._curve_top()
         w0 = math.ceil((top + 2) / 2)
-        levels = [(d, w, False) for d in range(top, 0, -1) for w in (w0, d + 2)]
-        coef, self.curve_degree, _ = fit_levels(levels, stencil, fit, len(a), lambda d: curve_columns(d, top),
-                                             top, comps=2)
+        levels = [(d, w, False) for d in range(top, 1, -1) for w in (w0, d + 2)]
+        # per offset: a position for each point, a slope for each point and the end's own
+        coef, self.curve_degree, _ = fit_levels(levels, stencil, fit, len(a), lambda d: term_columns(d, top, True),
+                                                terms(top, True), comps=2, equations=lambda m: 2 * m.sum(axis=1) + 1)
         self._crease_ends = np.c_[a, b]
         self._curve = (tangent, n1, n2, coef)
         # creases whose chain is too short for a fit of order 3 or more (between close
         # corners), or whose fit strays from the Nagata crease curve: the Nagata curve
         low = np.minimum(self.curve_degree[0::2], self.curve_degree[1::2]) < 3
         self._crease_nagata = low | self._curve_guard()
+
+    def _crease_side_normals(self, cr: np.ndarray, E: np.ndarray) -> np.ndarray:
+        """``(C, 2, 2, 3)``: at each end ``k`` of crease edges ``E (C, 2)``, the corner normals of its two facets."""
+        vid, rf = self.corners.vertex, self.corners.ridge_facets[cr]
+        out = np.zeros((len(cr), 2, 2, 3))
+        rows = np.arange(len(cr))
+        for side in (0, 1):
+            f = rf[:, side]
+            for k in (0, 1):
+                out[:, k, side] = self.corner_normal[f, np.argmax(vid[f] == E[:, k, None], axis=1)]
+        return out
 
     def _curve_top(self) -> int:
         """Degree of the crease curve fits: ``degree``, and at least 4 (even): the offsets of a
@@ -414,7 +435,7 @@ class FittedGeometry(NagataGeometry):
             h = self._hv[a][:, None]
             d = P - self._coords[a][:, None, :]
             s = np.einsum("pki,pi->pk", d, tangent[e]) / h
-            y1, y2 = (height(coef[e, j], self._curve_exps, s, 0.0 * s) for j in (0, 1))
+            y1, y2 = (surface_height(coef[e, j], self._curve_top(), True, s, 0.0 * s) for j in (0, 1))
             c = (self._coords[a][:, None, :] + (s * h)[..., None] * tangent[e][:, None, :]
                  + (y1 * h)[..., None] * n1[e][:, None, :] + (y2 * h)[..., None] * n2[e][:, None, :])
             out += w[..., None] * c
