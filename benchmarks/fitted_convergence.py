@@ -28,7 +28,8 @@ the ellipsoid>`` and ``fitted_over_nagata <max fitted / Nagata error ratio at
 h = 0.05 over the torus and the ellipsoid>`` (the cylinder's is in its table).
 
 Usage: ``python benchmarks/fitted_convergence.py [--hmin 0.025] [--surfaces torus,ellipsoid,cylinder]
-[--degree 4] [--parts plate_filleted,plate]`` (``--parts ""``: none) (the default, down to 0.025 on the three surfaces, takes about 4 minutes).
+[--degree 4] [--parts plate_filleted,plate]`` (``--parts ""``: none; the default, down to 0.025 on
+the three surfaces, takes about 4 minutes).
 """
 
 from __future__ import annotations

@@ -308,7 +308,6 @@ class FittedGeometry(NagataGeometry):
         """``(C, 2, 2, 3)``: at each end ``k`` of crease edges ``E (C, 2)``, the corner normals of its two facets."""
         vid, rf = self.corners.vertex, self.corners.ridge_facets[cr]
         out = np.zeros((len(cr), 2, 2, 3))
-        rows = np.arange(len(cr))
         for side in (0, 1):
             f = rf[:, side]
             for k in (0, 1):
