@@ -287,7 +287,7 @@ MIN_CREASE_SINE = 0.2
 
 def fit_curves(
     x0: np.ndarray, tangent: np.ndarray, normals: tuple[np.ndarray, np.ndarray], pts: np.ndarray,
-    mask: np.ndarray, h: np.ndarray, degree: int, sides: np.ndarray | None = None,
+    mask: np.ndarray, h: np.ndarray, degree: int, sides: np.ndarray | None = None, circle: bool = False,
 ) -> np.ndarray:
     """Curve fits: each offset ``y_k`` (along ``normals[k]``) as a planar implicit fit in the abscissa.
 
@@ -310,6 +310,11 @@ def fit_curves(
             :data:`MIN_CREASE_SINE` apart their cross product is the curve's
             tangent there, an equation ``dF/ds (t . T) + dF/dy (t . n_k) = 0``
             each (Hermite data: a chain of 3 segments between corners fits degree 4).
+        circle: a circle through ``x0`` in the plane of ``tangent`` and
+            ``normals[0]`` (``y + k (s^2 + y^2) + g s = 0``) and a parabola along
+            ``normals[1]`` (0 for a planar curve), no slope equations: a tangency
+            line's quarter arc of 3 segments, whose faces' normals give no tangent
+            (``normals[0]`` should then lie in the curve's plane).
 
     Returns:
         ``(S, 2, q)`` coefficients (:func:`terms` planar) per offset, scaled by
@@ -324,6 +329,18 @@ def fit_curves(
     out = np.full((len(x0), 2, q), np.nan)
     t = None
     count = mask.sum(axis=1)
+    if circle:  # y + k (s^2 + y^2) + g s = 0 along normals[0], y + a s^2 + g s = 0 along normals[1]
+        for k, (nrm, cols) in enumerate(zip(normals, ([0, 2], [0]), strict=True)):
+            w = np.einsum("smi,si->sm", d, nrm) / h[:, None]
+            terms_ = model_terms(u, 0.0 * u, w, 2, True)
+            P = np.stack([terms_[..., cols].sum(axis=-1), u], axis=-1)
+            kg = _weighted_lstsq(P, -w, wt, np.zeros(2, dtype=bool), 1)
+            c = np.zeros((len(x0), q))
+            c[:, cols] = kg[:, :1]
+            c[:, -1] = kg[:, 1]
+            c[~height_valid(c, degree, True, u, 0.0 * u, mask) | (count < 3)] = np.nan
+            out[:, k] = c
+        return out
     if sides is not None:
         t = np.cross(sides[..., 0, :], sides[..., 1, :])
         st = np.linalg.norm(t, axis=-1)

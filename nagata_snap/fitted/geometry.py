@@ -233,6 +233,7 @@ class FittedGeometry(NagataGeometry):
         if nfv == 2 or len(cr) == 0:
             self._crease_ends = np.zeros((0, 2), dtype=np.int64)
             self.curve_degree = np.zeros(0, dtype=np.int64)
+            self.curve_circle = np.zeros(0, dtype=bool)
             self._crease_nagata = np.zeros(0, dtype=bool)
             return
         E = cn.ridge_vertices[cr]  # (C, 2) sorted vertex ids
@@ -282,27 +283,50 @@ class FittedGeometry(NagataGeometry):
 
         tangent = coords[b] - coords[a]
         tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-        n1, n2 = _frame(tangent)
+        near, near_ok = stencil(2)
+        n1, n2 = self._chain_frame(tangent, coords[a], coords[a[near]], near_ok)
         # the faces' normals on both sides at each edge end (end j = 2 e + k: vertex a[j])
         side_n = self._crease_side_normals(cr, E).reshape(-1, 2, 3)
 
-        def fit(sel, idx, mask, d, _):
+        def fit(sel, idx, mask, d, circle):
             N = np.concatenate([side_n[sel][:, None], side_n[idx]], axis=1)
             return fit_curves(coords[a[sel]], tangent[sel], (n1[sel], n2[sel]), coords[a[idx]], mask,
-                              hv[a[sel]], d, sides=N)
+                              hv[a[sel]], d, sides=N, circle=circle)
 
         top = self._curve_top()
         w0 = math.ceil((top + 2) / 2)
-        levels = [(d, w, False) for d in range(top, 1, -1) for w in (w0, d + 2)]
+        # the last level: a circle through three points (tangency lines: no slope equations)
+        levels = [(d, w, False) for d in range(top, 1, -1) for w in (w0, d + 2)] + [(2, w0, True)]
         # per offset: a position for each point, a slope for each point and the end's own
-        coef, self.curve_degree, _ = fit_levels(levels, stencil, fit, len(a), lambda d: term_columns(d, top, True),
+        coef, self.curve_degree, clevel = fit_levels(levels, stencil, fit, len(a), lambda d: term_columns(d, top, True),
                                                 terms(top, True), comps=2, equations=lambda m: 2 * m.sum(axis=1) + 1)
         self._crease_ends = np.c_[a, b]
         self._curve = (tangent, n1, n2, coef)
-        # creases whose chain is too short for a fit of order 3 or more (between close
-        # corners), or whose fit strays from the Nagata crease curve: the Nagata curve
-        low = np.minimum(self.curve_degree[0::2], self.curve_degree[1::2]) < 3
-        self._crease_nagata = low | self._curve_guard()
+        # creases whose chain is too short for a fit of order 3 or more or a circle (between
+        # close corners), or whose fit strays from the Nagata crease curve: the Nagata curve
+        self.curve_circle = clevel == len(levels) - 1
+        ok = (self.curve_degree >= 3) | self.curve_circle
+        self._crease_nagata = ~(ok[0::2] & ok[1::2]) | self._curve_guard()
+
+    @staticmethod
+    def _chain_frame(tangent: np.ndarray, x0: np.ndarray, pts: np.ndarray, mask: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """Offset directions ``(n1, n2)`` ``(S, 3)`` of curve fits at ``x0`` along unit chords ``tangent``.
+
+        ``n2`` the normal of the plane through ``x0`` that best fits the chain's
+        points ``pts (S, m, 3)`` (``mask``), ``n1 = n2 x tangent`` in it: a planar
+        curve's offset is all along ``n1`` (its circle fit, :func:`fit_curves`);
+        an arbitrary frame where the chain is (nearly) straight.
+        """
+        n1, n2 = _frame(tangent)
+        d = np.where(mask[..., None], pts - x0[:, None, :], 0.0)
+        _, sv, vt = np.linalg.svd(d)
+        b = vt[:, 2] - np.einsum("si,si->s", vt[:, 2], tangent)[:, None] * tangent
+        nb = np.linalg.norm(b, axis=1)
+        ok = (mask.sum(axis=1) >= 2) & (sv[:, 1] > 1e-6 * np.maximum(sv[:, 0], 1e-300)) & (nb > 0.5)
+        b = b / np.where(nb > 0, nb, 1.0)[:, None]
+        m = np.cross(b, tangent)
+        return np.where(ok[:, None], m, n1), np.where(ok[:, None], b, n2)
 
     def _crease_side_normals(self, cr: np.ndarray, E: np.ndarray) -> np.ndarray:
         """``(C, 2, 2, 3)``: at each end ``k`` of crease edges ``E (C, 2)``, the corner normals of its two facets."""
@@ -352,6 +376,8 @@ class FittedGeometry(NagataGeometry):
             text += f", {int(self._use_nagata.sum())} sectors on Nagata patches (guard)"
         if len(self.curve_degree):
             text += f", crease ends {counts(self.curve_degree)}"
+            if self.curve_circle.any():
+                text += f" ({int(self.curve_circle.sum())} circles)"
             if self._crease_nagata.any():
                 text += f", {int(self._crease_nagata.sum())} creases on Nagata curves"
         return text
