@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 
 from nagata_snap.nagata.jets import _basis, _weighted_lstsq
@@ -116,26 +117,67 @@ def term_columns(degree: int, top: int, planar: bool) -> np.ndarray:
 def plane_value(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``sum_j c_j phi_j(u, v, 0)`` (the terms without ``w``) of fits ``coef (S, q)`` at ``u, v (S, k)``.
 
-    The same as ``model_terms(u, v, 0) @ coef`` without forming the ``(S, k, q)`` terms.
+    The same as ``model_terms(u, v, 0) @ coef`` without forming the ``(S, k, q)``
+    terms: a compiled loop over the points (:func:`_plane_value_kernel`).
     """
-    def c(j: int) -> np.ndarray:
-        return coef[:, j, None]
+    return _run_kernel(coef, degree, planar, u, v, False)
 
-    if planar:
-        out = c(0) * u * u + c(-1) * u
-        pk = u * u
-        for k in range(3, degree + 1):
-            pk = pk * u
-            out += c(k) * pk
-        return out
-    out = c(0) * u * u + c(1) * u * v + c(2) * v * v + c(-2) * u + c(-1) * v
-    prev, col = [u * u, u * v, v * v], 6
-    for _ in range(3, degree + 1):  # the monomials of each degree, u^k, u^(k-1) v, ..., v^k
-        prev = [m * u for m in prev] + [prev[-1] * v]
-        for m in prev:
-            out += c(col) * m
-            col += 1
+
+def _run_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray, root: bool) -> np.ndarray:
+    """:func:`_model_kernel` on ``coef (S, q)`` and ``u, v (S, k)`` (``v`` broadcast): ``(S, k)``."""
+    u2 = np.ascontiguousarray(u, dtype=float)
+    v2 = np.ascontiguousarray(np.broadcast_to(v, u2.shape), dtype=float)
+    S = u2.shape[0]
+    out = np.empty(u2.shape)
+    _model_kernel(np.ascontiguousarray(coef, dtype=float).reshape(S, -1), int(degree), bool(planar),
+                  u2.reshape(S, -1), v2.reshape(S, -1), out.reshape(S, -1), bool(root))
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _model_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray,
+                  out: np.ndarray, root: bool) -> None:  # pragma: no cover (compiled)
+    """``out[s, k]``: ``C``, the terms of :func:`model_terms` without ``w`` (3D: ``u^2, uv, v^2``, the
+    monomials of degree 3 .. ``degree`` as ordered there, ``u, v``; 2D: ``u^2, u^3 .. u^degree, u``);
+    with ``root``, the height ``w`` of :func:`surface_height` instead."""
+    S, K = u.shape
+    q = coef.shape[1]
+    pu = np.empty(degree + 1)
+    pv = np.empty(degree + 1)
+    for s in range(S):
+        c = coef[s]
+        for k in range(K):
+            x, y = u[s, k], v[s, k]
+            pu[0] = pv[0] = 1.0
+            for i in range(1, degree + 1):
+                pu[i] = pu[i - 1] * x
+                pv[i] = pv[i - 1] * y
+            if planar:
+                acc = c[0] * pu[2] + c[q - 1] * x
+                for j in range(3, degree + 1):
+                    acc += c[j] * pu[j]
+            else:
+                acc = c[0] * pu[2] + c[1] * x * y + c[2] * pv[2] + c[q - 2] * x + c[q - 1] * y
+                col = 6
+                for d in range(3, degree + 1):  # u^d, u^(d-1) v, ..., v^d
+                    for i in range(d + 1):
+                        acc += c[col] * (pu[d - i] * pv[i])
+                        col += 1
+            if not root:
+                out[s, k] = acc
+                continue
+            if planar:
+                A, B = c[2], 1.0 + c[1] * x
+            else:
+                A, B = c[5], 1.0 + c[3] * x + c[4] * y
+            disc = B * B - 4.0 * A * acc
+            den = B + (np.sqrt(max(disc, 0.0)) if B >= 0.0 else -np.sqrt(max(disc, 0.0)))
+            w = -2.0 * acc / den if den != 0.0 else np.nan
+            if disc >= 0.0 and np.isfinite(w):
+                out[s, k] = w
+            else:
+                lin = -acc / B if B != 0.0 else np.nan
+                out[s, k] = lin if np.isfinite(lin) else 0.0
 
 
 def fit_surfaces(
@@ -216,16 +258,7 @@ def surface_height(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v
     vertex), or ``-C / B`` where the quadratic has no real root (far outside
     the fit's stencil).
     """
-    C = plane_value(coef, degree, planar, u, v)
-    if planar:
-        A, B = coef[:, 2:3], 1.0 + coef[:, 1:2] * u
-    else:
-        A, B = coef[:, 5:6], 1.0 + coef[:, 3:4] * u + coef[:, 4:5] * v
-    disc = B * B - 4.0 * A * C
-    with np.errstate(invalid="ignore", divide="ignore"):
-        root = -2.0 * C / (B + np.copysign(np.sqrt(np.maximum(disc, 0.0)), B))
-        lin = -C / B
-    return np.where((disc >= 0.0) & np.isfinite(root), root, np.where(np.isfinite(lin), lin, 0.0))
+    return _run_kernel(coef, degree, planar, u, v, True)
 
 
 def fit_levels(

@@ -356,7 +356,7 @@ class FittedGeometry(NagataGeometry):
         rows = np.arange(len(cr))
         lam[rows, :, pa] = 1.0 - t
         lam[rows, :, pb] = t
-        X = np.einsum("pkv,pvi->pki", lam, self.x[f])
+        X = np.matmul(lam, self.x[f])
         nag = patches.evaluate(self.x[f], self.coef[f], lam)
         fit = self._crease_curve(np.arange(len(cr)), np.broadcast_to(1.0 - t, (len(cr), len(t))), X)
         tol = GUARD * np.linalg.norm(nag - X, axis=2) + 1e-9 * self._hv[rv[:, :1]]
@@ -387,9 +387,8 @@ class FittedGeometry(NagataGeometry):
         """Height ``(P, k)`` along its sector's normal of corner ``i``'s fit above the straight points ``X``."""
         s = self.corners.sector[patch, i]
         h = self._hv[self.corners.vertex[patch, i]][:, None]
-        d = (X - self.x[patch, i][:, None, :]) / h[:, :, None]
-        fr = self._frame_s[s]
-        u, v, w = ((d * fr[:, None, j]).sum(axis=2) for j in range(3))
+        loc = np.matmul(X - self.x[patch, i][:, None, :], self._frame_s[s].transpose(0, 2, 1)) / h[:, :, None]
+        u, v, w = loc[..., 0], loc[..., 1], loc[..., 2]
         return (surface_height(self._coef_s[s], self.degree, self._planar, u, v) - w) * h
 
     def _guard(self) -> np.ndarray:
@@ -481,7 +480,7 @@ class FittedGeometry(NagataGeometry):
         with np.errstate(invalid="ignore", divide="ignore"):
             t = np.where(wsum > 0, lb / wsum, 0.0)
         le = self._edge_lam(t, k)
-        Xe = np.einsum("pkv,pvi->pki", le, self.x[p])
+        Xe = np.matmul(le, self.x[p])
         c = self._edge_crease[p, k]
         first = self._crease_ends[2 * c, 0] == self.corners.vertex[p, ia]
         curve = self._crease_curve(c, np.where(first[:, None], 1.0 - t, t), Xe)
@@ -514,7 +513,7 @@ class FittedGeometry(NagataGeometry):
         """
         patch = np.asarray(patch, dtype=np.int64)
         lam = np.asarray(lam, dtype=float)
-        X = np.einsum("pkv,pvi->pki", lam, self.x[patch])
+        X = np.matmul(lam, self.x[patch])
         nfv = lam.shape[2]
         edges = [np.flatnonzero(self._edge_crease[patch, k] >= 0) for k in range(3)] if nfv == 3 else []
         if not any(len(sel) for sel in edges):
@@ -528,17 +527,17 @@ class FittedGeometry(NagataGeometry):
                 p = patch[sel]
                 wsum, t, curve, E = self._crease_edge(p, lam[sel], k)
                 le = self._edge_lam(t, k)
-                Se = self._blend(p, le, np.einsum("pkv,pvi->pki", le, self.x[p]))
+                Se = self._blend(p, le, np.matmul(le, self.x[p]))
                 L2 = np.einsum("pi,pi->p", E, E)[:, None]
                 shift = np.einsum("pki,pi->pk", Se - curve, E) / L2  # in units of t
                 lam2[sel, :, (k + 1) % 3] += wsum * shift
                 lam2[sel, :, (k + 2) % 3] -= wsum * shift
                 found.append((k, sel, wsum, t - shift, curve))
-            out = self._blend(patch, lam2, np.einsum("pkv,pvi->pki", lam2, self.x[patch]))
+            out = self._blend(patch, lam2, np.matmul(lam2, self.x[patch]))
             for k, sel, wsum, t2, curve in found:  # crease edges: meet the crease curve
                 p = patch[sel]
                 le = self._edge_lam(t2, k)
-                out[sel] += wsum[..., None] * (curve - self._blend(p, le, np.einsum("pkv,pvi->pki", le, self.x[p])))
+                out[sel] += wsum[..., None] * (curve - self._blend(p, le, np.matmul(le, self.x[p])))
         # bounded departure from the straight facet
         D = out - X
         bound = FIT_BOUND * np.einsum("pkv,pv->pk", lam, self._hv[self.corners.vertex[patch]])

@@ -51,6 +51,7 @@ or the fit leaves the cone of its own facets' normals (see there).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse
 
@@ -201,6 +202,62 @@ def _basis(u: np.ndarray, v: np.ndarray, w: np.ndarray, degree: int, planar: boo
     return np.stack([*cols, u, v], axis=-1), high
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _householder_lstsq(At: np.ndarray, b: np.ndarray, x: np.ndarray,
+                       diag: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """Least-squares solutions ``x (S, q)`` of ``A x = b (S, M)``, ``M >= q``, by Householder QR.
+
+    ``At (S, q, M)`` is ``A`` transposed (its columns contiguous); it and ``b``
+    are overwritten; ``diag (S, q)`` gets ``|R_jj|``.  Where an ``|R_jj|`` is
+    at most ``1e-10`` of the largest the back substitution is skipped (``x``
+    NaN): the caller's rank test.
+    """
+    S, q, M = At.shape
+    for s in range(S):
+        a, y = At[s], b[s]
+        for j in range(q):
+            aj = a[j]
+            nrm = 0.0
+            for i in range(j, M):
+                nrm += aj[i] * aj[i]
+            nrm = np.sqrt(nrm)
+            if nrm == 0.0:
+                diag[s, j] = 0.0
+                continue
+            alpha = -nrm if aj[j] >= 0.0 else nrm
+            vv = 2.0 * nrm * (nrm + abs(aj[j]))  # |v|^2, v = a[j:, j] - alpha e_j
+            aj[j] -= alpha
+            for k in range(j + 1, q):
+                ak = a[k]
+                dot = 0.0
+                for i in range(j, M):
+                    dot += aj[i] * ak[i]
+                f = 2.0 * dot / vv
+                for i in range(j, M):
+                    ak[i] -= f * aj[i]
+            dot = 0.0
+            for i in range(j, M):
+                dot += aj[i] * y[i]
+            f = 2.0 * dot / vv
+            for i in range(j, M):
+                y[i] -= f * aj[i]
+            aj[j] = alpha
+            diag[s, j] = abs(alpha)
+        top = 0.0
+        low = np.inf
+        for j in range(q):
+            top = max(top, diag[s, j])
+            low = min(low, diag[s, j])
+        if top == 0.0 or low <= 1e-10 * top:
+            x[s] = np.nan
+            continue
+        for j in range(q - 1, -1, -1):
+            acc = y[j]
+            for k in range(j + 1, q):
+                acc -= a[k, j] * x[s, k]
+            x[s, j] = acc / a[j, j]
+
+
 def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarray, linear: int) -> np.ndarray:
     """Minimisers ``c (S, q)`` of ``sum_m wt (P c - z)^2 + PENALTY |c_high|^2`` (columns scaled).
 
@@ -212,8 +269,8 @@ def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarr
     quadric (2D: circle) is still fitted exactly.  Where even the quadratic
     terms are not determined (a face one or two facets wide: all points on
     two lines), every term but the last ``linear`` ones is penalised.
-    Solved by a batched QR of the augmented design (no squared condition
-    number).  Stencils whose linear terms are not determined give NaN.
+    Solved by Householder QR of the augmented design (no squared condition
+    number; compiled, :func:`_householder_lstsq`).  Stencils whose linear terms are not determined give NaN.
     """
     S, _, q = P.shape
     A = np.sqrt(wt)[..., None] * P
@@ -223,14 +280,16 @@ def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarr
     c = np.full((S, q), np.nan)
     todo = np.arange(S)
     for pen in (high, np.arange(q) < q - linear):
-        aug = np.concatenate([A[todo] * scale[todo, None, :], np.broadcast_to(
-            np.sqrt(PENALTY) * np.diag(pen.astype(float)), (len(todo), q, q))], axis=1)
-        Q, R = np.linalg.qr(aug)
-        y = np.einsum("smq,sm->sq", Q, rhs[todo])
-        diag = np.abs(np.einsum("sqq->sq", R))
+        if pen.any() or A.shape[1] < q:
+            aug = np.concatenate([A[todo] * scale[todo, None, :], np.broadcast_to(
+                np.sqrt(PENALTY) * np.diag(pen.astype(float)), (len(todo), q, q))], axis=1)
+            b = rhs[todo]
+        else:  # no penalty rows (zeros that change nothing), a tall design
+            aug, b = A[todo] * scale[todo, None, :], rhs[todo, :A.shape[1]]
+        sol, diag = np.empty((len(todo), q)), np.empty((len(todo), q))
+        _householder_lstsq(np.ascontiguousarray(aug.transpose(0, 2, 1)), np.ascontiguousarray(b), sol, diag)
         ok = diag.min(axis=1) > 1e-10 * diag.max(axis=1)
-        if ok.any():
-            c[todo[ok]] = np.linalg.solve(R[ok], y[ok, :, None])[..., 0]
+        c[todo[ok]] = sol[ok]
         todo = todo[~ok]
         if len(todo) == 0:
             break
