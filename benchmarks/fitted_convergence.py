@@ -21,7 +21,11 @@ STEP meshed by :func:`nagata_snap.meshing.mesh_cad_file`, curvature sizing 12
 per 2 pi, one tag per CAD face): the largest distance to the CAD (OpenCASCADE's
 closest point on each facet's own face, through gmsh) of both surfaces over the
 coarse mesh (6 intervals per edge), over the model size, the ratio fitted /
-Nagata, and the faces where the fitted surface's largest distance sits.
+Nagata, the faces where the fitted surface's largest distance sits, and the
+set-up + placement seconds (best of 3) of both; line ``fitted_over_nagata_parts
+<part> <ratio> ...``.  The cylinder's line ``cylinder_order <finest pair>
+rim_distance_max <largest rim distance over all h>``; ``time_ratio <surface>
+<fitted / Nagata set-up + placement at h = 0.05, best of 3 alternating runs>``.
 
 Last lines: ``fitted_order_estimated <min finest-pair order over the torus and
 the ellipsoid>`` and ``fitted_over_nagata <max fitted / Nagata error ratio at
@@ -151,6 +155,21 @@ def ellipse_study(ns, degrees) -> None:
         prev = e
 
 
+def time_ratio(kind: str, h: float, degree: int, reps: int = 3) -> tuple[float, float, float]:
+    """Set-up + placement seconds of Nagata and the fitted surface on one mesh, the best of ``reps``
+    alternating runs each (a shared machine's load only adds), and their ratio."""
+    p, t, exact, tags = gmsh_surface(kind, h)
+    best = [np.inf, np.inf]
+    for _ in range(reps):
+        for i, make in enumerate((lambda: NagataGeometry.from_surface(p, t, tags, crease_angle=80),
+                                  lambda: FittedGeometry.from_surface(p, t, tags, crease_angle=80, degree=degree))):
+            t0 = time.perf_counter()
+            geo = make()
+            setup = time.perf_counter() - t0
+            best[i] = min(best[i], setup + max_distance(geo, exact.distance)[1])
+    return best[0], best[1], best[1] / best[0]
+
+
 def part_distances(geo, per_edge: int = 6) -> np.ndarray:
     """``(F,)`` largest distance of each coarse facet's samples from its own CAD face (current gmsh model)."""
     from occ_reference import gmsh_face_distance
@@ -186,12 +205,21 @@ def part_study(names: list[str], degree: int) -> dict[str, float]:
                 nag = NagataGeometry(cm.mesh, cm.facet_tags)
                 fit = FittedGeometry(cm.mesh, cm.facet_tags, degree=degree)
                 dn, df = part_distances(nag), part_distances(fit)
+                g = barycentric_grid(3, 6)
+                lam = np.broadcast_to(g, (fit.num_patches, *g.shape))
+                best = [np.inf, np.inf]
+                for _ in range(3):
+                    for i, cls in enumerate((NagataGeometry, FittedGeometry)):
+                        t0 = time.perf_counter()
+                        cls(cm.mesh, cm.facet_tags).evaluate(np.arange(fit.num_patches), lam)
+                        best[i] = min(best[i], time.perf_counter() - t0)
                 worst = sorted({(float(df[fit.tag == t].max()), int(t)) for t in np.unique(fit.tag)}, reverse=True)[:3]
                 where = ", ".join(f"{t} {gmsh.model.getType(2, t)} {v / cm.model_size:.1e}" for v, t in worst)
                 out[name] = df.max() / dn.max()
                 print(f"{name:>16} {len(gmsh.model.getEntities(2)):5d} {fit.num_patches:6d} "
                       f"{dn.max() / cm.model_size:10.3e} {df.max() / cm.model_size:10.3e} {out[name]:7.3f}  {where}")
-                print(f"{'':>16} {fit.fit_summary()}")
+                print(f"{'':>16} {fit.fit_summary()}; set-up + placement nagata {best[0]:.2f} s, fitted "
+                      f"{best[1]:.2f} s ({best[1] / best[0]:.2f}x)")
     return out
 
 
@@ -212,6 +240,12 @@ def main() -> None:
     for kind in surfaces:
         print_table(kind, res[kind], degrees)
     ellipse_study((48, 96, 192, 384), degrees)
+    if 0.05 in [round(h, 6) for h in hs]:
+        print("\nset-up + placement at h = 0.05, best of 3 alternating runs [s]:")
+        tr = {k: time_ratio(k, 0.05, args.degree) for k in surfaces}
+        for k, (a, b, r) in tr.items():
+            print(f"  {k}: nagata {a:.2f}, fitted {b:.2f}, ratio {r:.2f}")
+        print("time_ratio " + " ".join(f"{k} {r:.2f}" for k, (_, _, r) in tr.items()))
     if args.parts:
         ratios = part_study(args.parts.split(","), args.degree)
         print("fitted_over_nagata_parts " + " ".join(f"{k} {v:.3f}" for k, v in ratios.items()))
