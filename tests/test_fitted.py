@@ -87,6 +87,14 @@ def test_planes_and_straight_edges_stay_exact():
     assert (geo.fit_degree >= 2).all()
 
 
+def test_evaluate_nothing():
+    """No points (a process whose refinement placed none on this surface): empty results, no error."""
+    p, t, _ = sphere_octahedron(1)
+    geo = FittedGeometry.from_surface(p, t)
+    assert geo.evaluate(np.zeros(0, dtype=np.int64), np.zeros((0, 3, 3))).shape == (0, 3, 3)
+    assert geo.evaluate(np.arange(2), np.zeros((2, 0, 3))).shape == (2, 0, 3)
+
+
 def test_sphere_converges_fast():
     """Estimated normals on octahedron subdivisions of the unit sphere: order >= 5 (quadrics are in the model)."""
     errs = []

@@ -129,6 +129,8 @@ def _run_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: n
     v2 = np.ascontiguousarray(np.broadcast_to(v, u2.shape), dtype=float)
     S = u2.shape[0]
     out = np.empty(u2.shape)
+    if u2.size == 0:  # nothing to evaluate (a process without points of this kind)
+        return out
     _model_kernel(np.ascontiguousarray(coef, dtype=float).reshape(S, -1), int(degree), bool(planar),
                   u2.reshape(S, -1), v2.reshape(S, -1), out.reshape(S, -1), bool(root))
     return out
