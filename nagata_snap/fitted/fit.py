@@ -211,7 +211,7 @@ def fit_surfaces(
         are no height function over their stencil included).
     """
     d = pts - x0[:, None, :]
-    loc = np.einsum("smi,sji->smj", d, frame) / h[:, None, None]
+    loc = np.matmul(d, frame.transpose(0, 2, 1)) / h[:, None, None]
     wt = _weights(np.einsum("smi,smi->sm", d, d), h, mask)
     u, v = loc[..., 0], loc[..., 1]
     P = model_terms(u, v, 0.0 * u if explicit else loc[..., 2], degree, planar)

@@ -409,7 +409,7 @@ class FittedGeometry(NagataGeometry):
         F = len(self.x)
         grid = GUARD_SAMPLES[nfv]
         lam = np.broadcast_to(grid, (F, *grid.shape))
-        X = np.einsum("pkv,pvi->pki", lam, self.x)
+        X = np.matmul(lam, self.x)
         dep = np.linalg.norm(patches.evaluate(self.x, self.coef, lam) - X, axis=2)
         sec, vid = self.corners.sector, self.corners.vertex
         q = [X + self._corner_height(np.arange(F), X, i)[..., None] * self._frame_s[sec[:, i], None, 2]
@@ -420,7 +420,7 @@ class FittedGeometry(NagataGeometry):
                 if i == j:
                     continue
                 s, h = sec[:, j], self._hv[vid[:, j]][:, None]
-                loc = np.einsum("pki,pji->pkj", q[i] - self.x[:, j][:, None, :], self._frame_s[s]) / h[:, :, None]
+                loc = np.matmul(q[i] - self.x[:, j][:, None, :], self._frame_s[s].transpose(0, 2, 1)) / h[:, :, None]
                 r = np.abs(loc[..., 2] - surface_height(self._coef_s[s], self.degree, self._planar, loc[..., 0],
                                                         loc[..., 1])) * h
                 tol = GUARD * dep + 1e-9 * h

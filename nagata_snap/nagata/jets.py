@@ -203,59 +203,89 @@ def _basis(u: np.ndarray, v: np.ndarray, w: np.ndarray, degree: int, planar: boo
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _householder_lstsq(At: np.ndarray, b: np.ndarray, x: np.ndarray,
-                       diag: np.ndarray) -> None:  # pragma: no cover (compiled)
-    """Least-squares solutions ``x (S, q)`` of ``A x = b (S, M)``, ``M >= q``, by Householder QR.
+def _householder_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, rows: np.ndarray, pen: np.ndarray,
+                       x: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """Minimisers ``x[r] (q,)`` of ``sum_m wt (P c - z)^2 + sum_j pen_j^2 (c_j / scale_j)^2`` for ``r`` in ``rows``.
 
-    ``At (S, q, M)`` is ``A`` transposed (its columns contiguous); it and ``b``
-    are overwritten; ``diag (S, q)`` gets ``|R_jj|``.  Where an ``|R_jj|`` is
-    at most ``1e-10`` of the largest the back substitution is skipped (``x``
-    NaN): the caller's rank test.
+    ``P (S, M, q)``, ``z, wt (S, M)``; the columns of ``sqrt(wt) P`` are scaled
+    to unit norm (``x`` is returned unscaled), ``pen (q,)`` the weights of the
+    penalty rows (0: none) on the scaled coefficients.  Householder QR of the
+    scaled design and its penalty rows, back substitution; where an ``|R_jj|``
+    is at most ``1e-10`` of the largest, ``x[r]`` is NaN (the caller's rank test).
     """
-    S, q, M = At.shape
-    for s in range(S):
-        a, y = At[s], b[s]
+    _, M, q = P.shape
+    npen = 0
+    for j in range(q):
+        if pen[j] != 0.0:
+            npen += 1
+    N = M + npen
+    a = np.empty((q, N))  # the scaled design, transposed: columns contiguous
+    y = np.empty(N)
+    scale = np.empty(q)
+    diag = np.empty(q)
+    for r in rows:
+        for i in range(M):
+            sw = np.sqrt(wt[r, i])
+            y[i] = sw * z[r, i]
+            for j in range(q):
+                a[j, i] = sw * P[r, i, j]
+        for j in range(q):
+            nrm = 0.0
+            for i in range(M):
+                nrm += a[j, i] * a[j, i]
+            scale[j] = 1.0 / np.sqrt(nrm) if nrm > 0.0 else 1.0
+            for i in range(M):
+                a[j, i] *= scale[j]
+        k = M
+        for j in range(q):  # penalty rows
+            if pen[j] != 0.0:
+                for jj in range(q):
+                    a[jj, k] = 0.0
+                a[j, k] = pen[j]
+                y[k] = 0.0
+                k += 1
         for j in range(q):
             aj = a[j]
             nrm = 0.0
-            for i in range(j, M):
+            for i in range(j, N):
                 nrm += aj[i] * aj[i]
             nrm = np.sqrt(nrm)
             if nrm == 0.0:
-                diag[s, j] = 0.0
+                diag[j] = 0.0
                 continue
             alpha = -nrm if aj[j] >= 0.0 else nrm
             vv = 2.0 * nrm * (nrm + abs(aj[j]))  # |v|^2, v = a[j:, j] - alpha e_j
             aj[j] -= alpha
-            for k in range(j + 1, q):
-                ak = a[k]
+            for kk in range(j + 1, q):
+                ak = a[kk]
                 dot = 0.0
-                for i in range(j, M):
+                for i in range(j, N):
                     dot += aj[i] * ak[i]
                 f = 2.0 * dot / vv
-                for i in range(j, M):
+                for i in range(j, N):
                     ak[i] -= f * aj[i]
             dot = 0.0
-            for i in range(j, M):
+            for i in range(j, N):
                 dot += aj[i] * y[i]
             f = 2.0 * dot / vv
-            for i in range(j, M):
+            for i in range(j, N):
                 y[i] -= f * aj[i]
             aj[j] = alpha
-            diag[s, j] = abs(alpha)
-        top = 0.0
-        low = np.inf
+            diag[j] = abs(alpha)
+        top, low = 0.0, np.inf
         for j in range(q):
-            top = max(top, diag[s, j])
-            low = min(low, diag[s, j])
+            top = max(top, diag[j])
+            low = min(low, diag[j])
         if top == 0.0 or low <= 1e-10 * top:
-            x[s] = np.nan
+            x[r] = np.nan
             continue
         for j in range(q - 1, -1, -1):
             acc = y[j]
-            for k in range(j + 1, q):
-                acc -= a[k, j] * x[s, k]
-            x[s, j] = acc / a[j, j]
+            for kk in range(j + 1, q):
+                acc -= a[kk, j] * x[r, kk]
+            x[r, j] = acc / a[j, j]
+        for j in range(q):
+            x[r, j] *= scale[j]
 
 
 def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarray, linear: int) -> np.ndarray:
@@ -269,31 +299,22 @@ def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarr
     quadric (2D: circle) is still fitted exactly.  Where even the quadratic
     terms are not determined (a face one or two facets wide: all points on
     two lines), every term but the last ``linear`` ones is penalised.
-    Solved by Householder QR of the augmented design (no squared condition
-    number; compiled, :func:`_householder_lstsq`).  Stencils whose linear terms are not determined give NaN.
+    Solved by Householder QR of the scaled design and its penalty rows (no
+    squared condition number; compiled, :func:`_householder_lstsq`).  Stencils whose linear terms are not determined give NaN.
     """
-    S, _, q = P.shape
-    A = np.sqrt(wt)[..., None] * P
-    norm = np.linalg.norm(A, axis=1)
-    scale = 1.0 / np.where(norm > 0, norm, 1.0)  # (S, q)
-    rhs = np.concatenate([np.sqrt(wt) * z, np.zeros((S, q))], axis=1)
+    S, M, q = P.shape
     c = np.full((S, q), np.nan)
     todo = np.arange(S)
+    P, z, wt = (np.ascontiguousarray(np.broadcast_to(v, shape), dtype=float)
+                for v, shape in ((P, (S, M, q)), (z, (S, M)), (wt, (S, M))))
     for pen in (high, np.arange(q) < q - linear):
-        if pen.any() or A.shape[1] < q:
-            aug = np.concatenate([A[todo] * scale[todo, None, :], np.broadcast_to(
-                np.sqrt(PENALTY) * np.diag(pen.astype(float)), (len(todo), q, q))], axis=1)
-            b = rhs[todo]
-        else:  # no penalty rows (zeros that change nothing), a tall design
-            aug, b = A[todo] * scale[todo, None, :], rhs[todo, :A.shape[1]]
-        sol, diag = np.empty((len(todo), q)), np.empty((len(todo), q))
-        _householder_lstsq(np.ascontiguousarray(aug.transpose(0, 2, 1)), np.ascontiguousarray(b), sol, diag)
-        ok = diag.min(axis=1) > 1e-10 * diag.max(axis=1)
-        c[todo[ok]] = sol[ok]
-        todo = todo[~ok]
+        if M < q and not pen.any():  # fewer points than terms and no penalty: not determined
+            continue
+        _householder_lstsq(P, z, wt, todo, np.sqrt(PENALTY) * pen.astype(float), c)
+        todo = todo[~np.isfinite(c[todo]).all(axis=1)]
         if len(todo) == 0:
             break
-    return scale * c
+    return c
 
 
 def fit_normals(
