@@ -118,7 +118,7 @@ def plane_value(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: n
     """``sum_j c_j phi_j(u, v, 0)`` (the terms without ``w``) of fits ``coef (S, q)`` at ``u, v (S, k)``.
 
     The same as ``model_terms(u, v, 0) @ coef`` without forming the ``(S, k, q)``
-    terms: a compiled loop over the points (:func:`_plane_value_kernel`).
+    terms: a compiled loop over the points (:func:`_model_at`).
     """
     return _run_kernel(coef, degree, planar, u, v, False)
 
@@ -136,50 +136,85 @@ def _run_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: n
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _model_at(c: np.ndarray, degree: int, planar: bool, x: float, y: float, pu: np.ndarray, pv: np.ndarray,
+              root: bool) -> float:  # pragma: no cover (compiled)
+    """At one point ``(x, y)`` of fit ``c (q,)``: ``C``, the terms of :func:`model_terms` without ``w``
+    (3D: ``u^2, uv, v^2``, the monomials of degree 3 .. ``degree`` as ordered there, ``u, v``; 2D:
+    ``u^2, u^3 .. u^degree, u``), or with ``root`` the height ``w`` of :func:`surface_height`.
+    ``pu, pv``: scratch of ``degree + 1``."""
+    q = c.shape[0]
+    pu[0] = pv[0] = 1.0
+    for i in range(1, degree + 1):
+        pu[i] = pu[i - 1] * x
+        pv[i] = pv[i - 1] * y
+    if planar:
+        acc = c[0] * pu[2] + c[q - 1] * x
+        for j in range(3, degree + 1):
+            acc += c[j] * pu[j]
+    else:
+        acc = c[0] * pu[2] + c[1] * x * y + c[2] * pv[2] + c[q - 2] * x + c[q - 1] * y
+        col = 6
+        for d in range(3, degree + 1):  # u^d, u^(d-1) v, ..., v^d
+            for i in range(d + 1):
+                acc += c[col] * (pu[d - i] * pv[i])
+                col += 1
+    if not root:
+        return acc
+    if planar:
+        A, B = c[2], 1.0 + c[1] * x
+    else:
+        A, B = c[5], 1.0 + c[3] * x + c[4] * y
+    disc = B * B - 4.0 * A * acc
+    den = B + (np.sqrt(max(disc, 0.0)) if B >= 0.0 else -np.sqrt(max(disc, 0.0)))
+    w = -2.0 * acc / den if den != 0.0 else np.nan
+    if disc >= 0.0 and np.isfinite(w):
+        return w
+    lin = -acc / B if B != 0.0 else np.nan
+    return lin if np.isfinite(lin) else 0.0
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _model_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray,
                   out: np.ndarray, root: bool) -> None:  # pragma: no cover (compiled)
-    """``out[s, k]``: ``C``, the terms of :func:`model_terms` without ``w`` (3D: ``u^2, uv, v^2``, the
-    monomials of degree 3 .. ``degree`` as ordered there, ``u, v``; 2D: ``u^2, u^3 .. u^degree, u``);
-    with ``root``, the height ``w`` of :func:`surface_height` instead."""
+    """``out[s, k] = _model_at(coef[s], ..., u[s, k], v[s, k])``."""
     S, K = u.shape
-    q = coef.shape[1]
     pu = np.empty(degree + 1)
     pv = np.empty(degree + 1)
     for s in range(S):
-        c = coef[s]
         for k in range(K):
-            x, y = u[s, k], v[s, k]
-            pu[0] = pv[0] = 1.0
-            for i in range(1, degree + 1):
-                pu[i] = pu[i - 1] * x
-                pv[i] = pv[i - 1] * y
-            if planar:
-                acc = c[0] * pu[2] + c[q - 1] * x
-                for j in range(3, degree + 1):
-                    acc += c[j] * pu[j]
-            else:
-                acc = c[0] * pu[2] + c[1] * x * y + c[2] * pv[2] + c[q - 2] * x + c[q - 1] * y
-                col = 6
-                for d in range(3, degree + 1):  # u^d, u^(d-1) v, ..., v^d
-                    for i in range(d + 1):
-                        acc += c[col] * (pu[d - i] * pv[i])
-                        col += 1
-            if not root:
-                out[s, k] = acc
+            out[s, k] = _model_at(coef[s], degree, planar, u[s, k], v[s, k], pu, pv, root)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def blend_kernel(X: np.ndarray, lam: np.ndarray, x0: np.ndarray, frame: np.ndarray, h: np.ndarray,
+                 coef: np.ndarray, use: np.ndarray, degree: int, planar: bool,
+                 out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """``out[p, k] += sum_i lam[p, k, i] w_i n_i`` over the corners ``i`` with ``use[p, i]``.
+
+    ``X (P, k, 3)`` straight points; per facet corner ``x0 (P, nfv, 3)`` the
+    vertex, ``frame (P, nfv, 3, 3)`` rows ``t1, t2, n``, ``h (P, nfv)`` the
+    length scale, ``coef (P, nfv, q)`` the fit; ``w_i`` the fit's height
+    (:func:`surface_height`) above the point's projection into the frame, minus
+    the point's own height ``w``: the fitted point is ``X + (w_i - w) n_i``.
+    """
+    P, K, _ = X.shape
+    nfv = lam.shape[2]
+    pu = np.empty(degree + 1)
+    pv = np.empty(degree + 1)
+    for p in range(P):
+        for i in range(nfv):
+            if not use[p, i]:
                 continue
-            if planar:
-                A, B = c[2], 1.0 + c[1] * x
-            else:
-                A, B = c[5], 1.0 + c[3] * x + c[4] * y
-            disc = B * B - 4.0 * A * acc
-            den = B + (np.sqrt(max(disc, 0.0)) if B >= 0.0 else -np.sqrt(max(disc, 0.0)))
-            w = -2.0 * acc / den if den != 0.0 else np.nan
-            if disc >= 0.0 and np.isfinite(w):
-                out[s, k] = w
-            else:
-                lin = -acc / B if B != 0.0 else np.nan
-                out[s, k] = lin if np.isfinite(lin) else 0.0
+            fr, c, hh = frame[p, i], coef[p, i], h[p, i]
+            for k in range(K):
+                d0, d1, d2 = X[p, k, 0] - x0[p, i, 0], X[p, k, 1] - x0[p, i, 1], X[p, k, 2] - x0[p, i, 2]
+                u = (d0 * fr[0, 0] + d1 * fr[0, 1] + d2 * fr[0, 2]) / hh
+                v = (d0 * fr[1, 0] + d1 * fr[1, 1] + d2 * fr[1, 2]) / hh
+                w = (d0 * fr[2, 0] + d1 * fr[2, 1] + d2 * fr[2, 2]) / hh
+                dw = (_model_at(c, degree, planar, u, v, pu, pv, True) - w) * hh * lam[p, k, i]
+                for j in range(3):
+                    out[p, k, j] += dw * fr[2, j]
 
 
 def fit_surfaces(

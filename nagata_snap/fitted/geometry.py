@@ -44,6 +44,7 @@ import numpy as np
 import numpy.typing as npt
 
 from nagata_snap.fitted.fit import (
+    blend_kernel,
     fit_curves,
     fit_levels,
     fit_surfaces,
@@ -435,19 +436,17 @@ class FittedGeometry(NagataGeometry):
         Corners of sectors the guard refused (:meth:`_guard`) contribute the
         facet's Nagata patch point instead.
         """
-        out = X.copy()
+        out = np.ascontiguousarray(X, dtype=float).copy()
         label = self.corners.sector[patch]
         nag = self._use_nagata[label]  # (P, nfv)
+        if out.size:
+            blend_kernel(out.copy(), np.ascontiguousarray(lam, dtype=float), self.x[patch], self._frame_s[label],
+                         self._hv[self.corners.vertex[patch]], self._coef_s[label], ~nag, self.degree,
+                         self._planar, out)
         if nag.any():
             rows = np.flatnonzero(nag.any(axis=1))
             pn = patches.evaluate(self.x[patch[rows]], self.coef[patch[rows]], lam[rows]) - X[rows]
-        for i in range(lam.shape[2]):  # the facet's corners
-            s = label[:, i]
-            q = (self._corner_height(patch, X, i))[..., None] * self._frame_s[s, None, 2]
-            if nag[:, i].any():
-                r = np.flatnonzero(nag[rows, i])
-                q[rows[r]] = pn[r]
-            out += lam[..., i, None] * q
+            out[rows] += np.einsum("pkv,pv,pki->pki", lam[rows], nag[rows].astype(float), pn)
         return out
 
     def _crease_curve(self, crease: np.ndarray, wa: np.ndarray, P: np.ndarray) -> np.ndarray:
