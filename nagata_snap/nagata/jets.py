@@ -300,7 +300,8 @@ def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarr
     terms are not determined (a face one or two facets wide: all points on
     two lines), every term but the last ``linear`` ones is penalised.
     Solved by Householder QR of the scaled design and its penalty rows (no
-    squared condition number; compiled, :func:`_householder_lstsq`).  Stencils whose linear terms are not determined give NaN.
+    squared condition number; compiled, :func:`_householder_lstsq`).
+    Stencils whose linear terms are not determined give NaN.
     """
     S, M, q = P.shape
     c = np.full((S, q), np.nan)
@@ -308,7 +309,7 @@ def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarr
     P, z, wt = (np.ascontiguousarray(np.broadcast_to(v, shape), dtype=float)
                 for v, shape in ((P, (S, M, q)), (z, (S, M)), (wt, (S, M))))
     for pen in (high, np.arange(q) < q - linear):
-        if M < q and not pen.any():  # fewer points than terms and no penalty: not determined
+        if q > M and not pen.any():  # fewer points than terms and no penalty: not determined
             continue
         _householder_lstsq(P, z, wt, todo, np.sqrt(PENALTY) * pen.astype(float), c)
         todo = todo[~np.isfinite(c[todo]).all(axis=1)]
