@@ -218,25 +218,28 @@ def _householder_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, rows: np.nd
     for j in range(q):
         if pen[j] != 0.0:
             npen += 1
-    N = M + npen
-    a = np.empty((q, N))  # the scaled design, transposed: columns contiguous
-    y = np.empty(N)
+    a = np.empty((q, M + npen))  # the scaled design, transposed: columns contiguous
+    y = np.empty(M + npen)
     scale = np.empty(q)
     diag = np.empty(q)
     for r in rows:
+        m = 0  # rows of weight 0 (padding, points weighted out) change nothing: left out
         for i in range(M):
-            sw = np.sqrt(wt[r, i])
-            y[i] = sw * z[r, i]
-            for j in range(q):
-                a[j, i] = sw * P[r, i, j]
+            if wt[r, i] > 0.0:
+                sw = np.sqrt(wt[r, i])
+                y[m] = sw * z[r, i]
+                for j in range(q):
+                    a[j, m] = sw * P[r, i, j]
+                m += 1
+        N = m + npen
         for j in range(q):
             nrm = 0.0
-            for i in range(M):
+            for i in range(m):
                 nrm += a[j, i] * a[j, i]
             scale[j] = 1.0 / np.sqrt(nrm) if nrm > 0.0 else 1.0
-            for i in range(M):
+            for i in range(m):
                 a[j, i] *= scale[j]
-        k = M
+        k = m
         for j in range(q):  # penalty rows
             if pen[j] != 0.0:
                 for jj in range(q):
@@ -244,6 +247,9 @@ def _householder_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, rows: np.nd
                 a[j, k] = pen[j]
                 y[k] = 0.0
                 k += 1
+        if q > N:  # fewer equations than unknowns: not determined
+            x[r] = np.nan
+            continue
         for j in range(q):
             aj = a[j]
             nrm = 0.0
