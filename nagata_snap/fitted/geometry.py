@@ -384,14 +384,6 @@ class FittedGeometry(NagataGeometry):
         return text
 
     # ------------------------------------------------------------------
-    def _corner_height(self, patch: np.ndarray, X: np.ndarray, i: int) -> np.ndarray:
-        """Height ``(P, k)`` along its sector's normal of corner ``i``'s fit above the straight points ``X``."""
-        s = self.corners.sector[patch, i]
-        h = self._hv[self.corners.vertex[patch, i]][:, None]
-        loc = np.matmul(X - self.x[patch, i][:, None, :], self._frame_s[s].transpose(0, 2, 1)) / h[:, :, None]
-        u, v, w = loc[..., 0], loc[..., 1], loc[..., 2]
-        return (surface_height(self._coef_s[s], self.degree, self._planar, u, v) - w) * h
-
     def _guard(self) -> np.ndarray:
         """Sectors ``(S,)`` whose fit disagrees with a neighbouring corner's by more than :data:`GUARD`.
 
@@ -413,21 +405,30 @@ class FittedGeometry(NagataGeometry):
         X = np.matmul(lam, self.x)
         dep = np.linalg.norm(patches.evaluate(self.x, self.coef, lam) - X, axis=2)
         sec, vid = self.corners.sector, self.corners.vertex
-        q = [X + self._corner_height(np.arange(F), X, i)[..., None] * self._frame_s[sec[:, i], None, 2]
-             for i in range(nfv)]
+        x0, frames, h = self.x, self._frame_s[sec], self._hv[vid]
+        coef = self._coef_s[sec]
+
+        def along(P: np.ndarray, i: int) -> np.ndarray:
+            """``(F, k, 3)`` the move from ``P`` onto corner ``i``'s fit, along its normal."""
+            one = np.zeros((F, nfv), dtype=bool)
+            one[:, i] = True
+            lam_i = np.zeros((F, P.shape[1], nfv))
+            lam_i[..., i] = 1.0
+            out = np.zeros_like(P)
+            blend_kernel(P, lam_i, x0, frames, h, coef, one, self.degree, self._planar, out)
+            return out
+
+        q = [X + along(X, i) for i in range(nfv)]
         bad = np.zeros(len(self._coef_s), dtype=bool)
         for i in range(nfv):
             for j in range(nfv):
                 if i == j:
                     continue
-                s, h = sec[:, j], self._hv[vid[:, j]][:, None]
-                loc = np.matmul(q[i] - self.x[:, j][:, None, :], self._frame_s[s].transpose(0, 2, 1)) / h[:, :, None]
-                r = np.abs(loc[..., 2] - surface_height(self._coef_s[s], self.degree, self._planar, loc[..., 0],
-                                                        loc[..., 1])) * h
-                tol = GUARD * dep + 1e-9 * h
+                r = np.linalg.norm(along(q[i], j), axis=2)
+                tol = GUARD * dep + 1e-9 * h[:, j, None]
                 far = ((r > tol) & (grid[None, :, i] >= 0.25)).any(axis=1)
                 np.logical_or.at(bad, sec[:, i], far)
-                np.logical_or.at(bad, s, far)
+                np.logical_or.at(bad, sec[:, j], far)
         return bad
 
     def _blend(self, patch: np.ndarray, lam: np.ndarray, X: np.ndarray) -> np.ndarray:
