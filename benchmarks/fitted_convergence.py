@@ -16,12 +16,24 @@ points, as a refinement level's placement does for its new vertices).
 
 2D: polygons inscribed in the ellipse 1 x 0.5 (unequal segments).
 
+Parts (``--parts``, default ``plate_filleted,plate`` of ``meshes/parts.py``,
+STEP meshed by :func:`nagata_snap.meshing.mesh_cad_file`, curvature sizing 12
+per 2 pi, one tag per CAD face): the largest distance to the CAD (OpenCASCADE's
+closest point on each facet's own face, through gmsh) of both surfaces over the
+coarse mesh (6 intervals per edge), over the model size, the ratio fitted /
+Nagata, the faces where the fitted surface's largest distance sits, and the
+set-up + placement seconds (best of 3) of both; line ``fitted_over_nagata_parts
+<part> <ratio> ...``.  The cylinder's line ``cylinder_order <finest pair>
+rim_distance_max <largest rim distance over all h>``; ``time_ratio <surface>
+<fitted / Nagata set-up + placement at h = 0.05, best of 3 alternating runs>``.
+
 Last lines: ``fitted_order_estimated <min finest-pair order over the torus and
 the ellipsoid>`` and ``fitted_over_nagata <max fitted / Nagata error ratio at
 h = 0.05 over the torus and the ellipsoid>`` (the cylinder's is in its table).
 
 Usage: ``python benchmarks/fitted_convergence.py [--hmin 0.025] [--surfaces torus,ellipsoid,cylinder]
-[--degree 4]`` (the default, down to 0.025 on the three surfaces, takes about 4 minutes).
+[--degree 4] [--parts plate_filleted,plate]`` (``--parts ""``: none; the default, down to 0.025 on
+the three surfaces, takes about 4 minutes).
 """
 
 from __future__ import annotations
@@ -143,11 +155,80 @@ def ellipse_study(ns, degrees) -> None:
         prev = e
 
 
+def time_ratio(kind: str, h: float, degree: int, reps: int = 3) -> tuple[float, float, float]:
+    """Set-up + placement seconds of Nagata and the fitted surface on one mesh, the best of ``reps``
+    alternating runs each (a shared machine's load only adds), and their ratio."""
+    p, t, exact, tags = gmsh_surface(kind, h)
+    best = [np.inf, np.inf]
+    for _ in range(reps):
+        for i, make in enumerate((lambda: NagataGeometry.from_surface(p, t, tags, crease_angle=80),
+                                  lambda: FittedGeometry.from_surface(p, t, tags, crease_angle=80, degree=degree))):
+            t0 = time.perf_counter()
+            geo = make()
+            setup = time.perf_counter() - t0
+            best[i] = min(best[i], setup + max_distance(geo, exact.distance)[1])
+    return best[0], best[1], best[1] / best[0]
+
+
+def part_distances(geo, per_edge: int = 6) -> np.ndarray:
+    """``(F,)`` largest distance of each coarse facet's samples from its own CAD face (current gmsh model)."""
+    from occ_reference import gmsh_face_distance
+
+    g = barycentric_grid(3, per_edge)
+    x = geo.evaluate(np.arange(geo.num_patches), np.broadcast_to(g, (geo.num_patches, *g.shape)))
+    d = np.zeros(geo.num_patches)
+    for tag in np.unique(geo.tag):
+        s = np.flatnonzero(geo.tag == tag)
+        d[s] = gmsh_face_distance(int(tag), x[s].reshape(-1, 3)).reshape(len(s), -1).max(axis=1)
+    return d
+
+
+def part_study(names: list[str], degree: int) -> dict[str, float]:
+    """Fitted against Nagata over the coarse meshes of ``names``: prints a table, returns the ratios."""
+    import tempfile
+
+    import gmsh
+    import parts
+    from mpi4py import MPI
+
+    from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file
+
+    print(f"\nparts (coarse mesh, curvature 12): largest distance to the CAD / model size, degree {degree}")
+    print(f"{'part':>16} {'faces':>5} {'facets':>6} {'nagata':>10} {'fitted':>10} {'/nagata':>7}  worst faces (fitted)")
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            path = parts.write_part(name, tmp, formats=("step",))["step"]
+            with gmsh_session(name):
+                import_cad(path)
+                cm = mesh_cad_file(path, MPI.COMM_SELF, curvature=12)
+                nag = NagataGeometry(cm.mesh, cm.facet_tags)
+                fit = FittedGeometry(cm.mesh, cm.facet_tags, degree=degree)
+                dn, df = part_distances(nag), part_distances(fit)
+                g = barycentric_grid(3, 6)
+                lam = np.broadcast_to(g, (fit.num_patches, *g.shape))
+                best = [np.inf, np.inf]
+                for _ in range(3):
+                    for i, cls in enumerate((NagataGeometry, FittedGeometry)):
+                        t0 = time.perf_counter()
+                        cls(cm.mesh, cm.facet_tags).evaluate(np.arange(fit.num_patches), lam)
+                        best[i] = min(best[i], time.perf_counter() - t0)
+                worst = sorted({(float(df[fit.tag == t].max()), int(t)) for t in np.unique(fit.tag)}, reverse=True)[:3]
+                where = ", ".join(f"{t} {gmsh.model.getType(2, t)} {v / cm.model_size:.1e}" for v, t in worst)
+                out[name] = df.max() / dn.max()
+                print(f"{name:>16} {len(gmsh.model.getEntities(2)):5d} {fit.num_patches:6d} "
+                      f"{dn.max() / cm.model_size:10.3e} {df.max() / cm.model_size:10.3e} {out[name]:7.3f}  {where}")
+                print(f"{'':>16} {fit.fit_summary()}; set-up + placement nagata {best[0]:.2f} s, fitted "
+                      f"{best[1]:.2f} s ({best[1] / best[0]:.2f}x)")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--hmin", type=float, default=0.025, help="finest gmsh mesh size (from 0.2, halving)")
     ap.add_argument("--surfaces", default=",".join(SURFACES), help="comma-separated subset of " + ",".join(SURFACES))
     ap.add_argument("--degree", type=int, default=4, help="fit degree (degree 3 is shown beside it)")
+    ap.add_argument("--parts", default="plate_filleted,plate", help="comma-separated parts of meshes/parts.py")
     args = ap.parse_args()
     hs = [0.2]
     while hs[-1] / 2 >= args.hmin * (1 - 1e-9):
@@ -159,6 +240,19 @@ def main() -> None:
     for kind in surfaces:
         print_table(kind, res[kind], degrees)
     ellipse_study((48, 96, 192, 384), degrees)
+    if 0.05 in [round(h, 6) for h in hs]:
+        print("\nset-up + placement at h = 0.05, best of 3 alternating runs [s]:")
+        tr = {k: time_ratio(k, 0.05, args.degree) for k in surfaces}
+        for k, (a, b, r) in tr.items():
+            print(f"  {k}: nagata {a:.2f}, fitted {b:.2f}, ratio {r:.2f}")
+        print("time_ratio " + " ".join(f"{k} {r:.2f}" for k, (_, _, r) in tr.items()))
+    if args.parts:
+        ratios = part_study(args.parts.split(","), args.degree)
+        print("fitted_over_nagata_parts " + " ".join(f"{k} {v:.3f}" for k, v in ratios.items()))
+    if "cylinder" in surfaces and len(hs) > 1:
+        cyl = res["cylinder"]
+        print(f"cylinder_order {orders([r[f'fit{args.degree}'] for r in cyl])[-1]:.3f} "
+              f"rim_distance_max {max(r[f'rim{args.degree}'] for r in cyl):.3e} (over all h)")
     d = args.degree
     smooth = [k for k in surfaces if k in ("torus", "ellipsoid")]
     if smooth and len(hs) > 1:

@@ -37,12 +37,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 
 from nagata_snap.nagata.jets import _basis, _weighted_lstsq
 
-__all__ = ["exponents", "monomials", "terms", "model_terms", "plane_value", "term_columns", "curve_columns",
-           "fit_surfaces", "surface_height", "fit_levels", "fit_curves", "height", "BATCH"]
+__all__ = ["exponents", "monomials", "terms", "model_terms", "plane_value", "term_columns",
+           "fit_surfaces", "surface_height", "fit_levels", "fit_curves", "height", "BATCH",
+           "MIN_CREASE_SINE"]
 
 #: Stencils per batch (bounds memory: ``batch * points * terms`` doubles).
 BATCH = 4096
@@ -115,31 +117,104 @@ def term_columns(degree: int, top: int, planar: bool) -> np.ndarray:
 def plane_value(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``sum_j c_j phi_j(u, v, 0)`` (the terms without ``w``) of fits ``coef (S, q)`` at ``u, v (S, k)``.
 
-    The same as ``model_terms(u, v, 0) @ coef`` without forming the ``(S, k, q)`` terms.
+    The same as ``model_terms(u, v, 0) @ coef`` without forming the ``(S, k, q)``
+    terms: a compiled loop over the points (:func:`_model_at`).
     """
-    def c(j: int) -> np.ndarray:
-        return coef[:, j, None]
+    return _run_kernel(coef, degree, planar, u, v, False)
 
-    if planar:
-        out = c(0) * u * u + c(-1) * u
-        pk = u * u
-        for k in range(3, degree + 1):
-            pk = pk * u
-            out += c(k) * pk
+
+def _run_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray, root: bool) -> np.ndarray:
+    """:func:`_model_kernel` on ``coef (S, q)`` and ``u, v (S, k)`` (``v`` broadcast): ``(S, k)``."""
+    u2 = np.ascontiguousarray(u, dtype=float)
+    v2 = np.ascontiguousarray(np.broadcast_to(v, u2.shape), dtype=float)
+    S = u2.shape[0]
+    out = np.empty(u2.shape)
+    if u2.size == 0:  # nothing to evaluate (a process without points of this kind)
         return out
-    out = c(0) * u * u + c(1) * u * v + c(2) * v * v + c(-2) * u + c(-1) * v
-    prev, col = [u * u, u * v, v * v], 6
-    for _ in range(3, degree + 1):  # the monomials of each degree, u^k, u^(k-1) v, ..., v^k
-        prev = [m * u for m in prev] + [prev[-1] * v]
-        for m in prev:
-            out += c(col) * m
-            col += 1
+    _model_kernel(np.ascontiguousarray(coef, dtype=float).reshape(S, -1), int(degree), bool(planar),
+                  u2.reshape(S, -1), v2.reshape(S, -1), out.reshape(S, -1), bool(root))
     return out
 
 
-def curve_columns(degree: int, top: int) -> np.ndarray:
-    """Columns of a degree-``degree`` curve fit's terms (:func:`fit_curves`) among the degree-``top`` fit's."""
-    return np.r_[np.arange(degree - 1), top - 1]
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _model_at(c: np.ndarray, degree: int, planar: bool, x: float, y: float, pu: np.ndarray, pv: np.ndarray,
+              root: bool) -> float:  # pragma: no cover (compiled)
+    """At one point ``(x, y)`` of fit ``c (q,)``: ``C``, the terms of :func:`model_terms` without ``w``
+    (3D: ``u^2, uv, v^2``, the monomials of degree 3 .. ``degree`` as ordered there, ``u, v``; 2D:
+    ``u^2, u^3 .. u^degree, u``), or with ``root`` the height ``w`` of :func:`surface_height`.
+    ``pu, pv``: scratch of ``degree + 1``."""
+    q = c.shape[0]
+    pu[0] = pv[0] = 1.0
+    for i in range(1, degree + 1):
+        pu[i] = pu[i - 1] * x
+        pv[i] = pv[i - 1] * y
+    if planar:
+        acc = c[0] * pu[2] + c[q - 1] * x
+        for j in range(3, degree + 1):
+            acc += c[j] * pu[j]
+    else:
+        acc = c[0] * pu[2] + c[1] * x * y + c[2] * pv[2] + c[q - 2] * x + c[q - 1] * y
+        col = 6
+        for d in range(3, degree + 1):  # u^d, u^(d-1) v, ..., v^d
+            for i in range(d + 1):
+                acc += c[col] * (pu[d - i] * pv[i])
+                col += 1
+    if not root:
+        return acc
+    if planar:
+        A, B = c[2], 1.0 + c[1] * x
+    else:
+        A, B = c[5], 1.0 + c[3] * x + c[4] * y
+    disc = B * B - 4.0 * A * acc
+    den = B + (np.sqrt(max(disc, 0.0)) if B >= 0.0 else -np.sqrt(max(disc, 0.0)))
+    w = -2.0 * acc / den if den != 0.0 else np.nan
+    if disc >= 0.0 and np.isfinite(w):
+        return w
+    lin = -acc / B if B != 0.0 else np.nan
+    return lin if np.isfinite(lin) else 0.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _model_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v: np.ndarray,
+                  out: np.ndarray, root: bool) -> None:  # pragma: no cover (compiled)
+    """``out[s, k] = _model_at(coef[s], ..., u[s, k], v[s, k])``."""
+    S, K = u.shape
+    pu = np.empty(degree + 1)
+    pv = np.empty(degree + 1)
+    for s in range(S):
+        for k in range(K):
+            out[s, k] = _model_at(coef[s], degree, planar, u[s, k], v[s, k], pu, pv, root)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def blend_kernel(X: np.ndarray, lam: np.ndarray, x0: np.ndarray, frame: np.ndarray, h: np.ndarray,
+                 coef: np.ndarray, use: np.ndarray, degree: int, planar: bool,
+                 out: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """``out[p, k] += sum_i lam[p, k, i] w_i n_i`` over the corners ``i`` with ``use[p, i]``.
+
+    ``X (P, k, 3)`` straight points; per facet corner ``x0 (P, nfv, 3)`` the
+    vertex, ``frame (P, nfv, 3, 3)`` rows ``t1, t2, n``, ``h (P, nfv)`` the
+    length scale, ``coef (P, nfv, q)`` the fit; ``w_i`` the fit's height
+    (:func:`surface_height`) above the point's projection into the frame, minus
+    the point's own height ``w``: the fitted point is ``X + (w_i - w) n_i``.
+    """
+    P, K, _ = X.shape
+    nfv = lam.shape[2]
+    pu = np.empty(degree + 1)
+    pv = np.empty(degree + 1)
+    for p in range(P):
+        for i in range(nfv):
+            if not use[p, i]:
+                continue
+            fr, c, hh = frame[p, i], coef[p, i], h[p, i]
+            for k in range(K):
+                d0, d1, d2 = X[p, k, 0] - x0[p, i, 0], X[p, k, 1] - x0[p, i, 1], X[p, k, 2] - x0[p, i, 2]
+                u = (d0 * fr[0, 0] + d1 * fr[0, 1] + d2 * fr[0, 2]) / hh
+                v = (d0 * fr[1, 0] + d1 * fr[1, 1] + d2 * fr[1, 2]) / hh
+                w = (d0 * fr[2, 0] + d1 * fr[2, 1] + d2 * fr[2, 2]) / hh
+                dw = (_model_at(c, degree, planar, u, v, pu, pv, True) - w) * hh * lam[p, k, i]
+                for j in range(3):
+                    out[p, k, j] += dw * fr[2, j]
 
 
 def fit_surfaces(
@@ -171,7 +246,7 @@ def fit_surfaces(
         are no height function over their stencil included).
     """
     d = pts - x0[:, None, :]
-    loc = np.einsum("smi,sji->smj", d, frame) / h[:, None, None]
+    loc = np.matmul(d, frame.transpose(0, 2, 1)) / h[:, None, None]
     wt = _weights(np.einsum("smi,smi->sm", d, d), h, mask)
     u, v = loc[..., 0], loc[..., 1]
     P = model_terms(u, v, 0.0 * u if explicit else loc[..., 2], degree, planar)
@@ -220,16 +295,7 @@ def surface_height(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v
     vertex), or ``-C / B`` where the quadratic has no real root (far outside
     the fit's stencil).
     """
-    C = plane_value(coef, degree, planar, u, v)
-    if planar:
-        A, B = coef[:, 2:3], 1.0 + coef[:, 1:2] * u
-    else:
-        A, B = coef[:, 5:6], 1.0 + coef[:, 3:4] * u + coef[:, 4:5] * v
-    disc = B * B - 4.0 * A * C
-    with np.errstate(invalid="ignore", divide="ignore"):
-        root = -2.0 * C / (B + np.copysign(np.sqrt(np.maximum(disc, 0.0)), B))
-        lin = -C / B
-    return np.where((disc >= 0.0) & np.isfinite(root), root, np.where(np.isfinite(lin), lin, 0.0))
+    return _run_kernel(coef, degree, planar, u, v, True)
 
 
 def fit_levels(
@@ -237,6 +303,7 @@ def fit_levels(
     stencil: Callable[[int], tuple[np.ndarray, np.ndarray]],
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray, int, bool], np.ndarray],
     S: int, columns: Callable[[int], np.ndarray], q: int, comps: int = 1,
+    equations: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fits of ``S`` stencils trying ``levels = [(degree, width, variant), ...]`` in turn.
 
@@ -250,7 +317,8 @@ def fit_levels(
         ``(coef (S, comps, q), degree (S,), level (S,))``: coefficients padded to
         the ``q`` terms of the first level's degree (zeros for the terms a lower
         degree lacks), the degree each fit got (0: none, coefficients 0) and
-        the index of its level (-1: none).
+        the index of its level (-1: none).  ``equations(mask) -> (n,)``: the
+    equations per component a stencil gives (default: its points).
     """
     coef = np.zeros((S, comps, q))
     got = np.zeros(S, dtype=np.int64)
@@ -265,7 +333,8 @@ def fit_levels(
         idx, mask = cache[width]
         cols = columns(degree)
         for lo in range(0, S, BATCH):
-            enough = mask[lo:lo + BATCH].sum(axis=1) >= len(cols) + EXTRA_POINTS
+            mk = mask[lo:lo + BATCH]
+            enough = (mk.sum(axis=1) if equations is None else equations(mk)) >= len(cols) + EXTRA_POINTS
             sel = lo + np.flatnonzero(todo[lo:lo + BATCH] & enough)
             if len(sel) == 0:
                 continue
@@ -280,28 +349,96 @@ def fit_levels(
     return coef, got, level
 
 
+#: Slope equations of a crease curve fit are used where the two faces' normals
+#: are at least this far apart (sine of the angle): at a tangency (G1) line
+#: their cross product, the curve's tangent, is not determined.
+MIN_CREASE_SINE = 0.2
+
+
 def fit_curves(
     x0: np.ndarray, tangent: np.ndarray, normals: tuple[np.ndarray, np.ndarray], pts: np.ndarray,
-    mask: np.ndarray, h: np.ndarray, degree: int,
+    mask: np.ndarray, h: np.ndarray, degree: int, sides: np.ndarray | None = None, circle: bool = False,
 ) -> np.ndarray:
-    """Curve fits: offsets ``y1, y2`` of degree ``degree`` in the abscissa along ``tangent``.
+    """Curve fits: each offset ``y_k`` (along ``normals[k]``) as a planar implicit fit in the abscissa.
+
+    In the plane of ``tangent`` and ``normals[k]`` the projected curve is fitted
+    as :func:`fit_surfaces` fits a planar curve, ``y + sum_j c_j phi_j(s, y) = 0``
+    with the conic and the powers ``s^3 .. s^degree`` (:func:`model_terms`): a
+    planar circle (a fillet's rim, a hole's edge) projects to a conic in each
+    such plane, so the fit is exact on it however few segments it has, where a
+    polynomial graph over the chord of a quarter arc of 3 segments is 3x less
+    accurate than Nagata's curve.
 
     Args:
         x0: ``(S, 3)`` curve points the fits pass through; tangent: ``(S, 3)``
             unit chords; normals: two ``(S, 3)`` unit vectors completing the frame.
         pts, mask: ``(S, m, 3)``, ``(S, m)`` the other points of each curve.
         h: ``(S,)`` length scale.
-        degree: ``>= 1``.
+        degree: ``>= 2``.
+        sides: optional ``(S, m + 1, 2, 3)``: the two faces' unit normals at
+            ``x0`` (row 0) and at each point of ``pts``; where they are at least
+            :data:`MIN_CREASE_SINE` apart their cross product is the curve's
+            tangent there, an equation ``dF/ds (t . T) + dF/dy (t . n_k) = 0``
+            each (Hermite data: a chain of 3 segments between corners fits degree 4).
+        circle: a circle through ``x0`` in the plane of ``tangent`` and
+            ``normals[0]`` (``y + k (s^2 + y^2) + g s = 0``) and a parabola along
+            ``normals[1]`` (0 for a planar curve), no slope equations: a tangency
+            line's quarter arc of 3 segments, whose faces' normals give no tangent
+            (``normals[0]`` should then lie in the curve's plane).
 
     Returns:
-        ``(S, 2, degree)`` coefficients of ``s^2 .. s^degree, s`` per offset
-        (order of :func:`exponents` planar; scaled by ``h``), NaN where undetermined.
+        ``(S, 2, q)`` coefficients (:func:`terms` planar) per offset, scaled by
+        ``h``; NaN where undetermined, with fewer than ``q + EXTRA_POINTS``
+        equations (a tangency line has no slope equations) or no height
+        function near ``x0``.
     """
-    exps = exponents(degree, True)
     d = pts - x0[:, None, :]
-    s = np.einsum("smi,si->sm", d, tangent) / h[:, None]
+    u = np.einsum("smi,si->sm", d, tangent) / h[:, None]
     wt = _weights(np.einsum("smi,smi->sm", d, d), h, mask)
-    P = monomials(s, 0.0 * s, exps)
-    free = np.zeros(len(exps), dtype=bool)  # no penalty while determined (see fit_surfaces)
-    out = [_weighted_lstsq(P, np.einsum("smi,si->sm", d, nrm) / h[:, None], wt, free, 1) for nrm in normals]
-    return np.stack(out, axis=1)
+    q = terms(degree, True)
+    out = np.full((len(x0), 2, q), np.nan)
+    t = None
+    count = mask.sum(axis=1)
+    if circle:  # y + k (s^2 + y^2) + g s = 0 along normals[0], y + a s^2 + g s = 0 along normals[1]
+        for k, (nrm, cols) in enumerate(zip(normals, ([0, 2], [0]), strict=True)):
+            w = np.einsum("smi,si->sm", d, nrm) / h[:, None]
+            terms_ = model_terms(u, 0.0 * u, w, 2, True)
+            P = np.stack([terms_[..., cols].sum(axis=-1), u], axis=-1)
+            kg = _weighted_lstsq(P, -w, wt, np.zeros(2, dtype=bool), 1)
+            c = np.zeros((len(x0), q))
+            c[:, cols] = kg[:, :1]
+            c[:, -1] = kg[:, 1]
+            c[~height_valid(c, degree, True, u, 0.0 * u, mask) | (count < 3)] = np.nan
+            out[:, k] = c
+        return out
+    if sides is not None:
+        t = np.cross(sides[..., 0, :], sides[..., 1, :])
+        st = np.linalg.norm(t, axis=-1)
+        t = t / np.where(st > 0, st, 1.0)[..., None]
+        ws = np.where(np.concatenate([np.ones((len(x0), 1), dtype=bool), mask], axis=1) & (st >= MIN_CREASE_SINE),
+                      np.concatenate([np.ones((len(x0), 1)), wt], axis=1), 0.0)
+        us = np.concatenate([np.zeros((len(x0), 1)), u], axis=1)
+        tT = np.einsum("smi,si->sm", t, tangent)
+        count = count + (ws > 0).sum(axis=1)
+    for k, nrm in enumerate(normals):
+        w = np.einsum("smi,si->sm", d, nrm) / h[:, None]
+        P, z, W = model_terms(u, 0.0 * u, w, degree, True), -w, wt
+        if t is not None:  # slope rows: phi_u (t . T) + phi_w (t . n_k), right side -(t . n_k)
+            tn = np.einsum("smi,si->sm", t, nrm)
+            ws_ = np.concatenate([np.zeros((len(x0), 1)), w], axis=1)  # heights (0 at x0)
+            pu, pw = _planar_term_derivatives(us, ws_, degree)
+            P = np.concatenate([P, pu * tT[..., None] + pw * tn[..., None]], axis=1)
+            z = np.concatenate([z, -tn], axis=1)
+            W = np.concatenate([W, ws], axis=1)
+        c = _weighted_lstsq(P, z, W, np.zeros(q, dtype=bool), 1)
+        c[~height_valid(c, degree, True, u, 0.0 * u, mask) | (count < q + EXTRA_POINTS)] = np.nan
+        out[:, k] = c
+    return out
+
+
+def _planar_term_derivatives(u: np.ndarray, w: np.ndarray, degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """``d/du`` and ``d/dw`` ``(..., q)`` of the planar :func:`model_terms` ``u^2, uw, w^2, u^3 .. u^degree, u``."""
+    zero, one = 0.0 * u, 1.0 + 0.0 * u
+    du = [2.0 * u, w, zero, *(k * u ** (k - 1) for k in range(3, degree + 1)), one]
+    dw = [zero, u, 2.0 * w, *(zero for _ in range(3, degree + 1)), zero]
+    return np.stack(du, axis=-1), np.stack(dw, axis=-1)

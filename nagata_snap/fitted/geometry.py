@@ -44,12 +44,10 @@ import numpy as np
 import numpy.typing as npt
 
 from nagata_snap.fitted.fit import (
-    curve_columns,
-    exponents,
+    blend_kernel,
     fit_curves,
     fit_levels,
     fit_surfaces,
-    height,
     surface_height,
     term_columns,
     terms,
@@ -221,7 +219,6 @@ class FittedGeometry(NagataGeometry):
         self.fit_explicit = (level >= 0) & np.array([e for _, _, e in levels])[np.maximum(level, 0)]
         self._coords, self._hv, self._frame_s, self._coef_s = coords, hv, frame, coef[:, 0]
         self._planar = planar
-        self._curve_exps = exponents(self._curve_top(), True)
         self.n_clipped = 0
         self._use_nagata = np.zeros(S, dtype=bool)
         self._use_nagata = self._guard()
@@ -237,6 +234,7 @@ class FittedGeometry(NagataGeometry):
         if nfv == 2 or len(cr) == 0:
             self._crease_ends = np.zeros((0, 2), dtype=np.int64)
             self.curve_degree = np.zeros(0, dtype=np.int64)
+            self.curve_circle = np.zeros(0, dtype=bool)
             self._crease_nagata = np.zeros(0, dtype=bool)
             return
         E = cn.ridge_vertices[cr]  # (C, 2) sorted vertex ids
@@ -256,12 +254,22 @@ class FittedGeometry(NagataGeometry):
         nb[two, 0] = both[order][first]
         nb[two, 1] = both[order][first + 1]
 
+        # crease edges by their sorted end vertices, to name each step of a walk
+        keys = E[:, 0] * len(coords) + E[:, 1]
+        korder = np.argsort(keys)
+
+        def edge_of(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            k = np.minimum(u, v) * len(coords) + np.maximum(u, v)
+            return korder[np.minimum(np.searchsorted(keys[korder], k), len(keys) - 1)]
+
         def walk(prev: np.ndarray, cur: np.ndarray, ok: np.ndarray, steps: int) -> np.ndarray:
+            """Edge ends ``2 e + k`` (vertex ``E[e, k]`` reached along crease edge ``e``), -1 past the chain."""
             out = np.full((len(cur), steps), -1, dtype=np.int64)
             for k in range(steps):  # a few steps along the crease, all ends at once
                 ok = ok & (cur >= 0) & (cur != a)
-                out[:, k] = np.where(ok, cur, -1)
                 c = np.maximum(cur, 0)
+                e = edge_of(np.maximum(prev, 0), c)
+                out[:, k] = np.where(ok, 2 * e + (E[e, 1] == c), -1)
                 nxt = np.where(nb[c, 0] == prev, nb[c, 1], nb[c, 0])
                 ok = ok & (deg[c] == 2)
                 prev, cur = cur, nxt
@@ -276,23 +284,60 @@ class FittedGeometry(NagataGeometry):
 
         tangent = coords[b] - coords[a]
         tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-        n1, n2 = _frame(tangent)
+        near, near_ok = stencil(2)
+        n1, n2 = self._chain_frame(tangent, coords[a], coords[a[near]], near_ok)
+        # the faces' normals on both sides at each edge end (end j = 2 e + k: vertex a[j])
+        side_n = self._crease_side_normals(cr, E).reshape(-1, 2, 3)
 
-        def fit(sel, idx, mask, d, _):
-            return fit_curves(coords[a[sel]], tangent[sel], (n1[sel], n2[sel]), coords[idx], mask,
-                              hv[a[sel]], d)
+        def fit(sel, idx, mask, d, circle):
+            N = np.concatenate([side_n[sel][:, None], side_n[idx]], axis=1)
+            return fit_curves(coords[a[sel]], tangent[sel], (n1[sel], n2[sel]), coords[a[idx]], mask,
+                              hv[a[sel]], d, sides=N, circle=circle)
 
         top = self._curve_top()
         w0 = math.ceil((top + 2) / 2)
-        levels = [(d, w, False) for d in range(top, 0, -1) for w in (w0, d + 2)]
-        coef, self.curve_degree, _ = fit_levels(levels, stencil, fit, len(a), lambda d: curve_columns(d, top),
-                                             top, comps=2)
+        # the last level: a circle through three points (tangency lines: no slope equations)
+        levels = [(d, w, False) for d in range(top, 1, -1) for w in (w0, d + 2)] + [(2, w0, True)]
+        # per offset: a position for each point, a slope for each point and the end's own
+        coef, self.curve_degree, clevel = fit_levels(levels, stencil, fit, len(a), lambda d: term_columns(d, top, True),
+                                                terms(top, True), comps=2, equations=lambda m: 2 * m.sum(axis=1) + 1)
         self._crease_ends = np.c_[a, b]
         self._curve = (tangent, n1, n2, coef)
-        # creases whose chain is too short for a fit of order 3 or more (between close
-        # corners), or whose fit strays from the Nagata crease curve: the Nagata curve
-        low = np.minimum(self.curve_degree[0::2], self.curve_degree[1::2]) < 3
-        self._crease_nagata = low | self._curve_guard()
+        # creases whose chain is too short for a fit of order 3 or more or a circle (between
+        # close corners), or whose fit strays from the Nagata crease curve: the Nagata curve
+        self.curve_circle = clevel == len(levels) - 1
+        ok = (self.curve_degree >= 3) | self.curve_circle
+        self._crease_nagata = ~(ok[0::2] & ok[1::2]) | self._curve_guard()
+
+    @staticmethod
+    def _chain_frame(tangent: np.ndarray, x0: np.ndarray, pts: np.ndarray, mask: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """Offset directions ``(n1, n2)`` ``(S, 3)`` of curve fits at ``x0`` along unit chords ``tangent``.
+
+        ``n2`` the normal of the plane through ``x0`` that best fits the chain's
+        points ``pts (S, m, 3)`` (``mask``), ``n1 = n2 x tangent`` in it: a planar
+        curve's offset is all along ``n1`` (its circle fit, :func:`fit_curves`);
+        an arbitrary frame where the chain is (nearly) straight.
+        """
+        n1, n2 = _frame(tangent)
+        d = np.where(mask[..., None], pts - x0[:, None, :], 0.0)
+        _, sv, vt = np.linalg.svd(d)
+        b = vt[:, 2] - np.einsum("si,si->s", vt[:, 2], tangent)[:, None] * tangent
+        nb = np.linalg.norm(b, axis=1)
+        ok = (mask.sum(axis=1) >= 2) & (sv[:, 1] > 1e-6 * np.maximum(sv[:, 0], 1e-300)) & (nb > 0.5)
+        b = b / np.where(nb > 0, nb, 1.0)[:, None]
+        m = np.cross(b, tangent)
+        return np.where(ok[:, None], m, n1), np.where(ok[:, None], b, n2)
+
+    def _crease_side_normals(self, cr: np.ndarray, E: np.ndarray) -> np.ndarray:
+        """``(C, 2, 2, 3)``: at each end ``k`` of crease edges ``E (C, 2)``, the corner normals of its two facets."""
+        vid, rf = self.corners.vertex, self.corners.ridge_facets[cr]
+        out = np.zeros((len(cr), 2, 2, 3))
+        for side in (0, 1):
+            f = rf[:, side]
+            for k in (0, 1):
+                out[:, k, side] = self.corner_normal[f, np.argmax(vid[f] == E[:, k, None], axis=1)]
+        return out
 
     def _curve_top(self) -> int:
         """Degree of the crease curve fits: ``degree``, and at least 4 (even): the offsets of a
@@ -312,7 +357,7 @@ class FittedGeometry(NagataGeometry):
         rows = np.arange(len(cr))
         lam[rows, :, pa] = 1.0 - t
         lam[rows, :, pb] = t
-        X = np.einsum("pkv,pvi->pki", lam, self.x[f])
+        X = np.matmul(lam, self.x[f])
         nag = patches.evaluate(self.x[f], self.coef[f], lam)
         fit = self._crease_curve(np.arange(len(cr)), np.broadcast_to(1.0 - t, (len(cr), len(t))), X)
         tol = GUARD * np.linalg.norm(nag - X, axis=2) + 1e-9 * self._hv[rv[:, :1]]
@@ -332,20 +377,13 @@ class FittedGeometry(NagataGeometry):
             text += f", {int(self._use_nagata.sum())} sectors on Nagata patches (guard)"
         if len(self.curve_degree):
             text += f", crease ends {counts(self.curve_degree)}"
+            if self.curve_circle.any():
+                text += f" ({int(self.curve_circle.sum())} circles)"
             if self._crease_nagata.any():
                 text += f", {int(self._crease_nagata.sum())} creases on Nagata curves"
         return text
 
     # ------------------------------------------------------------------
-    def _corner_height(self, patch: np.ndarray, X: np.ndarray, i: int) -> np.ndarray:
-        """Height ``(P, k)`` along its sector's normal of corner ``i``'s fit above the straight points ``X``."""
-        s = self.corners.sector[patch, i]
-        h = self._hv[self.corners.vertex[patch, i]][:, None]
-        d = (X - self.x[patch, i][:, None, :]) / h[:, :, None]
-        fr = self._frame_s[s]
-        u, v, w = ((d * fr[:, None, j]).sum(axis=2) for j in range(3))
-        return (surface_height(self._coef_s[s], self.degree, self._planar, u, v) - w) * h
-
     def _guard(self) -> np.ndarray:
         """Sectors ``(S,)`` whose fit disagrees with a neighbouring corner's by more than :data:`GUARD`.
 
@@ -364,24 +402,33 @@ class FittedGeometry(NagataGeometry):
         F = len(self.x)
         grid = GUARD_SAMPLES[nfv]
         lam = np.broadcast_to(grid, (F, *grid.shape))
-        X = np.einsum("pkv,pvi->pki", lam, self.x)
+        X = np.matmul(lam, self.x)
         dep = np.linalg.norm(patches.evaluate(self.x, self.coef, lam) - X, axis=2)
         sec, vid = self.corners.sector, self.corners.vertex
-        q = [X + self._corner_height(np.arange(F), X, i)[..., None] * self._frame_s[sec[:, i], None, 2]
-             for i in range(nfv)]
+        x0, frames, h = self.x, self._frame_s[sec], self._hv[vid]
+        coef = self._coef_s[sec]
+
+        def along(P: np.ndarray, i: int) -> np.ndarray:
+            """``(F, k, 3)`` the move from ``P`` onto corner ``i``'s fit, along its normal."""
+            one = np.zeros((F, nfv), dtype=bool)
+            one[:, i] = True
+            lam_i = np.zeros((F, P.shape[1], nfv))
+            lam_i[..., i] = 1.0
+            out = np.zeros_like(P)
+            blend_kernel(P, lam_i, x0, frames, h, coef, one, self.degree, self._planar, out)
+            return out
+
+        q = [X + along(X, i) for i in range(nfv)]
         bad = np.zeros(len(self._coef_s), dtype=bool)
         for i in range(nfv):
             for j in range(nfv):
                 if i == j:
                     continue
-                s, h = sec[:, j], self._hv[vid[:, j]][:, None]
-                loc = np.einsum("pki,pji->pkj", q[i] - self.x[:, j][:, None, :], self._frame_s[s]) / h[:, :, None]
-                r = np.abs(loc[..., 2] - surface_height(self._coef_s[s], self.degree, self._planar, loc[..., 0],
-                                                        loc[..., 1])) * h
-                tol = GUARD * dep + 1e-9 * h
+                r = np.linalg.norm(along(q[i], j), axis=2)
+                tol = GUARD * dep + 1e-9 * h[:, j, None]
                 far = ((r > tol) & (grid[None, :, i] >= 0.25)).any(axis=1)
                 np.logical_or.at(bad, sec[:, i], far)
-                np.logical_or.at(bad, s, far)
+                np.logical_or.at(bad, sec[:, j], far)
         return bad
 
     def _blend(self, patch: np.ndarray, lam: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -390,19 +437,17 @@ class FittedGeometry(NagataGeometry):
         Corners of sectors the guard refused (:meth:`_guard`) contribute the
         facet's Nagata patch point instead.
         """
-        out = X.copy()
+        out = np.ascontiguousarray(X, dtype=float).copy()
         label = self.corners.sector[patch]
         nag = self._use_nagata[label]  # (P, nfv)
+        if out.size:
+            blend_kernel(out.copy(), np.ascontiguousarray(lam, dtype=float), self.x[patch], self._frame_s[label],
+                         self._hv[self.corners.vertex[patch]], self._coef_s[label], ~nag, self.degree,
+                         self._planar, out)
         if nag.any():
             rows = np.flatnonzero(nag.any(axis=1))
             pn = patches.evaluate(self.x[patch[rows]], self.coef[patch[rows]], lam[rows]) - X[rows]
-        for i in range(lam.shape[2]):  # the facet's corners
-            s = label[:, i]
-            q = (self._corner_height(patch, X, i))[..., None] * self._frame_s[s, None, 2]
-            if nag[:, i].any():
-                r = np.flatnonzero(nag[rows, i])
-                q[rows[r]] = pn[r]
-            out += lam[..., i, None] * q
+            out[rows] += np.einsum("pkv,pv,pki->pki", lam[rows], nag[rows].astype(float), pn)
         return out
 
     def _crease_curve(self, crease: np.ndarray, wa: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -414,42 +459,85 @@ class FittedGeometry(NagataGeometry):
             h = self._hv[a][:, None]
             d = P - self._coords[a][:, None, :]
             s = np.einsum("pki,pi->pk", d, tangent[e]) / h
-            y1, y2 = (height(coef[e, j], self._curve_exps, s, 0.0 * s) for j in (0, 1))
+            y1, y2 = (surface_height(coef[e, j], self._curve_top(), True, s, 0.0 * s) for j in (0, 1))
             c = (self._coords[a][:, None, :] + (s * h)[..., None] * tangent[e][:, None, :]
                  + (y1 * h)[..., None] * n1[e][:, None, :] + (y2 * h)[..., None] * n2[e][:, None, :])
             out += w[..., None] * c
         return out
 
+    def _crease_edge(self, p: np.ndarray, lam: np.ndarray, k: int) -> tuple[np.ndarray, ...]:
+        """Where points ``lam (P, k, 3)`` of facets ``p`` fall on their crease edge opposite corner ``k``.
+
+        Returns ``(wsum, t, curve, L)``: the edge's weight ``lambda_a + lambda_b``
+        ``(P, k)``, the position ``t = lambda_b / wsum`` along the edge from its
+        corner ``a = k + 1``, the crease curve's point there ``(P, k, 3)`` (fitted,
+        or the Nagata patch's edge where :attr:`_crease_nagata`) and the edge's
+        straight vector from ``a`` to ``b`` ``(P, 3)``.
+        """
+        ia, ib = (k + 1) % 3, (k + 2) % 3
+        la, lb = lam[..., ia], lam[..., ib]
+        wsum = la + lb
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = np.where(wsum > 0, lb / wsum, 0.0)
+        le = self._edge_lam(t, k)
+        Xe = np.matmul(le, self.x[p])
+        c = self._edge_crease[p, k]
+        first = self._crease_ends[2 * c, 0] == self.corners.vertex[p, ia]
+        curve = self._crease_curve(c, np.where(first[:, None], 1.0 - t, t), Xe)
+        nag = self._crease_nagata[c]
+        if nag.any():
+            curve[nag] = patches.evaluate(self.x[p[nag]], self.coef[p[nag]], le[nag])
+        return wsum, t, curve, self.x[p, ib] - self.x[p, ia]
+
+    @staticmethod
+    def _edge_lam(t: np.ndarray, k: int) -> np.ndarray:
+        """Barycentrics ``(P, k, 3)`` of the points at ``t (P, k)`` on the edge opposite corner ``k``."""
+        le = np.zeros((*t.shape, 3))
+        le[..., (k + 1) % 3], le[..., (k + 2) % 3] = 1.0 - t, t
+        return le
+
     def evaluate(self, patch: npt.ArrayLike, lam: np.ndarray) -> np.ndarray:
-        """Points ``(P, k, 3)`` of the fitted surface over facets ``patch (P,)`` at barycentric ``lam (P, k, nfv)``."""
+        """Points ``(P, k, 3)`` of the fitted surface over facets ``patch (P,)`` at barycentric ``lam (P, k, nfv)``.
+
+        On a facet with crease edges (3D) the blend is first reparametrised
+        along each crease edge, so that its point on the edge lies at the same
+        abscissa along the edge as the crease curve's (``lambda`` moved along
+        the edge by the blend's tangential lead ``delta``, weighted by the
+        edge's ``lambda_a + lambda_b``: a shift within the surface, no error);
+        then the gap left between the curve and the blend's edge point, now
+        across the edge only, is added with the weight ``lambda_a + lambda_b``
+        (it vanishes on the other edges).  Without the shift the gap's
+        tangential part, O(h^3), was carried into the facet along a fixed
+        direction and tilted out of the surface by O(h): order 4 on the
+        cylinder's side facets at the rims.
+        """
         patch = np.asarray(patch, dtype=np.int64)
         lam = np.asarray(lam, dtype=float)
-        X = np.einsum("pkv,pvi->pki", lam, self.x[patch])
-        out = self._blend(patch, lam, X)
+        X = np.matmul(lam, self.x[patch])
         nfv = lam.shape[2]
-        if nfv == 3:
-            for k in range(3):  # crease edges (opposite corner k): meet the crease curve
-                sel = np.flatnonzero(self._edge_crease[patch, k] >= 0)
+        edges = [np.flatnonzero(self._edge_crease[patch, k] >= 0) for k in range(3)] if nfv == 3 else []
+        if not any(len(sel) for sel in edges):
+            out = self._blend(patch, lam, X)
+        else:
+            lam2 = lam.copy()
+            found = []
+            for k, sel in enumerate(edges):  # the blend's lead along each crease edge over the curve
                 if len(sel) == 0:
                     continue
                 p = patch[sel]
-                ia, ib = (k + 1) % 3, (k + 2) % 3
-                la, lb = lam[sel][..., ia], lam[sel][..., ib]
-                wsum = la + lb
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    t = np.where(wsum > 0, lb / wsum, 0.0)
-                le = np.zeros_like(lam[sel])
-                le[..., ia], le[..., ib] = 1.0 - t, t
-                Xe = np.einsum("pkv,pvi->pki", le, self.x[p])
-                c = self._edge_crease[p, k]
-                first = self._crease_ends[2 * c, 0] == self.corners.vertex[p, ia]
-                wa = np.where(first[:, None], 1.0 - t, t)
-                curve = self._crease_curve(c, wa, Xe)
-                nag = self._crease_nagata[c]
-                if nag.any():
-                    curve[nag] = patches.evaluate(self.x[p[nag]], self.coef[p[nag]], le[nag])
-                gap = curve - self._blend(p, le, Xe)
-                out[sel] += wsum[..., None] * gap
+                wsum, t, curve, E = self._crease_edge(p, lam[sel], k)
+                le = self._edge_lam(t, k)
+                Se = self._blend(p, le, np.matmul(le, self.x[p]))
+                L2 = np.einsum("pi,pi->p", E, E)[:, None]
+                shift = np.einsum("pki,pi->pk", Se - curve, E) / L2  # in units of t
+                lam2[sel, :, (k + 1) % 3] += wsum * shift
+                lam2[sel, :, (k + 2) % 3] -= wsum * shift
+                found.append((k, sel, wsum, t - shift, curve))
+            out = self._blend(patch, lam2, np.matmul(lam2, self.x[patch]))
+            for k, sel, wsum, t2, curve in found:  # crease edges: meet the crease curve
+                p = patch[sel]
+                le = self._edge_lam(t2, k)
+                out[sel] += wsum[..., None] * (curve - self._blend(p, le, np.matmul(le, self.x[p])))
         # bounded departure from the straight facet
         D = out - X
         bound = FIT_BOUND * np.einsum("pkv,pv->pk", lam, self._hv[self.corners.vertex[patch]])

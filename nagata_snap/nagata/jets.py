@@ -51,6 +51,7 @@ or the fit leaves the cone of its own facets' normals (see there).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse
 
@@ -201,6 +202,98 @@ def _basis(u: np.ndarray, v: np.ndarray, w: np.ndarray, degree: int, planar: boo
     return np.stack([*cols, u, v], axis=-1), high
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _householder_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, rows: np.ndarray, pen: np.ndarray,
+                       x: np.ndarray) -> None:  # pragma: no cover (compiled)
+    """Minimisers ``x[r] (q,)`` of ``sum_m wt (P c - z)^2 + sum_j pen_j^2 (c_j / scale_j)^2`` for ``r`` in ``rows``.
+
+    ``P (S, M, q)``, ``z, wt (S, M)``; the columns of ``sqrt(wt) P`` are scaled
+    to unit norm (``x`` is returned unscaled), ``pen (q,)`` the weights of the
+    penalty rows (0: none) on the scaled coefficients.  Householder QR of the
+    scaled design and its penalty rows, back substitution; where an ``|R_jj|``
+    is at most ``1e-10`` of the largest, ``x[r]`` is NaN (the caller's rank test).
+    """
+    _, M, q = P.shape
+    npen = 0
+    for j in range(q):
+        if pen[j] != 0.0:
+            npen += 1
+    a = np.empty((q, M + npen))  # the scaled design, transposed: columns contiguous
+    y = np.empty(M + npen)
+    scale = np.empty(q)
+    diag = np.empty(q)
+    for r in rows:
+        m = 0  # rows of weight 0 (padding, points weighted out) change nothing: left out
+        for i in range(M):
+            if wt[r, i] > 0.0:
+                sw = np.sqrt(wt[r, i])
+                y[m] = sw * z[r, i]
+                for j in range(q):
+                    a[j, m] = sw * P[r, i, j]
+                m += 1
+        N = m + npen
+        for j in range(q):
+            nrm = 0.0
+            for i in range(m):
+                nrm += a[j, i] * a[j, i]
+            scale[j] = 1.0 / np.sqrt(nrm) if nrm > 0.0 else 1.0
+            for i in range(m):
+                a[j, i] *= scale[j]
+        k = m
+        for j in range(q):  # penalty rows
+            if pen[j] != 0.0:
+                for jj in range(q):
+                    a[jj, k] = 0.0
+                a[j, k] = pen[j]
+                y[k] = 0.0
+                k += 1
+        if q > N:  # fewer equations than unknowns: not determined
+            x[r] = np.nan
+            continue
+        for j in range(q):
+            aj = a[j]
+            nrm = 0.0
+            for i in range(j, N):
+                nrm += aj[i] * aj[i]
+            nrm = np.sqrt(nrm)
+            if nrm == 0.0:
+                diag[j] = 0.0
+                continue
+            alpha = -nrm if aj[j] >= 0.0 else nrm
+            vv = 2.0 * nrm * (nrm + abs(aj[j]))  # |v|^2, v = a[j:, j] - alpha e_j
+            aj[j] -= alpha
+            for kk in range(j + 1, q):
+                ak = a[kk]
+                dot = 0.0
+                for i in range(j, N):
+                    dot += aj[i] * ak[i]
+                f = 2.0 * dot / vv
+                for i in range(j, N):
+                    ak[i] -= f * aj[i]
+            dot = 0.0
+            for i in range(j, N):
+                dot += aj[i] * y[i]
+            f = 2.0 * dot / vv
+            for i in range(j, N):
+                y[i] -= f * aj[i]
+            aj[j] = alpha
+            diag[j] = abs(alpha)
+        top, low = 0.0, np.inf
+        for j in range(q):
+            top = max(top, diag[j])
+            low = min(low, diag[j])
+        if top == 0.0 or low <= 1e-10 * top:
+            x[r] = np.nan
+            continue
+        for j in range(q - 1, -1, -1):
+            acc = y[j]
+            for kk in range(j + 1, q):
+                acc -= a[kk, j] * x[r, kk]
+            x[r, j] = acc / a[j, j]
+        for j in range(q):
+            x[r, j] *= scale[j]
+
+
 def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarray, linear: int) -> np.ndarray:
     """Minimisers ``c (S, q)`` of ``sum_m wt (P c - z)^2 + PENALTY |c_high|^2`` (columns scaled).
 
@@ -212,29 +305,23 @@ def _weighted_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, high: np.ndarr
     quadric (2D: circle) is still fitted exactly.  Where even the quadratic
     terms are not determined (a face one or two facets wide: all points on
     two lines), every term but the last ``linear`` ones is penalised.
-    Solved by a batched QR of the augmented design (no squared condition
-    number).  Stencils whose linear terms are not determined give NaN.
+    Solved by Householder QR of the scaled design and its penalty rows (no
+    squared condition number; compiled, :func:`_householder_lstsq`).
+    Stencils whose linear terms are not determined give NaN.
     """
-    S, _, q = P.shape
-    A = np.sqrt(wt)[..., None] * P
-    norm = np.linalg.norm(A, axis=1)
-    scale = 1.0 / np.where(norm > 0, norm, 1.0)  # (S, q)
-    rhs = np.concatenate([np.sqrt(wt) * z, np.zeros((S, q))], axis=1)
+    S, M, q = P.shape
     c = np.full((S, q), np.nan)
     todo = np.arange(S)
+    P, z, wt = (np.ascontiguousarray(np.broadcast_to(v, shape), dtype=float)
+                for v, shape in ((P, (S, M, q)), (z, (S, M)), (wt, (S, M))))
     for pen in (high, np.arange(q) < q - linear):
-        aug = np.concatenate([A[todo] * scale[todo, None, :], np.broadcast_to(
-            np.sqrt(PENALTY) * np.diag(pen.astype(float)), (len(todo), q, q))], axis=1)
-        Q, R = np.linalg.qr(aug)
-        y = np.einsum("smq,sm->sq", Q, rhs[todo])
-        diag = np.abs(np.einsum("sqq->sq", R))
-        ok = diag.min(axis=1) > 1e-10 * diag.max(axis=1)
-        if ok.any():
-            c[todo[ok]] = np.linalg.solve(R[ok], y[ok, :, None])[..., 0]
-        todo = todo[~ok]
+        if q > M and not pen.any():  # fewer points than terms and no penalty: not determined
+            continue
+        _householder_lstsq(P, z, wt, todo, np.sqrt(PENALTY) * pen.astype(float), c)
+        todo = todo[~np.isfinite(c[todo]).all(axis=1)]
         if len(todo) == 0:
             break
-    return scale * c
+    return c
 
 
 def fit_normals(
