@@ -96,3 +96,38 @@ def test_band_blocks_match_numpy(d: int, model: str) -> None:
     rows = np.repeat(np.arange(nf), np.diff(indptr))
     assert np.array_equal(rows * nf + cols, key[start])
     _close(blocks, ref)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_hessian_pattern_matches_broadcast(d: int) -> None:
+    # some vertices move (variable blocks >= 0), the others not (-1)
+    _, cells = _mesh(d)
+    rng = np.random.default_rng(5)
+    n = int(cells.max()) + 1
+    var_node = np.where(rng.random(n) < 0.5, np.arange(n), -1)
+    cv = var_node[cells]
+    pos, rows, cols = kernels.hessian_pattern(np.ascontiguousarray(cv), d)
+    # the numpy broadcast over (m, v, c, w, e) that the kernel replaces
+    ii = cv[:, :, None, None, None] * d + np.arange(d)[None, None, :, None, None]
+    jj = cv[:, None, None, :, None] * d + np.arange(d)[None, None, None, None, :]
+    ok = (cv[:, :, None, None, None] >= 0) & (cv[:, None, None, :, None] >= 0)
+    ii, jj = np.broadcast_arrays(ii, jj)
+    ok = np.broadcast_to(ok, ii.shape)
+    assert np.array_equal(pos, np.flatnonzero(ok.ravel()))
+    assert np.array_equal(rows, ii[ok]) and np.array_equal(cols, jj[ok])
+    assert pos.size > 0 and pos.size < ok.size
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_graph_sums_match_dense_laplacian(d: int) -> None:
+    # the off-diagonal part of the graph Laplacian (edge weight = cells sharing it), built densely
+    x, cells = _mesh(d)
+    n = x.shape[0]
+    W = np.zeros((n, n))
+    for cell in cells:
+        for a in cell:
+            for b in cell:
+                if a != b:
+                    W[a, b] += 1.0
+    u = np.random.default_rng(7).standard_normal((n, d))
+    _close(kernels.graph_sums(cells, u), W @ u)

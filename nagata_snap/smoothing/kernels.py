@@ -31,7 +31,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks"]
+__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_pattern",
+           "graph_sums", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: per-cell helpers, inlined into their callers (numba IR), so that a call with a
@@ -357,3 +358,99 @@ def band_blocks(G: np.ndarray, w: np.ndarray, row: np.ndarray, col: np.ndarray, 
                         else:
                             blk[i, j] += mu * ((tr if i == j else 0.0) + P[j, i]) + lmbda * P[i, j]
     return indptr, cols, blocks
+
+
+@_jit
+def hessian_pattern(var: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the cell Hessians of :func:`energy_terms` land in the matrix of the moving variables.
+
+    Args:
+        var: ``(m, nv)`` variable block of each cell vertex (-1: the vertex does not move).
+        d: components per vertex.
+
+    Returns:
+        ``(pos, rows, cols)`` (each ``(p,)`` int64): for every entry
+        ``[k, v, c, w, e]`` of the ``(m, nv, d, nv, d)`` Hessian array whose
+        vertices ``v`` and ``w`` both move, in C order, its flat position in
+        that array and its matrix row ``d var[k, v] + c`` and column
+        ``d var[k, w] + e`` (the numpy broadcast it replaces needed five
+        ``(m, nv, d, nv, d)`` temporaries).
+    """
+    m, nv = var.shape
+    p = 0
+    for k in range(m):
+        cnt = 0
+        for v in range(nv):
+            if var[k, v] >= 0:
+                cnt += 1
+        p += cnt * cnt * d * d
+    pos = np.empty(p, dtype=np.int64)
+    rows = np.empty(p, dtype=np.int64)
+    cols = np.empty(p, dtype=np.int64)
+    t = 0
+    for k in range(m):
+        for v in range(nv):
+            rv = var[k, v]
+            if rv < 0:
+                continue
+            for c in range(d):
+                for w in range(nv):
+                    rw = var[k, w]
+                    if rw < 0:
+                        continue
+                    for e in range(d):
+                        pos[t] = (((k * nv + v) * d + c) * nv + w) * d + e
+                        rows[t] = rv * d + c
+                        cols[t] = rw * d + e
+                        t += 1
+    return pos, rows, cols
+
+
+@_jit
+def graph_sums(cells: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``(k, g)``: at each node, the sum over its cells of their other vertices' ``u``.
+
+    ``cells (nc, nv)`` node indices ``0..k-1``, ``u (k, g)``: the product of
+    the graph-Laplacian's off-diagonal part (edge weight = cells sharing the
+    edge) with ``u``, one pass over the cells, no ``(nc, nv, g)`` temporary.
+    """
+    nc, nv = cells.shape
+    k, g = u.shape
+    out = np.zeros((k, g))
+    s = np.empty(g)
+    for q in range(nc):
+        for c in range(g):
+            t = 0.0
+            for v in range(nv):
+                t += u[cells[q, v], c]
+            s[c] = t
+        for v in range(nv):
+            a = cells[q, v]
+            for c in range(g):
+                out[a, c] += s[c] - u[a, c]
+    return out
+
+
+def warm_up() -> None:
+    """Load every kernel's machine code (from numba's cache) with the argument types the guard uses.
+
+    numba loads a cached kernel at its first call, about 0.7 s for the first
+    one in a process (numba's own set-up) and a few milliseconds for each
+    later one; :class:`~nagata_snap.snapper.Snapper` calls this once when
+    it is built, so that the cost is the process's, not a level's.
+    """
+    for d in (2, 3):
+        nv = d + 1
+        x = np.eye(nv, d, -1)  # (nv, d): the origin and the unit vectors
+        cells = np.arange(nv, dtype=np.int64)[None, :]
+        B = np.ascontiguousarray(np.concatenate([-np.ones((1, d)), np.eye(d)])[None])
+        ones = np.ones((1, nv))
+        energy_terms(x, cells, B, 1e-4, True, ones)
+        energy_value(x, cells, B, 1e-4)
+        x3 = np.zeros((nv, 3))
+        x3[:, :d] = x
+        volume_mean_ratio(x3, cells.astype(np.int32), d)
+        hessian_pattern(cells, d)
+        graph_sums(cells, x)
+        G = np.ascontiguousarray(B.transpose(0, 1, 2))
+        band_blocks(G, np.ones(1), cells, cells, 0, 0.5, 0.5, nv, nv)

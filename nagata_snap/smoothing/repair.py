@@ -21,12 +21,15 @@ and stops at the first that leaves no bad cell:
     compares the changed cells' quality with and without the elastic
     solve everywhere).
 ``optimise`` (:func:`_optimise`)
-    No cell is bad, but some changed cells are *poor* (their mean ratio fell
-    below :data:`POOR_RATIO` of the straight cell's): one attempt of the
-    optimiser below on their neighbourhood, kept if it helps.  Not with
+    No cell is bad (after the smooth stage, or after the untangle / slide
+    stages below), but some changed cells are *poor* (their mean ratio fell
+    below :data:`POOR_RATIO` of the straight cell's): the optimiser below
+    moves the nodes of the poor cells (:data:`OPTIMISE_LAYERS`), in passes
+    over the cells still poor (an active set that shrinks,
+    :data:`OPTIMISE_PASSES`), each kept if it helps.  Not with
     ``method='none'`` (no interior motion unless a cell is bad).
 ``untangle`` (:func:`_untangle`)
-    The neighbourhood of the bad (and poor) cells (:data:`UNTANGLE_LAYERS`
+    The neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
     vertex layers, wider while that helps, within a size budget) is gathered
     (:class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`) and its interior
     nodes are moved by the simultaneous untangling and shape optimisation
@@ -121,6 +124,11 @@ FIRST_SWEEPS = 8
 #: Vertex layers around the bad / poor cells within which moved vertices
 #: drive the local elastic solve after the sweeps.
 ELASTIC_NEAR = 2
+#: Vertex layers around the poor cells whose nodes the optimise stage moves
+#: (1: the poor cells' own nodes; the cells around them enter the objective).
+OPTIMISE_LAYERS = 1
+#: Passes of the optimise stage, each over the cells still poor after the last.
+OPTIMISE_PASSES = 3
 
 
 @dataclasses.dataclass
@@ -392,20 +400,35 @@ class _Local:
 def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
     """Stage ``optimise``: the mesh is valid but some changed cells are poor; improve them.
 
-    One attempt on the neighbourhood of the poor cells; kept if it leaves no
-    bad cell and raises the worst quality ratio ``q / q_ref``.
+    An active set that shrinks: each pass (at most :data:`OPTIMISE_PASSES`)
+    moves the nodes within :data:`OPTIMISE_LAYERS` of the cells poor after
+    the pass before (the nodes of the poor cells themselves with the
+    default), and is kept if it leaves no bad cell, no lower worst quality
+    ratio ``q / q_ref`` and no more poor cells, and improves one of the two;
+    the passes stop when one is not kept or the poor cells no longer get
+    fewer.  Returns ``(x, kept)``: ``kept`` if any pass was.
     """
-    t0 = time.perf_counter()
-    worst = g.worst
-    loc = _Local(g, g.poor, UNTANGLE_LAYERS[0] + 1)
-    free = (loc.distance(g, g.poor) < UNTANGLE_LAYERS[0]) & ~loc.constrained
-    xn, _ = loc.run(g, x, free)
-    _, nb = g.check(xn)
-    keep = nb == 0 and g.worst > worst
-    g.log("optimise", t0, nb, layers=UNTANGLE_LAYERS[0], cells=loc.cells_moving(free),
-          nodes=int(free.sum()), worst=g.worst, kept=keep)
-    add_time(g.timings, "optimise", g.attempts[-1]["seconds"])
-    return (xn, True) if keep else (x, False)
+    t_stage = time.perf_counter()
+    kept_any = False
+    for _ in range(OPTIMISE_PASSES):
+        t0 = time.perf_counter()
+        worst, n_poor, poor = g.worst, g.n_poor, g.poor
+        loc = _Local(g, poor, OPTIMISE_LAYERS + 1)
+        free = (loc.distance(g, poor) < OPTIMISE_LAYERS) & ~loc.constrained
+        xn, _ = loc.run(g, x, free)
+        _, nb = g.check(xn)
+        keep = (nb == 0 and g.worst >= worst and g.n_poor <= n_poor
+                and (g.worst > worst or g.n_poor < n_poor))
+        g.log("optimise", t0, nb, layers=OPTIMISE_LAYERS, cells=loc.cells_moving(free),
+              nodes=int(free.sum()), worst=g.worst, poor=int(g.n_poor), kept=bool(keep))
+        if not keep:
+            g.check(x)  # (restores poor, n_poor and worst of x)
+            break
+        x, kept_any = xn, True
+        if g.n_poor == 0 or g.n_poor == n_poor:
+            break
+    add_time(g.timings, "optimise", time.perf_counter() - t_stage)
+    return x, kept_any
 
 
 def _pinned(g: _Guard, x: np.ndarray, bad: np.ndarray) -> int:
@@ -444,7 +467,7 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: b
     n_mesh = g.mesh.topology.index_map(g.mesh.topology.dim).size_global
     for k, layers in enumerate(UNTANGLE_LAYERS):
         t0 = time.perf_counter()
-        seeds = bad | g.poor  # poor cells nearby are improved as well
+        seeds = bad  # (the poor cells are the optimise stage's, after the untangling)
         if loc is None or loc.layers <= layers:
             wider = _Local(g, seeds, layers + 1)
             if k and wider.nbh.n_cells > max(MAX_REGION_FRACTION * n_mesh, MAX_REGION_CELLS):
@@ -718,9 +741,6 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
     stage = "stiffen" if any(a["stage"] == "stiffen" for a in g.attempts) else "smooth"
     alpha = np.ones(g.sync.n)
     try:
-        if nbad == 0 and untangle and g.n_poor and method != "none":
-            x, kept = _optimise(g, x)
-            stage = "optimise" if kept else stage
         if nbad and untangle:
             # interior motion first, unless some bad cells need the boundary to move
             if slide is None or _pinned(g, x, bad) == 0:
@@ -731,6 +751,9 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
             if nbad and slide is not None:
                 x, bad, nbad = _slide(g, x, bad, nbad, loc, slide)
                 stage = "slide"
+        if nbad == 0 and untangle and g.n_poor and method != "none":
+            x, kept = _optimise(g, x)
+            stage = "optimise" if kept and stage == "smooth" else stage
         if nbad and allow_partial:
             x, alpha, bad, nbad = _partial(g, x, bad, nbad, sm, min_fraction, bisection_steps,
                                            implicate_layers, max_rounds)
