@@ -131,3 +131,28 @@ def test_graph_sums_match_dense_laplacian(d: int) -> None:
                     W[a, b] += 1.0
     u = np.random.default_rng(7).standard_normal((n, d))
     _close(kernels.graph_sums(cells, u), W @ u)
+
+
+@pytest.mark.parametrize("amp", [0.0, 0.3, 0.9])
+def test_tet_shapes_match_numpy(amp: float) -> None:
+    # valid, strongly distorted and inverted tetrahedra, and one flat cell
+    from nagata_snap.mesh.simplex import edge_components, signed_volumes_of, vertex_components
+    from nagata_snap.smoothing.quality import _tetrahedron_shapes
+
+    x, cells = _mesh(3)
+    rng = np.random.default_rng(11)
+    xp = x + amp * 0.25 * rng.standard_normal(x.shape)
+    xp[cells[0, 3]] = 0.5 * (xp[cells[0, 1]] + xp[cells[0, 2]])  # cell 0 flat
+    vol, amin, amax, rr, l2s = kernels.tet_shapes(xp, cells)
+    P = vertex_components(xp, cells, 3)
+    ref_vol = signed_volumes_of(P)
+    ev = edge_components(P)
+    l2 = [np.einsum("i...,i...->...", np.array(e), np.array(e)) for e in ev]
+    ref = _tetrahedron_shapes(ev, l2, ref_vol)
+    if amp > 0.5:
+        assert np.count_nonzero(ref_vol < 0) > 0
+    _close(vol, ref_vol)
+    for a, b in zip((amin, amax, rr), ref, strict=True):
+        _close(a, b)
+    _close(l2s, sum(l2))
+    assert rr[0] == pytest.approx(0.0, abs=1e-12)

@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 __all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_pattern",
-           "graph_sums", "warm_up"]
+           "graph_sums", "tet_shapes", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: per-cell helpers, inlined into their callers (numba IR), so that a call with a
@@ -431,6 +431,77 @@ def graph_sums(cells: np.ndarray, u: np.ndarray) -> np.ndarray:
     return out
 
 
+@_inline
+def _cross_into(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@_jit
+def tet_shapes(x: np.ndarray, cells: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(signed volume, min and max dihedral angle [rad], radius ratio, sum of squared edges)`` (each ``(m,)``).
+
+    The formulas of ``quality._tetrahedron_shapes`` (``x (n, 3)``,
+    ``cells (m, 4)``), one cell at a time: the dihedral angles from the
+    cosines between the cofactor vectors of the faces (a zero-area face
+    counts as cosine 1), the radius ratio ``216 V^2 / (S sqrt(P))`` (0 where
+    it is not finite).
+    """
+    m = cells.shape[0]
+    vol, amin, amax = np.empty(m), np.empty(m), np.empty(m)
+    rr, l2s = np.empty(m), np.empty(m)
+    p = np.empty((4, 3))
+    e = np.empty((6, 3))
+    cof = np.empty((4, 3))
+    nrm = np.empty(4)
+    le = np.empty(6)
+    ea = np.array([0, 0, 0, 1, 1, 2])  # TET_EDGES
+    eb = np.array([1, 2, 3, 2, 3, 3])
+    fa = np.array([2, 1, 1, 0, 0, 0])  # TET_EDGE_FACETS
+    fb = np.array([3, 3, 2, 3, 2, 1])
+    for k in range(m):
+        for v in range(4):
+            for c in range(3):
+                p[v, c] = x[cells[k, v], c]
+        l2 = 0.0
+        for q in range(6):
+            t = 0.0
+            for c in range(3):
+                e[q, c] = p[eb[q], c] - p[ea[q], c]
+                t += e[q, c] * e[q, c]
+            le[q] = np.sqrt(t)
+            l2 += t
+        _cross_into(e[1], e[2], cof[1])
+        _cross_into(e[2], e[0], cof[2])
+        _cross_into(e[0], e[1], cof[3])
+        for c in range(3):
+            cof[0, c] = -(cof[1, c] + cof[2, c] + cof[3, c])
+        V = (e[0, 0] * cof[1, 0] + e[0, 1] * cof[1, 1] + e[0, 2] * cof[1, 2]) / 6.0
+        for f in range(4):
+            nrm[f] = np.sqrt(cof[f, 0] ** 2 + cof[f, 1] ** 2 + cof[f, 2] ** 2)
+        cmin, cmax = np.inf, -np.inf
+        for q in range(6):
+            den = nrm[fa[q]] * nrm[fb[q]]
+            cs = 1.0
+            if den > 0:
+                cs = (cof[fa[q], 0] * cof[fb[q], 0] + cof[fa[q], 1] * cof[fb[q], 1]
+                      + cof[fa[q], 2] * cof[fb[q], 2]) / den
+            cmin = min(cmin, cs)
+            cmax = max(cmax, cs)
+        amin[k] = np.pi - np.arccos(min(max(cmin, -1.0), 1.0))
+        amax[k] = np.pi - np.arccos(min(max(cmax, -1.0), 1.0))
+        S = 0.5 * (nrm[0] + nrm[1] + nrm[2] + nrm[3])
+        a, b, c3 = le[0] * le[5], le[1] * le[4], le[2] * le[3]
+        Pp = (a + b + c3) * (a + b - c3) * (a - b + c3) * (-a + b + c3)
+        r = 216.0 * V * V / (S * np.sqrt(max(Pp, 0.0)))
+        rr[k] = r if np.isfinite(r) else 0.0
+        vol[k] = V
+        l2s[k] = l2
+    return vol, amin, amax, rr, l2s
+
+
 def warm_up() -> None:
     """Load every kernel's machine code (from numba's cache) with the argument types the guard uses.
 
@@ -452,5 +523,7 @@ def warm_up() -> None:
         volume_mean_ratio(x3, cells.astype(np.int32), d)
         hessian_pattern(cells, d)
         graph_sums(cells, x)
+        if d == 3:
+            tet_shapes(x3, cells)
         G = np.ascontiguousarray(B.transpose(0, 1, 2))
         band_blocks(G, np.ones(1), cells, cells, 0, 0.5, 0.5, nv, nv)

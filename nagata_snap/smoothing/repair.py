@@ -24,9 +24,9 @@ and stops at the first that leaves no bad cell:
     No cell is bad (after the smooth stage, or after the untangle / slide
     stages below), but some changed cells are *poor* (their mean ratio fell
     below :data:`POOR_RATIO` of the straight cell's): the optimiser below
-    moves the nodes of the poor cells (:data:`OPTIMISE_LAYERS`), in passes
-    over the cells still poor (an active set that shrinks,
-    :data:`OPTIMISE_PASSES`), each kept if it helps.  Not with
+    moves the nodes near the poor cells (:data:`OPTIMISE_LAYERS`), in passes
+    over the cells that became poor in the pass before (an active set that
+    shrinks, :data:`OPTIMISE_PASSES`), each kept if it helps.  Not with
     ``method='none'`` (no interior motion unless a cell is bad).
 ``untangle`` (:func:`_untangle`)
     The neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
@@ -88,12 +88,11 @@ from nagata_snap.mesh.simplex import (
     cells_touching,
     facet_normal_vectors,
     local_facet_vertices,
-    signed_volumes,
 )
 from nagata_snap.smoothing.band import auto_layers, expand, max_layers, prepare
 from nagata_snap.smoothing.kernels import volume_mean_ratio
 from nagata_snap.smoothing.neighbourhood import Neighbourhood, layer_distance
-from nagata_snap.smoothing.quality import QualityReport, inverted_mask, mean_ratio
+from nagata_snap.smoothing.quality import QualityReport, inverted_mask
 from nagata_snap.smoothing.slide import SlideFacets, SlidingBoundary
 from nagata_snap.smoothing.smooth import Smoother, add_time, smooth_options
 from nagata_snap.smoothing.untangle import optimise, targets, volume_ratio_min
@@ -125,9 +124,11 @@ FIRST_SWEEPS = 8
 #: drive the local elastic solve after the sweeps.
 ELASTIC_NEAR = 2
 #: Vertex layers around the poor cells whose nodes the optimise stage moves
-#: (1: the poor cells' own nodes; the cells around them enter the objective).
-OPTIMISE_LAYERS = 1
-#: Passes of the optimise stage, each over the cells still poor after the last.
+#: (1: the poor cells' own nodes, 2: and their neighbours'; the 5th
+#: percentile of the changed cells' quality needs 2, benchmarks/guard_quality.py).
+OPTIMISE_LAYERS = 2
+#: Passes of the optimise stage: the first over the poor cells, each later one
+#: over the cells that became poor in the pass before.
 OPTIMISE_PASSES = 3
 
 
@@ -185,6 +186,7 @@ class _Guard:
         self.gdim = mesh.geometry.dim
         self.sync, self.x_ref, self.moved_mask, self.fixed_mask = prepare(
             mesh, x_ref, moved, fixed, bool(opts["fix_boundary"]))
+        self.x_ref = np.ascontiguousarray(self.x_ref)  # (the compiled check's layout)
         x_target = np.asarray(x_target, dtype=np.float64)
         if x_target.shape != self.x_ref.shape:
             raise ValueError(f"x_target must have shape {self.x_ref.shape}, got {x_target.shape}")
@@ -201,6 +203,11 @@ class _Guard:
         n = self.cells.shape[0]
         self._v_ref, self._q_floor, self._q_ref = np.empty(n), np.empty(n), np.empty(n)
         self._have_ref = np.zeros(n, dtype=bool)
+        # the check's cache: volume and mean ratio of cells at the coordinates _x_at
+        # (valid where _have), so a check recomputes only the cells whose nodes moved
+        self._vol, self._q = np.empty(n), np.empty(n)
+        self._have = np.zeros(n, dtype=bool)
+        self._x_at = self.x_ref.copy()
         self._pool_key: np.ndarray | None = None
         self.timings: dict[str, float] = {}
         self.attempts: list[dict] = []
@@ -213,9 +220,8 @@ class _Guard:
     def _ref_data(self, cand: np.ndarray) -> None:
         need = cand[~self._have_ref[cand]]
         if need.size:
-            sub = self.cells[need]
-            self._v_ref[need] = signed_volumes(self.x_ref, sub, self.gdim)
-            self._q_ref[need] = mean_ratio(self.x_ref, sub, self.gdim)
+            self._v_ref[need], self._q_ref[need] = volume_mean_ratio(self.x_ref, self.cells[need],
+                                                                     self.gdim)
             self._q_floor[need] = np.minimum(self.min_quality, 0.5 * self._q_ref[need])
             self._have_ref[need] = True
 
@@ -237,12 +243,12 @@ class _Guard:
             pc = self.cells[pool]
             self._pool = (pool, cell_columns(pc), np.unique(pc))
         pool, pcols, nodes = self._pool
+        xn = x[nodes]
         changed = np.zeros(x.shape[0], dtype=bool)
-        changed[nodes] = np.any(x[nodes] != self.x_ref[nodes], axis=1)
+        changed[nodes] = np.any(xn != self.x_ref[nodes], axis=1)
         cand = pool[cells_touching(changed, pcols)]
         self._ref_data(cand)
-        vol, q = volume_mean_ratio(np.ascontiguousarray(x, dtype=np.float64), self.cells[cand],
-                                   self.gdim)
+        vol, q = self._measures(x, xn, pool, pcols, nodes, cand)
         badc = inverted_mask(vol, self._v_ref[cand], self.rel_floor)
         if self.min_quality > 0:
             badc |= q < self._q_floor[cand]
@@ -258,6 +264,33 @@ class _Guard:
         self.worst = self.comm.allreduce(float(ratio[own_c].min(initial=1.0)), op=mpi4py.MPI.MIN)
         add_time(self.timings, "check", time.perf_counter() - t0)
         return bad, int(nbad)
+
+    def _measures(self, x: np.ndarray, xn: np.ndarray, pool: np.ndarray, pcols: list[np.ndarray],
+                  nodes: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed volumes and mean ratios ``(k,)`` of the cells ``cand`` at ``x`` (the check's cache).
+
+        Only cells with a node whose coordinates differ from those of the
+        cached value (or without one) are computed (compiled kernel); ``xn``
+        is ``x[nodes]``, the pool's nodes.
+        """
+        moved = np.zeros(x.shape[0], dtype=bool)
+        moved[nodes] = np.any(xn != self._x_at[nodes], axis=1)
+        self._have[pool[cells_touching(moved, pcols)]] = False
+        self._x_at[nodes] = xn
+        need = cand[~self._have[cand]]
+        if need.size:
+            self._vol[need], self._q[need] = volume_mean_ratio(
+                np.ascontiguousarray(x, dtype=np.float64), self.cells[need], self.gdim)
+            self._have[need] = True
+        return self._vol[cand], self._q[cand]
+
+    def state(self) -> tuple[np.ndarray, int, float]:
+        """What :meth:`check` sets besides its result: ``(poor, n_poor, worst)``."""
+        return self.poor, self.n_poor, self.worst
+
+    def restore(self, state: tuple[np.ndarray, int, float]) -> None:
+        """Set ``poor, n_poor, worst`` back to those of an earlier :meth:`state`."""
+        self.poor, self.n_poor, self.worst = state
 
     def log(self, stage: str, t0: float, n_bad: int, **info: Any) -> None:
         """Record one attempt (``seconds``: wall time since ``t0``, max over processes)."""
@@ -308,7 +341,7 @@ def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[floa
         g.log("smooth" if k == 0 else "stiffen", t0, nbad, method=meth, exponent=oo["exponent"],
               layers=max_layers(oo["layers"], g.comm), cells=band.n_cells_global if band else 0,
               nodes=band.n_free_global if band else 0, **extra)
-        if k == 0 and meth != method and (nbad or g.n_poor):
+        if k == 0 and meth != method and nbad:
             x, bad, nbad = _elastic_near(g, x, bad, nbad, o)
         if nbad == 0:
             break
@@ -327,13 +360,12 @@ def _elastic_near(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, o: dict[
     not lower the worst quality ratio.
     """
     t0 = time.perf_counter()
-    seeds = bad | g.poor
     mark = np.zeros(g.sync.n, dtype=bool)
-    mark[g.cells[seeds].reshape(-1)] = True
+    mark[g.cells[bad].reshape(-1)] = True
     near, _, _ = expand(g.cells, g.sync.any(mark), ELASTIC_NEAR, g.sync, g.cols)
     moved = g.moved_mask & near
     fixed = g.fixed_mask | (g.moved_mask & ~near)
-    worst, n_poor, poor = g.worst, g.n_poor, g.poor
+    worst, before = g.worst, g.state()
     sm = Smoother(g.mesh, g.x_ref, moved, fixed, g.sync, "elastic", o, g.timings, g.cols)
     try:
         xn = sm.run(x)
@@ -348,8 +380,7 @@ def _elastic_near(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, o: dict[
           nodes=band.n_free_global if band else 0, kept=keep)
     if keep:
         return xn, bn, nb
-    g.check(x)  # (restores poor, n_poor and worst of x)
-    assert g.n_poor == n_poor and np.array_equal(g.poor, poor)
+    g.restore(before)  # (poor, n_poor and worst of x)
     return x, bad, nbad
 
 
@@ -400,21 +431,25 @@ class _Local:
 def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
     """Stage ``optimise``: the mesh is valid but some changed cells are poor; improve them.
 
-    An active set that shrinks: each pass (at most :data:`OPTIMISE_PASSES`)
-    moves the nodes within :data:`OPTIMISE_LAYERS` of the cells poor after
-    the pass before (the nodes of the poor cells themselves with the
-    default), and is kept if it leaves no bad cell, no lower worst quality
-    ratio ``q / q_ref`` and no more poor cells, and improves one of the two;
-    the passes stop when one is not kept or the poor cells no longer get
-    fewer.  Returns ``(x, kept)``: ``kept`` if any pass was.
+    An active set that shrinks: the first pass moves the nodes within
+    :data:`OPTIMISE_LAYERS` of the poor cells, each later one (at most
+    :data:`OPTIMISE_PASSES` in all) only around the cells that became poor
+    since (a pass leaves the cells it worked on at a minimum of the
+    objective: optimising them again would not move them).  A pass is kept
+    if it leaves no bad cell, no lower worst quality ratio ``q / q_ref`` and
+    no more poor cells, and improves one of the two.  Returns ``(x, kept)``:
+    ``kept`` if any pass was.
     """
     t_stage = time.perf_counter()
     kept_any = False
+    done = np.zeros_like(g.poor)
+    seeds = g.poor
     for _ in range(OPTIMISE_PASSES):
         t0 = time.perf_counter()
-        worst, n_poor, poor = g.worst, g.n_poor, g.poor
-        loc = _Local(g, poor, OPTIMISE_LAYERS + 1)
-        free = (loc.distance(g, poor) < OPTIMISE_LAYERS) & ~loc.constrained
+        before = g.state()
+        worst, n_poor = before[2], before[1]
+        loc = _Local(g, seeds, OPTIMISE_LAYERS + 1)
+        free = (loc.distance(g, seeds) < OPTIMISE_LAYERS) & ~loc.constrained
         xn, _ = loc.run(g, x, free)
         _, nb = g.check(xn)
         keep = (nb == 0 and g.worst >= worst and g.n_poor <= n_poor
@@ -422,10 +457,12 @@ def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
         g.log("optimise", t0, nb, layers=OPTIMISE_LAYERS, cells=loc.cells_moving(free),
               nodes=int(free.sum()), worst=g.worst, poor=int(g.n_poor), kept=bool(keep))
         if not keep:
-            g.check(x)  # (restores poor, n_poor and worst of x)
+            g.restore(before)  # (poor, n_poor and worst of x)
             break
         x, kept_any = xn, True
-        if g.n_poor == 0 or g.n_poor == n_poor:
+        done |= seeds
+        seeds = g.poor & ~done  # the cells that became poor in this pass
+        if not g.comm.allreduce(bool(seeds[: g.n_own_cells].any()), op=mpi4py.MPI.LOR):
             break
     add_time(g.timings, "optimise", time.perf_counter() - t_stage)
     return x, kept_any
