@@ -156,3 +156,19 @@ def test_tet_shapes_match_numpy(amp: float) -> None:
         _close(a, b)
     _close(l2s, sum(l2))
     assert rr[0] == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_rotate_hessians_match_einsum(d: int) -> None:
+    # R_v^T H_vw R_w on some cells, the others untouched
+    rng = np.random.default_rng(13)
+    m, nv = 40, d + 1
+    H = rng.standard_normal((m, nv, d, nv, d))
+    rows = np.arange(1, m, 3, dtype=np.int64)
+    R = rng.standard_normal((rows.size, nv, d, d))
+    ref = H.copy()
+    ref[rows] = np.einsum("mvca,mvcwe,mweb->mvawb", R, H[rows], R)
+    got = H.copy()
+    kernels.rotate_hessians(got, R, rows)
+    _close(got, ref)
+    assert np.array_equal(got[0], H[0])

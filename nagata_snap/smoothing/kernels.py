@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 __all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_pattern",
-           "graph_sums", "tet_shapes", "warm_up"]
+           "graph_sums", "tet_shapes", "rotate_hessians", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: per-cell helpers, inlined into their callers (numba IR), so that a call with a
@@ -502,6 +502,35 @@ def tet_shapes(x: np.ndarray, cells: np.ndarray
     return vol, amin, amax, rr, l2s
 
 
+@_jit
+def rotate_hessians(H: np.ndarray, R: np.ndarray, rows: np.ndarray) -> None:
+    """``H[k, v, :, w, :] <- R_v^T H[k, v, :, w, :] R_w`` for the cells ``rows`` (in place).
+
+    ``H (m, nv, d, nv, d)`` cell Hessians, ``R (k, nv, d, d)`` the variable
+    basis of each vertex of the cells ``rows (k,)`` (``R[q, v, c, a]``:
+    component ``c`` of basis vector ``a``): the Hessians in the tangent
+    variables of sliding vertices.
+    """
+    nv, d = H.shape[1], H.shape[2]
+    T = np.empty((d, d))
+    for q in range(rows.shape[0]):
+        Hk = H[rows[q]]
+        for v in range(nv):
+            for w in range(nv):
+                for a in range(d):  # T = R_v^T H_vw
+                    for e in range(d):
+                        t = 0.0
+                        for c in range(d):
+                            t += R[q, v, c, a] * Hk[v, c, w, e]
+                        T[a, e] = t
+                for a in range(d):  # H_vw = T R_w
+                    for b in range(d):
+                        t = 0.0
+                        for e in range(d):
+                            t += T[a, e] * R[q, w, e, b]
+                        Hk[v, a, w, b] = t
+
+
 def warm_up() -> None:
     """Load every kernel's machine code (from numba's cache) with the argument types the guard uses.
 
@@ -523,6 +552,7 @@ def warm_up() -> None:
         volume_mean_ratio(x3, cells.astype(np.int32), d)
         hessian_pattern(cells, d)
         graph_sums(cells, x)
+        rotate_hessians(np.zeros((1, nv, d, nv, d)), np.zeros((1, nv, d, d)), np.zeros(1, np.int64))
         if d == 3:
             tet_shapes(x3, cells)
         G = np.ascontiguousarray(B.transpose(0, 1, 2))

@@ -469,8 +469,7 @@ class _Problem:
                                            self._sv)  # Hessian blocks times s_v s_w
         gz = np.einsum("kcd,kc->kd", self.Em, g[self.moving]).ravel()
         if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
-            R = self.R[self.cells.cells[self.rot]]  # (k, d + 1, d, d)
-            Hz[self.rot] = np.einsum("mvca,mvcwe,mweb->mvawb", R, Hz[self.rot], R)
+            kernels.rotate_hessians(Hz, self.R[self.cells.cells[self.rot]], self.rot)
         hv = Hz.reshape(-1).take(self._hidx)
         gz[self.dead] = 0.0
         return F, gz, hv
