@@ -47,6 +47,7 @@ from nagata_snap.mesh.boundary import (
 from nagata_snap.mesh.lineage import LineageError, child_facets, child_interior_facets
 from nagata_snap.mesh.parallel import collective, collective_place
 from nagata_snap.mesh.records import Records, refine_records
+from nagata_snap.smoothing.kernels import warm_up
 from nagata_snap.smoothing.quality import QualityReport, degenerate_cells
 from nagata_snap.smoothing.repair import InvertedCellsError, RepairResult, repair
 from nagata_snap.smoothing.slide import SlidingBoundary
@@ -213,6 +214,7 @@ class Snapper:
         self.quality_report = quality_report
         self.verbose = verbose
         self.comm = mesh.comm
+        warm_up()  # the guard's compiled kernels, loaded once per process, not in a level
         self._level = self._coarse_level(mesh, facet_tags)
         self._last: _LastRefine | None = None
         self.level = 0

@@ -96,3 +96,79 @@ def test_band_blocks_match_numpy(d: int, model: str) -> None:
     rows = np.repeat(np.arange(nf), np.diff(indptr))
     assert np.array_equal(rows * nf + cols, key[start])
     _close(blocks, ref)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_hessian_pattern_matches_broadcast(d: int) -> None:
+    # some vertices move (variable blocks >= 0), the others not (-1)
+    _, cells = _mesh(d)
+    rng = np.random.default_rng(5)
+    n = int(cells.max()) + 1
+    var_node = np.where(rng.random(n) < 0.5, np.arange(n), -1)
+    cv = var_node[cells]
+    pos, rows, cols = kernels.hessian_pattern(np.ascontiguousarray(cv), d)
+    # the numpy broadcast over (m, v, c, w, e) that the kernel replaces
+    ii = cv[:, :, None, None, None] * d + np.arange(d)[None, None, :, None, None]
+    jj = cv[:, None, None, :, None] * d + np.arange(d)[None, None, None, None, :]
+    ok = (cv[:, :, None, None, None] >= 0) & (cv[:, None, None, :, None] >= 0)
+    ii, jj = np.broadcast_arrays(ii, jj)
+    ok = np.broadcast_to(ok, ii.shape)
+    assert np.array_equal(pos, np.flatnonzero(ok.ravel()))
+    assert np.array_equal(rows, ii[ok]) and np.array_equal(cols, jj[ok])
+    assert pos.size > 0 and pos.size < ok.size
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_graph_sums_match_dense_laplacian(d: int) -> None:
+    # the off-diagonal part of the graph Laplacian (edge weight = cells sharing it), built densely
+    x, cells = _mesh(d)
+    n = x.shape[0]
+    W = np.zeros((n, n))
+    for cell in cells:
+        for a in cell:
+            for b in cell:
+                if a != b:
+                    W[a, b] += 1.0
+    u = np.random.default_rng(7).standard_normal((n, d))
+    _close(kernels.graph_sums(cells, u), W @ u)
+
+
+@pytest.mark.parametrize("amp", [0.0, 0.3, 0.9])
+def test_tet_shapes_match_numpy(amp: float) -> None:
+    # valid, strongly distorted and inverted tetrahedra, and one flat cell
+    from nagata_snap.mesh.simplex import edge_components, signed_volumes_of, vertex_components
+    from nagata_snap.smoothing.quality import _tetrahedron_shapes
+
+    x, cells = _mesh(3)
+    rng = np.random.default_rng(11)
+    xp = x + amp * 0.25 * rng.standard_normal(x.shape)
+    xp[cells[0, 3]] = 0.5 * (xp[cells[0, 1]] + xp[cells[0, 2]])  # cell 0 flat
+    vol, amin, amax, rr, l2s = kernels.tet_shapes(xp, cells)
+    P = vertex_components(xp, cells, 3)
+    ref_vol = signed_volumes_of(P)
+    ev = edge_components(P)
+    l2 = [np.einsum("i...,i...->...", np.array(e), np.array(e)) for e in ev]
+    ref = _tetrahedron_shapes(ev, l2, ref_vol)
+    if amp > 0.5:
+        assert np.count_nonzero(ref_vol < 0) > 0
+    _close(vol, ref_vol)
+    for a, b in zip((amin, amax, rr), ref, strict=True):
+        _close(a, b)
+    _close(l2s, sum(l2))
+    assert rr[0] == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_rotate_hessians_match_einsum(d: int) -> None:
+    # R_v^T H_vw R_w on some cells, the others untouched
+    rng = np.random.default_rng(13)
+    m, nv = 40, d + 1
+    H = rng.standard_normal((m, nv, d, nv, d))
+    rows = np.arange(1, m, 3, dtype=np.int64)
+    R = rng.standard_normal((rows.size, nv, d, d))
+    ref = H.copy()
+    ref[rows] = np.einsum("mvca,mvcwe,mweb->mvawb", R, H[rows], R)
+    got = H.copy()
+    kernels.rotate_hessians(got, R, rows)
+    _close(got, ref)
+    assert np.array_equal(got[0], H[0])

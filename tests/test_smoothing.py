@@ -88,6 +88,18 @@ def test_straight_mesh_is_fixed_point(pushed):
         np.testing.assert_allclose(x_new, x_ref, atol=1e-14)
 
 
+@pytest.mark.parametrize("sweeps", [1, 8, 50])
+def test_laplace_sweeps_equal_petsc_richardson(pushed, sweeps):
+    # the matrix-free sweeps against PETSc's Richardson + Jacobi on the assembled graph
+    # Laplacian of the band (the path taken when PETSc options are given)
+    msh, x_ref, left, fixed = pushed
+    free = smooth(msh, x_ref, left, fixed, method="laplace", sweeps=sweeps)
+    petsc = smooth(msh, x_ref, left, fixed, method="laplace", sweeps=sweeps,
+                   petsc_options={"ksp_richardson_scale": 1.0})
+    assert np.abs(free - x_ref).max() > 0.1 * H  # the interior moved
+    np.testing.assert_allclose(free, petsc, rtol=0, atol=1e-14)
+
+
 @pytest.mark.parametrize("model", ["elastic", "harmonic"])
 def test_translation_is_reproduced(model):
     msh = dolfinx.mesh.create_unit_square(COMM, 12, 12)

@@ -72,6 +72,22 @@ class NodeSync:
         v.scatter_forward()
         return v.array > 0.5
 
+    def total(self, a: np.ndarray) -> np.ndarray:
+        """Collective sum: ``a`` (n,) / (n, bs) summed over every process's copy of each node.
+
+        Each process contributes its values at its own rows (owned and
+        ghost); every copy of a node gets the sum.  Serial: a copy of ``a``.
+        """
+        a = np.array(a, dtype=np.float64, copy=True)
+        if not self.parallel:
+            return a
+        bs = 1 if a.ndim == 1 else a.shape[1]
+        v = self._v(bs)
+        v.array[:] = a.reshape(-1)
+        v.scatter_reverse(dolfinx.la.InsertMode.add)
+        v.scatter_forward()
+        return v.array.reshape(a.shape).copy()
+
     def forward(self, a: np.ndarray) -> np.ndarray:
         """Copy of ``a`` (n, bs) / (n,) with ghost rows replaced by the owner's."""
         a = np.array(a, dtype=np.float64, copy=True)

@@ -31,7 +31,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks"]
+__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_pattern",
+           "graph_sums", "tet_shapes", "rotate_hessians", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: per-cell helpers, inlined into their callers (numba IR), so that a call with a
@@ -357,3 +358,202 @@ def band_blocks(G: np.ndarray, w: np.ndarray, row: np.ndarray, col: np.ndarray, 
                         else:
                             blk[i, j] += mu * ((tr if i == j else 0.0) + P[j, i]) + lmbda * P[i, j]
     return indptr, cols, blocks
+
+
+@_jit
+def hessian_pattern(var: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the cell Hessians of :func:`energy_terms` land in the matrix of the moving variables.
+
+    Args:
+        var: ``(m, nv)`` variable block of each cell vertex (-1: the vertex does not move).
+        d: components per vertex.
+
+    Returns:
+        ``(pos, rows, cols)`` (each ``(p,)`` int64): for every entry
+        ``[k, v, c, w, e]`` of the ``(m, nv, d, nv, d)`` Hessian array whose
+        vertices ``v`` and ``w`` both move, in C order, its flat position in
+        that array and its matrix row ``d var[k, v] + c`` and column
+        ``d var[k, w] + e`` (the numpy broadcast it replaces needed five
+        ``(m, nv, d, nv, d)`` temporaries).
+    """
+    m, nv = var.shape
+    p = 0
+    for k in range(m):
+        cnt = 0
+        for v in range(nv):
+            if var[k, v] >= 0:
+                cnt += 1
+        p += cnt * cnt * d * d
+    pos = np.empty(p, dtype=np.int64)
+    rows = np.empty(p, dtype=np.int64)
+    cols = np.empty(p, dtype=np.int64)
+    t = 0
+    for k in range(m):
+        for v in range(nv):
+            rv = var[k, v]
+            if rv < 0:
+                continue
+            for c in range(d):
+                for w in range(nv):
+                    rw = var[k, w]
+                    if rw < 0:
+                        continue
+                    for e in range(d):
+                        pos[t] = (((k * nv + v) * d + c) * nv + w) * d + e
+                        rows[t] = rv * d + c
+                        cols[t] = rw * d + e
+                        t += 1
+    return pos, rows, cols
+
+
+@_jit
+def graph_sums(cells: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``(k, g)``: at each node, the sum over its cells of their other vertices' ``u``.
+
+    ``cells (nc, nv)`` node indices ``0..k-1``, ``u (k, g)``: the product of
+    the graph-Laplacian's off-diagonal part (edge weight = cells sharing the
+    edge) with ``u``, one pass over the cells, no ``(nc, nv, g)`` temporary.
+    """
+    nc, nv = cells.shape
+    k, g = u.shape
+    out = np.zeros((k, g))
+    s = np.empty(g)
+    for q in range(nc):
+        for c in range(g):
+            t = 0.0
+            for v in range(nv):
+                t += u[cells[q, v], c]
+            s[c] = t
+        for v in range(nv):
+            a = cells[q, v]
+            for c in range(g):
+                out[a, c] += s[c] - u[a, c]
+    return out
+
+
+@_inline
+def _cross_into(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@_jit
+def tet_shapes(x: np.ndarray, cells: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(signed volume, min and max dihedral angle [rad], radius ratio, sum of squared edges)`` (each ``(m,)``).
+
+    The formulas of ``quality._tetrahedron_shapes`` (``x (n, 3)``,
+    ``cells (m, 4)``), one cell at a time: the dihedral angles from the
+    cosines between the cofactor vectors of the faces (a zero-area face
+    counts as cosine 1), the radius ratio ``216 V^2 / (S sqrt(P))`` (0 where
+    it is not finite).
+    """
+    m = cells.shape[0]
+    vol, amin, amax = np.empty(m), np.empty(m), np.empty(m)
+    rr, l2s = np.empty(m), np.empty(m)
+    p = np.empty((4, 3))
+    e = np.empty((6, 3))
+    cof = np.empty((4, 3))
+    nrm = np.empty(4)
+    le = np.empty(6)
+    ea = np.array([0, 0, 0, 1, 1, 2])  # TET_EDGES
+    eb = np.array([1, 2, 3, 2, 3, 3])
+    fa = np.array([2, 1, 1, 0, 0, 0])  # TET_EDGE_FACETS
+    fb = np.array([3, 3, 2, 3, 2, 1])
+    for k in range(m):
+        for v in range(4):
+            for c in range(3):
+                p[v, c] = x[cells[k, v], c]
+        l2 = 0.0
+        for q in range(6):
+            t = 0.0
+            for c in range(3):
+                e[q, c] = p[eb[q], c] - p[ea[q], c]
+                t += e[q, c] * e[q, c]
+            le[q] = np.sqrt(t)
+            l2 += t
+        _cross_into(e[1], e[2], cof[1])
+        _cross_into(e[2], e[0], cof[2])
+        _cross_into(e[0], e[1], cof[3])
+        for c in range(3):
+            cof[0, c] = -(cof[1, c] + cof[2, c] + cof[3, c])
+        V = (e[0, 0] * cof[1, 0] + e[0, 1] * cof[1, 1] + e[0, 2] * cof[1, 2]) / 6.0
+        for f in range(4):
+            nrm[f] = np.sqrt(cof[f, 0] ** 2 + cof[f, 1] ** 2 + cof[f, 2] ** 2)
+        cmin, cmax = np.inf, -np.inf
+        for q in range(6):
+            den = nrm[fa[q]] * nrm[fb[q]]
+            cs = 1.0
+            if den > 0:
+                cs = (cof[fa[q], 0] * cof[fb[q], 0] + cof[fa[q], 1] * cof[fb[q], 1]
+                      + cof[fa[q], 2] * cof[fb[q], 2]) / den
+            cmin = min(cmin, cs)
+            cmax = max(cmax, cs)
+        amin[k] = np.pi - np.arccos(min(max(cmin, -1.0), 1.0))
+        amax[k] = np.pi - np.arccos(min(max(cmax, -1.0), 1.0))
+        S = 0.5 * (nrm[0] + nrm[1] + nrm[2] + nrm[3])
+        a, b, c3 = le[0] * le[5], le[1] * le[4], le[2] * le[3]
+        Pp = (a + b + c3) * (a + b - c3) * (a - b + c3) * (-a + b + c3)
+        r = 216.0 * V * V / (S * np.sqrt(max(Pp, 0.0)))
+        rr[k] = r if np.isfinite(r) else 0.0
+        vol[k] = V
+        l2s[k] = l2
+    return vol, amin, amax, rr, l2s
+
+
+@_jit
+def rotate_hessians(H: np.ndarray, R: np.ndarray, rows: np.ndarray) -> None:
+    """``H[k, v, :, w, :] <- R_v^T H[k, v, :, w, :] R_w`` for the cells ``rows`` (in place).
+
+    ``H (m, nv, d, nv, d)`` cell Hessians, ``R (k, nv, d, d)`` the variable
+    basis of each vertex of the cells ``rows (k,)`` (``R[q, v, c, a]``:
+    component ``c`` of basis vector ``a``): the Hessians in the tangent
+    variables of sliding vertices.
+    """
+    nv, d = H.shape[1], H.shape[2]
+    T = np.empty((d, d))
+    for q in range(rows.shape[0]):
+        Hk = H[rows[q]]
+        for v in range(nv):
+            for w in range(nv):
+                for a in range(d):  # T = R_v^T H_vw
+                    for e in range(d):
+                        t = 0.0
+                        for c in range(d):
+                            t += R[q, v, c, a] * Hk[v, c, w, e]
+                        T[a, e] = t
+                for a in range(d):  # H_vw = T R_w
+                    for b in range(d):
+                        t = 0.0
+                        for e in range(d):
+                            t += T[a, e] * R[q, w, e, b]
+                        Hk[v, a, w, b] = t
+
+
+def warm_up() -> None:
+    """Load every kernel's machine code (from numba's cache) with the argument types the guard uses.
+
+    numba loads a cached kernel at its first call, about 0.7 s for the first
+    one in a process (numba's own set-up) and a few milliseconds for each
+    later one; :class:`~nagata_snap.snapper.Snapper` calls this once when
+    it is built, so that the cost is the process's, not a level's.
+    """
+    for d in (2, 3):
+        nv = d + 1
+        x = np.eye(nv, d, -1)  # (nv, d): the origin and the unit vectors
+        cells = np.arange(nv, dtype=np.int64)[None, :]
+        B = np.ascontiguousarray(np.concatenate([-np.ones((1, d)), np.eye(d)])[None])
+        ones = np.ones((1, nv))
+        energy_terms(x, cells, B, 1e-4, True, ones)
+        energy_value(x, cells, B, 1e-4)
+        x3 = np.zeros((nv, 3))
+        x3[:, :d] = x
+        volume_mean_ratio(x3, cells.astype(np.int32), d)
+        hessian_pattern(cells, d)
+        graph_sums(cells, x)
+        rotate_hessians(np.zeros((1, nv, d, nv, d)), np.zeros((1, nv, d, d)), np.zeros(1, np.int64))
+        if d == 3:
+            tet_shapes(x3, cells)
+        G = np.ascontiguousarray(B.transpose(0, 1, 2))
+        band_blocks(G, np.ones(1), cells, cells, 0, 0.5, 0.5, nv, nv)

@@ -59,6 +59,7 @@ from nagata_snap.mesh.simplex import (
     signed_volumes_of,
     vertex_components,
 )
+from nagata_snap.smoothing import kernels
 
 __all__ = [
     "degenerate_cells",
@@ -190,6 +191,9 @@ def _tetrahedron_shapes(ev: list[list[np.ndarray]], l2: list[np.ndarray], vol: n
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(min dihedral angle, max dihedral angle, radius ratio)`` of tetrahedra (radians).
 
+    The numpy reference of :func:`~nagata_snap.smoothing.kernels.tet_shapes`,
+    which :func:`quality_stats` calls (``tests/test_kernels.py`` compares them).
+
     ``ev``: the six edge vectors (:data:`~nagata_snap.mesh.simplex.TET_EDGES`
     order), ``l2`` their squared lengths, ``vol`` the signed volumes.
     """
@@ -253,21 +257,22 @@ def quality_stats(x: np.ndarray, cells: np.ndarray, gdim: int,
         * ``"mean_ratio"``: normalised mean ratio in [0, 1].
     """
     tdim = cell_dim(cells, gdim)
-    P = vertex_components(x, cells, gdim)
-    vol = signed_volumes_of(P)
-    avol = np.abs(vol)
-    ev = edge_components(P)
-    l2 = [dot(e, e) for e in ev]  # squared edge lengths
-    if tdim == 2:
-        amin, amax, rr = _triangle_shapes(ev, l2, avol)
+    if tdim == 3:  # the compiled kernel of _tetrahedron_shapes' formulas
+        vol, amin, amax, rr, l2sum = kernels.tet_shapes(
+            np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(cells, dtype=np.int64))
     else:
-        amin, amax, rr = _tetrahedron_shapes(ev, l2, vol)
+        P = vertex_components(x, cells, gdim)
+        vol = signed_volumes_of(P)
+        ev = edge_components(P)
+        l2 = [dot(e, e) for e in ev]  # squared edge lengths
+        amin, amax, rr = _triangle_shapes(ev, l2, np.abs(vol))
+        l2sum = functools.reduce(operator.add, l2)
     q = {
         "volume": vol,
         "min_angle": np.degrees(amin),
         "max_angle": np.degrees(amax),
         "radius_ratio": np.minimum(rr, 1.0),  # round-off guard for (near-)regular cells
-        "mean_ratio": _mean_ratio_of(avol, functools.reduce(operator.add, l2), gdim),
+        "mean_ratio": _mean_ratio_of(np.abs(vol), l2sum, gdim),
     }
     if orientation is not None:
         _orient(q, orientation)

@@ -21,12 +21,15 @@ and stops at the first that leaves no bad cell:
     compares the changed cells' quality with and without the elastic
     solve everywhere).
 ``optimise`` (:func:`_optimise`)
-    No cell is bad, but some changed cells are *poor* (their mean ratio fell
-    below :data:`POOR_RATIO` of the straight cell's): one attempt of the
-    optimiser below on their neighbourhood, kept if it helps.  Not with
+    No cell is bad (after the smooth stage, or after the untangle / slide
+    stages below), but some changed cells are *poor* (their mean ratio fell
+    below :data:`POOR_RATIO` of the straight cell's): the optimiser below
+    moves the nodes near the poor cells (:data:`OPTIMISE_LAYERS`), in passes
+    over the cells that became poor in the pass before (an active set that
+    shrinks, :data:`OPTIMISE_PASSES`), each kept if it helps.  Not with
     ``method='none'`` (no interior motion unless a cell is bad).
 ``untangle`` (:func:`_untangle`)
-    The neighbourhood of the bad (and poor) cells (:data:`UNTANGLE_LAYERS`
+    The neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
     vertex layers, wider while that helps, within a size budget) is gathered
     (:class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`) and its interior
     nodes are moved by the simultaneous untangling and shape optimisation
@@ -85,12 +88,11 @@ from nagata_snap.mesh.simplex import (
     cells_touching,
     facet_normal_vectors,
     local_facet_vertices,
-    signed_volumes,
 )
 from nagata_snap.smoothing.band import auto_layers, expand, max_layers, prepare
 from nagata_snap.smoothing.kernels import volume_mean_ratio
 from nagata_snap.smoothing.neighbourhood import Neighbourhood, layer_distance
-from nagata_snap.smoothing.quality import QualityReport, inverted_mask, mean_ratio
+from nagata_snap.smoothing.quality import QualityReport, inverted_mask
 from nagata_snap.smoothing.slide import SlideFacets, SlidingBoundary
 from nagata_snap.smoothing.smooth import Smoother, add_time, smooth_options
 from nagata_snap.smoothing.untangle import optimise, targets, volume_ratio_min
@@ -121,6 +123,13 @@ FIRST_SWEEPS = 8
 #: Vertex layers around the bad / poor cells within which moved vertices
 #: drive the local elastic solve after the sweeps.
 ELASTIC_NEAR = 2
+#: Vertex layers around the poor cells whose nodes the optimise stage moves
+#: (1: the poor cells' own nodes, 2: and their neighbours'; the 5th
+#: percentile of the changed cells' quality needs 2, benchmarks/guard_quality.py).
+OPTIMISE_LAYERS = 2
+#: Passes of the optimise stage: the first over the poor cells, each later one
+#: over the cells that became poor in the pass before.
+OPTIMISE_PASSES = 3
 
 
 @dataclasses.dataclass
@@ -177,6 +186,7 @@ class _Guard:
         self.gdim = mesh.geometry.dim
         self.sync, self.x_ref, self.moved_mask, self.fixed_mask = prepare(
             mesh, x_ref, moved, fixed, bool(opts["fix_boundary"]))
+        self.x_ref = np.ascontiguousarray(self.x_ref)  # (the compiled check's layout)
         x_target = np.asarray(x_target, dtype=np.float64)
         if x_target.shape != self.x_ref.shape:
             raise ValueError(f"x_target must have shape {self.x_ref.shape}, got {x_target.shape}")
@@ -193,6 +203,11 @@ class _Guard:
         n = self.cells.shape[0]
         self._v_ref, self._q_floor, self._q_ref = np.empty(n), np.empty(n), np.empty(n)
         self._have_ref = np.zeros(n, dtype=bool)
+        # the check's cache: volume and mean ratio of cells at the coordinates _x_at
+        # (valid where _have), so a check recomputes only the cells whose nodes moved
+        self._vol, self._q = np.empty(n), np.empty(n)
+        self._have = np.zeros(n, dtype=bool)
+        self._x_at = self.x_ref.copy()
         self._pool_key: np.ndarray | None = None
         self.timings: dict[str, float] = {}
         self.attempts: list[dict] = []
@@ -205,9 +220,8 @@ class _Guard:
     def _ref_data(self, cand: np.ndarray) -> None:
         need = cand[~self._have_ref[cand]]
         if need.size:
-            sub = self.cells[need]
-            self._v_ref[need] = signed_volumes(self.x_ref, sub, self.gdim)
-            self._q_ref[need] = mean_ratio(self.x_ref, sub, self.gdim)
+            self._v_ref[need], self._q_ref[need] = volume_mean_ratio(self.x_ref, self.cells[need],
+                                                                     self.gdim)
             self._q_floor[need] = np.minimum(self.min_quality, 0.5 * self._q_ref[need])
             self._have_ref[need] = True
 
@@ -229,12 +243,12 @@ class _Guard:
             pc = self.cells[pool]
             self._pool = (pool, cell_columns(pc), np.unique(pc))
         pool, pcols, nodes = self._pool
+        xn = x[nodes]
         changed = np.zeros(x.shape[0], dtype=bool)
-        changed[nodes] = np.any(x[nodes] != self.x_ref[nodes], axis=1)
+        changed[nodes] = np.any(xn != self.x_ref[nodes], axis=1)
         cand = pool[cells_touching(changed, pcols)]
         self._ref_data(cand)
-        vol, q = volume_mean_ratio(np.ascontiguousarray(x, dtype=np.float64), self.cells[cand],
-                                   self.gdim)
+        vol, q = self._measures(x, xn, pool, pcols, nodes, cand)
         badc = inverted_mask(vol, self._v_ref[cand], self.rel_floor)
         if self.min_quality > 0:
             badc |= q < self._q_floor[cand]
@@ -250,6 +264,33 @@ class _Guard:
         self.worst = self.comm.allreduce(float(ratio[own_c].min(initial=1.0)), op=mpi4py.MPI.MIN)
         add_time(self.timings, "check", time.perf_counter() - t0)
         return bad, int(nbad)
+
+    def _measures(self, x: np.ndarray, xn: np.ndarray, pool: np.ndarray, pcols: list[np.ndarray],
+                  nodes: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed volumes and mean ratios ``(k,)`` of the cells ``cand`` at ``x`` (the check's cache).
+
+        Only cells with a node whose coordinates differ from those of the
+        cached value (or without one) are computed (compiled kernel); ``xn``
+        is ``x[nodes]``, the pool's nodes.
+        """
+        moved = np.zeros(x.shape[0], dtype=bool)
+        moved[nodes] = np.any(xn != self._x_at[nodes], axis=1)
+        self._have[pool[cells_touching(moved, pcols)]] = False
+        self._x_at[nodes] = xn
+        need = cand[~self._have[cand]]
+        if need.size:
+            self._vol[need], self._q[need] = volume_mean_ratio(
+                np.ascontiguousarray(x, dtype=np.float64), self.cells[need], self.gdim)
+            self._have[need] = True
+        return self._vol[cand], self._q[cand]
+
+    def state(self) -> tuple[np.ndarray, int, float]:
+        """What :meth:`check` sets besides its result: ``(poor, n_poor, worst)``."""
+        return self.poor, self.n_poor, self.worst
+
+    def restore(self, state: tuple[np.ndarray, int, float]) -> None:
+        """Set ``poor, n_poor, worst`` back to those of an earlier :meth:`state`."""
+        self.poor, self.n_poor, self.worst = state
 
     def log(self, stage: str, t0: float, n_bad: int, **info: Any) -> None:
         """Record one attempt (``seconds``: wall time since ``t0``, max over processes)."""
@@ -300,7 +341,7 @@ def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[floa
         g.log("smooth" if k == 0 else "stiffen", t0, nbad, method=meth, exponent=oo["exponent"],
               layers=max_layers(oo["layers"], g.comm), cells=band.n_cells_global if band else 0,
               nodes=band.n_free_global if band else 0, **extra)
-        if k == 0 and meth != method and (nbad or g.n_poor):
+        if k == 0 and meth != method and nbad:
             x, bad, nbad = _elastic_near(g, x, bad, nbad, o)
         if nbad == 0:
             break
@@ -319,13 +360,12 @@ def _elastic_near(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, o: dict[
     not lower the worst quality ratio.
     """
     t0 = time.perf_counter()
-    seeds = bad | g.poor
     mark = np.zeros(g.sync.n, dtype=bool)
-    mark[g.cells[seeds].reshape(-1)] = True
+    mark[g.cells[bad].reshape(-1)] = True
     near, _, _ = expand(g.cells, g.sync.any(mark), ELASTIC_NEAR, g.sync, g.cols)
     moved = g.moved_mask & near
     fixed = g.fixed_mask | (g.moved_mask & ~near)
-    worst, n_poor, poor = g.worst, g.n_poor, g.poor
+    worst, before = g.worst, g.state()
     sm = Smoother(g.mesh, g.x_ref, moved, fixed, g.sync, "elastic", o, g.timings, g.cols)
     try:
         xn = sm.run(x)
@@ -340,8 +380,7 @@ def _elastic_near(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, o: dict[
           nodes=band.n_free_global if band else 0, kept=keep)
     if keep:
         return xn, bn, nb
-    g.check(x)  # (restores poor, n_poor and worst of x)
-    assert g.n_poor == n_poor and np.array_equal(g.poor, poor)
+    g.restore(before)  # (poor, n_poor and worst of x)
     return x, bad, nbad
 
 
@@ -392,20 +431,41 @@ class _Local:
 def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
     """Stage ``optimise``: the mesh is valid but some changed cells are poor; improve them.
 
-    One attempt on the neighbourhood of the poor cells; kept if it leaves no
-    bad cell and raises the worst quality ratio ``q / q_ref``.
+    An active set that shrinks: the first pass moves the nodes within
+    :data:`OPTIMISE_LAYERS` of the poor cells, each later one (at most
+    :data:`OPTIMISE_PASSES` in all) only around the cells that became poor
+    since (a pass leaves the cells it worked on at a minimum of the
+    objective: optimising them again would not move them).  A pass is kept
+    if it leaves no bad cell, no lower worst quality ratio ``q / q_ref`` and
+    no more poor cells, and improves one of the two.  Returns ``(x, kept)``:
+    ``kept`` if any pass was.
     """
-    t0 = time.perf_counter()
-    worst = g.worst
-    loc = _Local(g, g.poor, UNTANGLE_LAYERS[0] + 1)
-    free = (loc.distance(g, g.poor) < UNTANGLE_LAYERS[0]) & ~loc.constrained
-    xn, _ = loc.run(g, x, free)
-    _, nb = g.check(xn)
-    keep = nb == 0 and g.worst > worst
-    g.log("optimise", t0, nb, layers=UNTANGLE_LAYERS[0], cells=loc.cells_moving(free),
-          nodes=int(free.sum()), worst=g.worst, kept=keep)
-    add_time(g.timings, "optimise", g.attempts[-1]["seconds"])
-    return (xn, True) if keep else (x, False)
+    t_stage = time.perf_counter()
+    kept_any = False
+    done = np.zeros_like(g.poor)
+    seeds = g.poor
+    for _ in range(OPTIMISE_PASSES):
+        t0 = time.perf_counter()
+        before = g.state()
+        worst, n_poor = before[2], before[1]
+        loc = _Local(g, seeds, OPTIMISE_LAYERS + 1)
+        free = (loc.distance(g, seeds) < OPTIMISE_LAYERS) & ~loc.constrained
+        xn, _ = loc.run(g, x, free)
+        _, nb = g.check(xn)
+        keep = (nb == 0 and g.worst >= worst and g.n_poor <= n_poor
+                and (g.worst > worst or g.n_poor < n_poor))
+        g.log("optimise", t0, nb, layers=OPTIMISE_LAYERS, cells=loc.cells_moving(free),
+              nodes=int(free.sum()), worst=g.worst, poor=int(g.n_poor), kept=bool(keep))
+        if not keep:
+            g.restore(before)  # (poor, n_poor and worst of x)
+            break
+        x, kept_any = xn, True
+        done |= seeds
+        seeds = g.poor & ~done  # the cells that became poor in this pass
+        if not g.comm.allreduce(bool(seeds[: g.n_own_cells].any()), op=mpi4py.MPI.LOR):
+            break
+    add_time(g.timings, "optimise", time.perf_counter() - t_stage)
+    return x, kept_any
 
 
 def _pinned(g: _Guard, x: np.ndarray, bad: np.ndarray) -> int:
@@ -444,7 +504,7 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: b
     n_mesh = g.mesh.topology.index_map(g.mesh.topology.dim).size_global
     for k, layers in enumerate(UNTANGLE_LAYERS):
         t0 = time.perf_counter()
-        seeds = bad | g.poor  # poor cells nearby are improved as well
+        seeds = bad  # (the poor cells are the optimise stage's, after the untangling)
         if loc is None or loc.layers <= layers:
             wider = _Local(g, seeds, layers + 1)
             if k and wider.nbh.n_cells > max(MAX_REGION_FRACTION * n_mesh, MAX_REGION_CELLS):
@@ -718,9 +778,6 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
     stage = "stiffen" if any(a["stage"] == "stiffen" for a in g.attempts) else "smooth"
     alpha = np.ones(g.sync.n)
     try:
-        if nbad == 0 and untangle and g.n_poor and method != "none":
-            x, kept = _optimise(g, x)
-            stage = "optimise" if kept else stage
         if nbad and untangle:
             # interior motion first, unless some bad cells need the boundary to move
             if slide is None or _pinned(g, x, bad) == 0:
@@ -731,6 +788,9 @@ def repair(mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, x_target: np.ndarray, mov
             if nbad and slide is not None:
                 x, bad, nbad = _slide(g, x, bad, nbad, loc, slide)
                 stage = "slide"
+        if nbad == 0 and untangle and g.n_poor and method != "none":
+            x, kept = _optimise(g, x)
+            stage = "optimise" if kept and stage == "smooth" else stage
         if nbad and allow_partial:
             x, alpha, bad, nbad = _partial(g, x, bad, nbad, sm, min_fraction, bisection_steps,
                                            implicate_layers, max_rounds)

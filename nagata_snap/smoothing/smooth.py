@@ -81,6 +81,7 @@ from petsc4py import PETSc
 
 from nagata_snap.mesh.simplex import cell_columns, cells_touching, p1_gradients
 from nagata_snap.smoothing.band import Band, NodeSync, auto_layers, max_layers, prepare
+from nagata_snap.smoothing.kernels import band_blocks, graph_sums
 
 __all__ = ["smooth", "SMOOTH_DEFAULTS", "smooth_options", "Smoother", "add_time"]
 
@@ -239,7 +240,6 @@ def _band_matrix(comm: MPI.Comm, band: Band, G: np.ndarray, weight: np.ndarray |
     row per free node of its cells; PETSc's COO set-up adds the rows of
     nodes owned elsewhere to their owners'.
     """
-    from nagata_snap.smoothing.kernels import band_blocks
 
     gdim = G.shape[2]
     nodes = np.unique(cells[free]) if comm.size > 1 else band.own_free
@@ -378,6 +378,61 @@ class _BandSolver:
             obj.destroy()
 
 
+class _GraphSweeps:
+    """Jacobi sweeps of graph-Laplacian averaging over the band, matrix-free (``'laplace'``).
+
+    The same iteration as PETSc's Richardson + Jacobi on the band's graph
+    Laplacian from a zero start (:func:`_band_ksp`, ``model='graph'``), without
+    assembling the matrix: a sweep sets every free node's displacement to
+    the average over its band cells of their other vertices' displacements
+    (an edge counts once per cell that shares it), constrained nodes giving
+    their prescribed ones.  A sweep costs one pass over the band cells (and
+    under MPI one reverse and one forward scatter of the sums), so the
+    first smoothing of a level costs a few passes over the band.
+    """
+
+    solver = "sweeps"
+    n_fallback = 0
+
+    def __init__(self, mesh: dolfinx.mesh.Mesh, band: Band, sync: NodeSync, sweeps: int):
+        self.gdim = mesh.geometry.dim
+        self.band, self.sync, self.sweeps = band, sync, int(sweeps)
+        cells = mesh.geometry.dofmaps[0][band.own_cells]
+        free = band.gid >= 0  # (n,) free nodes, owned and ghost
+        cells = cells[free[cells].any(axis=1)]
+        # band nodes numbered compactly (the sweeps work on the band, not the mesh)
+        self.nodes, local = np.unique(cells, return_inverse=True)
+        self.cells = local.reshape(cells.shape).astype(np.int64)
+        nv = cells.shape[1]
+        deg = (nv - 1.0) * np.bincount(self.cells.reshape(-1), minlength=self.nodes.size)
+        self.deg = self._total(deg)
+        self.free = np.flatnonzero(free[self.nodes])
+        self.own_free = np.searchsorted(self.nodes, band.own_free)
+
+    def _total(self, a: np.ndarray) -> np.ndarray:
+        """Band-node sums over the processes (``a (k,)`` or ``(k, g)`` over ``nodes``)."""
+        if not self.sync.parallel:
+            return a
+        full = np.zeros((self.sync.n, *a.shape[1:]))
+        full[self.nodes] = a
+        return self.sync.total(full)[self.nodes]
+
+    def solve(self, x: np.ndarray, x_ref: np.ndarray) -> np.ndarray:
+        """Displacement ``(k, 3)`` of the owned free nodes (``band.own_free``) after the sweeps."""
+        g = self.gdim
+        u = x[self.nodes, :g] - x_ref[self.nodes, :g]  # (k, g)
+        u[self.free] = 0.0
+        for _ in range(self.sweeps):
+            acc = self._total(graph_sums(self.cells, u))
+            u[self.free] = acc[self.free] / self.deg[self.free, None]
+        out = np.zeros((self.own_free.size, 3))
+        out[:, :g] = u[self.own_free]
+        return out
+
+    def destroy(self) -> None:
+        """Nothing to free (no PETSc objects)."""
+
+
 class Smoother:
     """The band and its solver for one set of options (collective set-up); :meth:`run` smooths.
 
@@ -407,7 +462,7 @@ class Smoother:
         self.moved_mask = moved_mask
         self.fixed_mask = fixed_mask
         self.band: Band | None = None
-        self.solver: _BandSolver | None = None
+        self.solver: _BandSolver | _GraphSweeps | None = None
         self.timings = timings
         if method not in ("elastic", "laplace", "none"):
             raise ValueError(f"unknown method {method!r} (use 'elastic', 'laplace' or 'none')")
@@ -430,8 +485,11 @@ class Smoother:
             sweeps = opts["sweeps"]
             if sweeps is None:
                 sweeps = max(50, 4 * max_layers(opts["layers"], mesh.comm) ** 2)
-            self.solver = _BandSolver(mesh, self.band, x_ref, "graph", sweeps=sweeps,
-                                      petsc_options=opts["petsc_options"])
+            if opts["petsc_options"]:  # (options for PETSc's Richardson iteration)
+                self.solver = _BandSolver(mesh, self.band, x_ref, "graph", sweeps=sweeps,
+                                          petsc_options=opts["petsc_options"])
+            else:
+                self.solver = _GraphSweeps(mesh, self.band, sync, sweeps)
         add_time(timings, "setup", time.perf_counter() - t1)
 
     @property

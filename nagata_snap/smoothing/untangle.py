@@ -425,24 +425,19 @@ class _Problem:
         self.z0 = np.zeros(self.size)
         self.count = 0
         # sparsity of the Hessian: (cell vertex, cell vertex) pairs of moving nodes
-        cv = self.var[self.cells.cells]  # (m, d + 1)
-        ii = (cv[:, :, None, None, None] * d + np.arange(d)[None, None, :, None, None])
-        jj = (cv[:, None, None, :, None] * d + np.arange(d)[None, None, None, None, :])
-        ok = (cv[:, :, None, None, None] >= 0) & (cv[:, None, None, :, None] >= 0)
-        ii, jj = np.broadcast_arrays(ii, jj)
-        ok = np.broadcast_to(ok, ii.shape)
-        self._hidx = np.flatnonzero(ok.ravel())  # (flat positions: take is faster than a mask)
-        self._r, self._c = ii[ok], jj[ok]
-        on_diag = ii[ok] == jj[ok]
-        self._diag_src, self._diag_pos = np.flatnonzero(on_diag), ii[ok][on_diag]
+        cv = np.ascontiguousarray(self.var[self.cells.cells], dtype=np.int64)  # (m, d + 1)
+        # (flat positions into the cell Hessians: take is faster than a mask)
+        self._hidx, self._r, self._c = kernels.hessian_pattern(cv, d)
+        on_diag = self._r == self._c
+        self._diag_src, self._diag_pos = np.flatnonzero(on_diag), self._r[on_diag]
         diag = np.arange(self.size)
         self._ksp = None
         if self.size:  # COO pattern: cell blocks, then the diagonal (damping, dead variables)
             A = PETSc.Mat().create(PETSc.COMM_SELF)
             A.setSizes((self.size, self.size))
             A.setType(PETSc.Mat.Type.AIJ)
-            A.setPreallocationCOO(np.r_[ii[ok], diag].astype(PETSc.IntType),
-                                  np.r_[jj[ok], diag].astype(PETSc.IntType))
+            A.setPreallocationCOO(np.r_[self._r, diag].astype(PETSc.IntType),
+                                  np.r_[self._c, diag].astype(PETSc.IntType))
             # (petsc4py's stub types the option as Mat.Option, but its members are typed int)
             A.setOption(PETSc.Mat.Option.SYMMETRIC, True)  # type: ignore[arg-type]
             ksp = PETSc.KSP().create(PETSc.COMM_SELF)
@@ -474,8 +469,7 @@ class _Problem:
                                            self._sv)  # Hessian blocks times s_v s_w
         gz = np.einsum("kcd,kc->kd", self.Em, g[self.moving]).ravel()
         if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
-            R = self.R[self.cells.cells[self.rot]]  # (k, d + 1, d, d)
-            Hz[self.rot] = np.einsum("mvca,mvcwe,mweb->mvawb", R, Hz[self.rot], R)
+            kernels.rotate_hessians(Hz, self.R[self.cells.cells[self.rot]], self.rot)
         hv = Hz.reshape(-1).take(self._hidx)
         gz[self.dead] = 0.0
         return F, gz, hv
