@@ -961,10 +961,22 @@ class GlobalSearcher:
         if n == 0:
             empty = (np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0))
             return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
+        pt, ent, params, dist = self.search_rows(X, k_seeds, accept)
+        return _pick(n, pt, ent, params, dist, (ent, params), accept)
+
+    def search_rows(
+        self,
+        points: npt.ArrayLike,
+        k_seeds: int | None = None,
+        accept: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every Newton result of :meth:`search` before the pick: ``(pt (m,), ent (m,),
+        params (m, d), dist (m,))``, one row per (point, seed) pair, the point ``pt`` a row
+        of ``points (n, 3)`` (rows of one point and entity may repeat)."""
+        X = _points3(points)
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
         pt, ent, params, dist = self._nearer_boxes(X, pt, ent, params, dist, k_seeds, accept)
-        pt, ent, params, dist = self._past_saddles(X, pt, ent, params, dist, k_seeds, accept)
-        return _pick(n, pt, ent, params, dist, (ent, params), accept)
+        return self._past_saddles(X, pt, ent, params, dist, k_seeds, accept)
 
     def _past_saddles(self, X: np.ndarray, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray,
                       k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
@@ -1004,8 +1016,8 @@ class GlobalSearcher:
         if rows.size == 0:
             return pt, ent, params, dist
         k = SADDLE_SEEDS * (self.k_seeds if k_seeds is None else int(k_seeds))
-        par, _, d = self.search_on(X[pt[rows]], ent[rows], k)[:3]
-        return (np.concatenate([pt, pt[rows]]), np.concatenate([ent, ent[rows]]), np.concatenate([params, par]),
+        q, e, par, _, d = self._rows_on(X[pt[rows]], ent[rows], k)
+        return (np.concatenate([pt, pt[rows][q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
 
     def _box_classes(self) -> list[tuple[np.ndarray, float, cKDTree]]:
@@ -1024,8 +1036,8 @@ class GlobalSearcher:
                       k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
         """The Newton results ``(pt, ent, params, dist)`` of the seeded search, with those on
         every entity whose bounding box is nearer to a point than the point's best (accepted)
-        result and that no seed of the point tried (:meth:`search_on`: closed form on analytic
-        entities, the entity's own nearest samples on NURBS).
+        result and on which no seed of the point gave an accepted result (:meth:`search_on`:
+        closed form on analytic entities, the entity's own nearest samples on NURBS).
 
         The nearest grid samples of a point can all lie on small, densely sampled faces
         while its closest point is on a large, coarsely sampled one (a plane beside the
@@ -1052,12 +1064,12 @@ class GlobalSearcher:
         if not new_pt:
             return pt, ent, params, dist
         p, e = np.concatenate(new_pt), np.concatenate(new_ent)
-        fresh = ~np.isin(p * E + e, pt * E + ent)
+        fresh = ~np.isin(p * E + e, pt[ok] * E + ent[ok])  # no seed of the point gave a result on that face
         p, e = p[fresh], e[fresh]
         if p.size == 0:
             return pt, ent, params, dist
-        par, _, d = self.search_on(X[p], e, k_seeds)[:3]
-        return (np.concatenate([pt, p]), np.concatenate([ent, e]), np.concatenate([params, par]),
+        q, e, par, _, d = self._rows_on(X[p], e, k_seeds)  # every seed's result: some may be on the face
+        return (np.concatenate([pt, p[q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
 
     def search_all(
@@ -1108,6 +1120,13 @@ class GlobalSearcher:
         if n == 0:
             empty = (np.zeros((0, self.param_dim)), np.zeros((0, 3)), np.zeros(0))
             return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
+        pt, en, params, proj, dist = self._rows_on(X, ent, k_seeds)
+        return _pick(n, pt, en, params, dist, (params, proj), accept)
+
+    def _rows_on(self, X: np.ndarray, ent: np.ndarray, k_seeds: int | None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every Newton result of :meth:`search_on` of points ``X (n, 3)`` on entities
+        ``ent (n,)``: ``(pt, ent, params, proj, dist)``, one row per (point, seed) pair."""
         kk = self.k_seeds if k_seeds is None else int(k_seeds)
         pts, ents, seeds = [], [], []
         g = Groups(ent)
@@ -1126,7 +1145,7 @@ class GlobalSearcher:
             seeds.append(Pe[idx.reshape(len(sel), ke).ravel()])
         pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
         params, proj, dist, _, _ = self.refine(pt, en, sd, X)
-        return _pick(n, pt, en, params, dist, (params, proj), accept)
+        return pt, en, params, proj, dist
 
 
 def _pick(n: int, pt, ent, params, dist, columns: tuple, accept) -> tuple:
