@@ -11,8 +11,10 @@ boundary candidate:
 1. the closest point ``E`` of ``x`` on the face's CAD edges (their 3D curves,
    :class:`~nagata_snap.cad.stage.CadTopology`: closed form or Newton, as
    OpenCASCADE measures a point's distance to a face's edges);
-2. ``E`` on the face: its projection onto the face's surface (the edge lies
-   on it within the file's tolerance), whose parameters are on the loop;
+2. ``E`` on the face: its projection onto the face's surface, whose
+   parameters are on the loop where the edge lies on the surface (within
+   :data:`EDGE_GAP` of the model size; a file whose edges are only within a
+   looser tolerance of their faces gets no boundary candidate there);
 3. a foot point within a loop's band is kept only if it lies inside the
    true trimming curve through ``E``
    (:meth:`~nagata_snap.cad.trimming.TrimLoops.outside_by`).
@@ -28,6 +30,10 @@ from nagata_snap.cad.stage import StageGeometry
 from nagata_snap.mesh.arrays import best_per_group, norms
 
 __all__ = ["with_boundary"]
+
+#: an edge curve's point counts as on its face's boundary if within this fraction of the
+#: model size of the face's surface
+EDGE_GAP = 1e-10
 
 
 def _pairs(pt: np.ndarray, ent: np.ndarray, mask: np.ndarray, n_ent: int) -> tuple[np.ndarray, np.ndarray]:
@@ -94,9 +100,13 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     bp, bf, E = bp[hit], bf[hit], E[hit]
     if bp.size == 0:
         return pt, ent, params, dist, ok
-    qE = geo.searcher.search_on(E, bf)[0]  # the edge point's parameters on the face
-    on = trims.inside(bf, qE)
+    qE, _, gap = geo.searcher.search_on(E, bf)[:3]  # the edge point's parameters on the face
+    # an edge curve farther from its face than EDGE_GAP of the size (a file's loose tolerance)
+    # gives no boundary point: its surface point is not the edge's, nor its side the loop's
+    on = (gap <= EDGE_GAP * geo.size) & trims.inside(bf, qE)
     bp, bf, qE = bp[on], bf[on], qE[on]
+    if bp.size == 0:
+        return pt, ent, params, dist, ok
     # feet within a band: inside the trimming curve through their face's boundary point?
     band = np.flatnonzero(ok & ~sure)
     at = np.searchsorted(bp * ne + bf, pt[band] * ne + ent[band])

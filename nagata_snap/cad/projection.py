@@ -990,14 +990,23 @@ class GlobalSearcher:
         Hessian of ``|S - x|^2 / 2`` (``J^T J + (S - x) . S_ij``) at a point's best
         result is not positive definite, or the result is farther than
         :data:`SADDLE_SPACING` times the entity's sample spacing (a point close to the
-        surface between sparse samples), Newton runs again on that entity from its
+        surface between sparse samples), or where a tangent vanishes there (a rational
+        patch whose span collapses at an interior knot line: Newton's one-sided derivatives
+        stop on the line although the other side is nearer), Newton runs again on that entity from its
         :data:`SADDLE_SEEDS` times more nearest samples.
         """
         if self.param_dim != 2 or len(pt) == 0:
             return pt, ent, params, dist
         ok = np.ones(len(pt), dtype=bool) if accept is None else np.asarray(accept(ent, params), dtype=bool)
-        best = best_per_group(pt, (~ok, dist), len(X))
+        top = best_per_group(pt, (~ok, dist), len(X))
+        # the best result of every (point, entity) pair that ties with the point's best (faces
+        # meeting at the result: a wrong stop on one of them leaves the other's as the best)
+        E = len(self.entities)
+        _, pair = np.unique(pt * E + ent, return_inverse=True)
+        best = best_per_group(pair.reshape(-1), (~ok, dist), int(pair.max()) + 1)
         best = best[best >= 0]
+        lead = top[pt[best]]
+        best = best[(ok[best] == ok[lead]) & (dist[best] <= dist[lead] * (1.0 + 1e-9) + 1e-12 * self.size)]
         analytic = np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)])
         best = best[~analytic[ent[best]] & (dist[best] > 0)]
         if best.size == 0:
@@ -1010,8 +1019,9 @@ class GlobalSearcher:
             r = S - X[pt[rows]]
             A = np.einsum("nac,nbc->nab", T, T) + np.einsum("nc,nabc->nab", r, H)
             det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+            tn = np.linalg.norm(T, axis=2)  # (k, 2) |S_u|, |S_v|: one vanishes on a collapsed knot line
             saddle[g.order[sl]] = (det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | \
-                (dist[rows] > SADDLE_SPACING * self._spacing(e))
+                (dist[rows] > SADDLE_SPACING * self._spacing(e)) | (tn.min(axis=1) <= 1e-9 * tn.max(axis=1))
         rows = best[saddle]
         if rows.size == 0:
             return pt, ent, params, dist

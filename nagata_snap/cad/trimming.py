@@ -525,10 +525,12 @@ class TrimLoops:
         from nagata_snap.cad.projection import normalize_params
 
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
+        if len(ent) == 0:
+            return np.zeros(0)
         ref = np.asarray(ref, dtype=float).reshape(len(ent), -1)[:, :2]
         params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
         out = np.full(len(ent), np.nan)
-        rows = np.flatnonzero(self.trimmed[ent]) if len(ent) else np.zeros(0, dtype=np.int64)
+        rows = np.flatnonzero(self.trimmed[ent])
         g = Groups(ent[rows])
         for e, gs in g:  # loop over trimmed entities
             sel = rows[g.order[gs]]
