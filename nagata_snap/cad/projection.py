@@ -992,7 +992,9 @@ class GlobalSearcher:
         :data:`SADDLE_SPACING` times the entity's sample spacing (a point close to the
         surface between sparse samples), or where a tangent vanishes there (a rational
         patch whose span collapses at an interior knot line: Newton's one-sided derivatives
-        stop on the line although the other side is nearer), Newton runs again on that entity from its
+        stop on the line although the other side is nearer), or where the best result is on
+        several faces (their common edge: near a crease of a surface, the seeds of one basin
+        of the distance find its minimum at the edge, not the other basin's), Newton runs again on that entity from its
         :data:`SADDLE_SEEDS` times more nearest samples.
         """
         if self.param_dim != 2 or len(pt) == 0:
@@ -1007,11 +1009,11 @@ class GlobalSearcher:
         best = best[best >= 0]
         lead = top[pt[best]]
         best = best[(ok[best] == ok[lead]) & (dist[best] <= dist[lead] * (1.0 + 1e-9) + 1e-12 * self.size)]
-        analytic = np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)])
-        best = best[~analytic[ent[best]] & (dist[best] > 0)]
+        ties = np.bincount(pt[best], minlength=len(X))  # > 1: the best result is on an edge of faces
+        best = best[~self._closed_form[ent[best]] & (dist[best] > 0)]
         if best.size == 0:
             return pt, ent, params, dist
-        saddle = np.zeros(len(best), dtype=bool)
+        saddle = ties[pt[best]] > 1
         g = Groups(ent[best])
         for e, sl in g:  # loop over the entities of those results
             rows = best[g.order[sl]]
@@ -1020,7 +1022,7 @@ class GlobalSearcher:
             A = np.einsum("nac,nbc->nab", T, T) + np.einsum("nc,nabc->nab", r, H)
             det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
             tn = np.linalg.norm(T, axis=2)  # (k, 2) |S_u|, |S_v|: one vanishes on a collapsed knot line
-            saddle[g.order[sl]] = (det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | \
+            saddle[g.order[sl]] |= (det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | \
                 (dist[rows] > SADDLE_SPACING * self._spacing(e)) | (tn.min(axis=1) <= 1e-9 * tn.max(axis=1))
         rows = best[saddle]
         if rows.size == 0:
@@ -1029,6 +1031,14 @@ class GlobalSearcher:
         q, e, par, _, d = self._rows_on(X[pt[rows]], ent[rows], k)
         return (np.concatenate([pt, pt[rows][q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
+
+    @property
+    def _closed_form(self) -> np.ndarray:
+        """``(n_entities,)`` bool: the entity projects in closed form (analytic or affine)."""
+        if not hasattr(self, "_closed"):
+            self._closed = np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)],
+                                    dtype=bool)
+        return self._closed
 
     def _box_classes(self) -> list[tuple[np.ndarray, float, cKDTree]]:
         """The entities grouped by the size of their bounding boxes (half-diagonals within a
@@ -1046,8 +1056,8 @@ class GlobalSearcher:
                       k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
         """The Newton results ``(pt, ent, params, dist)`` of the seeded search, with those on
         every entity whose bounding box is nearer to a point than the point's best (accepted)
-        result and on which no seed of the point gave an accepted result (:meth:`search_on`:
-        closed form on analytic entities, the entity's own nearest samples on NURBS).
+        result (:meth:`search_on`: closed form on analytic entities, where no seed of the point
+        gave an accepted result on it; the entity's own nearest samples on NURBS, always).
 
         The nearest grid samples of a point can all lie on small, densely sampled faces
         while its closest point is on a large, coarsely sampled one (a plane beside the
@@ -1074,7 +1084,9 @@ class GlobalSearcher:
         if not new_pt:
             return pt, ent, params, dist
         p, e = np.concatenate(new_pt), np.concatenate(new_ent)
-        fresh = ~np.isin(p * E + e, pt[ok] * E + ent[ok])  # no seed of the point gave a result on that face
+        # closed form: where no seed of the point gave a result on that face; Newton: always (from the
+        # face's own samples: the global ones can all lie in the basin of a farther minimum)
+        fresh = ~np.isin(p * E + e, pt[ok] * E + ent[ok]) | ~self._closed_form[e]
         p, e = p[fresh], e[fresh]
         if p.size == 0:
             return pt, ent, params, dist
