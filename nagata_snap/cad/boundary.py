@@ -33,7 +33,7 @@ __all__ = ["with_boundary"]
 
 #: an edge curve's point counts as on its face's boundary if within this fraction of the
 #: model size of the face's surface
-EDGE_GAP = 1e-10
+EDGE_GAP = 1e-9
 
 
 def _pairs(pt: np.ndarray, ent: np.ndarray, mask: np.ndarray, n_ent: int) -> tuple[np.ndarray, np.ndarray]:
@@ -78,35 +78,45 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     Returns:
         ``(pt, ent, params, dist, ok)`` over the rows and the added boundary candidates,
         ``ok`` the rows on their face (a foot within a loop's band that the trimming curve
-        through the boundary candidate puts outside is not).
+        through the boundary candidate puts outside is not) and not farther than a boundary
+        point that could not be put on its face (its point is then not found).
     """
     trims = geo.trims
     assert trims is not None
     n, ne = len(X), geo.num_entities
     ok = trims.inside(ent, params)
     sure = ok & (trims.loop_distance(ent, params, enough=0.0) > 0.0)  # inside, beyond the band
-    best_ok = np.full(n, np.inf)
-    np.minimum.at(best_ok, pt[ok], dist[ok])
-    need = (~ok & (dist < best_ok[pt])) | (ok & ~sure)
-    need &= trims.trimmed[ent]
-    bp, bf = _pairs(pt, ent, need, ne)
-    if bp.size == 0:
-        return pt, ent, params, dist, ok
     best_sure = np.full(n, np.inf)
     np.minimum.at(best_sure, pt[sure], dist[sure])
+    # every (point, trimmed face) pair of the rows: where an edge of the face is nearer than the
+    # point's best sure result, the face's closest point is near that edge
+    bp, bf = _pairs(pt, ent, trims.trimmed[ent], ne)
+    if bp.size == 0:
+        return pt, ent, params, dist, ok
     bound = np.where(np.isfinite(best_sure), best_sure, geo.size)[bp] * (1.0 + 1e-9) + 1e-12 * geo.size
     E, dE = _on_edges(geo, X, bp, bf, bound)
     hit = np.isfinite(dE)
-    bp, bf, E = bp[hit], bf[hit], E[hit]
+    bp, bf, E, dE = bp[hit], bf[hit], E[hit], dE[hit]
     if bp.size == 0:
         return pt, ent, params, dist, ok
     qE, _, gap = geo.searcher.search_on(E, bf)[:3]  # the edge point's parameters on the face
+    # Newton on the face from the edge point: the face's minimum near its edge (the search's
+    # seeds may all lie in the basin of a farther one)
+    qN, _, dN, _, _ = geo.searcher.refine(bp, bf, qE, X)
+    pt, ent, params, dist = (np.concatenate([pt, bp]), np.concatenate([ent, bf]), np.concatenate([params, qN]),
+                             np.concatenate([dist, dN]))
+    ok = np.concatenate([ok, trims.inside(bf, qN)])
+    sure = np.concatenate([sure, ok[-len(bp):] & (trims.loop_distance(bf, qN, enough=0.0) > 0.0)])
     # an edge curve farther from its face than EDGE_GAP of the size (a file's loose tolerance)
-    # gives no boundary point: its surface point is not the edge's, nor its side the loop's
-    on = (gap <= EDGE_GAP * geo.size) & trims.inside(bf, qE)
+    # gives no boundary point: its surface point is not the edge's, nor its side the loop's;
+    # nothing farther than such an edge point counts for its point (``unsure``)
+    loose = gap > EDGE_GAP * geo.size
+    unsure = np.full(n, np.inf)
+    np.minimum.at(unsure, bp[loose], dE[loose])
+    on = ~loose & trims.inside(bf, qE)
     bp, bf, qE = bp[on], bf[on], qE[on]
     if bp.size == 0:
-        return pt, ent, params, dist, ok
+        return pt, ent, params, dist, ok & (dist <= unsure[pt])
     # feet within a band: inside the trimming curve through their face's boundary point?
     band = np.flatnonzero(ok & ~sure)
     at = np.searchsorted(bp * ne + bf, pt[band] * ne + ent[band])
@@ -116,5 +126,6 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     beyond = trims.outside_by(ent[band], qE[at], params[band]) > 0.0
     ok[band[beyond]] = False
     S = geo.evaluate(bf, qE[:, None, :])[:, 0]
-    return (np.concatenate([pt, bp]), np.concatenate([ent, bf]), np.concatenate([params, qE]),
-            np.concatenate([dist, norms(S - X[bp])]), np.concatenate([ok, np.ones(len(bp), dtype=bool)]))
+    pt, ent, params = np.concatenate([pt, bp]), np.concatenate([ent, bf]), np.concatenate([params, qE])
+    dist, ok = np.concatenate([dist, norms(S - X[bp])]), np.concatenate([ok, np.ones(len(bp), dtype=bool)])
+    return pt, ent, params, dist, ok & (dist <= unsure[pt])

@@ -1001,29 +1001,33 @@ class GlobalSearcher:
             return pt, ent, params, dist
         ok = np.ones(len(pt), dtype=bool) if accept is None else np.asarray(accept(ent, params), dtype=bool)
         top = best_per_group(pt, (~ok, dist), len(X))
-        # the best result of every (point, entity) pair that ties with the point's best (faces
-        # meeting at the result: a wrong stop on one of them leaves the other's as the best)
+        # the best result of every (point, entity) pair within twice the point's best: a tie (faces
+        # meeting at the result) or a stop on a collapsed knot line may hide a nearer minimum
         E = len(self.entities)
         _, pair = np.unique(pt * E + ent, return_inverse=True)
         best = best_per_group(pair.reshape(-1), (~ok, dist), int(pair.max()) + 1)
         best = best[best >= 0]
         lead = top[pt[best]]
-        best = best[(ok[best] == ok[lead]) & (dist[best] <= dist[lead] * (1.0 + 1e-9) + 1e-12 * self.size)]
-        ties = np.bincount(pt[best], minlength=len(X))  # > 1: the best result is on an edge of faces
-        best = best[~self._closed_form[ent[best]] & (dist[best] > 0)]
+        best = best[(ok[best] == ok[lead]) & (dist[best] <= 2.0 * dist[lead] + 1e-12 * self.size)]
+        tie = dist[best] <= dist[top[pt[best]]] * (1.0 + 1e-9) + 1e-12 * self.size
+        ties = np.bincount(pt[best[tie]], minlength=len(X))  # > 1: the best result is on an edge of faces
+        keep = ~self._closed_form[ent[best]] & (dist[best] > 0)
+        best, tie = best[keep], tie[keep]
         if best.size == 0:
             return pt, ent, params, dist
-        saddle = ties[pt[best]] > 1
+        saddle = tie & (ties[pt[best]] > 1)
         g = Groups(ent[best])
         for e, sl in g:  # loop over the entities of those results
-            rows = best[g.order[sl]]
+            at = g.order[sl]
+            rows = best[at]
             S, T, H = evaluate_params(self.entities[e], normalize_params(self.entities[e], params[rows]), 2)
             r = S - X[pt[rows]]
             A = np.einsum("nac,nbc->nab", T, T) + np.einsum("nc,nabc->nab", r, H)
             det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
             tn = np.linalg.norm(T, axis=2)  # (k, 2) |S_u|, |S_v|: one vanishes on a collapsed knot line
-            saddle[g.order[sl]] |= (det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | \
-                (dist[rows] > SADDLE_SPACING * self._spacing(e)) | (tn.min(axis=1) <= 1e-9 * tn.max(axis=1))
+            saddle[at] |= (tie[at] & ((det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) |
+                                      (dist[rows] > SADDLE_SPACING * self._spacing(e)))) | \
+                (tn.min(axis=1) <= 1e-9 * tn.max(axis=1))
         rows = best[saddle]
         if rows.size == 0:
             return pt, ent, params, dist
