@@ -42,6 +42,34 @@ def _pairs(pt: np.ndarray, ent: np.ndarray, mask: np.ndarray, n_ent: int) -> tup
     return key // n_ent, key % n_ent
 
 
+def _distinct(pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray, tol: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rows ``(pt, ent, params, dist)`` without repeats: one of the rows of a point and
+    entity whose distances agree to ``tol`` (length units; the seeds of one minimum)."""
+    key = np.round(dist / tol) if tol > 0 else dist
+    order = np.lexsort((key, ent, pt))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = (np.diff(pt[order]) != 0) | (np.diff(ent[order]) != 0) | (np.diff(key[order]) != 0)
+    keep = order[first]
+    return pt[keep], ent[keep], params[keep], dist[keep]
+
+
+def _sure(trims, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray, ok: np.ndarray,
+          n: int, ne: int) -> np.ndarray:
+    """``(m,)`` bool: the rows on their face beyond the band of its loops (where the polygon's
+    test is exact), tested for the rows that compete only (the nearest on its face of each
+    point and face, tying with the point's nearest): the others count as sure."""
+    best_ok = np.full(n, np.inf)
+    np.minimum.at(best_ok, pt[ok], dist[ok])
+    _, pair = np.unique(pt * ne + ent, return_inverse=True)
+    lead = best_per_group(pair.reshape(-1), dist, int(pair.max()) + 1, ok)
+    lead = lead[lead >= 0]
+    lead = lead[dist[lead] <= best_ok[pt[lead]] * (1.0 + 1e-6)]
+    sure = ok.copy()
+    sure[lead] = trims.loop_distance(ent[lead], params[lead], enough=0.0) > 0.0
+    return sure
+
+
 def _on_edges(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, face: np.ndarray, bound: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
     """Closest points of ``X[pt] (p, 3)`` on the edge curves of faces ``face (p,)``: ``(points
@@ -84,8 +112,9 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     trims = geo.trims
     assert trims is not None
     n, ne = len(X), geo.num_entities
+    pt, ent, params, dist = _distinct(pt, ent, params, dist, 1e-12 * geo.size)
     ok = trims.inside(ent, params)
-    sure = ok & (trims.loop_distance(ent, params, enough=0.0) > 0.0)  # inside, beyond the band
+    sure = _sure(trims, pt, ent, params, dist, ok, n, ne)
     best_sure = np.full(n, np.inf)
     np.minimum.at(best_sure, pt[sure], dist[sure])
     # every (point, trimmed face) pair of the rows: where an edge of the face is nearer than the
@@ -105,8 +134,11 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     qN, _, dN, _, _ = geo.searcher.refine(bp, bf, qE, X)
     pt, ent, params, dist = (np.concatenate([pt, bp]), np.concatenate([ent, bf]), np.concatenate([params, qN]),
                              np.concatenate([dist, dN]))
-    ok = np.concatenate([ok, trims.inside(bf, qN)])
-    sure = np.concatenate([sure, ok[-len(bp):] & (trims.loop_distance(bf, qN, enough=0.0) > 0.0)])
+    okN = trims.inside(bf, qN)
+    sureN = okN.copy()
+    win = np.flatnonzero(okN & (dN <= best_sure[bp] * (1.0 + 1e-6)))  # those that may compete
+    sureN[win] = trims.loop_distance(bf[win], qN[win], enough=0.0) > 0.0
+    ok, sure = np.concatenate([ok, okN]), np.concatenate([sure, sureN])
     # an edge curve farther from its face than EDGE_GAP of the size (a file's loose tolerance)
     # gives no boundary point: its surface point is not the edge's, nor its side the loop's;
     # nothing farther than such an edge point counts for its point (``unsure``)

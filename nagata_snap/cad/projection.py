@@ -969,7 +969,7 @@ class GlobalSearcher:
         points: npt.ArrayLike,
         k_seeds: int | None = None,
         accept: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, ...]:
         """Every Newton result of :meth:`search` before the pick: ``(pt (m,), ent (m,),
         params (m, d), dist (m,))``, one row per (point, seed) pair, the point ``pt`` a row
         of ``points (n, 3)`` (rows of one point and entity may repeat)."""
