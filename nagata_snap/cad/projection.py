@@ -763,6 +763,8 @@ def sample_entity(
 SADDLE_SEEDS = 6
 #: ... and where its best result is farther than this many times the entity's sample spacing
 SADDLE_SPACING = 0.25
+#: ... or farther than this fraction of the distance of the point's nearest sample of the entity
+SADDLE_SEED = 0.2
 #: most times more samples :func:`sample_entity` puts along a surface's sparser direction
 MAX_ANISOTROPY = 16
 
@@ -990,7 +992,9 @@ class GlobalSearcher:
         Hessian of ``|S - x|^2 / 2`` (``J^T J + (S - x) . S_ij``) at a point's best
         result is not positive definite, or the result is farther than
         :data:`SADDLE_SPACING` times the entity's sample spacing (a point close to the
-        surface between sparse samples), or where a tangent vanishes there (a rational
+        surface between sparse samples) or than :data:`SADDLE_SEED` times the point's nearest
+        sample of the entity (seeds on a thin tube's far side: Newton's minimum there is not
+        much nearer than they are), or where a tangent vanishes there (a rational
         patch whose span collapses at an interior knot line: Newton's one-sided derivatives
         stop on the line although the other side is nearer), or where the best result is on
         several faces (their common edge: near a crease of a surface, the seeds of one basin
@@ -1025,8 +1029,9 @@ class GlobalSearcher:
             A = np.einsum("nac,nbc->nab", T, T) + np.einsum("nc,nabc->nab", r, H)
             det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
             tn = np.linalg.norm(T, axis=2)  # (k, 2) |S_u|, |S_v|: one vanishes on a collapsed knot line
-            saddle[at] |= (tie[at] & ((det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) |
-                                      (dist[rows] > SADDLE_SPACING * self._spacing(e)))) | \
+            seed = self._entity_tree(e).query(X[pt[rows]])[0]  # the nearest sample of the entity
+            far = (dist[rows] > SADDLE_SPACING * self._spacing(e)) | (dist[rows] > SADDLE_SEED * seed)
+            saddle[at] |= (tie[at] & ((det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | far)) | \
                 (tn.min(axis=1) <= 1e-9 * tn.max(axis=1))
         rows = best[saddle]
         if rows.size == 0:
