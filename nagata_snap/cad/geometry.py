@@ -89,10 +89,12 @@ import numpy.typing as npt
 from nagata_snap.cad import attach as _attach
 from nagata_snap.cad import place as _place
 from nagata_snap.cad.attach import MeshHints
+from nagata_snap.cad.boundary import with_boundary
 from nagata_snap.cad.errors import CadError
 from nagata_snap.cad.params import unit_normals
 from nagata_snap.cad.projection import (
     GlobalSearcher,
+    _points3,
     entity_periods,
     evaluate_params,
     is_analytic,
@@ -101,7 +103,7 @@ from nagata_snap.cad.projection import (
 from nagata_snap.cad.stage import CadTopology
 from nagata_snap.cad.trimming import TRIM_RTOL, TrimLoops
 from nagata_snap.geometry import PlaceReport
-from nagata_snap.mesh.arrays import Groups
+from nagata_snap.mesh.arrays import Groups, best_per_group
 from nagata_snap.mesh.records import Records
 
 if TYPE_CHECKING:
@@ -388,20 +390,33 @@ class CadGeometry:
 
         Newton from the ``k_seeds`` nearest grid samples (samples on the faces
         only; analytic faces in closed form); a result on a surface's
-        extension beyond its face's trimming loops does not count.
+        extension beyond its face's trimming loops does not count.  With a
+        model's topology, a face whose surface foot point is outside it (or
+        within the band of a loop and outside the trimming curve) competes
+        with its boundary's closest point, on its edge curves
+        (:mod:`~nagata_snap.cad.boundary`).
 
         Returns:
             ``(entity (n,) int64, params (n, d), distance (n,))``; entity ``-1``
             and distance ``inf`` where no seed converged onto a face.
         """
         X = np.asarray(points, dtype=float)
-        res = self.searcher.search(X, accept=self._accept)
-        ent, par, dist = res[:3]
-        if self.trims is not None:
-            ok = res[3]
-            ent = np.where(ok, ent, -1)
-            dist = np.where(ok, dist, np.inf)
-        return ent.astype(np.int64), par, dist
+        if self.trims is None or self.topology is None or self.topology.searcher is None:
+            res = self.searcher.search(X, accept=self._accept)
+            ent, par, dist = res[:3]
+            if self.trims is not None:
+                ok = res[3]
+                ent = np.where(ok, ent, -1)
+                dist = np.where(ok, dist, np.inf)
+            return ent.astype(np.int64), par, dist
+        X = _points3(X)
+        if len(X) == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.param_dim)), np.zeros(0)
+        rows = self.searcher.search_rows(X, accept=self._accept)
+        pt, ent, par, dist, ok = with_boundary(self, X, *rows)
+        best = best_per_group(pt, (~ok, dist), len(X))  # every point has a row
+        found = ok[best]
+        return np.where(found, ent[best], -1).astype(np.int64), par[best], np.where(found, dist[best], np.inf)
 
     # ------------------------------------------------------------------
     # the stages: attach (cad.attach), place and project (cad.place)

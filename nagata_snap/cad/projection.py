@@ -763,6 +763,8 @@ def sample_entity(
 SADDLE_SEEDS = 6
 #: ... and where its best result is farther than this many times the entity's sample spacing
 SADDLE_SPACING = 0.25
+#: ... or farther than this fraction of the distance of the point's nearest sample of the entity
+SADDLE_SEED = 0.2
 #: most times more samples :func:`sample_entity` puts along a surface's sparser direction
 MAX_ANISOTROPY = 16
 
@@ -961,10 +963,22 @@ class GlobalSearcher:
         if n == 0:
             empty = (np.zeros(0, np.int64), np.zeros((0, self.param_dim)), np.zeros(0))
             return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
+        pt, ent, params, dist = self.search_rows(X, k_seeds, accept)
+        return _pick(n, pt, ent, params, dist, (ent, params), accept)
+
+    def search_rows(
+        self,
+        points: npt.ArrayLike,
+        k_seeds: int | None = None,
+        accept: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, ...]:
+        """Every Newton result of :meth:`search` before the pick: ``(pt (m,), ent (m,),
+        params (m, d), dist (m,))``, one row per (point, seed) pair, the point ``pt`` a row
+        of ``points (n, 3)`` (rows of one point and entity may repeat)."""
+        X = _points3(points)
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
         pt, ent, params, dist = self._nearer_boxes(X, pt, ent, params, dist, k_seeds, accept)
-        pt, ent, params, dist = self._past_saddles(X, pt, ent, params, dist, k_seeds, accept)
-        return _pick(n, pt, ent, params, dist, (ent, params), accept)
+        return self._past_saddles(X, pt, ent, params, dist, k_seeds, accept)
 
     def _past_saddles(self, X: np.ndarray, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray,
                       k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
@@ -978,35 +992,62 @@ class GlobalSearcher:
         Hessian of ``|S - x|^2 / 2`` (``J^T J + (S - x) . S_ij``) at a point's best
         result is not positive definite, or the result is farther than
         :data:`SADDLE_SPACING` times the entity's sample spacing (a point close to the
-        surface between sparse samples), Newton runs again on that entity from its
+        surface between sparse samples) or than :data:`SADDLE_SEED` times the point's nearest
+        sample of the entity (seeds on a thin tube's far side: Newton's minimum there is not
+        much nearer than they are), or where a tangent vanishes there (a rational
+        patch whose span collapses at an interior knot line: Newton's one-sided derivatives
+        stop on the line although the other side is nearer), or where the best result is on
+        several faces (their common edge: near a crease of a surface, the seeds of one basin
+        of the distance find its minimum at the edge, not the other basin's), Newton runs again on that entity from its
         :data:`SADDLE_SEEDS` times more nearest samples.
         """
         if self.param_dim != 2 or len(pt) == 0:
             return pt, ent, params, dist
         ok = np.ones(len(pt), dtype=bool) if accept is None else np.asarray(accept(ent, params), dtype=bool)
-        best = best_per_group(pt, (~ok, dist), len(X))
+        top = best_per_group(pt, (~ok, dist), len(X))
+        # the best result of every (point, entity) pair within twice the point's best: a tie (faces
+        # meeting at the result) or a stop on a collapsed knot line may hide a nearer minimum
+        E = len(self.entities)
+        _, pair = np.unique(pt * E + ent, return_inverse=True)
+        best = best_per_group(pair.reshape(-1), (~ok, dist), int(pair.max()) + 1)
         best = best[best >= 0]
-        analytic = np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)])
-        best = best[~analytic[ent[best]] & (dist[best] > 0)]
+        lead = top[pt[best]]
+        best = best[(ok[best] == ok[lead]) & (dist[best] <= 2.0 * dist[lead] + 1e-12 * self.size)]
+        tie = dist[best] <= dist[top[pt[best]]] * (1.0 + 1e-9) + 1e-12 * self.size
+        ties = np.bincount(pt[best[tie]], minlength=len(X))  # > 1: the best result is on an edge of faces
+        keep = ~self._closed_form[ent[best]] & (dist[best] > 0)
+        best, tie = best[keep], tie[keep]
         if best.size == 0:
             return pt, ent, params, dist
-        saddle = np.zeros(len(best), dtype=bool)
+        saddle = tie & (ties[pt[best]] > 1)
         g = Groups(ent[best])
         for e, sl in g:  # loop over the entities of those results
-            rows = best[g.order[sl]]
+            at = g.order[sl]
+            rows = best[at]
             S, T, H = evaluate_params(self.entities[e], normalize_params(self.entities[e], params[rows]), 2)
             r = S - X[pt[rows]]
             A = np.einsum("nac,nbc->nab", T, T) + np.einsum("nc,nabc->nab", r, H)
             det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
-            saddle[g.order[sl]] = (det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | \
-                (dist[rows] > SADDLE_SPACING * self._spacing(e))
+            tn = np.linalg.norm(T, axis=2)  # (k, 2) |S_u|, |S_v|: one vanishes on a collapsed knot line
+            seed = self._entity_tree(e).query(X[pt[rows]])[0]  # the nearest sample of the entity
+            far = (dist[rows] > SADDLE_SPACING * self._spacing(e)) | (dist[rows] > SADDLE_SEED * seed)
+            saddle[at] |= (tie[at] & ((det <= 0) | (A[:, 0, 0] + A[:, 1, 1] <= 0) | far)) | \
+                (tn.min(axis=1) <= 1e-9 * tn.max(axis=1))
         rows = best[saddle]
         if rows.size == 0:
             return pt, ent, params, dist
         k = SADDLE_SEEDS * (self.k_seeds if k_seeds is None else int(k_seeds))
-        par, _, d = self.search_on(X[pt[rows]], ent[rows], k)[:3]
-        return (np.concatenate([pt, pt[rows]]), np.concatenate([ent, ent[rows]]), np.concatenate([params, par]),
+        q, e, par, _, d = self._rows_on(X[pt[rows]], ent[rows], k)
+        return (np.concatenate([pt, pt[rows][q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
+
+    @property
+    def _closed_form(self) -> np.ndarray:
+        """``(n_entities,)`` bool: the entity projects in closed form (analytic or affine)."""
+        if not hasattr(self, "_closed"):
+            self._closed = np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)],
+                                    dtype=bool)
+        return self._closed
 
     def _box_classes(self) -> list[tuple[np.ndarray, float, cKDTree]]:
         """The entities grouped by the size of their bounding boxes (half-diagonals within a
@@ -1024,8 +1065,8 @@ class GlobalSearcher:
                       k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
         """The Newton results ``(pt, ent, params, dist)`` of the seeded search, with those on
         every entity whose bounding box is nearer to a point than the point's best (accepted)
-        result and that no seed of the point tried (:meth:`search_on`: closed form on analytic
-        entities, the entity's own nearest samples on NURBS).
+        result (:meth:`search_on`: closed form on analytic entities, where no seed of the point
+        gave an accepted result on it; the entity's own nearest samples on NURBS, always).
 
         The nearest grid samples of a point can all lie on small, densely sampled faces
         while its closest point is on a large, coarsely sampled one (a plane beside the
@@ -1052,12 +1093,14 @@ class GlobalSearcher:
         if not new_pt:
             return pt, ent, params, dist
         p, e = np.concatenate(new_pt), np.concatenate(new_ent)
-        fresh = ~np.isin(p * E + e, pt * E + ent)
+        # closed form: where no seed of the point gave a result on that face; Newton: always (from the
+        # face's own samples: the global ones can all lie in the basin of a farther minimum)
+        fresh = ~np.isin(p * E + e, pt[ok] * E + ent[ok]) | ~self._closed_form[e]
         p, e = p[fresh], e[fresh]
         if p.size == 0:
             return pt, ent, params, dist
-        par, _, d = self.search_on(X[p], e, k_seeds)[:3]
-        return (np.concatenate([pt, p]), np.concatenate([ent, e]), np.concatenate([params, par]),
+        q, e, par, _, d = self._rows_on(X[p], e, k_seeds)  # every seed's result: some may be on the face
+        return (np.concatenate([pt, p[q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
 
     def search_all(
@@ -1108,6 +1151,13 @@ class GlobalSearcher:
         if n == 0:
             empty = (np.zeros((0, self.param_dim)), np.zeros((0, 3)), np.zeros(0))
             return empty if accept is None else (*empty, np.zeros(0, dtype=bool))
+        pt, en, params, proj, dist = self._rows_on(X, ent, k_seeds)
+        return _pick(n, pt, en, params, dist, (params, proj), accept)
+
+    def _rows_on(self, X: np.ndarray, ent: np.ndarray, k_seeds: int | None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every Newton result of :meth:`search_on` of points ``X (n, 3)`` on entities
+        ``ent (n,)``: ``(pt, ent, params, proj, dist)``, one row per (point, seed) pair."""
         kk = self.k_seeds if k_seeds is None else int(k_seeds)
         pts, ents, seeds = [], [], []
         g = Groups(ent)
@@ -1126,7 +1176,7 @@ class GlobalSearcher:
             seeds.append(Pe[idx.reshape(len(sel), ke).ravel()])
         pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
         params, proj, dist, _, _ = self.refine(pt, en, sd, X)
-        return _pick(n, pt, en, params, dist, (params, proj), accept)
+        return pt, en, params, proj, dist
 
 
 def _pick(n: int, pt, ent, params, dist, columns: tuple, accept) -> tuple:
