@@ -54,7 +54,9 @@ def split_facets(imap: dolfinx.common.IndexMap, nodes: np.ndarray) -> np.ndarray
     A vertex on a process boundary has facets on several processes; each
     sees only its own unless they are exchanged (:func:`collective_place`).
     """
-    nodes = np.asarray(nodes).reshape(len(nodes), -1)
+    nodes = np.asarray(nodes)
+    if nodes.ndim == 1:
+        nodes = nodes[:, None]
     if imap.comm.size == 1:
         return np.zeros(len(nodes), dtype=bool)
     v = dolfinx.la.vector(imap, 1)
@@ -91,10 +93,12 @@ def collective_place(
     if split is not None and comm.size > 1:
         split = np.asarray(split, dtype=bool)
         parts = comm.allgather((records.root[split], records.params[split], np.asarray(straight)[split]))
-        other = [q for r, q in enumerate(parts) if r != comm.rank]
-        records = Records(np.concatenate([records.root, *(q[0] for q in other)]),
-                          np.concatenate([records.params, *(q[1] for q in other)]))
-        straight = np.concatenate([np.asarray(straight), *(q[2] for q in other)])
+        other = [q for r, q in enumerate(parts) if r != comm.rank and len(q[0])]
+        if other:  # (a process without facets has arrays of no particular shape)
+            own = [(records.root, records.params, np.asarray(straight))] if nf else []
+            both = own + other
+            records = Records(np.concatenate([q[0] for q in both]), np.concatenate([q[1] for q in both]))
+            straight = np.concatenate([q[2] for q in both])
     pts, recs, report = collective(comm, geometry.place, records, straight)
     pts, recs = pts[:nf], recs.take(np.arange(nf))
     unresolved = comm.allreduce(report.n_unresolved)
