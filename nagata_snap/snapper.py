@@ -45,7 +45,7 @@ from nagata_snap.mesh.boundary import (
     update_nodes,
 )
 from nagata_snap.mesh.lineage import LineageError, child_facets, child_interior_facets
-from nagata_snap.mesh.parallel import collective, collective_place
+from nagata_snap.mesh.parallel import collective, collective_place, split_facets
 from nagata_snap.mesh.records import Records, refine_records
 from nagata_snap.smoothing.kernels import warm_up
 from nagata_snap.smoothing.quality import QualityReport, degenerate_cells
@@ -382,7 +382,8 @@ class Snapper:
         nodes = level.boundary.nodes[level.snapped]
         pts, records, placed = collective_place(
             self.comm, self.geometry, level.records, x[nodes],
-            f"new boundary vertices at level {self.level + 1}")
+            f"new boundary vertices at level {self.level + 1}",
+            split=split_facets(level.mesh.geometry.index_map(), nodes))
         moved = update_nodes(level.mesh, x, nodes.ravel(), pts.reshape(-1, 3))
         return x_ref, moved, records, placed
 

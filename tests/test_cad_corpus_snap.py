@@ -82,3 +82,25 @@ def test_sliver_face_matches_its_file_face():
     local = order[np.searchsorted(gids[order], hints.nodes[on].ravel())]
     assert np.array_equal(gids[local], hints.nodes[on].ravel())
     assert np.allclose(cm.mesh.geometry.x[local, 2], -3.0, atol=1e-9)
+
+
+@pytest.mark.mpi
+def test_process_boundary_vertices_are_placed_as_in_serial(tmp_path):
+    """``mpiexec -n 2``: every new boundary vertex of a level is placed where the serial run puts
+    it (to 1e-12 of the model size).  A vertex on a process boundary has facets on both
+    processes; placed from the facets one process holds, a vertex of the screw's thread on faces
+    8 and 20 (the facets of face 8 all on one process) went 1.0e-10 of the size elsewhere."""
+    import json
+    import os
+    import subprocess
+
+    out = tmp_path / "place.json"
+    exe = os.path.join(os.path.dirname(sys.executable), "mpiexec")
+    r = subprocess.run([exe, "-n", "2", sys.executable, str(ROOT / "tests" / "mpi" / "place_split.py"),
+                        str(CORPUS / "m6_countersunk_screw_build123d.step"), str(out)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    res = json.loads(out.read_text())
+    assert res["serial"] == res["parallel"] and res["unmatched"] == 0 and res["one_to_one"], res
+    assert res["moved"] > 1000  # the thread's vertices do move onto the CAD
+    assert res["max"] <= 1e-12, res

@@ -5,14 +5,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+import dolfinx.common
+import dolfinx.la
 import mpi4py.MPI as MPI
 import numpy as np
 
 from nagata_snap.errors import CadError
+from nagata_snap.mesh.records import Records
 
 if TYPE_CHECKING:
     from nagata_snap.geometry import PlaceReport, SnapGeometry
-    from nagata_snap.mesh.records import Records
 
 
 def collective(comm: MPI.Comm, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
@@ -45,19 +47,60 @@ def collective(comm: MPI.Comm, fn: Callable[..., Any], *args: Any, **kwargs: Any
     return out
 
 
+def split_facets(imap: dolfinx.common.IndexMap, nodes: np.ndarray) -> np.ndarray:
+    """``(nf,)`` bool: the facets ``nodes (nf, nfv)`` (local nodes of ``imap``) with a node that
+    facets of another process share (collective).
+
+    A vertex on a process boundary has facets on several processes; each
+    sees only its own unless they are exchanged (:func:`collective_place`).
+    """
+    nodes = np.asarray(nodes)
+    if nodes.ndim == 1:
+        nodes = nodes[:, None]
+    if imap.comm.size == 1:
+        return np.zeros(len(nodes), dtype=bool)
+    v = dolfinx.la.vector(imap, 1)
+    v.array[:] = 0.0
+    v.array[np.unique(nodes)] = 1.0  # this process has facets at the node
+    v.scatter_reverse(dolfinx.la.InsertMode.add)  # owners: the number of such processes
+    v.scatter_forward()
+    return (v.array[nodes] > 1.5).any(axis=1)
+
+
 def collective_place(
-    comm: MPI.Comm, geometry: SnapGeometry, records: Records, straight: np.ndarray, what: str
+    comm: MPI.Comm, geometry: SnapGeometry, records: Records, straight: np.ndarray, what: str,
+    split: np.ndarray | None = None,
 ) -> tuple[np.ndarray, Records, PlaceReport]:
     """``geometry.place(records, straight)`` on every process (see :func:`collective`).
+
+    ``split (nf,)`` bool marks the facets at vertices shared with other
+    processes (:func:`split_facets`): every process places them along with
+    its own facets, so that each such vertex is placed from all its facets
+    (slots), on every process alike, as in a serial run: a vertex's
+    position depends on all its facets (the faces they are on, its CAD edge
+    or corner, its best slot).  They are gathered on every process (cost
+    ``O(processes x facets on process boundaries)``).
 
     Raises:
         CadError: on every process, if any point found no acceptable CAD
             projection (``report.n_unresolved``); ``what`` names the points.
 
     Returns:
-        What ``place`` returned: ``(points, records, report)``.
+        What ``place`` returned for this process's facets: ``(points, records,
+        report)`` (the report counts the other processes' facets placed here too).
     """
+    nf = len(records.root)
+    if split is not None and comm.size > 1:
+        split = np.asarray(split, dtype=bool)
+        parts = comm.allgather((records.root[split], records.params[split], np.asarray(straight)[split]))
+        other = [q for r, q in enumerate(parts) if r != comm.rank and len(q[0])]
+        if other:  # (a process without facets has arrays of no particular shape)
+            own = [(records.root, records.params, np.asarray(straight))] if nf else []
+            both = own + other
+            records = Records(np.concatenate([q[0] for q in both]), np.concatenate([q[1] for q in both]))
+            straight = np.concatenate([q[2] for q in both])
     pts, recs, report = collective(comm, geometry.place, records, straight)
+    pts, recs = pts[:nf], recs.take(np.arange(nf))
     unresolved = comm.allreduce(report.n_unresolved)
     if unresolved:
         raise CadError(
