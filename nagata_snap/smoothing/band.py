@@ -78,24 +78,23 @@ class NodeSync:
         Each process contributes its values at its own rows (owned and
         ghost); every copy of a node gets the sum.  Serial: a copy of ``a``.
         """
-        a = np.array(a, dtype=np.float64, copy=True)
-        if not self.parallel:
-            return a
-        bs = 1 if a.ndim == 1 else a.shape[1]
-        v = self._v(bs)
-        v.array[:] = a.reshape(-1)
-        v.scatter_reverse(dolfinx.la.InsertMode.add)
-        v.scatter_forward()
-        return v.array.reshape(a.shape).copy()
+        return self._exchange(a, add=True)
 
     def forward(self, a: np.ndarray) -> np.ndarray:
         """Copy of ``a`` (n, bs) / (n,) with ghost rows replaced by the owner's."""
+        return self._exchange(a, add=False)
+
+    def _exchange(self, a: np.ndarray, add: bool) -> np.ndarray:
+        """A copy of ``a`` through the ghost exchange: the copies summed onto the owner
+        first (``add``), then the owner's rows sent to the ghosts."""
         a = np.array(a, dtype=np.float64, copy=True)
         if not self.parallel:
             return a
         bs = 1 if a.ndim == 1 else a.shape[1]
         v = self._v(bs)
         v.array[:] = a.reshape(-1)
+        if add:
+            v.scatter_reverse(dolfinx.la.InsertMode.add)
         v.scatter_forward()
         return v.array.reshape(a.shape).copy()
 
