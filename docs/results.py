@@ -41,6 +41,20 @@ def blocks(page: Path) -> list[str]:
     return [m["cmd"] for m in BLOCK.finditer(page.read_text())]
 
 
+#: OpenCASCADE's console messages (the readers and writers a benchmark calls itself print
+#: coloured traces to standard output): dropped from what goes into the pages
+OCC_TRACE = re.compile(r"\x1b\[32;1m.*?\x1b\[0m\n?", re.S)
+
+
+def without_occ_traces(text: str) -> str:
+    """``text`` without OpenCASCADE's coloured console messages.
+
+    >>> without_occ_traces("a\\n\\x1b[32;1mTotal number of loaded entities 35.\\n\\x1b[0m\\nb\\n")
+    'a\\nb\\n'
+    """
+    return OCC_TRACE.sub("", text)
+
+
 def run(cmd: str, timeout: float) -> str:
     """Run ``cmd`` from the repository root; the Markdown that replaces its block's body."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
@@ -50,12 +64,12 @@ def run(cmd: str, timeout: float) -> str:
     t0 = time.perf_counter()
     try:
         r = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
-        out, status = r.stdout, f"exit status {r.returncode}"
+        out, status = without_occ_traces(r.stdout), f"exit status {r.returncode}"
         if r.returncode != 0:
             out += "\n[standard error, last lines]\n" + "\n".join(r.stderr.splitlines()[-20:])
     except subprocess.TimeoutExpired as e:
         partial = e.stdout.decode() if isinstance(e.stdout, bytes) else (e.stdout or "")
-        out, status = partial, f"stopped after the time-out of {timeout:.0f} s"
+        out, status = without_occ_traces(partial), f"stopped after the time-out of {timeout:.0f} s"
     seconds = time.perf_counter() - t0
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     fence = "````" if "```" in out else "```"
