@@ -202,6 +202,18 @@ def _basis(u: np.ndarray, v: np.ndarray, w: np.ndarray, degree: int, planar: boo
     return np.stack([*cols, u, v], axis=-1), high
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _reflect(v: np.ndarray, w: np.ndarray, j: int, n: int, vv: float) -> None:  # pragma: no cover (compiled)
+    """``w[j:n] -= 2 (v . w) / vv v`` over ``[j, n)``: the Householder reflection by ``v``
+    (``vv = |v|^2``) applied to ``w`` in place."""
+    dot = 0.0
+    for i in range(j, n):
+        dot += v[i] * w[i]
+    f = 2.0 * dot / vv
+    for i in range(j, n):
+        w[i] -= f * v[i]
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _householder_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, rows: np.ndarray, pen: np.ndarray,
                        x: np.ndarray) -> None:  # pragma: no cover (compiled)
@@ -263,19 +275,8 @@ def _householder_lstsq(P: np.ndarray, z: np.ndarray, wt: np.ndarray, rows: np.nd
             vv = 2.0 * nrm * (nrm + abs(aj[j]))  # |v|^2, v = a[j:, j] - alpha e_j
             aj[j] -= alpha
             for kk in range(j + 1, q):
-                ak = a[kk]
-                dot = 0.0
-                for i in range(j, N):
-                    dot += aj[i] * ak[i]
-                f = 2.0 * dot / vv
-                for i in range(j, N):
-                    ak[i] -= f * aj[i]
-            dot = 0.0
-            for i in range(j, N):
-                dot += aj[i] * y[i]
-            f = 2.0 * dot / vv
-            for i in range(j, N):
-                y[i] -= f * aj[i]
+                _reflect(aj, a[kk], j, N, vv)
+            _reflect(aj, y, j, N, vv)
             aj[j] = alpha
             diag[j] = abs(alpha)
         top, low = 0.0, np.inf
