@@ -108,8 +108,8 @@ def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, en
     cnt = np.searchsorted(pv, gid[idx], side="right") - lo
     faces = pf[np.repeat(lo, cnt) + ramp(cnt)]  # the faces of each slot's vertex
     rows = np.repeat(top.feature_rows(fid[idx]), cnt)
-    fcnt, fflat = top.feature_faces.take(np.arange(len(top.feature_faces.counts)))
-    fkeys = np.sort(np.repeat(np.arange(len(fcnt)), fcnt) * ne + fflat)
+    ff = top.feature_faces
+    fkeys = np.sort(np.repeat(np.arange(len(ff.counts)), ff.counts) * ne + ff.flat)
     key = rows * ne + faces
     at = np.minimum(np.searchsorted(fkeys, key), len(fkeys) - 1)
     miss = fkeys[at] != key if len(fkeys) else np.ones(len(key), dtype=bool)

@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from nagata_snap.cad.projection import evaluate_params, normalize_params, project_points
 from nagata_snap.cad.topology import CadModel
+from nagata_snap.mesh.arrays import Ragged
 
 __all__ = ["FAR_RTOL", "tolerance_gaps", "count_far"]
 
@@ -70,13 +71,8 @@ def tolerance_gaps(model: CadModel, faces: npt.ArrayLike, points: npt.ArrayLike,
     if len(faces) == 0:
         return gap
     # (point, edge) pairs: every edge with a curve bounding the point's face
-    fe = [model.faces[i].edges for i in range(len(model.faces))]
-    count = np.array([len(e) for e in fe], dtype=np.int64)
-    start = np.concatenate([[0], count.cumsum()])
-    flat = np.concatenate([*fe, np.zeros(0, dtype=np.int64)])
-    n = count[faces]
+    n, edge = Ragged([f.edges for f in model.faces]).take(faces)
     pt = np.repeat(np.arange(len(faces)), n)
-    edge = flat[np.repeat(start[faces], n) + (np.arange(n.sum()) - np.repeat(n.cumsum() - n, n))]
     etol = np.array([e.tolerance for e in model.edges] + [0.0])
     d = np.full(len(pt), np.inf)
     order = np.argsort(edge, kind="stable")
