@@ -58,6 +58,7 @@ refines each, the best is kept.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -1041,13 +1042,10 @@ class GlobalSearcher:
         return (np.concatenate([pt, pt[rows][q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
 
-    @property
+    @functools.cached_property
     def _closed_form(self) -> np.ndarray:
         """``(n_entities,)`` bool: the entity projects in closed form (analytic or affine)."""
-        if not hasattr(self, "_closed"):
-            self._closed = np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)],
-                                    dtype=bool)
-        return self._closed
+        return np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)], dtype=bool)
 
     def _box_classes(self) -> list[tuple[np.ndarray, float, cKDTree]]:
         """The entities grouped by the size of their bounding boxes (half-diagonals within a
