@@ -254,10 +254,10 @@ class _Client:
         msg = _recv(self.proc.stdout.fileno(), time.monotonic() + 300.0)
         if msg is None or msg[0] != "ready":
             self.stop()
-            raise RuntimeError(
-                f"the CAD reader process did not start: OpenCASCADE (module OCP, package "
-                f"cadquery-ocp) cannot be imported by {sys.executable}.  Install the CAD "
-                "extra: pip install 'nagata_snap[cad]'")
+            from nagata_snap.errors import missing_extra  # (the client side runs in the package)
+
+            raise RuntimeError("the CAD reader process did not start: "
+                               f"{missing_extra('OCP', 'to read CAD files')}")
 
     def stop(self) -> None:
         if self.proc is not None:
