@@ -32,9 +32,10 @@ Needs ngsPETSc, which is not a dependency of nagata_snap (its petsc4py
 requirement would build PETSc from source; the DOLFINx wheel brings its own)::
 
     python3.12 -m venv /work/venvs/ngs     # a venv of its own: netgen brings its own OpenCASCADE
-    /work/venvs/ngs/bin/pip install dolfinx-solver-real scipy netgen-mesher packaging
+    /work/venvs/ngs/bin/pip install dolfinx-solver-real scipy numba meshio netgen-mesher packaging
     /work/venvs/ngs/bin/pip install --no-deps ngsPETSc
     PYTHONPATH=$PWD /work/venvs/ngs/bin/python benchmarks/vs_ngspetsc.py [--dim 3]
+    python docs/results.py --only vs_ngspetsc --python vs_ngspetsc=/work/venvs/ngs/bin/python
 
 Serial only (the comparison is of the refinement step itself).
 """

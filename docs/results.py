@@ -3,6 +3,7 @@
     python docs/results.py                 # every command (slow: well over an hour on 2 cores)
     python docs/results.py --only snap_loop --only transfer.py
     python docs/results.py --list          # the commands, by page
+    python docs/results.py --only vs_ngspetsc --python vs_ngspetsc=/work/venvs/ngs/bin/python
     bash run.sh results [ARGS]             # the same
 
 Each results page (``docs/pages/results/*.md``) ends with blocks of the form::
@@ -55,12 +56,13 @@ def without_occ_traces(text: str) -> str:
     return OCC_TRACE.sub("", text)
 
 
-def run(cmd: str, timeout: float) -> str:
-    """Run ``cmd`` from the repository root; the Markdown that replaces its block's body."""
+def run(cmd: str, timeout: float, python: str = sys.executable) -> str:
+    """Run ``cmd`` from the repository root with ``python`` for a leading ``python``; the
+    Markdown that replaces its block's body."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
     argv = shlex.split(cmd)
     if argv[0] == "python":
-        argv[0] = sys.executable
+        argv[0] = python
     t0 = time.perf_counter()
     try:
         r = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
@@ -93,7 +95,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="run only the commands containing TEXT (repeatable)")
     parser.add_argument("--list", action="store_true", help="list the commands by page and exit")
     parser.add_argument("--timeout", type=float, default=7200.0, help="seconds per command")
+    parser.add_argument("--python", action="append", default=[], metavar="TEXT=EXE",
+                        help="run the commands containing TEXT with the interpreter EXE (repeatable;"
+                             " e.g. a venv with ngsPETSc for vs_ngspetsc, see its docstring)")
     args = parser.parse_args(argv)
+    pythons = [tuple(item.split("=", 1)) for item in args.python]
+    if any(len(p) != 2 for p in pythons):
+        parser.error("--python takes TEXT=EXE")
     pages = sorted(PAGES.glob("*.md"))
     todo = [(page, cmd) for page in pages for cmd in blocks(page)
             if not args.only or any(t in cmd for t in args.only)]
@@ -106,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     for page, cmd in todo:
         print(f"{page.relative_to(ROOT)}: {cmd} ...", flush=True)
-        body = run(cmd, args.timeout)
+        python = next((exe for text, exe in pythons if text in cmd), sys.executable)
+        body = run(cmd, args.timeout, python)
         update(page, cmd, body)
         print(f"  {body.rstrip().splitlines()[-1]}", flush=True)
     return 0
