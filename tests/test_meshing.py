@@ -22,7 +22,7 @@ import pytest
 from mpi4py import MPI
 
 import parts  # meshes/ is on sys.path (conftest.py)
-from nagata_snap.meshing import CadMesh, gmsh_session, import_cad, mesh_cad_file
+from nagata_snap.meshing import MAX_MOVE_RATIO, CadMesh, gmsh_session, import_cad, mesh_cad_file
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TOL = 1e-9  # relative to the model size
@@ -401,3 +401,62 @@ def test_points_embedded_in_a_face_are_in_its_closure():
         uv = table["params"][rows, cols]  # (k, 2) on the face, one per element using the node
         S = np.reshape(gmsh.model.getValue(2, top, uv.ravel()), (-1, 3))
         assert np.abs(S - [0.5, 0.37, 1.0]).max() < 1e-12
+
+
+def _tube_step(tmp_path) -> str:
+    """A thin tube (radii 1 and 0.95, height 2) as STEP: coarse cells span its wall."""
+    path = str(tmp_path / "tube.step")
+    with gmsh_session("tube"):
+        outer = gmsh.model.occ.addCylinder(0, 0, 0, 0, 0, 2, 1.0)
+        inner = gmsh.model.occ.addCylinder(0, 0, 0, 0, 0, 2, 0.95)
+        gmsh.model.occ.cut([(3, outer)], [(3, inner)])
+        gmsh.model.occ.synchronize()
+        gmsh.write(path)
+    return path
+
+
+def _exact_move_ratio(cm: CadMesh) -> float:
+    """The first level's largest boundary move over the cell heights, from the exact tube
+    (radii 1 and 0.95, axis z): an edge midpoint is |R - |(x, y)|| from a side of radius R,
+    0 from a planar end."""
+    X = cm.mesh.geometry.x
+    P, apex = X[cm.facets.nodes], X[cm.facets.opposite]
+    n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    height = np.abs(np.einsum("ij,ij->i", apex - P[:, 0], n)) / np.linalg.norm(n, axis=1)
+    r = np.linalg.norm(P[:, :, :2], axis=2)
+    mids = np.linalg.norm(((P + np.roll(P, 1, axis=1)) / 2)[:, :, :2], axis=2)
+    dist = np.zeros(len(P))
+    for R in (1.0, 0.95):
+        side = np.all(np.abs(r - R) < 1e-9, axis=1)
+        dist[side] = np.abs(R - mids[side]).max(axis=1)
+    return float((dist / height).max())
+
+
+def test_move_ratio_and_finer_mesh_for_snapping(tmp_path):
+    """A thin tube meshed at 12 elements per 2 pi with cells twice as long as its wall is thick:
+    the sides' edge midpoints are farther from the cylinders than the cells across the wall are
+    high.  ``move_ratio`` equals the exact ratio; above ``max_move_ratio`` the mesher doubles
+    the curvature sizing until the ratio is below it and says so, and the exact ratio of the
+    mesh it returns is below it too."""
+    path = _tube_step(tmp_path)
+    kept = mesh_cad_file(path, MPI.COMM_SELF, size=0.5, curvature=12, max_move_ratio=math.inf)
+    assert kept.meshed_with == ""
+    assert kept.move_ratio > 1.0
+    assert kept.move_ratio == pytest.approx(_exact_move_ratio(kept), rel=1e-6)
+    assert MAX_MOVE_RATIO > kept.move_ratio  # the default leaves this mesh as it is
+    default = mesh_cad_file(path, MPI.COMM_SELF, size=0.5, curvature=12)
+    assert default.meshed_with == "" and default.move_ratio == pytest.approx(kept.move_ratio, rel=1e-12)
+
+    lines: list[str] = []
+    cm = mesh_cad_file(path, MPI.COMM_SELF, size=0.5, curvature=12, max_move_ratio=1.0,
+                       on_retry=lines.append)
+    assert lines and "meshing again with 24 elements per 2 pi" in lines[0]
+    assert "curvature sizing" in cm.meshed_with and "for snapping" in cm.meshed_with
+    assert cm.move_ratio <= 1.0
+    assert cm.move_ratio == pytest.approx(_exact_move_ratio(cm), rel=1e-6)
+    assert cm.mesh.topology.index_map(3).size_global > kept.mesh.topology.index_map(3).size_global
+    check_on_cad(cm, path)
+
+    off = mesh_cad_file(path, MPI.COMM_SELF, size=0.5, curvature=12, max_move_ratio=None)
+    assert math.isnan(off.move_ratio) and off.meshed_with == ""
+    assert off.mesh.topology.index_map(3).size_global == kept.mesh.topology.index_map(3).size_global
