@@ -443,7 +443,7 @@ def test_move_ratio_and_finer_mesh_for_snapping(tmp_path):
     assert kept.meshed_with == ""
     assert kept.move_ratio > 1.0
     assert kept.move_ratio == pytest.approx(_exact_move_ratio(kept), rel=1e-6)
-    assert MAX_MOVE_RATIO > kept.move_ratio  # the default leaves this mesh as it is
+    assert kept.move_ratio < MAX_MOVE_RATIO  # the default leaves this mesh as it is
     default = mesh_cad_file(path, MPI.COMM_SELF, size=0.5, curvature=12)
     assert default.meshed_with == "" and default.move_ratio == pytest.approx(kept.move_ratio, rel=1e-12)
 
