@@ -1,8 +1,8 @@
 """NURBS curves and surfaces: vectorised evaluation of points and derivatives.
 
-Everything here is evaluated for many parameter values at once (numpy arrays
-over the points); the only Python loops run over the degree and the
-derivative order.
+Everything here is evaluated for many parameter values at once (arrays over
+the points); the basis functions and the sums over the control net are compiled
+kernels (:mod:`nagata_snap.cad.basis`) that loop over the points.
 
 Formulas (quoted from the project's source documents):
 
@@ -53,14 +53,15 @@ outcome is the evaluation's in both cases.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import cached_property, lru_cache
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+from nagata_snap.cad import basis as _kernels
 
 __all__ = [
     "NurbsError",
@@ -85,6 +86,8 @@ _ORDERS = {
     1: [(0, 0), (1, 0), (0, 1)],
     2: [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)],
 }
+#: the same as ``(a (n,), b (n,))`` int64 arrays, for the compiled sums
+_ORDER_ARRAYS = {n: tuple(np.array(c, dtype=np.int64) for c in zip(*o, strict=True)) for n, o in _ORDERS.items()}
 
 
 class NurbsError(ValueError):
@@ -184,72 +187,11 @@ def _basis_soa(
     out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Non-zero basis functions and derivatives as ``(nderiv+1, p+1, k)`` (points last),
-    into ``out`` if given (a work array reused over chunks).
-
-    Eq. (A.3)/(6) and eq. (46) evaluated on ``(k,)`` vectors, looping only
-    over the degree.  With ``i = s - r + a`` (``s`` the span, ``a = 0..r``)
-    and the differences ``left[j] = u - u_{s+1-j}``, ``right[j] = u_{s+j} - u``,
-    the two coefficients of (A.3) read::
-
-        (u - u_i)/(u_{i+r} - u_i)             = left[r-a+1] / D_r[a-1]
-        (u_{i+r+1} - u)/(u_{i+r+1} - u_{i+1}) = right[a+1]  / D_r[a]
-
-    with ``D_r[a] = right[a+1] + left[r-a] = u_{s+a+1} - u_{s-r+a+1}``, so
-    neighbouring functions share one division.  In a non-empty span every
-    ``D_r[a]`` spans ``[u_s, u_{s+1})`` and is positive (no 0/0 case).  The
-    denominators of eq. (46) are the same ``D_r``::
-
-        N^{(d)}_{i,r} = r ( N^{(d-1)}_{i,r-1} / D_r[a-1] - N^{(d-1)}_{i+1,r-1} / D_r[a] ).
-    """
-    k = u.shape[0]
+    into ``out`` if given: eqs. (A.3)/(6) and (46) by the compiled kernel
+    :func:`nagata_snap.cad.basis.basis` (its docstring gives the arrangement)."""
     if out is None:
-        out = np.empty((nderiv + 1, p + 1, k))
-    # LR[i] = u - u_{s+1-p+i} for i < p (left[p-i]), u_{s+1-p+i} - u for i >= p (right[i-p+1])
-    LR = knots.take(span + _knot_offsets(p))
-    np.subtract(u, LR[:p], out=LR[:p])
-    np.subtract(LR[p:], u, out=LR[p:])
-    # the r + 1 non-zero functions of degree r, rows a = 0..r: with no derivatives every
-    # level is computed in place in out[0], else each kept (levels[r], for eq. (46))
-    N = out[0, :1] if nderiv == 0 else np.empty((1, k))
-    N[0] = 1.0
-    levels, inv = [N], [N]  # inv[r] (r, k): 1 / D_r[a], a = 0..r-1
-    for r in range(1, p + 1):
-        right, left = LR[p : p + r], LR[p - r : p]  # right[1..r], left[r..1]
-        ia = np.add(right, left)
-        np.divide(1.0, ia, out=ia)
-        temp = N * ia
-        N = out[0, : r + 1] if nderiv == 0 else np.empty((r + 1, k))
-        np.multiply(right, temp, out=N[:r])
-        N[r] = 0.0
-        temp *= left
-        N[1:] += temp
-        levels.append(N)
-        inv.append(ia)
-    if nderiv == 0:
-        return out
-    out[0] = levels[p]
-    if nderiv > p:
-        out[p + 1 :] = 0.0  # derivatives of order > p
-    # D[r]: (d-1)-th derivatives of the r+1 non-zero degree-r functions
-    D: list = levels
-    for d in range(1, min(nderiv, p) + 1):
-        newD: list = [None] * (p + 1)
-        for r in range(max(p - nderiv + d, d), p + 1):
-            t = D[r - 1] * inv[r]  # (r, k)
-            cur = np.zeros((r + 1, k))
-            cur[1:] += t
-            cur[:-1] -= t
-            cur *= r
-            newD[r] = cur
-        D = newD
-        out[d] = D[p]
-    return out
-
-
-@lru_cache(maxsize=16)
-def _knot_offsets(p: int) -> np.ndarray:
-    """``(2p, 1)`` offsets ``1-p .. p`` from a span of the knots its degree-``p`` basis uses."""
-    return np.arange(1 - p, p + 1)[:, None]
+        out = np.empty((nderiv + 1, p + 1, u.shape[0]))
+    return _kernels.basis(knots, p, np.ascontiguousarray(span, dtype=np.int64), u, nderiv, out)
 
 
 def basis_functions(
@@ -289,8 +231,6 @@ def basis_functions(
     return span, _basis_soa(knots, p, span, u, int(nderiv)).transpose(0, 2, 1).copy()
 
 
-#: points per chunk in the evaluation kernels (keeps temporaries in cache)
-CHUNK = 4096
 #: :meth:`NurbsCurve.many` packs this many curves or more (fewer: one by one, which costs less)
 MANY_MIN = 4
 
@@ -418,49 +358,6 @@ def _weights(a: npt.ArrayLike, shape: tuple, what: str) -> np.ndarray:
             f"at flat index {bad}"
         )
     return w
-
-
-class _Work:
-    """Work arrays of an evaluation, allocated once for its first (largest) chunk and
-    reused (as contiguous views of the same memory) for the following ones.
-
-    ``reuse=False`` (an evaluation of one chunk, where nothing is reused): :meth:`get`
-    allocates and keeps nothing.
-    """
-
-    def __init__(self, chunk: int, reuse: bool = True) -> None:
-        self.chunk = chunk
-        self.reuse = reuse
-        self._bufs: dict[str, np.ndarray] = {}
-
-    def get(self, name: str, shape: tuple[int, ...], dtype: type = np.float64) -> np.ndarray:
-        """Contiguous ``shape`` array (its last axis at most :attr:`chunk` long)."""
-        if not self.reuse:
-            return np.empty(shape, dtype=dtype)
-        size = math.prod(shape)
-        buf = self._bufs.get(name)
-        if buf is None:
-            full = (*shape[:-1], self.chunk)
-            buf = self._bufs[name] = np.empty(math.prod(full), dtype=dtype)
-        return buf[:size].reshape(shape)
-
-
-def _quotient(H: np.ndarray, o: np.ndarray) -> None:
-    """Rational surface derivatives from the homogeneous sums, Neto (2010) eqs. (42)-(44).
-
-    ``H (1|3|6, 4, k)``: ``A_ab`` (rows 0-2) and ``B_ab`` (row 3) for the orders
-    ``S, Su, Sv, Suu, Suv, Svv``; writes ``S_ab`` into ``o (1|3|6, 3, k)``.
-    """
-    A, B = H[:, :3], H[:, 3]
-    iB = 1.0 / B[0]
-    o[0] = A[0] * iB
-    if len(H) >= 3:
-        o[1] = (A[1] - B[1] * o[0]) * iB  # S_u
-        o[2] = (A[2] - B[2] * o[0]) * iB  # S_v
-    if len(H) >= 6:
-        o[3] = (A[3] - 2.0 * B[1] * o[1] - B[3] * o[0]) * iB  # S_uu
-        o[4] = (A[4] - B[1] * o[2] - B[2] * o[1] - B[4] * o[0]) * iB  # S_uv
-        o[5] = (A[5] - 2.0 * B[2] * o[2] - B[5] * o[0]) * iB  # S_vv
 
 
 # ----------------------------------------------------------------------
@@ -628,24 +525,18 @@ class NurbsCurve(_ControlNet):
         Homogeneous sums ``A^{(d)} = sum N^{(d)}_i w_i P_i``, ``B^{(d)} = sum N^{(d)}_i w_i``
         and the quotient rule of Neto (2010) eqs. (42)-(43) (see module docs).
         """
-        u = params[0]
-        k = u.shape[0]
+        u = np.ascontiguousarray(params[0])
         p = self.degree
-        out = np.empty((nderiv + 1, 3, k))
-        for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
-            sl = slice(c0, min(k, c0 + CHUNK))
-            uc = u[sl]
-            span = find_span(self.knots, p, self.n_ctrl, uc, self._spans)
-            H = NurbsCurve._sums(self.knots, self._pwT, p, span, span - p, uc, nderiv)  # (nd+1, 4, kc)
-            A, B = H[:, :3], H[:, 3]
-            o = out[:, :, sl]
-            o[0] = A[0] / B[0]
-            if nderiv >= 1:
-                o[1] = (A[1] - B[1] * o[0]) / B[0]
-            if nderiv >= 2:
-                o[2] = (A[2] - 2.0 * B[1] * o[1] - B[2] * o[0]) / B[0]
+        span = find_span(self.knots, p, self.n_ctrl, u, self._spans)
+        H = NurbsCurve._sums(self.knots, self._pwT, p, span, span - p, u, nderiv)  # (nd+1, 4, k)
+        A, B = H[:, :3], H[:, 3]
+        out = np.empty((nderiv + 1, 3, u.shape[0]))
+        out[0] = A[0] / B[0]
+        if nderiv >= 1:
+            out[1] = (A[1] - B[1] * out[0]) / B[0]
+        if nderiv >= 2:
+            out[2] = (A[2] - 2.0 * B[1] * out[1] - B[2] * out[0]) / B[0]
         return out
-
 
     @staticmethod
     def _sums(knots: np.ndarray, pw: np.ndarray, p: int, span: np.ndarray, first: np.ndarray,
@@ -659,9 +550,9 @@ class NurbsCurve(_ControlNet):
         of degree ``p`` packed end to end (their knots concatenated, and their
         columns): ``span`` indexes the concatenated knots, ``first`` the columns.
         """
-        N = _basis_soa(knots, p, span, u, nderiv)  # (nd+1, p+1, k)
-        L = np.take(pw, first[None, :] + np.arange(p + 1)[:, None], axis=1)  # (c, p+1, k)
-        return np.einsum("dik,cik->dck", N, L)
+        H = np.empty((nderiv + 1, pw.shape[0], u.shape[0]))
+        return _kernels.curve_sums(knots, pw, p, np.ascontiguousarray(span, dtype=np.int64),
+                                   np.ascontiguousarray(first, dtype=np.int64), u, nderiv, H)
 
     @classmethod
     def many(cls, degrees: Sequence[int], knots: Sequence[Any], control_points: Sequence[Any],
@@ -849,16 +740,6 @@ class NurbsCurve(_ControlNet):
                 else:  # coordinate by coordinate (fancy indexing of rows of 2 or 3 iterates row by row)
                     for j, x in enumerate(H[:d] / H[d]):
                         out[:, j][sel] = x
-            # _eval_soa sums a chunk of one point (a curve's only point, or the last of its
-            # points past a multiple of CHUNK) with einsum's single-point kernel, whose
-            # rounding differs: those points again, alone
-            count = np.bincount(c, minlength=len(self.p)) % CHUNK  # points per curve past the chunks
-            if len(t) > 1 and (count == 1).any():
-                last = np.flatnonzero(np.append(c[1:] != c[:-1], True))  # each curve's last point
-                for j in last[count[c[last]] == 1].tolist():  # loop over such points (rare)
-                    sl = slice(j, j + 1)
-                    H = NurbsCurve._sums(self.K, self.W, int(self.p[c[j]]), span[sl], first[sl], t[sl], 0)[0]
-                    out[j] = H[:d, 0] / H[d, 0]
             return out
 
         def closed(self, cs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1120,61 +1001,14 @@ class NurbsSurface(_ControlNet):
         directly (no quotient).  The chunks share one set of work arrays.
         """
         u, v = params[0], params[1]
-        k = u.shape[0]
-        n_ord = len(_ORDERS[nderiv])
-        out = np.empty((n_ord, 3, k))
-        work = _Work(min(k, CHUNK), reuse=k > CHUNK)
-        for c0 in range(0, k, CHUNK):  # chunks of points (cache), not a per-point loop
-            sl = slice(c0, min(k, c0 + CHUNK))
-            kc = sl.stop - c0
-            if self._rational:
-                H = self._sums(u[sl], v[sl], nderiv, work.get("H", (n_ord, 4, kc)), work)
-                _quotient(H, out[:, :, sl])
-            else:
-                self._sums(u[sl], v[sl], nderiv, out[:, :, sl], work)
-        return out
-
-    def _sums(self, u: np.ndarray, v: np.ndarray, nderiv: int, H: np.ndarray, work: _Work) -> np.ndarray:
-        """``H[n] = sum_ij N^{(a)}_i(u) N^{(b)}_j(v) Pw_ij`` for the orders ``(a, b)`` of
-        ``nderiv``, into ``H (orders, channels, k)`` (``channels`` rows of :attr:`_pwT`)."""
         p, q = self.degree_u, self.degree_v
         nu, nv = self.n_ctrl
-        kc = u.shape[0]
-        ch = self._pwT.shape[0]
         su = find_span(self.knots_u, p, nu, u, self._spans_u)
         sv = find_span(self.knots_v, q, nv, v, self._spans_v)
-        if p == q:  # both directions in one pass over the degree: v on the knots after knots_u
-            nku = len(self.knots_u)
-            B = _basis_soa(self._knots_uv, p, np.concatenate([su, sv + nku]), np.concatenate([u, v]),
-                           nderiv, work.get("Nuv", (nderiv + 1, p + 1, 2, kc)).reshape(nderiv + 1, p + 1, 2 * kc))
-            Nu, Nv = B[:, :, :kc], B[:, :, kc:]
-        else:
-            Nu = _basis_soa(self.knots_u, p, su, u, nderiv, work.get("Nu", (nderiv + 1, p + 1, kc)))
-            Nv = _basis_soa(self.knots_v, q, sv, v, nderiv, work.get("Nv", (nderiv + 1, q + 1, kc)))
-        su -= p
-        su *= nv
-        sv -= q
-        su += sv  # flat index of the first control point of each point's (p+1) x (q+1) block
-        flat = work.get("flat", (p + 1, q + 1, kc), np.int64)
-        np.add(self._block_offsets, su, out=flat)
-        L = self._pwT.take(flat, axis=1, out=work.get("L", (ch, p + 1, q + 1, kc)), mode="clip")
-        # along v: T[b] = sum_j N^{(b)}_j(v) Pw_ij -> (nd+1, channels, p+1, kc)
-        T = np.einsum("bjk,cijk->bcik", Nv, L, out=work.get("T", (nderiv + 1, ch, p + 1, kc)))
-        # along u: H_ab = sum_i N^{(a)}_i(u) T[b]_i
-        for n, (a, b) in enumerate(_ORDERS[nderiv]):
-            np.einsum("ik,cik->ck", Nu[a], T[b], out=H[n])
-        return H
-
-    @cached_property
-    def _knots_uv(self) -> np.ndarray:
-        """``knots_u`` then ``knots_v``, one array (basis functions of both directions in one call)."""
-        return np.concatenate([self.knots_u, self.knots_v])
-
-    @cached_property
-    def _block_offsets(self) -> np.ndarray:
-        """``(p+1, q+1, 1)`` flat offsets ``i nv + j`` of a control block from its first point."""
-        nv = self.n_ctrl[1]
-        return (np.arange(self.degree_u + 1)[:, None] * nv + np.arange(self.degree_v + 1))[:, :, None]
+        oa, ob = _ORDER_ARRAYS[nderiv]
+        out = np.empty((len(oa), 3, u.shape[0]))
+        return _kernels.surface_points(self.knots_u, self.knots_v, p, q, nv, self._pwT, su, sv,
+                                       np.ascontiguousarray(u), np.ascontiguousarray(v), nderiv, oa, ob, out)
 
     def __repr__(self) -> str:
         return (
