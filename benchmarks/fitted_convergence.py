@@ -174,8 +174,14 @@ def time_ratio(kind: str, h: float, degree: int, reps: int = 3) -> tuple[float, 
     return best[0], best[1], best[1] / best[0]
 
 
-def part_distances(geo, per_edge: int = 6) -> np.ndarray:
-    """``(F,)`` largest distance of each coarse facet's samples from its own CAD face (current gmsh model)."""
+#: a distance above this fraction of the model size is a jump of gmsh's closest point off the face
+#: (``occ_reference.gmsh_face_distance``): measured against the neighbouring faces too
+JUMP = 1e-3
+
+
+def part_distances(geo, size: float, per_edge: int = 6) -> np.ndarray:
+    """``(F,)`` largest distance of each coarse facet's samples from its own CAD face (current gmsh model;
+    a face's neighbours where that exceeds ``JUMP`` of the model ``size``)."""
     from occ_reference import gmsh_face_distance
 
     g = barycentric_grid(3, per_edge)
@@ -183,7 +189,7 @@ def part_distances(geo, per_edge: int = 6) -> np.ndarray:
     d = np.zeros(geo.num_patches)
     for tag in np.unique(geo.tag):
         s = np.flatnonzero(geo.tag == tag)
-        d[s] = gmsh_face_distance(int(tag), x[s].reshape(-1, 3)).reshape(len(s), -1).max(axis=1)
+        d[s] = gmsh_face_distance(int(tag), x[s].reshape(-1, 3), JUMP * size).reshape(len(s), -1).max(axis=1)
     return d
 
 
@@ -200,7 +206,8 @@ def snap_levels(cm, geo, levels: int, faces: list[int]) -> tuple[float, list[int
     for _ in range(levels):
         mesh, ft, _, _, report = snapper.refine(mesh)
         short.append(int(report.partially_moved))
-    return float(face_distances(mesh, ft, faces).max()) / cm.model_size, short, mesh.topology.index_map(3).size_global
+    d = face_distances(mesh, ft, faces, JUMP * cm.model_size)
+    return float(d.max()) / cm.model_size, short, mesh.topology.index_map(3).size_global
 
 
 def part_study(names: list[str], degree: int, levels: int = 0) -> dict[str, float]:
@@ -227,7 +234,7 @@ def part_study(names: list[str], degree: int, levels: int = 0) -> dict[str, floa
                 cm = mesh_cad_file(path, MPI.COMM_SELF, curvature=12)
                 nag = NagataGeometry(cm.mesh, cm.facet_tags)
                 fit = FittedGeometry(cm.mesh, cm.facet_tags, degree=degree)
-                dn, df = part_distances(nag), part_distances(fit)
+                dn, df = part_distances(nag, cm.model_size), part_distances(fit, cm.model_size)
                 g = barycentric_grid(3, 6)
                 lam = np.broadcast_to(g, (fit.num_patches, *g.shape))
                 best = [np.inf, np.inf]
