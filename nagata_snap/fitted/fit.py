@@ -345,21 +345,29 @@ def fit_levels(
             cache[width] = stencil(width, np.flatnonzero(todo))
         idx, mask = cache[width]
         cols = columns(degree)
-        for lo in range(0, S, BATCH):
-            mk = mask[lo:lo + BATCH]
-            enough = (mk.sum(axis=1) if equations is None else equations(mk)) >= len(cols) + EXTRA_POINTS
-            sel = lo + np.flatnonzero(todo[lo:lo + BATCH] & enough)
-            if len(sel) == 0:
-                continue
-            m = int(mask[sel].sum(axis=1).max())
-            order = np.argsort(~mask[sel], axis=1, kind="stable")[:, :m]  # valid points first
-            c = fit(sel, np.take_along_axis(idx[sel], order, axis=1),
-                    np.take_along_axis(mask[sel], order, axis=1), degree, variant)
-            ok = np.isfinite(c).all(axis=(1, 2))
-            coef[sel[ok][:, None, None], np.arange(comps)[None, :, None], cols[None, None, :]] = c[ok]
-            got[sel[ok]] = degree
-            level[sel[ok]] = li
+        count = mask.sum(axis=1)
+        enough = (count if equations is None else equations(mask)) >= len(cols) + EXTRA_POINTS
+        todo = np.flatnonzero(todo & enough)
+        # stencils of like size together: each batch is padded to its largest (one stencil of 110
+        # points among stencils of 28 on a part whose small holes sit in large faces)
+        size_class = np.floor(np.log(np.maximum(count[todo], 1)) / np.log(SIZE_CLASS)).astype(np.int64)
+        for k in np.unique(size_class):
+            group = todo[size_class == k]
+            for lo in range(0, len(group), BATCH):
+                sel = group[lo:lo + BATCH]
+                m = int(count[sel].max())
+                order = np.argsort(~mask[sel], axis=1, kind="stable")[:, :m]  # valid points first
+                c = fit(sel, np.take_along_axis(idx[sel], order, axis=1),
+                        np.take_along_axis(mask[sel], order, axis=1), degree, variant)
+                ok = np.isfinite(c).all(axis=(1, 2))
+                coef[sel[ok][:, None, None], np.arange(comps)[None, :, None], cols[None, None, :]] = c[ok]
+                got[sel[ok]] = degree
+                level[sel[ok]] = li
     return coef, got, level
+
+
+#: Stencils are fitted in groups whose point counts lie within this ratio (padding bounded).
+SIZE_CLASS = 1.25
 
 
 #: Slope equations of a crease curve fit are used where the two faces' normals
