@@ -16,28 +16,30 @@ points, as a refinement level's placement does for its new vertices).
 
 2D: polygons inscribed in the ellipse 1 x 0.5 (unequal segments).
 
-Parts (``--parts``, default ``plate_filleted,plate`` of ``meshes/parts.py``,
-STEP meshed by :func:`nagata_snap.meshing.mesh_cad_file`, curvature sizing 12
-per 2 pi, one tag per CAD face): the largest distance to the CAD (OpenCASCADE's
-closest point on each facet's own face, through gmsh) of both surfaces over the
+Parts (``--parts``, default ``plate_filleted,plate`` of ``meshes/parts.py`` and
+two machined parts of the corpus, the CAx-IF ``io1`` part and the NEMA-17
+bracket; STEP/IGES files are taken too), meshed by
+:func:`nagata_snap.meshing.mesh_cad_file` (curvature sizing 12 per 2 pi, one
+tag per CAD face): the largest distance to the CAD (OpenCASCADE's closest
+point on each facet's own face, through gmsh) of both surfaces over the
 coarse mesh (6 intervals per edge), over the model size, the ratio fitted /
-Nagata, the faces where the fitted surface's largest distance sits, the points
-whose departure was bounded, and the set-up + placement seconds (best of 3) of
-both; with ``--part-levels N`` also ``N`` uniform levels snapped with each
-surface: the largest distance of the vertices on curved faces from their face
-and the vertices left short at each level.  ``--parts`` also takes STEP/IGES
-files (``meshes/corpus/...``).  Line ``fitted_over_nagata_parts <part> <ratio> ...``.
-The cylinder's line ``cylinder_order <finest pair>
-rim_distance_max <largest rim distance over all h>``; ``time_ratio <surface>
-<fitted / Nagata set-up + placement at h = 0.05, best of 3 alternating runs>``.
+Nagata, the faces where the fitted surface's largest distance sits, the
+points whose departure was bounded, and the set-up + placement seconds (best
+of 3) of both; with ``--part-levels N`` also ``N`` uniform levels snapped
+with each surface: the largest distance of the vertices on curved faces from
+their face and the vertices left short at each level.  Line
+``fitted_over_nagata_parts <part> <ratio> ...``.  The cylinder's line
+``cylinder_order <finest pair> rim_distance_max <largest rim distance over
+all h>``; ``time_ratio <surface> <fitted / Nagata set-up + placement at h =
+0.05, best of 3 alternating runs>``.
 
 Last lines: ``fitted_order_estimated <min finest-pair order over the torus and
 the ellipsoid>`` and ``fitted_over_nagata <max fitted / Nagata error ratio at
 h = 0.05 over the torus and the ellipsoid>`` (the cylinder's is in its table).
 
 Usage: ``python benchmarks/fitted_convergence.py [--hmin 0.025] [--surfaces torus,ellipsoid,cylinder]
-[--degree 4] [--parts plate_filleted,plate] [--part-levels 2]`` (``--parts ""``: none; the default, down to 0.025 on
-the three surfaces, takes about 4 minutes).
+[--degree 4] [--parts plate_filleted,plate,FILE] [--part-levels 2]`` (``--parts ""``: none; the
+default, down to 0.025 on the three surfaces, takes about 4 minutes).
 """
 
 from __future__ import annotations
@@ -57,6 +59,11 @@ from surfaces import barycentric_grid, ellipse_polygon, gmsh_surface, nagata_sur
 from nagata_snap import FittedGeometry, NagataGeometry
 
 SURFACES = ("torus", "ellipsoid", "cylinder")
+
+#: the default parts: two of meshes/parts.py and two machined parts of the corpus written by CAD systems
+CORPUS = os.path.join(os.path.dirname(__file__), "..", "meshes", "corpus")
+PARTS = ("plate_filleted", "plate", os.path.join(CORPUS, "io1_part_cocreate_cax_if.stp"),
+         os.path.join(CORPUS, "nema17_bracket_build123d.step"))
 
 
 def max_distance(geo, dist, per_edge: int = 12) -> tuple[float, float]:
@@ -264,7 +271,7 @@ def main() -> None:
     ap.add_argument("--hmin", type=float, default=0.025, help="finest gmsh mesh size (from 0.2, halving)")
     ap.add_argument("--surfaces", default=",".join(SURFACES), help="comma-separated subset of " + ",".join(SURFACES))
     ap.add_argument("--degree", type=int, default=4, help="fit degree (degree 3 is shown beside it)")
-    ap.add_argument("--parts", default="plate_filleted,plate",
+    ap.add_argument("--parts", default=",".join(PARTS),
                     help="comma-separated parts of meshes/parts.py or STEP/IGES files")
     ap.add_argument("--part-levels", type=int, default=0,
                     help="also snap the parts through this many uniform levels with each surface")
