@@ -115,8 +115,8 @@ class SectorRings:
     Ring 1 is the sector's own facets; each further ring adds the facets
     sharing a vertex with the previous ones (same region).  The rings grown
     for all sectors are kept, so the jets' stencils (rings 1 to 3) and the
-    fitted surface's (:mod:`nagata_snap.fitted`, 3 and 4) grow each ring once;
-    :meth:`release` drops them.
+    fitted surface's (:mod:`nagata_snap.fitted`, 3 and 4) grow each ring once
+    (the object holds their memory until it is dropped).
 
     Args:
         vid: ``(F, nfv)`` vertex index of each facet corner.
@@ -185,12 +185,6 @@ class SectorRings:
         mask = np.zeros(idx.shape, dtype=bool)
         idx[rows], mask[rows] = out
         return idx, mask
-
-    def release(self) -> None:
-        """Drop the kept rings and stencils (their memory)."""
-        self._rings = {1: self._rings[1]}
-        self._stencils.clear()
-        self._ff = None
 
 
 def sector_stencils(
