@@ -16,24 +16,30 @@ points, as a refinement level's placement does for its new vertices).
 
 2D: polygons inscribed in the ellipse 1 x 0.5 (unequal segments).
 
-Parts (``--parts``, default ``plate_filleted,plate`` of ``meshes/parts.py``,
-STEP meshed by :func:`nagata_snap.meshing.mesh_cad_file`, curvature sizing 12
-per 2 pi, one tag per CAD face): the largest distance to the CAD (OpenCASCADE's
-closest point on each facet's own face, through gmsh) of both surfaces over the
+Parts (``--parts``, default ``plate_filleted,plate`` of ``meshes/parts.py`` and
+two machined parts of the corpus, the CAx-IF ``io1`` part and the NEMA-17
+bracket; STEP/IGES files are taken too), meshed by
+:func:`nagata_snap.meshing.mesh_cad_file` (curvature sizing 12 per 2 pi, one
+tag per CAD face): the largest distance to the CAD (OpenCASCADE's closest
+point on each facet's own face, through gmsh) of both surfaces over the
 coarse mesh (6 intervals per edge), over the model size, the ratio fitted /
-Nagata, the faces where the fitted surface's largest distance sits, and the
-set-up + placement seconds (best of 3) of both; line ``fitted_over_nagata_parts
-<part> <ratio> ...``.  The cylinder's line ``cylinder_order <finest pair>
-rim_distance_max <largest rim distance over all h>``; ``time_ratio <surface>
-<fitted / Nagata set-up + placement at h = 0.05, best of 3 alternating runs>``.
+Nagata, the faces where the fitted surface's largest distance sits, the
+points whose departure was bounded, and the set-up + placement seconds (best
+of 3) of both; with ``--part-levels N`` also ``N`` uniform levels snapped
+with each surface: the largest distance of the vertices on curved faces from
+their face and the vertices left short at each level.  Line
+``fitted_over_nagata_parts <part> <ratio> ...``.  The cylinder's line
+``cylinder_order <finest pair> rim_distance_max <largest rim distance over
+all h>``; ``time_ratio <surface> <fitted / Nagata set-up + placement at h =
+0.05, best of 3 alternating runs>``.
 
 Last lines: ``fitted_order_estimated <min finest-pair order over the torus and
 the ellipsoid>`` and ``fitted_over_nagata <max fitted / Nagata error ratio at
 h = 0.05 over the torus and the ellipsoid>`` (the cylinder's is in its table).
 
 Usage: ``python benchmarks/fitted_convergence.py [--hmin 0.025] [--surfaces torus,ellipsoid,cylinder]
-[--degree 4] [--parts plate_filleted,plate]`` (``--parts ""``: none; the default, down to 0.025 on
-the three surfaces, takes about 4 minutes).
+[--degree 4] [--parts plate_filleted,plate,FILE] [--part-levels 2]`` (``--parts ""``: none; the
+default, down to 0.025 on the three surfaces, takes about 4 minutes).
 """
 
 from __future__ import annotations
@@ -53,6 +59,11 @@ from surfaces import barycentric_grid, ellipse_polygon, gmsh_surface, nagata_sur
 from nagata_snap import FittedGeometry, NagataGeometry
 
 SURFACES = ("torus", "ellipsoid", "cylinder")
+
+#: the default parts: two of meshes/parts.py and two machined parts of the corpus written by CAD systems
+CORPUS = os.path.join(os.path.dirname(__file__), "..", "meshes", "corpus")
+PARTS = ("plate_filleted", "plate", os.path.join(CORPUS, "io1_part_cocreate_cax_if.stp"),
+         os.path.join(CORPUS, "nema17_bracket_build123d.step"))
 
 
 def max_distance(geo, dist, per_edge: int = 12) -> tuple[float, float]:
@@ -170,8 +181,14 @@ def time_ratio(kind: str, h: float, degree: int, reps: int = 3) -> tuple[float, 
     return best[0], best[1], best[1] / best[0]
 
 
-def part_distances(geo, per_edge: int = 6) -> np.ndarray:
-    """``(F,)`` largest distance of each coarse facet's samples from its own CAD face (current gmsh model)."""
+#: a distance above this fraction of the model size is a jump of gmsh's closest point off the face
+#: (``occ_reference.gmsh_face_distance``): measured against the neighbouring faces too
+JUMP = 1e-3
+
+
+def part_distances(geo, size: float, per_edge: int = 6) -> np.ndarray:
+    """``(F,)`` largest distance of each coarse facet's samples from its own CAD face (current gmsh model;
+    a face's neighbours where that exceeds ``JUMP`` of the model ``size``)."""
     from occ_reference import gmsh_face_distance
 
     g = barycentric_grid(3, per_edge)
@@ -179,17 +196,36 @@ def part_distances(geo, per_edge: int = 6) -> np.ndarray:
     d = np.zeros(geo.num_patches)
     for tag in np.unique(geo.tag):
         s = np.flatnonzero(geo.tag == tag)
-        d[s] = gmsh_face_distance(int(tag), x[s].reshape(-1, 3)).reshape(len(s), -1).max(axis=1)
+        d[s] = gmsh_face_distance(int(tag), x[s].reshape(-1, 3), JUMP * size).reshape(len(s), -1).max(axis=1)
     return d
 
 
-def part_study(names: list[str], degree: int) -> dict[str, float]:
-    """Fitted against Nagata over the coarse meshes of ``names``: prints a table, returns the ratios."""
+def snap_levels(cm, geo, levels: int, faces: list[int]) -> tuple[float, list[int], int]:
+    """``levels`` uniform levels snapped onto ``geo``: the largest distance of the last level's vertices on the
+    curved ``faces`` from their CAD face (over the model size), the vertices left short at each level, and
+    the cells of the last level."""
+    from plate_normals import face_distances
+
+    from nagata_snap import Snapper
+
+    snapper = Snapper(cm.mesh, cm.facet_tags, geo)
+    mesh, ft, short = cm.mesh, cm.facet_tags, []
+    for _ in range(levels):
+        mesh, ft, _, _, report = snapper.refine(mesh)
+        short.append(int(report.partially_moved))
+    d = face_distances(mesh, ft, faces, JUMP * cm.model_size)
+    return float(d.max()) / cm.model_size, short, mesh.topology.index_map(3).size_global
+
+
+def part_study(names: list[str], degree: int, levels: int = 0) -> dict[str, float]:
+    """Fitted against Nagata over the coarse meshes of ``names`` (parts of ``meshes/parts.py`` or STEP/IGES
+    files): prints a table, returns the ratios.  ``levels``: also snap that many uniform levels with each."""
     import tempfile
 
     import gmsh
     import parts
     from mpi4py import MPI
+    from occ_reference import gmsh_curved_faces
 
     from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file
 
@@ -198,13 +234,14 @@ def part_study(names: list[str], degree: int) -> dict[str, float]:
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
-            path = parts.write_part(name, tmp, formats=("step",))["step"]
-            with gmsh_session(name):
+            path = name if os.path.isfile(name) else parts.write_part(name, tmp, formats=("step",))["step"]
+            label = os.path.basename(name).split(".")[0][:16]
+            with gmsh_session(label):
                 import_cad(path)
                 cm = mesh_cad_file(path, MPI.COMM_SELF, curvature=12)
                 nag = NagataGeometry(cm.mesh, cm.facet_tags)
                 fit = FittedGeometry(cm.mesh, cm.facet_tags, degree=degree)
-                dn, df = part_distances(nag), part_distances(fit)
+                dn, df = part_distances(nag, cm.model_size), part_distances(fit, cm.model_size)
                 g = barycentric_grid(3, 6)
                 lam = np.broadcast_to(g, (fit.num_patches, *g.shape))
                 best = [np.inf, np.inf]
@@ -215,11 +252,17 @@ def part_study(names: list[str], degree: int) -> dict[str, float]:
                         best[i] = min(best[i], time.perf_counter() - t0)
                 worst = sorted({(float(df[fit.tag == t].max()), int(t)) for t in np.unique(fit.tag)}, reverse=True)[:3]
                 where = ", ".join(f"{t} {gmsh.model.getType(2, t)} {v / cm.model_size:.1e}" for v, t in worst)
-                out[name] = df.max() / dn.max()
-                print(f"{name:>16} {len(gmsh.model.getEntities(2)):5d} {fit.num_patches:6d} "
-                      f"{dn.max() / cm.model_size:10.3e} {df.max() / cm.model_size:10.3e} {out[name]:7.3f}  {where}")
-                print(f"{'':>16} {fit.fit_summary()}; set-up + placement nagata {best[0]:.2f} s, fitted "
-                      f"{best[1]:.2f} s ({best[1] / best[0]:.2f}x)")
+                out[label] = df.max() / dn.max()
+                print(f"{label:>16} {len(gmsh.model.getEntities(2)):5d} {fit.num_patches:6d} "
+                      f"{dn.max() / cm.model_size:10.3e} {df.max() / cm.model_size:10.3e} {out[label]:7.3f}  {where}")
+                print(f"{'':>16} {fit.fit_summary()}; bounded points {fit.n_clipped}; set-up + placement nagata "
+                      f"{best[0]:.2f} s, fitted {best[1]:.2f} s ({best[1] / best[0]:.2f}x)")
+                if levels:
+                    faces = gmsh_curved_faces()
+                    (a, sa, cells), (b, sb, _) = (snap_levels(cm, geo, levels, faces) for geo in (nag, fit))
+                    print(f"{'':>16} {levels} uniform levels snapped ({cells} cells), vertices on the {len(faces)} "
+                          f"curved faces: nagata {a:.3e}, fitted {b:.3e} ({b / a:.3f}x); vertices short per level "
+                          f"nagata {sa}, fitted {sb}")
     return out
 
 
@@ -228,26 +271,29 @@ def main() -> None:
     ap.add_argument("--hmin", type=float, default=0.025, help="finest gmsh mesh size (from 0.2, halving)")
     ap.add_argument("--surfaces", default=",".join(SURFACES), help="comma-separated subset of " + ",".join(SURFACES))
     ap.add_argument("--degree", type=int, default=4, help="fit degree (degree 3 is shown beside it)")
-    ap.add_argument("--parts", default="plate_filleted,plate", help="comma-separated parts of meshes/parts.py")
+    ap.add_argument("--parts", default=",".join(PARTS),
+                    help="comma-separated parts of meshes/parts.py or STEP/IGES files")
+    ap.add_argument("--part-levels", type=int, default=0,
+                    help="also snap the parts through this many uniform levels with each surface")
     args = ap.parse_args()
     hs = [0.2]
     while hs[-1] / 2 >= args.hmin * (1 - 1e-9):
         hs.append(hs[-1] / 2)
     degrees = tuple(sorted({args.degree, 3}, reverse=True))
-    surfaces = args.surfaces.split(",")
+    surfaces = [k for k in args.surfaces.split(",") if k]
     print("meshing and fitting:")
     res = {kind: study(kind, hs, degrees) for kind in surfaces}
     for kind in surfaces:
         print_table(kind, res[kind], degrees)
     ellipse_study((48, 96, 192, 384), degrees)
-    if 0.05 in [round(h, 6) for h in hs]:
+    if surfaces and 0.05 in [round(h, 6) for h in hs]:
         print("\nset-up + placement at h = 0.05, best of 3 alternating runs [s]:")
         tr = {k: time_ratio(k, 0.05, args.degree) for k in surfaces}
         for k, (a, b, r) in tr.items():
             print(f"  {k}: nagata {a:.2f}, fitted {b:.2f}, ratio {r:.2f}")
         print("time_ratio " + " ".join(f"{k} {r:.2f}" for k, (_, _, r) in tr.items()))
     if args.parts:
-        ratios = part_study(args.parts.split(","), args.degree)
+        ratios = part_study(args.parts.split(","), args.degree, args.part_levels)
         print("fitted_over_nagata_parts " + " ".join(f"{k} {v:.3f}" for k, v in ratios.items()))
     if "cylinder" in surfaces and len(hs) > 1:
         cyl = res["cylinder"]

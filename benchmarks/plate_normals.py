@@ -51,15 +51,16 @@ from nagata_snap.cad import mesh_cad
 from nagata_snap.meshing import gmsh_session, import_cad, mesh_cad_file
 
 
-def face_distances(mesh, ft, faces) -> np.ndarray:
-    """Distance from its CAD face (gmsh closest point) of every vertex of the facets tagged with ``faces``."""
+def face_distances(mesh, ft, faces, jump: float | None = None) -> np.ndarray:
+    """Distance from its CAD face (gmsh closest point; ``jump``: see ``occ_reference.gmsh_face_distance``)
+    of every vertex of the facets tagged with ``faces``."""
     x = mesh.geometry.x
     mesh.topology.create_connectivity(mesh.topology.dim - 1, mesh.topology.dim)
     out = []
     for f in faces:
         nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, ft.find(f)))
         if len(nodes):
-            out.append(gmsh_face_distance(f, x[nodes]))
+            out.append(gmsh_face_distance(f, x[nodes], jump))
     return np.concatenate(out)
 
 

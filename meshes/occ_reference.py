@@ -201,12 +201,27 @@ class OccShape:
         return out
 
 
-def gmsh_face_distance(face: int, points: np.ndarray) -> np.ndarray:
-    """``(k,)`` distance of ``points (k, 3)`` from gmsh face ``face`` (OpenCASCADE closest point)."""
+def gmsh_face_distance(face: int, points: np.ndarray, jump: float | None = None) -> np.ndarray:
+    """``(k,)`` distance of ``points (k, 3)`` from gmsh face ``face`` (OpenCASCADE closest point).
+
+    A point a hair beyond the face's edge, where a twin face continues its
+    surface (the two half cylinders of a hole), can get a closest point on the
+    face's far edge, a whole diameter away.  With ``jump``, points farther than
+    ``jump`` from the face are measured against the faces sharing an edge with
+    it too (the nearest counts).
+    """
     import gmsh
 
-    p = np.asarray(gmsh.model.getClosestPoint(2, face, np.asarray(points, dtype=float).ravel())[0])
-    return np.linalg.norm(p.reshape(-1, 3) - points, axis=1)
+    points = np.asarray(points, dtype=float)
+    p = np.asarray(gmsh.model.getClosestPoint(2, face, points.ravel())[0])
+    d = np.linalg.norm(p.reshape(-1, 3) - points, axis=1)
+    far = np.flatnonzero(d > jump) if jump is not None else []
+    if len(far):
+        edges = gmsh.model.getAdjacencies(2, face)[1]
+        near = {int(f) for e in edges for f in gmsh.model.getAdjacencies(1, int(e))[0]} - {face}
+        for f in sorted(near):
+            d[far] = np.minimum(d[far], gmsh_face_distance(f, points[far]))
+    return d
 
 
 def gmsh_curved_faces() -> list[int]:

@@ -243,22 +243,34 @@ def fit_surfaces(
     Returns:
         ``(S, q)`` coefficients (:func:`terms`), in coordinates scaled by ``h``;
         NaN rows where the linear terms are not determined (implicit fits that
-        are no height function over their stencil included).
+        are no height function over their stencil included); zero rows for
+        stencils in the vertex's tangent plane (:data:`FLAT`).
     """
     d = pts - x0[:, None, :]
     loc = np.matmul(d, frame.transpose(0, 2, 1)) / h[:, None, None]
     wt = _weights(np.einsum("smi,smi->sm", d, d), h, mask)
-    u, v = loc[..., 0], loc[..., 1]
-    P = model_terms(u, v, 0.0 * u if explicit else loc[..., 2], degree, planar)
+    c = np.zeros((len(x0), terms(degree, planar)))
+    # a planar stencil is its tangent plane: no solve
+    fit = np.flatnonzero((np.abs(loc[..., 2]) > FLAT).any(axis=1, where=mask))
+    u, v, w = loc[fit, :, 0], loc[fit, :, 1], loc[fit, :, 2]
+    P = model_terms(u, v, 0.0 * u if explicit else w, degree, planar)
     # no ridge penalty while the design is determined (exact on its own model); the
     # solver's fallback penalises all but the linear terms where it is not (always
     # when explicit: the terms in w are zero columns)
-    c = _weighted_lstsq(P, -loc[..., 2], wt, np.zeros(P.shape[-1], dtype=bool), 1 if planar else 2)
+    cf = _weighted_lstsq(P, -w, wt[fit], np.zeros(P.shape[-1], dtype=bool), 1 if planar else 2)
     if explicit:
-        c[:, [1, 2] if planar else [3, 4, 5]] = 0.0
+        cf[:, [1, 2] if planar else [3, 4, 5]] = 0.0
     else:
-        c[~height_valid(c, degree, planar, u, v, mask)] = np.nan
+        cf[~height_valid(cf, degree, planar, u, v, mask[fit])] = np.nan
+    c[fit] = cf
     return c
+
+
+#: A stencil whose points all lie within ``FLAT`` (in units of the vertex's
+#: length scale) of the vertex's tangent plane is fitted by that plane (zero
+#: coefficients) without a solve: the planar faces of a machined part, most of
+#: its sectors (their fits would be the plane up to rounding).
+FLAT = 1e-12
 
 
 #: An implicit fit is a height function where it is used (its stencil points
@@ -300,15 +312,16 @@ def surface_height(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v
 
 def fit_levels(
     levels: list[tuple[int, int, bool]],
-    stencil: Callable[[int], tuple[np.ndarray, np.ndarray]],
+    stencil: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]],
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray, int, bool], np.ndarray],
     S: int, columns: Callable[[int], np.ndarray], q: int, comps: int = 1,
     equations: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fits of ``S`` stencils trying ``levels = [(degree, width, variant), ...]`` in turn.
 
-    ``stencil(width) -> (idx (S, m), mask (S, m))`` gives the points of each
-    fit at that stencil width; ``fit(sel, idx, mask, degree, variant) -> (len(sel), comps, q_d)``
+    ``stencil(width, rows) -> (idx (S, m), mask (S, m))`` gives the points of
+    the fits ``rows`` (the others' rows may be left empty) at that stencil
+    width; ``fit(sel, idx, mask, degree, variant) -> (len(sel), comps, q_d)``
     fits the selected ones (NaN: failed), whose ``q_d`` terms are the columns
     ``columns(degree) (q_d,)`` of the ``q`` of the padded result.  A level takes
     the fits not yet done whose stencil has at least ``q_d + EXTRA_POINTS`` points.
@@ -328,25 +341,33 @@ def fit_levels(
         todo = got == 0
         if not todo.any():
             break
-        if width not in cache:
-            cache[width] = stencil(width)
+        if width not in cache:  # the fits still to do: a later level's are among them
+            cache[width] = stencil(width, np.flatnonzero(todo))
         idx, mask = cache[width]
         cols = columns(degree)
-        for lo in range(0, S, BATCH):
-            mk = mask[lo:lo + BATCH]
-            enough = (mk.sum(axis=1) if equations is None else equations(mk)) >= len(cols) + EXTRA_POINTS
-            sel = lo + np.flatnonzero(todo[lo:lo + BATCH] & enough)
-            if len(sel) == 0:
-                continue
-            m = int(mask[sel].sum(axis=1).max())
-            order = np.argsort(~mask[sel], axis=1, kind="stable")[:, :m]  # valid points first
-            c = fit(sel, np.take_along_axis(idx[sel], order, axis=1),
-                    np.take_along_axis(mask[sel], order, axis=1), degree, variant)
-            ok = np.isfinite(c).all(axis=(1, 2))
-            coef[sel[ok][:, None, None], np.arange(comps)[None, :, None], cols[None, None, :]] = c[ok]
-            got[sel[ok]] = degree
-            level[sel[ok]] = li
+        count = mask.sum(axis=1)
+        enough = (count if equations is None else equations(mask)) >= len(cols) + EXTRA_POINTS
+        todo = np.flatnonzero(todo & enough)
+        # stencils of like size together: each batch is padded to its largest (one stencil of 110
+        # points among stencils of 28 on a part whose small holes sit in large faces)
+        size_class = np.floor(np.log(np.maximum(count[todo], 1)) / np.log(SIZE_CLASS)).astype(np.int64)
+        for k in np.unique(size_class):
+            group = todo[size_class == k]
+            for lo in range(0, len(group), BATCH):
+                sel = group[lo:lo + BATCH]
+                m = int(count[sel].max())
+                order = np.argsort(~mask[sel], axis=1, kind="stable")[:, :m]  # valid points first
+                c = fit(sel, np.take_along_axis(idx[sel], order, axis=1),
+                        np.take_along_axis(mask[sel], order, axis=1), degree, variant)
+                ok = np.isfinite(c).all(axis=(1, 2))
+                coef[sel[ok][:, None, None], np.arange(comps)[None, :, None], cols[None, None, :]] = c[ok]
+                got[sel[ok]] = degree
+                level[sel[ok]] = li
     return coef, got, level
+
+
+#: Stencils are fitted in groups whose point counts lie within this ratio (padding bounded).
+SIZE_CLASS = 1.25
 
 
 #: Slope equations of a crease curve fit are used where the two faces' normals

@@ -56,7 +56,7 @@ from nagata_snap.geometry import PlaceReport
 from nagata_snap.mesh.records import Records
 from nagata_snap.nagata import patch as patches
 from nagata_snap.nagata.geometry import NagataGeometry, NormalSource
-from nagata_snap.nagata.jets import _frame, sector_stencils
+from nagata_snap.nagata.jets import SectorRings, _frame
 
 __all__ = ["FittedGeometry", "DEGREES", "FIT_BOUND"]
 
@@ -130,6 +130,7 @@ class FittedGeometry(NagataGeometry):
     """
 
     degree: int
+    _KEEP_RINGS = True  # the fits' stencils grow from the jets' rings
 
     def __init__(
         self,
@@ -206,8 +207,10 @@ class FittedGeometry(NagataGeometry):
         # implicit fits, then height polynomials where no implicit fit is a height function
         levels = [(d, w, e) for e in (False, True) for d in range(self.degree, 1, -1) for w in widths]
 
-        def stencil(width: int) -> tuple[np.ndarray, np.ndarray]:
-            idx, mask = sector_stencils(vid, label, cn.region, width)
+        rings = cn.rings if cn.rings is not None else SectorRings(vid, label, cn.region)
+
+        def stencil(width: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            idx, mask = rings.stencils(width, rows=None if len(rows) == S else rows)
             return idx, mask & (idx != centre[:, None])
 
         def fit(sel, idx, mask, d, explicit):
@@ -216,9 +219,12 @@ class FittedGeometry(NagataGeometry):
 
         coef, self.fit_degree, level = fit_levels(
             levels, stencil, fit, S, lambda d: term_columns(d, self.degree, planar), terms(self.degree, planar))
+        cn.rings = None  # their memory
         self.fit_explicit = (level >= 0) & np.array([e for _, _, e in levels])[np.maximum(level, 0)]
         self._coords, self._hv, self._frame_s, self._coef_s = coords, hv, frame, coef[:, 0]
         self._planar = planar
+        # planar stencils' fits (fit_surfaces' FLAT): the tangent plane, which holds their facets
+        self._flat = (self.fit_degree > 0) & ~self._coef_s.any(axis=1)
         self.n_clipped = 0
         self._use_nagata = np.zeros(S, dtype=bool)
         self._use_nagata = self._guard()
@@ -277,7 +283,7 @@ class FittedGeometry(NagataGeometry):
 
         back0 = np.where(nb[a, 0] == b, nb[a, 1], nb[a, 0])
 
-        def stencil(width: int) -> tuple[np.ndarray, np.ndarray]:
+        def stencil(width: int, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
             idx = np.c_[walk(a, b, np.ones(len(a), dtype=bool), width),
                         walk(a, back0, deg[a] == 2, width)]
             return np.maximum(idx, 0), idx >= 0
@@ -397,15 +403,20 @@ class FittedGeometry(NagataGeometry):
         times the Nagata patch's departure from the straight facet (plus
         ``1e-9`` of the vertex's mean edge length), both sectors use the Nagata
         patch point instead of their fit (the blend stays C0: the patches are).
+        Facets whose corners all have planar fits (:attr:`_flat`: tangent
+        planes of stencils within ``FLAT`` of them, so of each other) agree to
+        rounding and are not measured.
         """
         nfv = self.x.shape[1]
-        F = len(self.x)
+        act = np.flatnonzero(~self._flat[self.corners.sector].all(axis=1))
+        F = len(act)
         grid = GUARD_SAMPLES[nfv]
         lam = np.broadcast_to(grid, (F, *grid.shape))
-        X = np.matmul(lam, self.x)
-        dep = np.linalg.norm(patches.evaluate(self.x, self.coef, lam) - X, axis=2)
-        sec, vid = self.corners.sector, self.corners.vertex
-        x0, frames, h = self.x, self._frame_s[sec], self._hv[vid]
+        x0 = self.x[act]
+        X = np.matmul(lam, x0)
+        dep = np.linalg.norm(patches.evaluate(x0, self.coef[act], lam) - X, axis=2)
+        sec, vid = self.corners.sector[act], self.corners.vertex[act]
+        frames, h = self._frame_s[sec], self._hv[vid]
         coef = self._coef_s[sec]
 
         def along(P: np.ndarray, i: int) -> np.ndarray:
@@ -435,14 +446,16 @@ class FittedGeometry(NagataGeometry):
         """``sum_i lam_i q_i``: corner fits at the straight points ``X (P, k, 3)``.
 
         Corners of sectors the guard refused (:meth:`_guard`) contribute the
-        facet's Nagata patch point instead.
+        facet's Nagata patch point instead; corners with planar fits
+        (:attr:`_flat`) nothing (their plane holds the facet to ``FLAT``).
         """
         out = np.ascontiguousarray(X, dtype=float).copy()
         label = self.corners.sector[patch]
         nag = self._use_nagata[label]  # (P, nfv)
-        if out.size:
+        use = ~nag & ~self._flat[label]
+        if use.any():
             blend_kernel(out.copy(), np.ascontiguousarray(lam, dtype=float), self.x[patch], self._frame_s[label],
-                         self._hv[self.corners.vertex[patch]], self._coef_s[label], ~nag, self.degree,
+                         self._hv[self.corners.vertex[patch]], self._coef_s[label], use, self.degree,
                          self._planar, out)
         if nag.any():
             rows = np.flatnonzero(nag.any(axis=1))

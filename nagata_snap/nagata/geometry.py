@@ -177,6 +177,9 @@ class NagataGeometry:
         NonManifoldError: a boundary ridge shared by other than two facets.
     """
 
+    #: keep the jets' facet rings in ``corners.rings`` (a subclass fitting on the same stencils)
+    _KEEP_RINGS = False
+
     def __init__(
         self,
         mesh: dolfinx.mesh.Mesh,
@@ -332,6 +335,8 @@ class NagataGeometry:
         self.facet_normal = fnorm
         scheme = normals if isinstance(normals, str) else "jet"
         cn = corner_normals(vid, coords, fnorm, tag, crease_angle, split_tags, scheme)
+        if not self._KEEP_RINGS:
+            cn.rings = None  # the jets' stencils: memory only a geometry fitting on them needs
         n = cn.normals.copy()
         self.snap = snap
         if _is_cad(normals):  # orientation is free: aligned with the estimate

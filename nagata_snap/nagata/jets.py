@@ -55,7 +55,7 @@ import numba
 import numpy as np
 import scipy.sparse
 
-__all__ = ["padded_rows", "sector_stencils", "fit_normals", "fit_sector_normals", "JET_LEVELS"]
+__all__ = ["padded_rows", "SectorRings", "sector_stencils", "fit_normals", "fit_sector_normals", "JET_LEVELS"]
 
 #: Fit levels tried in order, per space dimension: ``(degree, rings,
 #: minimum stencil points, sigma in degrees, coarse only)``, ``degree`` the
@@ -109,27 +109,82 @@ def padded_rows(csr: scipy.sparse.csr_matrix, rows: np.ndarray | None = None) ->
     return idx, mask
 
 
-def _sector_rings(vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings: int):
-    """Sparse ``(S, F)`` facets within ``rings`` rings of each sector and ``(V, F)`` vertex-facet incidence."""
-    F, nfv = vid.shape
-    nv = int(vid.max()) + 1
-    ns = int(label.max()) + 1
-    fac = np.repeat(np.arange(F), nfv)
-    # int32: the products count paths, and in int8 a sum of 256 wraps to 0 and is dropped
-    ones = np.ones(F * nfv, dtype=np.int32)
-    vf = scipy.sparse.csr_matrix((ones, (vid.ravel(), fac)), shape=(nv, F))
-    ring = scipy.sparse.csr_matrix((ones, (label.ravel(), fac)), shape=(ns, F))
-    if rings > 1:
-        ff = (vf.T @ vf).tocoo()
-        keep = region[ff.row] == region[ff.col]
-        ff = scipy.sparse.csr_matrix(
-            (np.ones(int(keep.sum()), dtype=np.int32), (ff.row[keep], ff.col[keep])), shape=(F, F)
-        )
-        for _ in range(rings - 1):
-            ring = ring @ ff
+class SectorRings:
+    """The facets within ``k`` rings of every sector, inside its smooth region, grown one ring at a time.
+
+    Ring 1 is the sector's own facets; each further ring adds the facets
+    sharing a vertex with the previous ones (same region).  The rings grown
+    for all sectors are kept, so the jets' stencils (rings 1 to 3) and the
+    fitted surface's (:mod:`nagata_snap.fitted`, 3 and 4) grow each ring once
+    (the object holds their memory until it is dropped).
+
+    Args:
+        vid: ``(F, nfv)`` vertex index of each facet corner.
+        label: ``(F, nfv)`` sector label of each corner (``0 .. S-1``).
+        region: ``(F,)`` smooth-region label of each facet; every sector's
+            facets lie in one region.
+    """
+
+    def __init__(self, vid: np.ndarray, label: np.ndarray, region: np.ndarray):
+        F, nfv = vid.shape
+        self.num_sectors = int(label.max()) + 1
+        fac = np.repeat(np.arange(F), nfv)
+        # int32: the products count paths, and in int8 a sum of 256 wraps to 0 and is dropped
+        ones = np.ones(F * nfv, dtype=np.int32)
+        self._vf = scipy.sparse.csr_matrix((ones, (vid.ravel(), fac)), shape=(int(vid.max()) + 1, F))
+        self._region = region
+        self._rings = {1: scipy.sparse.csr_matrix((ones, (label.ravel(), fac)), shape=(self.num_sectors, F))}
+        self._ff: scipy.sparse.csr_matrix | None = None
+        self._stencils: dict[tuple[int, bool], tuple[np.ndarray, np.ndarray]] = {}
+
+    def _facet_neighbours(self) -> scipy.sparse.csr_matrix:
+        """``(F, F)`` facets sharing a vertex, within one region."""
+        if self._ff is None:
+            ff = (self._vf.T @ self._vf).tocoo()
+            keep = self._region[ff.row] == self._region[ff.col]
+            F = self._vf.shape[1]
+            self._ff = scipy.sparse.csr_matrix(
+                (np.ones(int(keep.sum()), dtype=np.int32), (ff.row[keep], ff.col[keep])), shape=(F, F))
+        return self._ff
+
+    def facets(self, rings: int, rows: np.ndarray | None = None) -> scipy.sparse.csr_matrix:
+        """Sparse ``(S, F)`` (or ``(len(rows), F)``) facets within ``rings`` rings of each sector (of ``rows``).
+
+        Grown from the widest ring already grown for all sectors; only rings
+        grown for all sectors (``rows`` None) are kept.
+        """
+        have = max(k for k in self._rings if k <= rings)
+        ring = self._rings[have] if rows is None else self._rings[have][rows]
+        for k in range(have + 1, rings + 1):
+            ring = ring @ self._facet_neighbours()
             ring.data[:] = 1
-    ring.sort_indices()
-    return ring, vf
+            if rows is None:
+                self._rings[k] = ring
+        return ring
+
+    def stencils(self, rings: int, facets: bool = False, rows: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices (or facets) within ``rings`` rings of each sector: ``(idx (S, m), mask (S, m))``.
+
+        Padded (the sector's own vertex included), sorted: identical on every
+        process.  With ``rows``, only those sectors' rows are filled (the
+        others empty), and nothing is kept.
+        """
+        key = (rings, facets)
+        if rows is None and key in self._stencils:
+            return self._stencils[key]
+        ring = self.facets(rings, rows)
+        if not facets:
+            ring = ring @ self._vf.T
+        ring.sort_indices()
+        out = padded_rows(ring)
+        if rows is None:
+            self._stencils[key] = out
+            return out
+        idx = np.zeros((self.num_sectors, out[0].shape[1]), dtype=np.int64)
+        mask = np.zeros(idx.shape, dtype=bool)
+        idx[rows], mask[rows] = out
+        return idx, mask
 
 
 def sector_stencils(
@@ -149,14 +204,9 @@ def sector_stencils(
     Returns:
         ``(idx (S, m), mask (S, m))`` vertex (facet) indices per sector,
         padded (the sector's own vertex included), sorted: identical on
-        every process.
+        every process (:meth:`SectorRings.stencils`).
     """
-    ring, vf = _sector_rings(vid, label, region, rings)
-    if facets:
-        return padded_rows(ring)
-    verts = ring @ vf.T
-    verts.sort_indices()
-    return padded_rows(verts)
+    return SectorRings(vid, label, region).stencils(rings, facets)
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -164,10 +214,9 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))
 
 
-def _ring_spread(vid: np.ndarray, label: np.ndarray, region: np.ndarray, rings: int,
-                 facet_normal: np.ndarray, n0: np.ndarray) -> np.ndarray:
+def _ring_spread(sector_rings: SectorRings, rings: int, facet_normal: np.ndarray, n0: np.ndarray) -> np.ndarray:
     """Largest angle (radians, ``(S,)``) between ``n0`` and the facet normals within ``rings`` rings of each sector."""
-    ring, ring_mask = sector_stencils(vid, label, region, rings, facets=True)
+    ring, ring_mask = sector_rings.stencils(rings, facets=True)
     return np.where(ring_mask, _angle(facet_normal[ring], n0[:, None, :]), 0.0).max(axis=1)
 
 
@@ -388,6 +437,7 @@ def fit_sector_normals(
     n0: np.ndarray,
     facet_normal: np.ndarray,
     interior: np.ndarray,
+    sector_rings: SectorRings | None = None,
 ) -> np.ndarray:
     """Fitted normal of every sector, with fallbacks; vectorised over sectors.
 
@@ -412,6 +462,8 @@ def fit_sector_normals(
         facet_normal: ``(F, 3)`` unit facet normals.
         interior: ``(S,)`` bool, the sector is the only one at its vertex and
             not on an open boundary (coarse ones try the cubic first).
+        sector_rings: the stencils' rings of ``vid, label, region`` (made here if None;
+            given, the rings grown here are kept in it).
 
     Returns:
         ``(S, 3)`` unit normals.
@@ -424,7 +476,9 @@ def fit_sector_normals(
     centre = np.zeros(S, dtype=np.int64)
     centre[label.ravel()] = vid.ravel()
     # largest facet-normal angle over the facets within two rings, and of the sector itself
-    spread, own = (_ring_spread(vid, label, region, rings, facet_normal, n0) for rings in (2, 1))
+    if sector_rings is None:
+        sector_rings = SectorRings(vid, label, region)
+    spread, own = (_ring_spread(sector_rings, rings, facet_normal, n0) for rings in (2, 1))
     # 2D: without an inflection the normal at a vertex lies between its two
     # segments' normals (each is the curve's normal somewhere on its segment)
     cone = spread if nfv == 3 else own
@@ -437,7 +491,7 @@ def fit_sector_normals(
         if not use.any():
             continue
         if rings not in stencils:
-            idx, mask = sector_stencils(vid, label, region, rings)
+            idx, mask = sector_rings.stencils(rings)
             stencils[rings] = idx, mask & (idx != centre[:, None])
         idx, mask = stencils[rings]
         for lo in range(0, S, BATCH):

@@ -57,7 +57,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 
 from nagata_snap.errors import NonManifoldError, NormalsError
-from nagata_snap.nagata.jets import _angle, fit_sector_normals, padded_rows
+from nagata_snap.nagata.jets import SectorRings, _angle, fit_sector_normals, padded_rows
 
 __all__ = [
     "NormalsError",
@@ -95,6 +95,8 @@ class CornerNormals:
         crease: ``(R,)`` bool, True where the ridge separates sectors.
         region: ``(F,)`` int label of each facet's smooth region (facets
             joined across non-crease ridges).
+        rings: the sectors' facet rings the jets grew (:class:`~nagata_snap.nagata.jets.SectorRings`,
+            kept for fits on the same stencils), or None.
     """
 
     normals: np.ndarray
@@ -104,6 +106,7 @@ class CornerNormals:
     ridge_vertices: np.ndarray
     crease: np.ndarray
     region: np.ndarray
+    rings: SectorRings | None = None
 
 
 def corner_weights(x: np.ndarray, scheme: str = "mwselr") -> np.ndarray:
@@ -274,16 +277,18 @@ def corner_normals(
             "estimated normal (facets around them cancel out or are degenerate)"
         )
     mean = sums / norm[:, None]
+    rings = None
     if scheme == "jet":
         per_vertex = np.bincount(np.unique(np.c_[vid.ravel(), label.ravel()], axis=0)[:, 0],
                                  minlength=int(vid.max()) + 1)
         sector_vertex = np.zeros(len(mean), dtype=np.int64)
         sector_vertex[label.ravel()] = vid.ravel()
         interior = (per_vertex[sector_vertex] == 1) & ~np.isin(sector_vertex, open_vertices)
-        mean = fit_sector_normals(vid, x, label, region, mean, facet_normal, interior)
+        rings = SectorRings(vid, label, region)
+        mean = fit_sector_normals(vid, x, label, region, mean, facet_normal, interior, rings)
     if split_tags and np.any(crease & ~geometric):
         mean = _tangent_tag_normals(mean, label, _sectors(rf, rl, ~geometric, F, nfv), region, facet_normal)
-    return CornerNormals(mean[label], label, vid, rf, rv, crease, region)
+    return CornerNormals(mean[label], label, vid, rf, rv, crease, region, rings)
 
 
 def _tangent_tag_normals(n: np.ndarray, label: np.ndarray, shared: np.ndarray, region: np.ndarray,
