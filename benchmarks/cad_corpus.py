@@ -30,7 +30,11 @@ the script measures, against OpenCASCADE's own results:
   (max, not a percentile; where it exceeds 1e-9 of the size, whether the vertex
   lies on a CAD edge or vertex of that face whose OpenCASCADE tolerance covers
   it, :func:`nagata_snap.cad.tolerance.count_far`, as the CLI's summary: the faces of a file written
-  with a tolerance meet only within it), ``(lineage + place + smooth+check + tags) /
+  with a tolerance meet only within it; and, counted apart, whether it lies on the
+  surfaces of both faces of an edge of its face, within ``t / sin(theta / 2)`` of the edge,
+  ``t`` its tolerance and ``theta`` the faces' angle: two surfaces each within ``t`` of
+  the edge meet that far from it, :func:`nagata_snap.cad.tolerance.meeting_gaps`),
+  ``(lineage + place + smooth+check + tags) /
   refine`` per level, and the largest distance between the serial and the
   parallel level-1 boundary vertices (matched one to one).
 
@@ -258,9 +262,12 @@ def _level_row(snapper, rep, occ, size: float, comm) -> dict:
         d = occ.face_distance(F[first], P[first], accept=1e-10 * size,
                               params=U[first])
         row["dist"] = float(d.max(initial=0.0)) / size
-        far, within = count_far(snapper.geometry.model, F[first], P[first], d, size)
-        row["beyond_tolerance"] = far - within
+        model = snapper.geometry.model
+        far, within = count_far(model, F[first], P[first], d, size)
+        _, meeting = count_far(model, F[first], P[first], d, size, meet=True)
+        row["beyond_tolerance"] = far - meeting
         row["in_gaps"] = within
+        row["where_faces_meet"] = meeting - within
         row["boundary"] = np.unique(np.round(P, 12), axis=0).tolist()
     return row
 
@@ -381,6 +388,7 @@ def _snap_rows(path: str, size: float, timeout: float) -> tuple[bool, str]:
         ratio = sum(tm.get(s, 0.0) for s in OVERHEAD) / max(tm["refine"], 1e-12)
         print(f"  level {k}: {lv['cells']} cells, short {lv['short']}, max dist/size {lv['dist']:.1e} "
               f"({lv['in_gaps']} vertices farther than 1e-9 of it but on a CAD edge within its tolerance, "
+              f"{lv.get('where_faces_meet', 0)} where the faces' surfaces meet within an edge's tolerance, "
               f"{lv['beyond_tolerance']} beyond), refine {tm['refine']:.2f} s, overhead/refine {ratio:.2f}")
         ok &= lv["short"] == 0 and lv["beyond_tolerance"] == 0
     for res, what in ((serial, "serial"), (par, "mpiexec -n 2")):
