@@ -93,12 +93,12 @@ def nearest_features(geo: StageGeometry, ent: np.ndarray, X: np.ndarray, hs: np.
 
 
 def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, ent: np.ndarray,
-                        idx: np.ndarray, points: np.ndarray) -> np.ndarray:
+                        idx: np.ndarray, points: np.ndarray, par: np.ndarray) -> np.ndarray:
     """``(k,)`` bool: the feature of slot ``idx (k,)`` lies on every face its vertex is on.
 
     Per slot: ``fid (ns,)`` feature (``c + 1`` edge curve ``c``, ``-(v + 1)``
-    CAD vertex ``v``), ``gid (ns,)`` vertex, ``ent (ns,)`` face; ``points (k, 3)``
-    the feature's point found for slot ``idx``.  A vertex on facets of faces
+    CAD vertex ``v``), ``gid (ns,)`` vertex, ``ent (ns,)`` face, ``par (ns, d)``
+    parameters on it; ``points (k, 3)`` the feature's point found for slot ``idx``.  A vertex on facets of faces
     ``A`` and ``B`` belongs on a CAD edge (vertex) of both; the nearest edge
     curve of ``A`` need not be one: where two solids of an assembly touch,
     the mesher's fragments meet along a line that is no edge of either file
@@ -111,11 +111,13 @@ def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, en
     top = geo.topology
     assert top is not None
     ne = geo.num_entities
-    pairs = np.unique(gid.astype(np.int64) * ne + ent)  # (vertex, face), sorted by vertex
+    # (vertex, face), sorted by vertex, and a slot of each
+    pairs, pslot = np.unique(gid.astype(np.int64) * ne + ent, return_index=True)
     pv, pf = pairs // ne, pairs % ne
     lo = np.searchsorted(pv, gid[idx], side="left")
     cnt = np.searchsorted(pv, gid[idx], side="right") - lo
-    faces = pf[np.repeat(lo, cnt) + ramp(cnt)]  # the faces of each slot's vertex
+    pi = np.repeat(lo, cnt) + ramp(cnt)
+    faces = pf[pi]  # the faces of each slot's vertex
     rows = np.repeat(top.feature_rows(fid[idx]), cnt)
     ff = top.feature_faces
     fkeys = np.sort(np.repeat(np.arange(len(ff.counts)), ff.counts) * ne + ff.flat)
@@ -125,27 +127,41 @@ def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, en
     slot = np.repeat(np.arange(len(idx)), cnt)
     m = np.flatnonzero(miss)
     if m.size:  # not one of the feature's faces: does the feature's point lie on it?
-        miss[m] = ~on_faces(geo, np.asarray(points, dtype=float)[slot[m]], faces[m], top.feature_tolerance[rows[m]])
+        miss[m] = ~on_faces(geo, np.asarray(points, dtype=float)[slot[m]], faces[m], top.feature_tolerance[rows[m]],
+                            par[pslot[pi[m]]])
     return np.bincount(slot, weights=miss, minlength=len(idx)) == 0
 
 
-def on_faces(geo: StageGeometry, X: np.ndarray, faces: np.ndarray, tol: np.ndarray) -> np.ndarray:
+def on_faces(geo: StageGeometry, X: np.ndarray, faces: np.ndarray, tol: np.ndarray,
+             seeds: np.ndarray | None = None) -> np.ndarray:
     """``(n,)`` bool: point ``X[i] (n, 3)`` lies on (the closure of) face ``faces[i]``.
 
     Within ``t = max(tol[i], ON_FACE_RTOL * size)`` (``tol (n,)``, length units: the
-    file's tolerance of the feature the point is on) of the face's surface, and either
-    on the trimmed face (inside its loops' bands) or within ``t`` of one of its edge
-    curves.  The edge curves, not only the loops: the loops are the p-curves, which
+    file's tolerance of the feature the point is on) of the face's surface (Newton from
+    ``seeds (n, d)`` where given and finite, else from the face's search samples), and either
+    on the trimmed face (inside its loops' polygons or bands) or within ``t`` of one of its
+    edge curves.  The edge curves, not only the loops: the loops are the p-curves, which
     OpenCASCADE computes where a STEP file has none, and which can stray from the
     edges' 3D curves by more than the edges' recorded tolerance (the I-DEAS assembly
     of ``docs/pages/results/corpus.md``).
     """
     t = np.maximum(tol, ON_FACE_RTOL * geo.size)
-    res = geo.searcher.search_on(X, faces, accept=geo._accept)
-    ok = res[2] <= t
-    if geo._accept is None or geo.topology is None:
+    n = len(faces)
+    par, dist = np.zeros((n, geo.param_dim)), np.full(n, np.inf)
+    known = np.flatnonzero(np.all(np.isfinite(seeds), axis=1)) if seeds is not None else np.zeros(0, np.int64)
+    if known.size:
+        assert seeds is not None
+        pp, _, dd, _, conv = geo.searcher.refine(known, faces[known], seeds[known], X, geo.max_iter)
+        par[known], dist[known] = pp, np.where(conv, dd, np.inf)
+    rest = np.flatnonzero(~(dist <= t))
+    if rest.size:  # unseeded, or Newton went astray: from the face's samples
+        par[rest], _, dist[rest] = geo.searcher.search_on(X[rest], faces[rest])[:3]
+    ok = dist <= t
+    if geo.trims is None or geo.topology is None:
         return ok
-    rim = np.flatnonzero(ok & ~res[3])
+    near = np.flatnonzero(ok)
+    out = near[~geo.trims.inside(faces[near], par[near], band=False)]  # outside the polygons:
+    rim = out[geo.trims.loop_distance(faces[out], par[out]) > 0.0]  # and their bands
     if rim.size:  # on the surface, beyond the loops: on an edge curve of the face?
         q, fid = nearest_features(geo, faces[rim], X[rim], t[rim], np.ones(rim.size, dtype=np.int64))
         ok[rim] = (fid != 0) & (np.linalg.norm(q - X[rim], axis=1) <= t[rim])

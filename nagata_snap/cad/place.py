@@ -352,7 +352,7 @@ def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
         ok = ff != 0
         fid[feat] = ff
         found = feat[ok]
-        holds = feature_holds_faces(geo, fid, gid, s.ent, found, fx[ok])
+        holds = feature_holds_faces(geo, fid, gid, s.ent, found, fx[ok], p.par)
         loose[found[~holds]] = True  # on faces that share no CAD edge there: intersect them
         fid[found[~holds]] = 0
         ok[ok] = holds
@@ -367,7 +367,7 @@ def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
         hit = np.flatnonzero(ff < 0)
         fid_c = np.zeros(ns, dtype=np.int64)
         fid_c[corner[hit]] = ff[hit]
-        hit = hit[feature_holds_faces(geo, fid_c, gid, s.ent, corner[hit], fx[hit])]
+        hit = hit[feature_holds_faces(geo, fid_c, gid, s.ent, corner[hit], fx[hit], p.par)]
         c = corner[hit]
         p.proj[c], fid[c], cls[c] = fx[hit], ff[hit], 2
         loose[c] = False
