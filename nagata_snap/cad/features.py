@@ -7,7 +7,10 @@ the edge curves and CAD vertices of each face, the faces of each feature).
 Placement (:mod:`nagata_snap.cad.place`) then moves them:
 
 * :func:`nearest_features`: an edge slot to the nearest edge curve of its
-  face, a corner slot to the nearest CAD vertex of its face;
+  face, a corner slot to the nearest CAD vertex of its face, if that feature
+  lies on every face of the vertex (:func:`feature_holds_faces`: one of its
+  own faces, or :func:`on_faces`, where touching solids each have their copy
+  of a shared edge);
 * :func:`onto_feature`: from there onto the intersection of the faces of
   that edge (vertex): the edge curves of a file are only within their
   tolerance of the faces;
@@ -98,11 +101,11 @@ def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, en
 
     Per slot: ``fid (ns,)`` feature (``c + 1`` edge curve ``c``, ``-(v + 1)``
     CAD vertex ``v``), ``gid (ns,)`` vertex, ``ent (ns,)`` face, ``par (ns, d)``
-    parameters on it; ``points (k, 3)`` the feature's point found for slot ``idx``.  A vertex on facets of faces
-    ``A`` and ``B`` belongs on a CAD edge (vertex) of both; the nearest edge
-    curve of ``A`` need not be one: where two solids of an assembly touch,
-    the mesher's fragments meet along a line that is no edge of either file
-    face.  A face of the vertex counts as held if it is one of the feature's
+    parameters on it; ``points (k, 3)`` the feature's point found for slot
+    ``idx``.  A vertex on facets of faces ``A`` and ``B`` belongs on a CAD
+    edge (vertex) of both; the nearest edge curve of ``A`` need not be one:
+    where two solids of an assembly touch, the mesher's fragments meet along
+    a line that is no edge of either file face.  A face of the vertex counts as held if it is one of the feature's
     faces, or if the feature's point lies on it (:func:`on_faces`): two
     touching solids each have their own copy of a shared rim (a pin's end
     flush in a plate's hole: the pin's end disk and the plate's face are
