@@ -12,7 +12,11 @@ CAD edge of one of them (which moved vertices by up to 8 % of the model size).  
 I-DEAS assembly (dm1) the bolts' end disks lie flush in the holes of a plate: disk and
 plate are coplanar and meet only along the rim, which each solid has as its own edge; a
 vertex on both faces belongs on that rim (their intersection, a whole plane, does not fix
-it: 36 vertices were left 0.17 mm inside the rim, 1.2e-3 of the size).
+it: 36 vertices were left 0.17 mm inside the rim, 1.2e-3 of the size).  The converse
+(HOOPS Exchange's two cars): a cabin's side face ends on the body's top face along an edge
+of the side face only, and the nearest edge of the top face, 2500 mm away, passes a corner
+of the side face; the vertex goes to the nearest of the features that hold both faces, not
+to that one (it went 2500 mm, and 402 vertices were left short).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ CORPUS = ROOT / "meshes" / "corpus"
 FILES = {
     "as1_assembly_proengineer_wf4_cax_if.stp": {"curvature": 12},
     "dm1_assembly_ideas_ms9_cax_if.stp": {"curvature": 6},
+    "two_cars_hoops_exchange_pyansys.igs": {"curvature": 12},
     "cylinder_ideas_11_msbo.igs": {"curvature": 8},
     "io1_part_cocreate_cax_if.stp": {"curvature": 6},
 }

@@ -28,10 +28,11 @@ from __future__ import annotations
 import numpy as np
 
 from nagata_snap.cad.params import unit_normals, unwrap
+from nagata_snap.cad.projection import entity_periods
 from nagata_snap.cad.stage import StageGeometry
 from nagata_snap.mesh.arrays import best_per_group, ramp
 
-__all__ = ["nearest_features", "feature_holds_faces", "on_faces", "onto_feature", "intersect",
+__all__ = ["nearest_features", "feature_holds_faces", "alongside", "on_faces", "onto_feature", "intersect",
            "shared_entity_vertices"]
 
 #: an edge vertex (on facets of several entities) counts as on all of them within
@@ -42,6 +43,8 @@ EDGE_SWEEPS = 8
 #: a feature's point lies on a face that is not one of its own within the file's tolerance
 #: of the feature, at least this fraction of the model size
 ON_FACE_RTOL = 1e-9
+#: a foot on an edge curve is at its end within this fraction of the curve's parameter range
+ALONG_RTOL = 1e-9
 #: singular values of the stacked face normals below this fraction of the largest are
 #: dropped in the intersection steps (faces meeting at less than ~1 degree)
 TANGENT_RCOND = 2e-2
@@ -130,9 +133,34 @@ def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, en
     slot = np.repeat(np.arange(len(idx)), cnt)
     m = np.flatnonzero(miss)
     if m.size:  # not one of the feature's faces: does the feature's point lie on it?
-        miss[m] = ~on_faces(geo, np.asarray(points, dtype=float)[slot[m]], faces[m], top.feature_tolerance[rows[m]],
-                            par[pslot[pi[m]]])
+        points = np.asarray(points, dtype=float)
+        m = m[alongside(geo, fid[idx][slot[m]], points[slot[m]])]
+        miss[m] = ~on_faces(geo, points[slot[m]], faces[m], top.feature_tolerance[rows[m]], par[pslot[pi[m]]])
     return np.bincount(slot, weights=miss, minlength=len(idx)) == 0
+
+
+def alongside(geo: StageGeometry, fid: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the point ``q (k, 3)`` of feature ``fid (k,)`` found as a vertex's nearest
+    is a foot on its edge curve, not its end: within the curve's range (or on a closed
+    curve), or the feature is a CAD vertex (found within the corners' small radius).
+
+    The nearest point of an edge curve clamped at the curve's end says only that the
+    vertex is beyond that end: a vertex on the fragments of two touching solids, on a
+    line that is no edge of either face, can have a CAD corner of one face as nearest
+    point of its edges and that corner on the other face, and belongs elsewhere.
+    """
+    top = geo.topology
+    assert top is not None and top.searcher is not None
+    out = fid < 0
+    e = np.flatnonzero(fid > 0)
+    if e.size:
+        crv = fid[e] - 1
+        u = top.searcher.search_on(q[e], crv)[0][:, 0]
+        lo, hi = np.array([top.curves[c].bounds[0] for c in crv.tolist()]).T  # one row per point
+        closed = np.isfinite([entity_periods(top.curves[c])[0] for c in crv.tolist()])
+        eps = ALONG_RTOL * (hi - lo)
+        out[e] = closed | ((u > lo + eps) & (u < hi - eps))
+    return out
 
 
 def on_faces(geo: StageGeometry, X: np.ndarray, faces: np.ndarray, tol: np.ndarray,
