@@ -191,8 +191,10 @@ def on_faces(geo: StageGeometry, X: np.ndarray, faces: np.ndarray, tol: np.ndarr
     if geo.trims is None or geo.topology is None:
         return ok
     near = np.flatnonzero(ok)
+    if near.size == 0:
+        return ok
     out = near[~geo.trims.inside(faces[near], par[near], band=False)]  # outside the polygons:
-    rim = out[geo.trims.loop_distance(faces[out], par[out]) > 0.0]  # and their bands
+    rim = out[geo.trims.loop_distance(faces[out], par[out]) > 0.0] if out.size else out  # and their bands
     if rim.size:  # on the surface, beyond the loops: on an edge curve of the face?
         q, fid = nearest_features(geo, faces[rim], X[rim], t[rim], np.ones(rim.size, dtype=np.int64))
         ok[rim] = (fid != 0) & (np.linalg.norm(q - X[rim], axis=1) <= t[rim])
