@@ -28,7 +28,6 @@ from __future__ import annotations
 import numpy as np
 
 from nagata_snap.cad.params import unit_normals, unwrap
-from nagata_snap.cad.projection import entity_periods
 from nagata_snap.cad.stage import StageGeometry
 from nagata_snap.mesh.arrays import best_per_group, ramp
 
@@ -156,10 +155,9 @@ def alongside(geo: StageGeometry, fid: np.ndarray, q: np.ndarray) -> np.ndarray:
     if e.size:
         crv = fid[e] - 1
         u = top.searcher.search_on(q[e], crv)[0][:, 0]
-        lo, hi = np.array([top.curves[c].bounds[0] for c in crv.tolist()]).T  # one row per point
-        closed = np.isfinite([entity_periods(top.curves[c])[0] for c in crv.tolist()])
+        lo, hi = top.curve_range[crv].T
         eps = ALONG_RTOL * (hi - lo)
-        out[e] = closed | ((u > lo + eps) & (u < hi - eps))
+        out[e] = top.curve_closed[crv] | ((u > lo + eps) & (u < hi - eps))
     return out
 
 

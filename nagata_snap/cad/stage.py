@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.cad.projection import GlobalSearcher
+from nagata_snap.cad.projection import GlobalSearcher, entity_periods
 from nagata_snap.mesh.arrays import Ragged
 
 if TYPE_CHECKING:
@@ -72,6 +72,8 @@ class CadTopology:
         feature_tolerance: ``(nc + nv,)`` the file's tolerance of each feature, rows as
             :attr:`feature_faces` (OpenCASCADE's ``BRep_Tool::Tolerance`` of the edge or
             vertex, length units; 0 where unknown).
+        curve_range: ``(nc, 2)`` each curve's parameter range.
+        curve_closed: ``(nc,)`` the curve is closed (periodic).
         searcher: closest points on given edges (closed form / Newton); None without curves.
         lo, hi: ``(nc, 3)`` bounding boxes of the curves.
     """
@@ -102,6 +104,8 @@ class CadTopology:
         self.feature_tolerance = np.concatenate([
             np.array([edges[i].tolerance for i, c in enumerate(curve_of_edge) if c >= 0], dtype=float),
             np.asarray(model.vertex_tolerance, dtype=float).reshape(len(self.points))])
+        self.curve_range = np.array([c.bounds[0] for c in self.curves], dtype=float).reshape(-1, 2)
+        self.curve_closed = np.isfinite([entity_periods(c)[0] for c in self.curves]).astype(bool)
         self.searcher = GlobalSearcher(self.curves) if self.curves else None
         # the curves' boxes, as the searcher has them
         self.lo = np.zeros((0, 3)) if self.searcher is None else self.searcher.bbox_lo
