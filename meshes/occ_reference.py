@@ -200,6 +200,64 @@ class OccShape:
                     ex.Next()
         return out
 
+    def meeting_gaps(self, faces, points, rtol: float = 1e-9, rcond: float = 2e-2) -> np.ndarray:
+        """``(n,)`` OpenCASCADE's answer to :func:`nagata_snap.cad.tolerance.meeting_gaps`: the
+        largest ``t / sin(theta / 2)`` of an edge of face ``faces[i]`` shared by two faces whose
+        surfaces hold ``points[i]`` (``GeomAPI_ProjectPointOnSurf`` within ``rtol`` of the size),
+        ``t`` its ``BRep_Tool::Tolerance``, ``theta`` the angle of the two surfaces' normals there
+        (``GeomLProp_SLProps``; ``tan(theta / 2) >= rcond``), where the point is that close to
+        the edge (``BRepExtrema``); else ``rtol`` of the size."""
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+        from OCP.GeomLProp import GeomLProp_SLProps
+        from OCP.TopAbs import TopAbs_EDGE
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopoDS import TopoDS
+        from OCP.gp import gp_Pnt
+
+        floor = rtol * self.size
+        _, emap, _, _ = shape_maps(self.shape)
+        owners: list[set[int]] = [set() for _ in range(emap.Extent())]  # the faces of each edge
+        for g, face in enumerate(self.faces):
+            ex = TopExp_Explorer(face, TopAbs_EDGE)
+            while ex.More():
+                owners[emap.FindIndex(ex.Current()) - 1].add(g)
+                ex.Next()
+
+        def on_surface(face, p):
+            surf = BRep_Tool.Surface_s(face)
+            pr = GeomAPI_ProjectPointOnSurf(gp_Pnt(*p), surf)
+            if not pr.NbPoints() or pr.LowerDistance() > floor:
+                return None
+            props = GeomLProp_SLProps(surf, *pr.LowerDistanceParameters(), 1, 1e-12)
+            if not props.IsNormalDefined():
+                return None
+            n = props.Normal()
+            return np.array([n.X(), n.Y(), n.Z()])
+
+        out = np.full(len(points), floor)
+        for k, (f, p) in enumerate(zip(faces, np.asarray(points, dtype=float), strict=True)):
+            ex = TopExp_Explorer(self.faces[int(f)], TopAbs_EDGE)
+            while ex.More():  # loop over the face's edges
+                e = TopoDS.Edge(ex.Current())
+                ex.Next()
+                two = owners[emap.FindIndex(e) - 1]
+                if BRep_Tool.Degenerated_s(e) or len(two) != 2:
+                    continue
+                normals = [on_surface(self.faces[g], p) for g in sorted(two)]
+                if any(n is None for n in normals):
+                    continue
+                c = min(1.0, abs(float(normals[0] @ normals[1])))
+                if np.sqrt((1.0 - c) / (1.0 + c)) < rcond:
+                    continue
+                r = BRep_Tool.Tolerance_s(e) / np.sqrt((1.0 - c) / 2.0)
+                ext = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex(), e)
+                if ext.IsDone() and ext.Value() <= r:
+                    out[k] = max(out[k], r)
+        return out
+
 
 def gmsh_face_distance(face: int, points: np.ndarray, jump: float | None = None) -> np.ndarray:
     """``(k,)`` distance of ``points (k, 3)`` from gmsh face ``face`` (OpenCASCADE closest point).

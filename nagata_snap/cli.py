@@ -556,14 +556,15 @@ def boundary_far(snapper, dist: np.ndarray, comm) -> tuple[int, int]:
     """``(far, within)`` over all processes: the snapped boundary facet vertices farther than
     :data:`~nagata_snap.cad.tolerance.FAR_RTOL` of the model size from their face (``dist``:
     :func:`boundary_distance`), and how many of them lie inside the tolerance tube of an edge
-    or vertex of that face and no farther than its tolerance
+    or vertex of that face and no farther than its tolerance, or on both faces' surfaces of
+    such an edge where they meet within its tolerance
     (:func:`~nagata_snap.cad.tolerance.count_far`: the file's faces meet only within it)."""
     from nagata_snap.cad.tolerance import count_far
 
     x, face = _snapped_vertices(snapper)
     geometry = snapper.geometry
     far, within = count_far(getattr(geometry, "model", None), np.repeat(face, x.shape[1]), x.reshape(-1, 3),
-                            dist, geometry.size)
+                            dist, geometry.size, meet=True)
     return comm.allreduce(far), comm.allreduce(within)
 
 

@@ -91,3 +91,56 @@ def test_cli_report_names_the_files_tolerances(screw):
     _, occ = screw
     largest = max(BRep_Tool.MaxTolerance_s(f, kind) for f in occ.faces for kind in (TopAbs_EDGE, TopAbs_VERTEX))
     assert dmax <= largest
+
+
+def _on_both_surfaces(occ, faces, p, sweeps: int = 50):
+    """``p`` moved onto the intersection of two faces' surfaces by alternating OpenCASCADE
+    projections (``GeomAPI_ProjectPointOnSurf``), or None if it does not settle within 1e-12
+    of the size of both."""
+    from OCP.BRep import BRep_Tool
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt
+
+    surfs = [BRep_Tool.Surface_s(occ.faces[f]) for f in faces]
+    for _ in range(sweeps):
+        for s in surfs:
+            p = np.array(GeomAPI_ProjectPointOnSurf(gp_Pnt(*p), s).NearestPoint().Coord())
+    dist = [GeomAPI_ProjectPointOnSurf(gp_Pnt(*p), s).LowerDistance() for s in surfs]
+    return p if max(dist) <= 1e-12 * occ.size else None
+
+
+def test_meeting_gaps_agree_with_occ():
+    """Where an edge's faces meet: on the CATIA V5 bolt, whose edge curves lie off their faces by
+    nearly (and on some edges beyond) their tolerance, points on the intersection of an edge's
+    two faces' surfaces (found by OpenCASCADE) get the gap ``t / sin(theta / 2)`` of
+    OpenCASCADE's own tolerance, normals and edge distance (:meth:`OccShape.meeting_gaps`;
+    none where the faces are tangent: the cylinder's halves), and some of them lie beyond
+    the edge's tolerance tube (the case the gap is for)."""
+    from nagata_snap.cad.tolerance import meeting_gaps
+
+    path = CORPUS / "bolt_catia_v5_cax_if.stp"
+    if not path.is_file():
+        pytest.skip("corpus file missing")
+    model = CadGeometry.from_file(path, isolate=False).model
+    occ = OccShape(str(path))
+    faces, points = [], []
+    for e in model.edges:  # loop over the edges (a dozen), a few points each
+        if e.curve is None or len(e.faces) != 2:
+            continue
+        t0, t1 = e.curve.bounds[0]
+        C = evaluate_params(e.curve, normalize_params(e.curve, np.linspace(t0, t1, 9)[1:-1, None]))
+        for c in C:
+            p = _on_both_surfaces(occ, e.faces, c)
+            if p is not None:
+                faces += list(e.faces)
+                points += [p, p]
+    faces, points = np.array(faces), np.array(points)
+    assert len(faces) >= 40
+    ours = meeting_gaps(model, faces, points)
+    truth = occ.meeting_gaps(faces, points)
+    np.testing.assert_allclose(ours, truth, rtol=1e-9)
+    tube = tolerance_gaps(model, faces, points)
+    beyond = tube <= FAR_RTOL * model.size
+    assert np.count_nonzero(beyond) >= 2  # beyond every tube: the case is there
+    assert np.all(truth[beyond] > FAR_RTOL * model.size)  # and where the faces meet
+    np.testing.assert_array_equal(tolerance_gaps(model, faces, points, meet=True), np.maximum(tube, ours))

@@ -7,7 +7,10 @@ the edge curves and CAD vertices of each face, the faces of each feature).
 Placement (:mod:`nagata_snap.cad.place`) then moves them:
 
 * :func:`nearest_features`: an edge slot to the nearest edge curve of its
-  face, a corner slot to the nearest CAD vertex of its face;
+  face, a corner slot to the nearest CAD vertex of its face, if that feature
+  lies on every face of the vertex (:func:`feature_holds_faces`: one of its
+  own faces, or :func:`on_faces`, where touching solids each have their copy
+  of a shared edge);
 * :func:`onto_feature`: from there onto the intersection of the faces of
   that edge (vertex): the edge curves of a file are only within their
   tolerance of the faces;
@@ -28,13 +31,19 @@ from nagata_snap.cad.params import unit_normals, unwrap
 from nagata_snap.cad.stage import StageGeometry
 from nagata_snap.mesh.arrays import best_per_group, ramp
 
-__all__ = ["nearest_features", "feature_holds_faces", "onto_feature", "intersect", "shared_entity_vertices"]
+__all__ = ["nearest_features", "feature_holds_faces", "alongside", "on_faces", "onto_feature", "intersect",
+           "shared_entity_vertices"]
 
 #: an edge vertex (on facets of several entities) counts as on all of them within
 #: this fraction of the model size
 EDGE_RTOL = 1e-14
 #: Gauss-Newton steps that bring an edge vertex onto all its entities
 EDGE_SWEEPS = 8
+#: a feature's point lies on a face that is not one of its own within the file's tolerance
+#: of the feature, at least this fraction of the model size
+ON_FACE_RTOL = 1e-9
+#: a foot on an edge curve is at its end within this fraction of the curve's parameter range
+ALONG_RTOL = 1e-9
 #: singular values of the stacked face normals below this fraction of the largest are
 #: dropped in the intersection steps (faces meeting at less than ~1 degree)
 TANGENT_RCOND = 2e-2
@@ -89,31 +98,105 @@ def nearest_features(geo: StageGeometry, ent: np.ndarray, X: np.ndarray, hs: np.
 
 
 def feature_holds_faces(geo: StageGeometry, fid: np.ndarray, gid: np.ndarray, ent: np.ndarray,
-                        idx: np.ndarray) -> np.ndarray:
+                        idx: np.ndarray, points: np.ndarray, par: np.ndarray) -> np.ndarray:
     """``(k,)`` bool: the feature of slot ``idx (k,)`` lies on every face its vertex is on.
 
     Per slot: ``fid (ns,)`` feature (``c + 1`` edge curve ``c``, ``-(v + 1)``
-    CAD vertex ``v``), ``gid (ns,)`` vertex, ``ent (ns,)`` face.  A vertex on
-    facets of faces ``A`` and ``B`` belongs on a CAD edge (vertex) of both;
-    the nearest edge curve of ``A`` need not be one: where two solids of an
-    assembly touch, the mesher's fragments meet along a line that is no edge
-    of either file face.
+    CAD vertex ``v``), ``gid (ns,)`` vertex, ``ent (ns,)`` face, ``par (ns, d)``
+    parameters on it; ``points (k, 3)`` the feature's point found for slot
+    ``idx``.  A vertex on facets of faces ``A`` and ``B`` belongs on a CAD
+    edge (vertex) of both; the nearest edge curve of ``A`` need not be one:
+    where two solids of an assembly touch, the mesher's fragments meet along
+    a line that is no edge of either file face.  A face of the vertex counts as held if it is one of the feature's
+    faces, or if the feature's point lies on it (:func:`on_faces`): two
+    touching solids each have their own copy of a shared rim (a pin's end
+    flush in a plate's hole: the pin's end disk and the plate's face are
+    coplanar and meet only along the rim, an edge of each).
     """
     top = geo.topology
     assert top is not None
     ne = geo.num_entities
-    pairs = np.unique(gid.astype(np.int64) * ne + ent)  # (vertex, face), sorted by vertex
+    # (vertex, face), sorted by vertex, and a slot of each
+    pairs, pslot = np.unique(gid.astype(np.int64) * ne + ent, return_index=True)
     pv, pf = pairs // ne, pairs % ne
     lo = np.searchsorted(pv, gid[idx], side="left")
     cnt = np.searchsorted(pv, gid[idx], side="right") - lo
-    faces = pf[np.repeat(lo, cnt) + ramp(cnt)]  # the faces of each slot's vertex
+    pi = np.repeat(lo, cnt) + ramp(cnt)
+    faces = pf[pi]  # the faces of each slot's vertex
     rows = np.repeat(top.feature_rows(fid[idx]), cnt)
     ff = top.feature_faces
     fkeys = np.sort(np.repeat(np.arange(len(ff.counts)), ff.counts) * ne + ff.flat)
     key = rows * ne + faces
     at = np.minimum(np.searchsorted(fkeys, key), len(fkeys) - 1)
     miss = fkeys[at] != key if len(fkeys) else np.ones(len(key), dtype=bool)
-    return np.bincount(np.repeat(np.arange(len(idx)), cnt), weights=miss, minlength=len(idx)) == 0
+    slot = np.repeat(np.arange(len(idx)), cnt)
+    m = np.flatnonzero(miss)
+    if m.size:  # not one of the feature's faces: does the feature's point lie on it?
+        points = np.asarray(points, dtype=float)
+        m = m[alongside(geo, fid[idx][slot[m]], points[slot[m]])]
+        miss[m] = ~on_faces(geo, points[slot[m]], faces[m], top.feature_tolerance[rows[m]], par[pslot[pi[m]]])
+    return np.bincount(slot, weights=miss, minlength=len(idx)) == 0
+
+
+def alongside(geo: StageGeometry, fid: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``(k,)`` bool: the point ``q (k, 3)`` of feature ``fid (k,)`` found as a vertex's nearest
+    is a foot on its edge curve, not its end: within the curve's range (or on a closed
+    curve), or the feature is a CAD vertex (found within the corners' small radius).
+
+    The nearest point of an edge curve clamped at the curve's end says only that the
+    vertex is beyond that end: a vertex on the fragments of two touching solids, on a
+    line that is no edge of either face, can have a CAD corner of one face as nearest
+    point of its edges and that corner on the other face, and belongs elsewhere.
+    """
+    top = geo.topology
+    assert top is not None and top.searcher is not None
+    out = fid < 0
+    e = np.flatnonzero(fid > 0)
+    if e.size:
+        crv = fid[e] - 1
+        u = top.searcher.search_on(q[e], crv)[0][:, 0]
+        lo, hi = top.curve_range[crv].T
+        eps = ALONG_RTOL * (hi - lo)
+        out[e] = top.curve_closed[crv] | ((u > lo + eps) & (u < hi - eps))
+    return out
+
+
+def on_faces(geo: StageGeometry, X: np.ndarray, faces: np.ndarray, tol: np.ndarray,
+             seeds: np.ndarray | None = None) -> np.ndarray:
+    """``(n,)`` bool: point ``X[i] (n, 3)`` lies on (the closure of) face ``faces[i]``.
+
+    Within ``t = max(tol[i], ON_FACE_RTOL * size)`` (``tol (n,)``, length units: the
+    file's tolerance of the feature the point is on) of the face's surface (Newton from
+    ``seeds (n, d)`` where given and finite, else from the face's search samples), and either
+    on the trimmed face (inside its loops' polygons or bands) or within ``t`` of one of its
+    edge curves.  The edge curves, not only the loops: the loops are the p-curves, which
+    OpenCASCADE computes where a STEP file has none, and which can stray from the
+    edges' 3D curves by more than the edges' recorded tolerance (the I-DEAS assembly
+    of ``docs/pages/results/corpus.md``).
+    """
+    t = np.maximum(tol, ON_FACE_RTOL * geo.size)
+    n = len(faces)
+    par, dist = np.zeros((n, geo.param_dim)), np.full(n, np.inf)
+    known = np.flatnonzero(np.all(np.isfinite(seeds), axis=1)) if seeds is not None else np.zeros(0, np.int64)
+    if known.size:
+        assert seeds is not None
+        pp, _, dd, _, conv = geo.searcher.refine(known, faces[known], seeds[known], X, geo.max_iter)
+        par[known], dist[known] = pp, np.where(conv, dd, np.inf)
+    rest = np.flatnonzero(~(dist <= t))
+    if rest.size:  # unseeded, or Newton went astray: from the face's samples
+        par[rest], _, dist[rest] = geo.searcher.search_on(X[rest], faces[rest])[:3]
+    ok = dist <= t
+    if geo.trims is None or geo.topology is None:
+        return ok
+    near = np.flatnonzero(ok)
+    if near.size == 0:
+        return ok
+    out = near[~geo.trims.inside(faces[near], par[near], band=False)]  # outside the polygons:
+    rim = out[geo.trims.loop_distance(faces[out], par[out]) > 0.0] if out.size else out  # and their bands
+    if rim.size:  # on the surface, beyond the loops: on an edge curve of the face?
+        q, fid = nearest_features(geo, faces[rim], X[rim], t[rim], np.ones(rim.size, dtype=np.int64))
+        ok[rim] = (fid != 0) & (np.linalg.norm(q - X[rim], axis=1) <= t[rim])
+    return ok
 
 
 def onto_feature(geo: StageGeometry, reps: np.ndarray, ent: np.ndarray, proj: np.ndarray, par: np.ndarray,

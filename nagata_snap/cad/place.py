@@ -352,11 +352,12 @@ def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
         ok = ff != 0
         fid[feat] = ff
         found = feat[ok]
-        holds = feature_holds_faces(geo, fid, gid, s.ent, found)
+        holds = feature_holds_faces(geo, fid, gid, s.ent, found, fx[ok], p.par)
         loose[found[~holds]] = True  # on faces that share no CAD edge there: intersect them
         fid[found[~holds]] = 0
         ok[ok] = holds
         p.proj[feat[ok]] = fx[ok]
+        p.dist[feat[ok]] = np.linalg.norm(fx[ok] - s.X[feat[ok]], axis=1)  # the nearest feature wins
         cls[feat[~ok]] = 0
     is_corner = corner_vertices(gid, s.ent, int(gid.max()) + 1, geo.param_dim + 1,
                                 edge=np.where(fid > 0, fid - 1, -1))
@@ -367,16 +368,18 @@ def feature_slots(geo: StageGeometry, s: Slots, p: Projection, gid: np.ndarray
         hit = np.flatnonzero(ff < 0)
         fid_c = np.zeros(ns, dtype=np.int64)
         fid_c[corner[hit]] = ff[hit]
-        hit = hit[feature_holds_faces(geo, fid_c, gid, s.ent, corner[hit])]
+        hit = hit[feature_holds_faces(geo, fid_c, gid, s.ent, corner[hit], fx[hit], p.par)]
         c = corner[hit]
         p.proj[c], fid[c], cls[c] = fx[hit], ff[hit], 2
+        p.dist[c] = np.linalg.norm(fx[hit] - s.X[c], axis=1)
         loose[c] = False
     return cls, fid, n_left, loose
 
 
 def representatives(gid: np.ndarray, cls: np.ndarray, p: Projection) -> np.ndarray:
     """``(n_vertices,)`` the best slot of each vertex ``gid (ns,)``: an edge or corner slot
-    (``cls``) first, then valid, on its own entity, nearest."""
+    (``cls``) first, then valid, on its own entity, nearest (an edge or corner slot: its
+    feature's point nearest the vertex, :func:`feature_slots`)."""
     return best_per_group(gid, (-np.minimum(cls, 2), ~p.valid, ~p.on_root, p.dist), int(gid.max()) + 1)
 
 

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from nagata_snap.cad.projection import GlobalSearcher
+from nagata_snap.cad.projection import GlobalSearcher, entity_periods
 from nagata_snap.mesh.arrays import Ragged
 
 if TYPE_CHECKING:
@@ -69,6 +69,11 @@ class CadTopology:
         points: ``(nv, 3)`` CAD vertices.
         feature_faces: the faces of each curve's edge (rows ``0..nc-1``), then
             the faces around each CAD vertex (rows ``nc + v``) (:class:`Ragged`).
+        feature_tolerance: ``(nc + nv,)`` the file's tolerance of each feature, rows as
+            :attr:`feature_faces` (OpenCASCADE's ``BRep_Tool::Tolerance`` of the edge or
+            vertex, length units; 0 where unknown).
+        curve_range: ``(nc, 2)`` each curve's parameter range.
+        curve_closed: ``(nc,)`` the curve is closed (periodic).
         searcher: closest points on given edges (closed form / Newton); None without curves.
         lo, hi: ``(nc, 3)`` bounding boxes of the curves.
     """
@@ -96,6 +101,11 @@ class CadTopology:
                 around[v].append(f)
         self.face_curves, self.face_vertices = Ragged(face_curves), Ragged(face_vertices)
         self.feature_faces = Ragged(curve_faces + around)
+        self.feature_tolerance = np.concatenate([
+            np.array([edges[i].tolerance for i, c in enumerate(curve_of_edge) if c >= 0], dtype=float),
+            np.asarray(model.vertex_tolerance, dtype=float).reshape(len(self.points))])
+        self.curve_range = np.array([c.bounds[0] for c in self.curves], dtype=float).reshape(-1, 2)
+        self.curve_closed = np.isfinite([entity_periods(c)[0] for c in self.curves]).astype(bool)
         self.searcher = GlobalSearcher(self.curves) if self.curves else None
         # the curves' boxes, as the searcher has them
         self.lo = np.zeros((0, 3)) if self.searcher is None else self.searcher.bbox_lo
