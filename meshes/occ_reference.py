@@ -29,9 +29,19 @@ edge's range likewise.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from nagata_snap.cad.read import load_shape, read_shape, shape_maps
+
+
+def _distance(vertex, shape):
+    """``BRepExtrema_DistShapeShape`` of a vertex and a shape, None where it finds nothing."""
+    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+
+    ds = BRepExtrema_DistShapeShape(vertex, shape)
+    return ds if ds.IsDone() and ds.NbSolution() > 0 else None
 
 
 class OccShape:
@@ -109,43 +119,86 @@ class OccShape:
                 d[k] = min(d[k], self._extrema(f, p))
         return d
 
-    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
-        """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
-        ``(distance (n,), face (n,))``, ``face`` the index (as the model's) of the face the
-        closest point lies on, ``-1`` where it lies on an edge or a vertex (on two faces or
-        more).  ``BRepExtrema_DistShapeShape`` against the shape's faces, the distance refined
-        on the face found (:meth:`face_distance`, against Extrema's error near seams)."""
-        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-        from OCP.gp import gp_Pnt
-        from OCP.TopAbs import TopAbs_FACE
-
+    @functools.cached_property
+    def compound(self):
+        """The faces as one compound (not the solid: a point inside a solid is at 0 from it)."""
         from OCP.BRep import BRep_Builder
         from OCP.TopoDS import TopoDS_Compound
 
-        comp, b = TopoDS_Compound(), BRep_Builder()  # the faces only: a solid's inside is at distance 0
+        comp, b = TopoDS_Compound(), BRep_Builder()
         b.MakeCompound(comp)
         for f in self.faces:
             b.Add(comp, f)
+        return comp
+
+    @functools.cached_property
+    def split(self):
+        """The faces split at the lines where their surfaces (or p-curves) are only C0
+        (``ShapeUpgrade_ShapeDivideContinuity`` to C1), as a compound; None where that splits
+        nothing.  ``BRepExtrema`` misses closest points next to such a line (a crease inside a
+        B-spline face); on the split faces, each side is a face of its own."""
+        from OCP.GeomAbs import GeomAbs_Shape
+        from OCP.ShapeUpgrade import ShapeUpgrade_ShapeDivideContinuity
+        from OCP.TopAbs import TopAbs_FACE
+        from OCP.TopExp import TopExp_Explorer
+
+        div = ShapeUpgrade_ShapeDivideContinuity(self.compound)
+        c1 = GeomAbs_Shape.GeomAbs_C1
+        div.SetBoundaryCriterion(c1)
+        div.SetPCurveCriterion(c1)
+        div.SetSurfaceCriterion(c1)
+        div.SetTolerance(1e-9 * self.size)
+        if not div.Perform():
+            return None
+        out, n = div.Result(), 0
+        ex = TopExp_Explorer(out, TopAbs_FACE)
+        while ex.More():
+            n += 1
+            ex.Next()
+        return out if n > len(self.faces) else None
+
+    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
+        ``(distance (n,), face (n,))``, as :meth:`closest_split` (without its third array)."""
+        d, face, _ = self.closest_split(points)
+        return d, face
+
+    def closest_split(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
+        ``(distance (n,), face (n,), split (n,) bool)``.
+
+        ``BRepExtrema_DistShapeShape`` against the shape's faces, the distance refined on the
+        face found (:meth:`face_distance`, against Extrema's error near seams); ``face`` the
+        index (as the model's) of the face the closest point lies on, ``-1`` where it lies on
+        an edge or a vertex (on two faces or more).  Where the faces have C0 lines
+        (:attr:`split`), ``BRepExtrema`` against the split faces as well, and the nearer of
+        the two; ``split`` marks the points where that was the split faces' by more than
+        1e-9 of the size (``face`` -1 there: the split faces are not the model's)."""
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.gp import gp_Pnt
+        from OCP.TopAbs import TopAbs_FACE
+
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         d = np.full(len(points), np.inf)
         face = np.full(len(points), -1, dtype=np.int64)
+        lower = np.zeros(len(points), dtype=bool)
+        split = self.split
         for k, p in enumerate(points):  # loop over points (OCC queries)
-            ds = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex(), comp)
-            if not ds.IsDone() or ds.NbSolution() == 0:
-                continue
-            d[k] = ds.Value()
-            faces = set()
-            for j in range(1, ds.NbSolution() + 1):
-                s = ds.SupportOnShape2(j)
-                if s.ShapeType() == TopAbs_FACE:
-                    faces.add(self._fmap.FindIndex(s) - 1)
-                else:
-                    faces.add(-1)
-            if len(faces) == 1 and -1 not in faces:
-                face[k] = faces.pop()
-                d[k] = min(d[k], self.face_distance([face[k]], [p])[0])
-        return d, face
+            v = BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex()
+            ds = _distance(v, self.compound)
+            if ds is not None:
+                d[k] = ds.Value()
+                faces = set()
+                for j in range(1, ds.NbSolution() + 1):
+                    s = ds.SupportOnShape2(j)
+                    faces.add(self._fmap.FindIndex(s) - 1 if s.ShapeType() == TopAbs_FACE else -1)
+                if len(faces) == 1 and -1 not in faces:
+                    face[k] = faces.pop()
+                    d[k] = min(d[k], self.face_distance([face[k]], [p])[0])
+            ds = _distance(v, split) if split is not None else None
+            if ds is not None and ds.Value() < d[k] - 1e-9 * self.size:
+                d[k], face[k], lower[k] = ds.Value(), -1, True
+        return d, face, lower
 
     def edge_distance(self, edges, points, accept: float = 0.0) -> np.ndarray:
         """``(n,)`` distance of each point to OCC's closest point on edge ``edges[i]``
@@ -286,26 +339,43 @@ def pushed_points(path: str, n: int = 400, rel: float = 1e-3, seed: int = 0, siz
     return X[pick] + (rel * diag * side)[:, None] * N[pick]
 
 
-def closest_agreement(geo, occ: OccShape, points: np.ndarray, rtol: float = 1e-8) -> dict:
+def closest_agreement(geo, occ: OccShape, points: np.ndarray, rtol: float = 1e-6) -> dict:
     """How far the package's global ``closest_point`` agrees with OpenCASCADE's on ``points``.
 
-    A point agrees where our distance is within ``rtol`` of the model size of
-    OpenCASCADE's (a closest point on another face at the same distance agrees:
-    equidistant faces); ``wrong_face``: points found at a distance more than that
-    beyond OpenCASCADE's, where OpenCASCADE's closest point lies on another face.
+    OpenCASCADE's closest point is :meth:`OccShape.closest_split` (``BRepExtrema`` on the
+    faces, and on the faces split at their C0 lines where that is nearer).  A point
+    *agrees* where our distance is within ``rtol`` of the model size of OpenCASCADE's and
+    our foot point lies on the face we name (its OpenCASCADE distance from that trimmed
+    face, :meth:`OccShape.face_distance`, at most 1e-9 of the size; a closest point on
+    another face at the same distance agrees: equidistant faces).  It is *wrong* where we
+    report a point of a face at a distance OpenCASCADE's point beats by more than that, or a
+    foot that is not on the face we name (the silent error).  *nearer*: found, on the face
+    (by OpenCASCADE's own evaluation and classifier), and nearer than OpenCASCADE's closest
+    point by more than the tolerance: OpenCASCADE's point is then demonstrably not the
+    closest one (it counts neither as agreeing nor as wrong).
 
     Returns:
-        ``{"n", "found", "agree", "wrong_face", "worst" (largest |difference| / size),
-        "bad" (indices of the disagreeing points)}``.
+        ``{"n", "found", "agree", "wrong", "nearer", "split" (points whose reference is the
+        split faces'), "worst" (largest |difference| / size), "bad" (indices of the points
+        that do not agree)}``, counts as ints.
     """
-    ent, _, dist = geo.closest_point(points)
-    d_occ, f_occ = occ.closest(points)
-    tol = rtol * occ.size
-    diff = np.abs(dist - d_occ)
-    agree = diff <= tol
+    size = occ.size
+    ent, par, dist = geo.closest_point(points)
     found = ent >= 0
-    wrong = found & ~agree & (f_occ >= 0) & (f_occ != ent)
+    foot = np.full((len(points), 3), np.nan)
+    if found.any():
+        foot[found] = geo.evaluate(ent[found], par[found][:, None, :])[:, 0]
+    on_face = np.zeros(len(points), dtype=bool)
+    on_face[found] = occ.face_distance(ent[found], foot[found], accept=1e-9 * size,
+                                       params=par[found]) <= 1e-9 * size
+    d_occ, _, split = occ.closest_split(points)
+    tol = rtol * size
+    diff = np.abs(dist - d_occ)
+    agree = found & (diff <= tol) & on_face
+    wrong = found & ((dist > d_occ + tol) | ~on_face)
+    nearer = found & on_face & (dist < d_occ - tol)
     fin = np.isfinite(diff)
-    return {"n": len(points), "found": int(found.sum()), "agree": int(agree.sum()), "wrong_face": int(wrong.sum()),
-            "worst": float(diff[fin].max() / occ.size) if fin.any() else float("inf"),
+    return {"n": len(points), "found": int(found.sum()), "agree": int(agree.sum()), "wrong": int(wrong.sum()),
+            "nearer": int(nearer.sum()), "split": int(split.sum()),
+            "worst": float(diff[fin].max() / size) if fin.any() else float("inf"),
             "bad": np.flatnonzero(~agree)}
