@@ -17,7 +17,15 @@ sewed a faces-only file by joining its data (:mod:`nagata_snap.cad.sewing`),
 the unsewn shape as read, whose faces are the model's in the same order and
 whose edge copies give each model edge the one whose 3D curve it keeps (the
 model edge's ``source``): the numbering comes from the reader, the geometry
-stays OpenCASCADE's own.  Its distances are
+stays OpenCASCADE's own.  Its closest point on the whole shape
+(:meth:`OccShape.closest_split`) is ``BRepExtrema_DistShapeShape``'s on the
+faces and, where the faces have C0 lines inside (creases of B-spline faces at
+their knots, next to which ``BRepExtrema`` misses closest points), on the faces
+split there by ``ShapeUpgrade_ShapeDivideContinuity``, the nearer of the two;
+a face whose edge curves lie off it (a file's loose tolerance,
+:attr:`OccShape.loose`) is measured as its surface within its p-curves: its
+surface's extrema inside it and the curves its p-curves trace on the surface.
+Its distances to one face are
 ``BRepExtrema_DistShapeShape`` between a vertex and the trimmed face (or
 edge), and, because that Extrema is off by up to ~1e-6 within ~1e-8 of a
 periodic surface's seam in its parameter, the surface's own projection
@@ -34,6 +42,10 @@ import functools
 import numpy as np
 
 from nagata_snap.cad.read import load_shape, read_shape, shape_maps
+
+
+#: samples per edge at which :attr:`OccShape.loose` compares an edge's 3D curve with its curve on the face
+GAP_SAMPLES = 41
 
 
 def _distance(vertex, shape):
@@ -121,15 +133,87 @@ class OccShape:
 
     @functools.cached_property
     def compound(self):
-        """The faces as one compound (not the solid: a point inside a solid is at 0 from it)."""
+        """The faces whose edges lie on them (not in :attr:`loose`) as one compound (not the
+        solid: a point inside a solid is at 0 from it); None if there is none."""
         from OCP.BRep import BRep_Builder
         from OCP.TopoDS import TopoDS_Compound
 
+        tight = [f for i, f in enumerate(self.faces) if i not in self.loose]
+        if not tight:
+            return None
         comp, b = TopoDS_Compound(), BRep_Builder()
         b.MakeCompound(comp)
-        for f in self.faces:
+        for f in tight:
             b.Add(comp, f)
         return comp
+
+    @functools.cached_property
+    def loose(self) -> dict[int, list]:
+        """The faces with an edge whose 3D curve is farther than 1e-9 of the size from the curve
+        its p-curve traces on the face (``BRepAdaptor_Curve(edge)`` against
+        ``BRepAdaptor_Curve(edge, face)`` at :data:`GAP_SAMPLES` parameters): per such face
+        (its index) the curves on it of its non-degenerate edges (``BRepAdaptor_Curve(edge, face)``).
+
+        Such a file meets only within its tolerances: ``BRepExtrema`` measures a point's
+        distance to the 3D curve, which no point of the face reaches.  The face is the surface
+        within its p-curves; :meth:`closest_split` measures to that."""
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepAdaptor import BRepAdaptor_Curve
+        from OCP.TopAbs import TopAbs_EDGE
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopoDS import TopoDS
+
+        out: dict[int, list] = {}
+        t = np.linspace(0.0, 1.0, GAP_SAMPLES)
+        for i, f in enumerate(self.faces):  # loop over faces and their edges (set-up)
+            curves, gap = [], 0.0
+            ex = TopExp_Explorer(f, TopAbs_EDGE)
+            while ex.More():
+                e = TopoDS.Edge(ex.Current())
+                ex.Next()
+                if BRep_Tool.Degenerated_s(e) or not BRep_Tool.IsGeometric_s(e):
+                    continue
+                c3, cs = BRepAdaptor_Curve(e), BRepAdaptor_Curve(e, f)
+                a, b = c3.FirstParameter(), c3.LastParameter()
+                for x in a + t * (b - a):  # the same parameters: the edge's range
+                    gap = max(gap, c3.Value(x).Distance(cs.Value(x)))
+                curves.append(cs)
+            if gap > 1e-9 * self.size:
+                out[i] = curves
+        return out
+
+    def surface_face_distance(self, i: int, p) -> float:
+        """Distance of ``p (3,)`` from loose face ``i`` (:attr:`loose`) as its surface within its
+        p-curves: the nearer of its surface's extrema inside the face
+        (``GeomAPI_ProjectPointOnSurf``, ``BRepClass_FaceClassifier``), ``BRepExtrema``'s point
+        where it lies inside the face, and the closest points of the curves its edges'
+        p-curves trace on it (``Extrema_ExtPC`` and the curves' ends)."""
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepClass import BRepClass_FaceClassifier
+        from OCP.Extrema import Extrema_ExtPC
+        from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+        from OCP.TopAbs import TopAbs_FACE, TopAbs_State
+        from OCP.gp import gp_Pnt, gp_Pnt2d
+
+        f, q = self.faces[i], gp_Pnt(*p)
+        best = np.inf
+        pr = GeomAPI_ProjectPointOnSurf(q, BRep_Tool.Surface_s(f))
+        for j in range(1, pr.NbPoints() + 1):  # loop over the surface's extrema
+            u, v = pr.Parameters(j)
+            if BRepClass_FaceClassifier(f, gp_Pnt2d(u, v), 1e-9).State() == TopAbs_State.TopAbs_IN:
+                best = min(best, pr.Distance(j))
+        ds = _distance(BRepBuilderAPI_MakeVertex(q).Vertex(), f)
+        if ds is not None and ds.SupportOnShape2(1).ShapeType() == TopAbs_FACE:
+            best = min(best, ds.Value())
+        for c in self.loose[i]:  # loop over the face's edges
+            a, b = c.FirstParameter(), c.LastParameter()
+            best = min(best, q.Distance(c.Value(a)), q.Distance(c.Value(b)))
+            ext = Extrema_ExtPC(q, c, a, b)
+            if ext.IsDone():
+                for j in range(1, ext.NbExt() + 1):
+                    best = min(best, float(np.sqrt(ext.SquareDistance(j))))
+        return best
 
     @functools.cached_property
     def split(self):
@@ -142,6 +226,8 @@ class OccShape:
         from OCP.TopAbs import TopAbs_FACE
         from OCP.TopExp import TopExp_Explorer
 
+        if self.compound is None:
+            return None
         div = ShapeUpgrade_ShapeDivideContinuity(self.compound)
         c1 = GeomAbs_Shape.GeomAbs_C1
         div.SetBoundaryCriterion(c1)
@@ -155,7 +241,7 @@ class OccShape:
         while ex.More():
             n += 1
             ex.Next()
-        return out if n > len(self.faces) else None
+        return out if n > len(self.faces) - len(self.loose) else None
 
     def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
         """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
@@ -170,7 +256,10 @@ class OccShape:
         ``BRepExtrema_DistShapeShape`` against the shape's faces, the distance refined on the
         face found (:meth:`face_distance`, against Extrema's error near seams); ``face`` the
         index (as the model's) of the face the closest point lies on, ``-1`` where it lies on
-        an edge or a vertex (on two faces or more).  Where the faces have C0 lines
+        an edge or a vertex (on two faces or more).  A face whose edges are off it
+        (:attr:`loose`) is measured as its surface within its p-curves
+        (:meth:`surface_face_distance`), not through ``BRepExtrema``'s 3D edge curves.  Where
+        the faces have C0 lines
         (:attr:`split`), ``BRepExtrema`` against the split faces as well, and the nearer of
         the two; ``split`` marks the points where that was the split faces' by more than
         1e-9 of the size (``face`` -1 there: the split faces are not the model's)."""
@@ -185,7 +274,7 @@ class OccShape:
         split = self.split
         for k, p in enumerate(points):  # loop over points (OCC queries)
             v = BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex()
-            ds = _distance(v, self.compound)
+            ds = _distance(v, self.compound) if self.compound is not None else None
             if ds is not None:
                 d[k] = ds.Value()
                 faces = set()
@@ -195,6 +284,10 @@ class OccShape:
                 if len(faces) == 1 and -1 not in faces:
                     face[k] = faces.pop()
                     d[k] = min(d[k], self.face_distance([face[k]], [p])[0])
+            for i in self.loose:  # the faces whose edges are off them: to the surface within its p-curves
+                di = self.surface_face_distance(i, p)
+                if di < d[k] - 1e-9 * self.size:
+                    d[k], face[k] = di, i
             ds = _distance(v, split) if split is not None else None
             if ds is not None and ds.Value() < d[k] - 1e-9 * self.size:
                 d[k], face[k], lower[k] = ds.Value(), -1, True
