@@ -45,7 +45,7 @@ from nagata_snap.cad.read import load_shape, read_shape, shape_maps
 
 
 #: samples per edge at which :attr:`OccShape.loose` compares an edge's 3D curve with its curve on the face
-GAP_SAMPLES = 41
+GAP_SAMPLES = 17
 
 
 def _distance(vertex, shape):
@@ -182,6 +182,21 @@ class OccShape:
                 out[i] = curves
         return out
 
+    @functools.cached_property
+    def _loose_boxes(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Per loose face (:attr:`loose`) its bounding box ``(lo (3,), hi (3,))``
+        (``BRepBndLib``, widened by the shape's tolerances)."""
+        from OCP.Bnd import Bnd_Box
+        from OCP.BRepBndLib import BRepBndLib
+
+        out = {}
+        for i in self.loose:  # loop over the loose faces (set-up)
+            box = Bnd_Box()
+            BRepBndLib.Add_s(self.faces[i], box)
+            lo, hi = box.CornerMin(), box.CornerMax()
+            out[i] = (np.array(lo.Coord()), np.array(hi.Coord()))
+        return out
+
     def surface_face_distance(self, i: int, p) -> float:
         """Distance of ``p (3,)`` from loose face ``i`` (:attr:`loose`) as its surface within its
         p-curves: the nearer of its surface's extrema inside the face
@@ -284,7 +299,9 @@ class OccShape:
                 if len(faces) == 1 and -1 not in faces:
                     face[k] = faces.pop()
                     d[k] = min(d[k], self.face_distance([face[k]], [p])[0])
-            for i in self.loose:  # the faces whose edges are off them: to the surface within its p-curves
+            for i, (lo, hi) in self._loose_boxes.items():  # the faces whose edges are off them
+                if np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0)) > d[k]:
+                    continue  # (its box is farther than the nearest point found)
                 di = self.surface_face_distance(i, p)
                 if di < d[k] - 1e-9 * self.size:
                     d[k], face[k] = di, i
