@@ -48,7 +48,7 @@ FORMATS["offset_cylinder"] = ("brep", "step")
 CORPUS_CLOSEST = ("as1_tu_203_assembly.stp", "torus_bspline_harmonyware.igs", "component8_sheet.step",
                   "cone_ideas_11_msbo.igs", "primitives_catia_v4_debis.stp", "offset_tube_lstc_occ63.igs",
                   "screw_euclid_netgen.step", "rational_patches_3dipsos.igs", "bspline_face_catia_v4_t1.igs",
-                  "trimmed_bspline_face_catia_v4.igs", "bspline_face_occ52_f45.igs")
+                  "trimmed_bspline_face_catia_v4.igs")
 
 
 @pytest.fixture(scope="module")

@@ -128,36 +128,44 @@ class CurveOnSurface:
 
 
 class _FacePCurves:
-    """The curves on their surfaces (:class:`CurveOnSurface`) of the p-curves of the faces of a
-    topology whose edges may lie off them (an edge tolerance above :data:`EDGE_GAP` of the
-    size), and which of those faces are *loose*: a point of such a curve (at
-    :data:`GAP_SAMPLES` parameters of each) farther than :data:`EDGE_GAP` of the size from its
-    edge's 3D curve.  ``face_curves``: per face its curves' indices (:class:`Ragged`, none for
-    the others), ``loose (n_faces,)`` bool, ``searcher`` over the curves (None without any).
-    Built on first need (the topology's ``pcurves``)."""
+    """The curves on their surfaces (:class:`CurveOnSurface`) of the p-curves of a topology's
+    faces, built face by face where first needed (:meth:`ensure`), and which faces are
+    *loose*: a point of such a curve (at :data:`GAP_SAMPLES` parameters of each) farther than
+    :data:`EDGE_GAP` of the size from its edge's 3D curve (measured, not the file's
+    tolerance: a file may claim less than its curves keep).  ``face_curves``: per face its
+    curves' indices (:class:`Ragged`), ``loose (n_faces,)`` bool, ``searcher`` over the curves
+    (None without any).  The topology's ``pcurves``."""
 
     def __init__(self, top, size: float):
-        curves: list[CurveOnSurface] = []
-        per_face: list[list[int]] = []
+        self._top, self._tol = top, EDGE_GAP * size
+        self.curves: list[CurveOnSurface] = []
+        self._per_face: list[list[int]] = [[] for _ in top.faces]
+        self.built = np.zeros(len(top.faces), dtype=bool)
         self.loose = np.zeros(len(top.faces), dtype=bool)
-        tol = EDGE_GAP * size
-        for i, f in enumerate(top.faces):  # loop over faces and their p-curves (set-up)
-            mine: list[int] = []
-            if any(lp.pcurves for lp in f.loops) and (top.edge_tolerance[f.edges] > tol).any():
-                for lp in f.loops:
-                    for e, d in zip(lp.uses, lp.pcurves or (), strict=False):
-                        mine.append(len(curves))
-                        curves.append(CurveOnSurface(d, f.surface, f.uv_map))
-                        c = top.curve_of_edge[e]
-                        if c >= 0 and top.searcher is not None and not self.loose[i]:
-                            lo, hi = curves[-1].bounds[0]
-                            t = np.linspace(lo, hi, GAP_SAMPLES)
-                            P = curves[-1]._eval_soa(t[None, :], 0)[0].T
-                            self.loose[i] = top.searcher.search_on(P, np.full(len(P), c))[2].max() > tol
-            per_face.append(mine)
-        self.curves = curves
-        self.face_curves = Ragged(per_face)
-        self.searcher = GlobalSearcher(curves) if curves else None
+        self.face_curves = Ragged(self._per_face)
+        self.searcher: GlobalSearcher | None = None
+
+    def ensure(self, faces: np.ndarray) -> None:
+        """Build the curves of ``faces (k,)`` not built yet, and their ``loose`` flags."""
+        top = self._top
+        todo = np.unique(faces[~self.built[faces]]).tolist()
+        if not todo:
+            return
+        for i in todo:  # loop over the new faces and their p-curves (set-up, once per face)
+            f = top.faces[i]
+            for lp in f.loops:
+                for e, d in zip(lp.uses, lp.pcurves or (), strict=False):
+                    curve = CurveOnSurface(d, f.surface, f.uv_map)
+                    self._per_face[i].append(len(self.curves))
+                    self.curves.append(curve)
+                    c = top.curve_of_edge[e]
+                    if c >= 0 and top.searcher is not None and not self.loose[i]:
+                        lo, hi = curve.bounds[0]
+                        P = curve._eval_soa(np.linspace(lo, hi, GAP_SAMPLES)[None, :], 0)[0].T
+                        self.loose[i] = top.searcher.search_on(P, np.full(len(P), c))[2].max() > self._tol
+            self.built[i] = True
+        self.face_curves = Ragged(self._per_face)
+        self.searcher = GlobalSearcher(self.curves) if self.curves else None
 
 
 def _face_pcurves(geo: StageGeometry) -> _FacePCurves:
@@ -175,6 +183,7 @@ def _on_pcurves(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, face: np.ndar
     trace on their surfaces: ``(params (p, 2) on the surface, distance (p,), found (p,))``
     (``found`` False for a face without p-curves)."""
     fp = _face_pcurves(geo)
+    fp.ensure(face)
     q, dist = np.zeros((len(pt), 2)), np.full(len(pt), np.inf)
     if fp.searcher is None:
         return q, dist, np.zeros(len(pt), dtype=bool)
@@ -287,7 +296,9 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     qE, _, gap = geo.searcher.search_on(E, bf)[:3]  # the edge point's parameters on the face
     # an edge curve farther from its face than EDGE_GAP of the size, or from the curve its p-curve
     # traces on it (a file's loose tolerance): the face's boundary is the curve its p-curves trace
-    loose = (gap > EDGE_GAP * geo.size) | _face_pcurves(geo).loose[bf]
+    fp = _face_pcurves(geo)
+    fp.ensure(bf)
+    loose = (gap > EDGE_GAP * geo.size) | fp.loose[bf]
     if loose.any():
         rows = np.flatnonzero(loose)
         qL, dL, okL = _on_pcurves(geo, X, bp[rows], bf[rows])

@@ -88,8 +88,6 @@ class CadTopology:
         self.points = model.vertices
         self.faces = model.faces
         self.pcurves: Any = None
-        #: ``(ne,)`` OpenCASCADE's tolerance of each model edge (length units)
-        self.edge_tolerance = np.array([e.tolerance for e in edges], dtype=float)
         ends = [e.vertices for e in edges]
         face_curves, face_vertices = [], []
         for f in model.faces:  # loop over CAD faces (set-up)
