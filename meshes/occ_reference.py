@@ -17,7 +17,15 @@ sewed a faces-only file by joining its data (:mod:`nagata_snap.cad.sewing`),
 the unsewn shape as read, whose faces are the model's in the same order and
 whose edge copies give each model edge the one whose 3D curve it keeps (the
 model edge's ``source``): the numbering comes from the reader, the geometry
-stays OpenCASCADE's own.  Its distances are
+stays OpenCASCADE's own.  Its closest point on the whole shape
+(:meth:`OccShape.closest_split`) is ``BRepExtrema_DistShapeShape``'s on the
+faces and, where the faces have C0 lines inside (creases of B-spline faces at
+their knots, next to which ``BRepExtrema`` misses closest points), on the faces
+split there by ``ShapeUpgrade_ShapeDivideContinuity``, the nearer of the two;
+a face whose edge curves lie off it (a file's loose tolerance,
+:attr:`OccShape.loose`) is measured as its surface within its p-curves: its
+surface's extrema inside it and the curves its p-curves trace on the surface.
+Its distances to one face are
 ``BRepExtrema_DistShapeShape`` between a vertex and the trimmed face (or
 edge), and, because that Extrema is off by up to ~1e-6 within ~1e-8 of a
 periodic surface's seam in its parameter, the surface's own projection
@@ -29,9 +37,23 @@ edge's range likewise.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from nagata_snap.cad.read import load_shape, read_shape, shape_maps
+
+
+#: samples per edge at which :attr:`OccShape.loose` compares an edge's 3D curve with its curve on the face
+GAP_SAMPLES = 17
+
+
+def _distance(vertex, shape):
+    """``BRepExtrema_DistShapeShape`` of a vertex and a shape, None where it finds nothing."""
+    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+
+    ds = BRepExtrema_DistShapeShape(vertex, shape)
+    return ds if ds.IsDone() and ds.NbSolution() > 0 else None
 
 
 class OccShape:
@@ -109,43 +131,184 @@ class OccShape:
                 d[k] = min(d[k], self._extrema(f, p))
         return d
 
-    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
-        """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
-        ``(distance (n,), face (n,))``, ``face`` the index (as the model's) of the face the
-        closest point lies on, ``-1`` where it lies on an edge or a vertex (on two faces or
-        more).  ``BRepExtrema_DistShapeShape`` against the shape's faces, the distance refined
-        on the face found (:meth:`face_distance`, against Extrema's error near seams)."""
-        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-        from OCP.gp import gp_Pnt
-        from OCP.TopAbs import TopAbs_FACE
-
+    @functools.cached_property
+    def compound(self):
+        """The faces whose edges lie on them (not in :attr:`loose`) as one compound (not the
+        solid: a point inside a solid is at 0 from it); None if there is none."""
         from OCP.BRep import BRep_Builder
         from OCP.TopoDS import TopoDS_Compound
 
-        comp, b = TopoDS_Compound(), BRep_Builder()  # the faces only: a solid's inside is at distance 0
+        tight = [f for i, f in enumerate(self.faces) if i not in self.loose]
+        if not tight:
+            return None
+        comp, b = TopoDS_Compound(), BRep_Builder()
         b.MakeCompound(comp)
-        for f in self.faces:
+        for f in tight:
             b.Add(comp, f)
+        return comp
+
+    @functools.cached_property
+    def loose(self) -> dict[int, list]:
+        """The faces with an edge whose 3D curve is farther than 1e-9 of the size from the curve
+        its p-curve traces on the face (``BRepAdaptor_Curve(edge)`` against
+        ``BRepAdaptor_Curve(edge, face)`` at :data:`GAP_SAMPLES` parameters): per such face
+        (its index) the curves on it of its non-degenerate edges (``BRepAdaptor_Curve(edge, face)``).
+
+        Such a file meets only within its tolerances: ``BRepExtrema`` measures a point's
+        distance to the 3D curve, which no point of the face reaches.  The face is the surface
+        within its p-curves; :meth:`closest_split` measures to that."""
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepAdaptor import BRepAdaptor_Curve
+        from OCP.TopAbs import TopAbs_EDGE
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopoDS import TopoDS
+
+        out: dict[int, list] = {}
+        t = np.linspace(0.0, 1.0, GAP_SAMPLES)
+        for i, f in enumerate(self.faces):  # loop over faces and their edges (set-up)
+            curves, gap = [], 0.0
+            ex = TopExp_Explorer(f, TopAbs_EDGE)
+            while ex.More():
+                e = TopoDS.Edge(ex.Current())
+                ex.Next()
+                if BRep_Tool.Degenerated_s(e) or not BRep_Tool.IsGeometric_s(e):
+                    continue
+                c3, cs = BRepAdaptor_Curve(e), BRepAdaptor_Curve(e, f)
+                a, b = c3.FirstParameter(), c3.LastParameter()
+                for x in a + t * (b - a):  # the same parameters: the edge's range
+                    gap = max(gap, c3.Value(x).Distance(cs.Value(x)))
+                curves.append(cs)
+            if gap > 1e-9 * self.size:
+                out[i] = curves
+        return out
+
+    @functools.cached_property
+    def _loose_boxes(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Per loose face (:attr:`loose`) its bounding box ``(lo (3,), hi (3,))``
+        (``BRepBndLib``, widened by the shape's tolerances)."""
+        from OCP.Bnd import Bnd_Box
+        from OCP.BRepBndLib import BRepBndLib
+
+        out = {}
+        for i in self.loose:  # loop over the loose faces (set-up)
+            box = Bnd_Box()
+            BRepBndLib.Add_s(self.faces[i], box)
+            lo, hi = box.CornerMin(), box.CornerMax()
+            out[i] = (np.array(lo.Coord()), np.array(hi.Coord()))
+        return out
+
+    def surface_face_distance(self, i: int, p) -> float:
+        """Distance of ``p (3,)`` from loose face ``i`` (:attr:`loose`) as its surface within its
+        p-curves: the nearer of its surface's extrema inside the face
+        (``GeomAPI_ProjectPointOnSurf``, ``BRepClass_FaceClassifier``), ``BRepExtrema``'s point
+        where it lies inside the face, and the closest points of the curves its edges'
+        p-curves trace on it (``Extrema_ExtPC`` and the curves' ends)."""
+        from OCP.BRep import BRep_Tool
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepClass import BRepClass_FaceClassifier
+        from OCP.Extrema import Extrema_ExtPC
+        from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+        from OCP.TopAbs import TopAbs_FACE, TopAbs_State
+        from OCP.gp import gp_Pnt, gp_Pnt2d
+
+        f, q = self.faces[i], gp_Pnt(*p)
+        best = np.inf
+        pr = GeomAPI_ProjectPointOnSurf(q, BRep_Tool.Surface_s(f))
+        for j in range(1, pr.NbPoints() + 1):  # loop over the surface's extrema
+            u, v = pr.Parameters(j)
+            if BRepClass_FaceClassifier(f, gp_Pnt2d(u, v), 1e-9).State() == TopAbs_State.TopAbs_IN:
+                best = min(best, pr.Distance(j))
+        ds = _distance(BRepBuilderAPI_MakeVertex(q).Vertex(), f)
+        if ds is not None and ds.SupportOnShape2(1).ShapeType() == TopAbs_FACE:
+            best = min(best, ds.Value())
+        for c in self.loose[i]:  # loop over the face's edges
+            a, b = c.FirstParameter(), c.LastParameter()
+            best = min(best, q.Distance(c.Value(a)), q.Distance(c.Value(b)))
+            ext = Extrema_ExtPC(q, c, a, b)
+            if ext.IsDone():
+                for j in range(1, ext.NbExt() + 1):
+                    best = min(best, float(np.sqrt(ext.SquareDistance(j))))
+        return best
+
+    @functools.cached_property
+    def split(self):
+        """The faces split at the lines where their surfaces (or p-curves) are only C0
+        (``ShapeUpgrade_ShapeDivideContinuity`` to C1), as a compound; None where that splits
+        nothing.  ``BRepExtrema`` misses closest points next to such a line (a crease inside a
+        B-spline face); on the split faces, each side is a face of its own."""
+        from OCP.GeomAbs import GeomAbs_Shape
+        from OCP.ShapeUpgrade import ShapeUpgrade_ShapeDivideContinuity
+        from OCP.TopAbs import TopAbs_FACE
+        from OCP.TopExp import TopExp_Explorer
+
+        if self.compound is None:
+            return None
+        div = ShapeUpgrade_ShapeDivideContinuity(self.compound)
+        c1 = GeomAbs_Shape.GeomAbs_C1
+        div.SetBoundaryCriterion(c1)
+        div.SetPCurveCriterion(c1)
+        div.SetSurfaceCriterion(c1)
+        div.SetTolerance(1e-9 * self.size)
+        if not div.Perform():
+            return None
+        out, n = div.Result(), 0
+        ex = TopExp_Explorer(out, TopAbs_FACE)
+        while ex.More():
+            n += 1
+            ex.Next()
+        return out if n > len(self.faces) - len(self.loose) else None
+
+    def closest(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
+        ``(distance (n,), face (n,))``, as :meth:`closest_split` (without its third array)."""
+        d, face, _ = self.closest_split(points)
+        return d, face
+
+    def closest_split(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """OpenCASCADE's closest point of each point on the whole shape (its trimmed faces):
+        ``(distance (n,), face (n,), split (n,) bool)``.
+
+        ``BRepExtrema_DistShapeShape`` against the shape's faces, the distance refined on the
+        face found (:meth:`face_distance`, against Extrema's error near seams); ``face`` the
+        index (as the model's) of the face the closest point lies on, ``-1`` where it lies on
+        an edge or a vertex (on two faces or more).  A face whose edges are off it
+        (:attr:`loose`) is measured as its surface within its p-curves
+        (:meth:`surface_face_distance`), not through ``BRepExtrema``'s 3D edge curves.  Where
+        the faces have C0 lines
+        (:attr:`split`), ``BRepExtrema`` against the split faces as well, and the nearer of
+        the two; ``split`` marks the points where that was the split faces' by more than
+        1e-9 of the size (``face`` -1 there: the split faces are not the model's)."""
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.gp import gp_Pnt
+        from OCP.TopAbs import TopAbs_FACE
+
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         d = np.full(len(points), np.inf)
         face = np.full(len(points), -1, dtype=np.int64)
+        lower = np.zeros(len(points), dtype=bool)
+        split = self.split
         for k, p in enumerate(points):  # loop over points (OCC queries)
-            ds = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex(), comp)
-            if not ds.IsDone() or ds.NbSolution() == 0:
-                continue
-            d[k] = ds.Value()
-            faces = set()
-            for j in range(1, ds.NbSolution() + 1):
-                s = ds.SupportOnShape2(j)
-                if s.ShapeType() == TopAbs_FACE:
-                    faces.add(self._fmap.FindIndex(s) - 1)
-                else:
-                    faces.add(-1)
-            if len(faces) == 1 and -1 not in faces:
-                face[k] = faces.pop()
-                d[k] = min(d[k], self.face_distance([face[k]], [p])[0])
-        return d, face
+            v = BRepBuilderAPI_MakeVertex(gp_Pnt(*p)).Vertex()
+            ds = _distance(v, self.compound) if self.compound is not None else None
+            if ds is not None:
+                d[k] = ds.Value()
+                faces = set()
+                for j in range(1, ds.NbSolution() + 1):
+                    s = ds.SupportOnShape2(j)
+                    faces.add(self._fmap.FindIndex(s) - 1 if s.ShapeType() == TopAbs_FACE else -1)
+                if len(faces) == 1 and -1 not in faces:
+                    face[k] = faces.pop()
+                    d[k] = min(d[k], self.face_distance([face[k]], [p])[0])
+            for i, (lo, hi) in self._loose_boxes.items():  # the faces whose edges are off them
+                if np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0)) > d[k]:
+                    continue  # (its box is farther than the nearest point found)
+                di = self.surface_face_distance(i, p)
+                if di < d[k] - 1e-9 * self.size:
+                    d[k], face[k] = di, i
+            ds = _distance(v, split) if split is not None else None
+            if ds is not None and ds.Value() < d[k] - 1e-9 * self.size:
+                d[k], face[k], lower[k] = ds.Value(), -1, True
+        return d, face, lower
 
     def edge_distance(self, edges, points, accept: float = 0.0) -> np.ndarray:
         """``(n,)`` distance of each point to OCC's closest point on edge ``edges[i]``
@@ -359,26 +522,43 @@ def pushed_points(path: str, n: int = 400, rel: float = 1e-3, seed: int = 0, siz
     return X[pick] + (rel * diag * side)[:, None] * N[pick]
 
 
-def closest_agreement(geo, occ: OccShape, points: np.ndarray, rtol: float = 1e-8) -> dict:
+def closest_agreement(geo, occ: OccShape, points: np.ndarray, rtol: float = 1e-6) -> dict:
     """How far the package's global ``closest_point`` agrees with OpenCASCADE's on ``points``.
 
-    A point agrees where our distance is within ``rtol`` of the model size of
-    OpenCASCADE's (a closest point on another face at the same distance agrees:
-    equidistant faces); ``wrong_face``: points found at a distance more than that
-    beyond OpenCASCADE's, where OpenCASCADE's closest point lies on another face.
+    OpenCASCADE's closest point is :meth:`OccShape.closest_split` (``BRepExtrema`` on the
+    faces, and on the faces split at their C0 lines where that is nearer).  A point
+    *agrees* where our distance is within ``rtol`` of the model size of OpenCASCADE's and
+    our foot point lies on the face we name (its OpenCASCADE distance from that trimmed
+    face, :meth:`OccShape.face_distance`, at most 1e-9 of the size; a closest point on
+    another face at the same distance agrees: equidistant faces).  It is *wrong* where we
+    report a point of a face at a distance OpenCASCADE's point beats by more than that, or a
+    foot that is not on the face we name (the silent error).  *nearer*: found, on the face
+    (by OpenCASCADE's own evaluation and classifier), and nearer than OpenCASCADE's closest
+    point by more than the tolerance: OpenCASCADE's point is then demonstrably not the
+    closest one (it counts neither as agreeing nor as wrong).
 
     Returns:
-        ``{"n", "found", "agree", "wrong_face", "worst" (largest |difference| / size),
-        "bad" (indices of the disagreeing points)}``.
+        ``{"n", "found", "agree", "wrong", "nearer", "split" (points whose reference is the
+        split faces'), "worst" (largest |difference| / size), "bad" (indices of the points
+        that do not agree)}``, counts as ints.
     """
-    ent, _, dist = geo.closest_point(points)
-    d_occ, f_occ = occ.closest(points)
-    tol = rtol * occ.size
-    diff = np.abs(dist - d_occ)
-    agree = diff <= tol
+    size = occ.size
+    ent, par, dist = geo.closest_point(points)
     found = ent >= 0
-    wrong = found & ~agree & (f_occ >= 0) & (f_occ != ent)
+    foot = np.full((len(points), 3), np.nan)
+    if found.any():
+        foot[found] = geo.evaluate(ent[found], par[found][:, None, :])[:, 0]
+    on_face = np.zeros(len(points), dtype=bool)
+    on_face[found] = occ.face_distance(ent[found], foot[found], accept=1e-9 * size,
+                                       params=par[found]) <= 1e-9 * size
+    d_occ, _, split = occ.closest_split(points)
+    tol = rtol * size
+    diff = np.abs(dist - d_occ)
+    agree = found & (diff <= tol) & on_face
+    wrong = found & ((dist > d_occ + tol) | ~on_face)
+    nearer = found & on_face & (dist < d_occ - tol)
     fin = np.isfinite(diff)
-    return {"n": len(points), "found": int(found.sum()), "agree": int(agree.sum()), "wrong_face": int(wrong.sum()),
-            "worst": float(diff[fin].max() / occ.size) if fin.any() else float("inf"),
+    return {"n": len(points), "found": int(found.sum()), "agree": int(agree.sum()), "wrong": int(wrong.sum()),
+            "nearer": int(nearer.sum()), "split": int(split.sum()),
+            "worst": float(diff[fin].max() / size) if fin.any() else float("inf"),
             "bad": np.flatnonzero(~agree)}

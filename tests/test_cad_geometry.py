@@ -666,3 +666,22 @@ def test_collapsed_rows_of_a_net_mark_surfaces_that_can_degenerate():
     at = np.array([[u0, 0.3 * v1], [0.5 * (u0 + u1), 0.3 * v1], [u1, 0.7 * v1]])
     np.testing.assert_array_equal(degenerate([s], np.zeros(3, dtype=np.int64), at),
                                   [[False, True], [False, False], [False, True]])
+
+
+def test_outside_by_on_loops_along_the_ends_of_open_directions():
+    """A loop that runs along the end of an open parameter direction (a B-spline face trimmed
+    by its own knot domain, as CATIA writes them): the test points beyond such a segment are
+    clamped onto it, yet ``outside_by`` still knows the face's side there (the polygon's own
+    even-odd test): negative for a point inside, positive beyond, on all four sides."""
+    from nagata_snap.cad.nurbs import NurbsSurface
+    from nagata_snap.cad.trimming import TrimLoops
+
+    P = np.array([[[0.0, 0.0, 0.0], [0.0, 2.0, 0.0]], [[3.0, 0.0, 0.0], [3.0, 2.0, 0.1]]])
+    s = NurbsSurface(1, 1, [0, 0, 1, 1], [0, 0, 1, 1], P, np.ones((2, 2)))
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    t = TrimLoops([s], [[square]], [[np.full(4, 1e-3)]])
+    ref = np.array([[0.5, 0.0], [1.0, 0.5], [0.5, 1.0], [0.0, 0.5]])  # on each side
+    inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
+    ent = np.zeros(4, dtype=np.int64)
+    assert (t.outside_by(ent, ref, ref + 0.1 * inward) < 0).all()
+    assert (t.outside_by(ent, ref, ref - 0.1 * inward) > 0).all()

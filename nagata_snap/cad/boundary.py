@@ -13,8 +13,12 @@ boundary candidate:
    OpenCASCADE measures a point's distance to a face's edges);
 2. ``E`` on the face: its projection onto the face's surface, whose
    parameters are on the loop where the edge lies on the surface (within
-   :data:`EDGE_GAP` of the model size; a file whose edges are only within a
-   looser tolerance of their faces gets no boundary candidate there);
+   :data:`EDGE_GAP` of the model size).  A file whose edges are only within a
+   looser tolerance of their faces (a CATIA V4 IGES file: up to 5e-3 of the
+   size) has faces whose boundary no 3D edge curve traces: there the boundary
+   candidate is the closest point of the curves the face's p-curves trace on
+   its surface, ``S(c(t))`` (:class:`CurveOnSurface`), the face being the
+   surface within its p-curves (as OpenCASCADE's classifier has it);
 3. a foot point within a loop's band is kept only if it lies inside the
    true trimming curve through ``E``
    (:meth:`~nagata_snap.cad.trimming.TrimLoops.outside_by`).
@@ -26,14 +30,175 @@ from __future__ import annotations
 
 import numpy as np
 
+from nagata_snap.cad.nurbs import NurbsCurve
+from nagata_snap.cad.projection import GlobalSearcher, normalize_params
 from nagata_snap.cad.stage import StageGeometry
-from nagata_snap.mesh.arrays import best_per_group, norms
+from nagata_snap.mesh.arrays import Ragged, best_per_group, norms
 
-__all__ = ["with_boundary"]
+__all__ = ["with_boundary", "CurveOnSurface"]
 
 #: an edge curve's point counts as on its face's boundary if within this fraction of the
-#: model size of the face's surface
+#: model size of the face's surface (and of the curve its p-curve traces there)
 EDGE_GAP = 1e-9
+#: samples per p-curve at which a face's boundary is compared with its edges' 3D curves
+GAP_SAMPLES = 9
+
+
+class CurveOnSurface:
+    """The curve ``C(t) = S(c(t))`` a p-curve ``c`` traces on its face's surface ``S``: a curve
+    entity of :mod:`~nagata_snap.cad.projection` (``param_dim`` 1, over the p-curve's range).
+
+    ``C' = S_u c_u' + S_v c_v'`` and ``C'' = S_uu c_u'^2 + 2 S_uv c_u' c_v' + S_vv c_v'^2 +
+    S_u c_u'' + S_v c_v''`` (the chain rule), ``c`` mapped by the face's ``uv_map``
+    (affine: its derivatives by its linear part) and wrapped into the surface's domain.
+
+    Args:
+        desc: the p-curve's description (``read_shape``'s ``"pcurve"``: line, circle or
+            B-spline, with its ``range``).
+        surface: the face's surface.
+        uv_map: the face's ``(3, 2)`` map of the file's parameters to the surface's, or None.
+    """
+
+    param_dim = 1
+    closed = (False,)
+
+    def __init__(self, desc: dict, surface, uv_map: np.ndarray | None):
+        self.surface = surface
+        self.kind = desc["type"]
+        t0, t1 = (float(t) for t in desc["range"])
+        self.bounds = np.array([[min(t0, t1), max(t0, t1)]])
+        self.M = np.r_[np.eye(2), np.zeros((1, 2))] if uv_map is None else np.asarray(uv_map, dtype=float)
+        lo, hi = self.bounds[0]
+        if self.kind == "line":
+            self.a, self.b = (np.asarray(desc[k], dtype=float)[:2] for k in ("origin", "direction"))
+            knots = np.array([lo, hi])
+        elif self.kind == "circle":
+            self.a, self.x, self.y = (np.asarray(desc[k], dtype=float)[:2] for k in ("center", "x", "y"))
+            self.r = float(desc["radius"])
+            knots = np.linspace(lo, hi, max(2, int(np.ceil((hi - lo) / (np.pi / 8))) + 1))
+        else:
+            poles = np.asarray(desc["poles"], dtype=float)
+            w = desc.get("weights")
+            self.nurbs = NurbsCurve(int(desc["degree"]), np.asarray(desc["knots"], dtype=float), poles,
+                                    np.ones(len(poles)) if w is None else np.asarray(w, dtype=float))
+            k = self.nurbs.distinct_knots
+            knots = np.unique(np.r_[lo, k[(k > lo) & (k < hi)], hi])
+        self.distinct_knots = knots
+        X = self._eval_soa(np.linspace(lo, hi, 65)[None, :], 0)[0].T
+        self.bbox = (X.min(axis=0), X.max(axis=0))
+        self.bbox_size = float(np.linalg.norm(self.bbox[1] - self.bbox[0]))
+
+    def _pcurve(self, t: np.ndarray, nderiv: int) -> np.ndarray:
+        """``(nderiv + 1, 2, k)``: the p-curve and its derivatives at ``t (k,)`` (file parameters)."""
+        out = np.zeros((nderiv + 1, 2, len(t)))
+        if self.kind == "line":
+            out[0] = self.a[:, None] + self.b[:, None] * t
+            if nderiv:
+                out[1] = self.b[:, None]
+        elif self.kind == "circle":
+            c, s = np.cos(t), np.sin(t)
+            out[0] = self.a[:, None] + self.r * (self.x[:, None] * c + self.y[:, None] * s)
+            for d in range(1, nderiv + 1):  # d/dt (cos, sin) = (-sin, cos)
+                c, s = -s, c
+                out[d] = self.r * (self.x[:, None] * c + self.y[:, None] * s)
+        else:
+            out[:] = self.nurbs._eval_soa(np.clip(t, *self.nurbs.domain)[None, :], nderiv)[:, :2]
+        return out
+
+    def _eval_soa(self, params: np.ndarray, nderiv: int) -> np.ndarray:
+        """``params (1, k)`` -> ``(nderiv + 1, 3, k)``: ``C, C', C''`` (see the class docstring)."""
+        c = np.einsum("dak,ab->dbk", self._pcurve(params[0], nderiv), self.M[:2])
+        c[0] += self.M[2][:, None]
+        q = normalize_params(self.surface, c[0].T).T
+        E = self.surface._eval_soa(np.ascontiguousarray(q), nderiv)
+        out = np.empty((nderiv + 1, 3, params.shape[1]))
+        out[0] = E[0]
+        if nderiv >= 1:
+            du, dv = c[1]
+            out[1] = E[1] * du + E[2] * dv
+        if nderiv >= 2:
+            ddu, ddv = c[2]
+            out[2] = E[3] * du * du + 2.0 * E[4] * du * dv + E[5] * dv * dv + E[1] * ddu + E[2] * ddv
+        return out
+
+    def params_on_surface(self, t: np.ndarray) -> np.ndarray:
+        """``(k, 2)`` the surface's parameters of ``C(t)``, ``t (k,)``."""
+        c = self._pcurve(np.asarray(t, dtype=float), 0)[0].T @ self.M[:2] + self.M[2]
+        return normalize_params(self.surface, c)
+
+
+class _FacePCurves:
+    """The curves on their surfaces (:class:`CurveOnSurface`) of the p-curves of a topology's
+    faces, built face by face where first needed (:meth:`ensure`), and which faces are
+    *loose*: a point of such a curve (at :data:`GAP_SAMPLES` parameters of each) farther than
+    :data:`EDGE_GAP` of the size from its edge's 3D curve (measured, not the file's
+    tolerance: a file may claim less than its curves keep).  ``face_curves``: per face its
+    curves' indices (:class:`Ragged`), ``loose (n_faces,)`` bool, ``searcher`` over the curves
+    (None without any).  The topology's ``pcurves``."""
+
+    def __init__(self, top, size: float):
+        self._top, self._tol = top, EDGE_GAP * size
+        self.curves: list[CurveOnSurface] = []
+        self._per_face: list[list[int]] = [[] for _ in top.faces]
+        self.built = np.zeros(len(top.faces), dtype=bool)
+        self.loose = np.zeros(len(top.faces), dtype=bool)
+        self.face_curves = Ragged(self._per_face)
+        self.searcher: GlobalSearcher | None = None
+
+    def ensure(self, faces: np.ndarray) -> None:
+        """Build the curves of ``faces (k,)`` not built yet, and their ``loose`` flags."""
+        top = self._top
+        todo = np.unique(faces[~self.built[faces]]).tolist()
+        if not todo:
+            return
+        for i in todo:  # loop over the new faces and their p-curves (set-up, once per face)
+            f = top.faces[i]
+            for lp in f.loops:
+                for e, d in zip(lp.uses, lp.pcurves or (), strict=False):
+                    curve = CurveOnSurface(d, f.surface, f.uv_map)
+                    self._per_face[i].append(len(self.curves))
+                    self.curves.append(curve)
+                    c = top.curve_of_edge[e]
+                    if c >= 0 and top.searcher is not None and not self.loose[i]:
+                        lo, hi = curve.bounds[0]
+                        P = curve._eval_soa(np.linspace(lo, hi, GAP_SAMPLES)[None, :], 0)[0].T
+                        self.loose[i] = top.searcher.search_on(P, np.full(len(P), c))[2].max() > self._tol
+            self.built[i] = True
+        self.face_curves = Ragged(self._per_face)
+        self.searcher = GlobalSearcher(self.curves) if self.curves else None
+
+
+def _face_pcurves(geo: StageGeometry) -> _FacePCurves:
+    """The topology's :class:`_FacePCurves`, built on first need."""
+    top = geo.topology
+    assert top is not None
+    if top.pcurves is None:
+        top.pcurves = _FacePCurves(top, geo.size)
+    return top.pcurves
+
+
+def _on_pcurves(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, face: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points of ``X[pt] (p, 3)`` on the curves the p-curves of faces ``face (p,)``
+    trace on their surfaces: ``(params (p, 2) on the surface, distance (p,), found (p,))``
+    (``found`` False for a face without p-curves)."""
+    fp = _face_pcurves(geo)
+    fp.ensure(face)
+    q, dist = np.zeros((len(pt), 2)), np.full(len(pt), np.inf)
+    if fp.searcher is None:
+        return q, dist, np.zeros(len(pt), dtype=bool)
+    cnt, crv = fp.face_curves.take(face)
+    pair = np.repeat(np.arange(len(pt)), cnt)
+    if pair.size == 0:
+        return q, dist, np.zeros(len(pt), dtype=bool)
+    t, _, d = fp.searcher.search_on(X[pt[pair]], crv)[:3]
+    best = best_per_group(pair, d, len(pt))
+    hit = best >= 0
+    for c in np.unique(crv[best[hit]]):  # loop over the curves of the results (their maps)
+        rows = np.flatnonzero(hit)[crv[best[hit]] == c]
+        q[rows] = fp.curves[c].params_on_surface(t[best[rows]].reshape(-1))
+    dist[hit] = d[best[hit]]
+    return q, dist, hit
 
 
 def _pairs(pt: np.ndarray, ent: np.ndarray, mask: np.ndarray, n_ent: int) -> tuple[np.ndarray, np.ndarray]:
@@ -129,6 +294,16 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     if bp.size == 0:
         return pt, ent, params, dist, ok
     qE, _, gap = geo.searcher.search_on(E, bf)[:3]  # the edge point's parameters on the face
+    # an edge curve farther from its face than EDGE_GAP of the size, or from the curve its p-curve
+    # traces on it (a file's loose tolerance): the face's boundary is the curve its p-curves trace
+    fp = _face_pcurves(geo)
+    fp.ensure(bf)
+    loose = (gap > EDGE_GAP * geo.size) | fp.loose[bf]
+    if loose.any():
+        rows = np.flatnonzero(loose)
+        qL, dL, okL = _on_pcurves(geo, X, bp[rows], bf[rows])
+        rows = rows[okL]
+        qE[rows], dE[rows], loose[rows] = qL[okL], dL[okL], False
     # Newton on the face from the edge point: the face's minimum near its edge (the search's
     # seeds may all lie in the basin of a farther one)
     qN, _, dN, _, _ = geo.searcher.refine(bp, bf, qE, X)
@@ -139,10 +314,9 @@ def with_boundary(geo: StageGeometry, X: np.ndarray, pt: np.ndarray, ent: np.nda
     win = np.flatnonzero(okN & (dN <= best_sure[bp] * (1.0 + 1e-6)))  # those that may compete
     sureN[win] = trims.loop_distance(bf[win], qN[win], enough=0.0) > 0.0
     ok, sure = np.concatenate([ok, okN]), np.concatenate([sure, sureN])
-    # an edge curve farther from its face than EDGE_GAP of the size (a file's loose tolerance)
-    # gives no boundary point: its surface point is not the edge's, nor its side the loop's;
-    # nothing farther than such an edge point counts for its point (``unsure``)
-    loose = gap > EDGE_GAP * geo.size
+    # a loose edge of a face without p-curves gives no boundary point: its surface point is not
+    # the edge's, nor its side the loop's; nothing farther than such an edge point counts for
+    # its point (``unsure``)
     unsure = np.full(n, np.inf)
     np.minimum.at(unsure, bp[loose], dE[loose])
     on = ~loose & trims.inside(bf, qE)

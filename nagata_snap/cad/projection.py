@@ -68,6 +68,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from nagata_snap.cad.bounds import BoxClasses, cell_boxes
 from nagata_snap.mesh.arrays import Groups, best_per_group, dot, norms
 
 __all__ = [
@@ -730,34 +731,46 @@ def sample_entity(
     Returns:
         ``(params (s, d), points (s, 3))``.
     """
+    axes, X = _sample_axes(entity, per_span, min_per_direction)
+    P = axes[0][:, None] if entity.param_dim == 1 else _grid(*axes)
+    return P, evaluate_params(entity, P, 0) if X is None else X
+
+
+def _sample_axes(entity: Entity, per_span: int | None = None, min_per_direction: int = 16
+                 ) -> tuple[list[np.ndarray], np.ndarray | None]:
+    """The parameters of :func:`sample_entity`'s grid along each direction, and the grid's
+    points where they were evaluated on the way (surfaces), else None."""
     if entity.param_dim == 1:
         per_span = 8 if per_span is None else per_span
-        u = _direction_samples(_distinct_knots(entity, 0), per_span, min_per_direction)
-        P = u[:, None]
-    else:
-        per_span = 6 if per_span is None else per_span
-        ku, kv = _distinct_knots(entity, 0), _distinct_knots(entity, 1)
-        u = _direction_samples(ku, per_span, min_per_direction)
-        v = _direction_samples(kv, per_span, min_per_direction)
-        P = _grid(u, v)
-        X = evaluate_params(entity, P, 0)
-        # about as dense in 3D along u as along v: a direction whose samples lie farther apart
-        # than the other's (by more than a factor 2) gets that many times more (at most
-        # MAX_ANISOTROPY): on a thin torus' tube the nearest samples of a point would
-        # otherwise all lie on one row far from it, seeding Newton onto the wrong side
-        G = X.reshape(len(u), len(v), 3)
-        su = float(np.linalg.norm(np.diff(G, axis=0), axis=2).mean()) if len(u) > 1 else 0.0
-        sv = float(np.linalg.norm(np.diff(G, axis=1), axis=2).mean()) if len(v) > 1 else 0.0
-        if min(su, sv) > 0 and max(su, sv) > 2.0 * min(su, sv):
-            f = int(min(math.ceil(max(su, sv) / min(su, sv)), MAX_ANISOTROPY))
-            if su > sv:
-                u = _direction_samples(ku, per_span * f, min_per_direction * f)
-            else:
-                v = _direction_samples(kv, per_span * f, min_per_direction * f)
-            P = _grid(u, v)
-            X = evaluate_params(entity, P, 0)
-        return P, X
-    return P, evaluate_params(entity, P, 0)
+        return [_direction_samples(_distinct_knots(entity, 0), per_span, min_per_direction)], None
+    per_span = 6 if per_span is None else per_span
+    ku, kv = _distinct_knots(entity, 0), _distinct_knots(entity, 1)
+    u = _direction_samples(ku, per_span, min_per_direction)
+    v = _direction_samples(kv, per_span, min_per_direction)
+    X = evaluate_params(entity, _grid(u, v), 0)
+    # about as dense in 3D along u as along v: a direction whose samples lie farther apart
+    # than the other's (by more than a factor 2) gets that many times more (at most
+    # MAX_ANISOTROPY): on a thin torus' tube the nearest samples of a point would
+    # otherwise all lie on one row far from it, seeding Newton onto the wrong side
+    G = X.reshape(len(u), len(v), 3)
+    su = float(np.linalg.norm(np.diff(G, axis=0), axis=2).mean()) if len(u) > 1 else 0.0
+    sv = float(np.linalg.norm(np.diff(G, axis=1), axis=2).mean()) if len(v) > 1 else 0.0
+    if min(su, sv) > 0 and max(su, sv) > 2.0 * min(su, sv):
+        f = int(min(math.ceil(max(su, sv) / min(su, sv)), MAX_ANISOTROPY))
+        if su > sv:
+            u = _direction_samples(ku, per_span * f, min_per_direction * f)
+        else:
+            v = _direction_samples(kv, per_span * f, min_per_direction * f)
+        X = evaluate_params(entity, _grid(u, v), 0)
+    return [u, v], X
+
+
+def _refined(a: np.ndarray) -> np.ndarray:
+    """``(2 n - 1,)``: the parameters ``a (n,)`` with their midpoints between them."""
+    out = np.empty(2 * len(a) - 1)
+    out[::2] = a
+    out[1::2] = 0.5 * (a[:-1] + a[1:])
+    return out
 
 
 #: times more seeds :meth:`GlobalSearcher._past_saddles` tries where Newton stopped at a saddle
@@ -768,6 +781,9 @@ SADDLE_SPACING = 0.25
 SADDLE_SEED = 0.2
 #: most times more samples :func:`sample_entity` puts along a surface's sparser direction
 MAX_ANISOTROPY = 16
+#: a grid cell competes (:meth:`GlobalSearcher._nearer_cells`) where its box is nearer to a point than
+#: its best result by more than this fraction of that result's distance
+CELL_MARGIN = 1e-6
 
 
 def _grid(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -826,6 +842,9 @@ class GlobalSearcher:
         #: per entity ``(params (s, d), points (s, 3))``, built on first use
         self._samples: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._trees: dict[int, cKDTree] = {}
+        #: per entity its grid's parameters along each direction (with :attr:`_samples`)
+        self._axes: dict[int, list[np.ndarray]] = {}
+        self._cells: tuple[BoxClasses, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._all: tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree] | None = None
         boxes = [e.bbox for e in entities]  # each computed once
         lo = np.concatenate([b[0] for b in boxes]).reshape(-1, 3)
@@ -839,7 +858,10 @@ class GlobalSearcher:
         """``(params (s, d), points (s, 3))``: the search grid of entity ``i`` (built once)."""
         if i not in self._samples:
             e = self.entities[i]
-            P, X = sample_entity(e, self._per_span)
+            axes, X = _sample_axes(e, self._per_span)
+            self._axes[i] = axes
+            P = axes[0][:, None] if e.param_dim == 1 else _grid(*axes)
+            X = evaluate_params(e, P, 0) if X is None else X
             extra = None if self._extra is None else self._extra[i]
             if extra is not None and len(extra):
                 Pe = normalize_params(e, np.asarray(extra, dtype=float).reshape(-1, self.param_dim))
@@ -979,6 +1001,7 @@ class GlobalSearcher:
         X = _points3(points)
         pt, ent, params, _, dist, _ = self.search_all(X, k_seeds)
         pt, ent, params, dist = self._nearer_boxes(X, pt, ent, params, dist, k_seeds, accept)
+        pt, ent, params, dist = self._nearer_cells(X, pt, ent, params, dist, accept)
         return self._past_saddles(X, pt, ent, params, dist, k_seeds, accept)
 
     def _past_saddles(self, X: np.ndarray, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray,
@@ -1047,17 +1070,10 @@ class GlobalSearcher:
         """``(n_entities,)`` bool: the entity projects in closed form (analytic or affine)."""
         return np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)], dtype=bool)
 
-    def _box_classes(self) -> list[tuple[np.ndarray, float, cKDTree]]:
-        """The entities grouped by the size of their bounding boxes (half-diagonals within a
-        factor 2): per group its entities, largest half-diagonal and KD-tree of box centres."""
-        if not hasattr(self, "_boxes"):
-            half = 0.5 * np.linalg.norm(self.bbox_hi - self.bbox_lo, axis=1)
-            cls = np.floor(np.log2(np.maximum(half, 1e-300))).astype(np.int64)
-            centre = 0.5 * (self.bbox_hi + self.bbox_lo)
-            g = Groups(cls)
-            self._boxes = [(g.order[sl], float(half[g.order[sl]].max()), cKDTree(centre[g.order[sl]]))
-                           for _, sl in g]
-        return self._boxes
+    @functools.cached_property
+    def _entity_boxes(self) -> BoxClasses:
+        """The entities' bounding boxes, for ball queries (:meth:`_nearer_boxes`)."""
+        return BoxClasses(self.bbox_lo, self.bbox_hi)
 
     def _nearer_boxes(self, X: np.ndarray, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray,
                       k_seeds: int | None, accept) -> tuple[np.ndarray, ...]:
@@ -1076,21 +1092,9 @@ class GlobalSearcher:
         np.minimum.at(best, pt[ok], dist[ok])
         r = np.where(np.isfinite(best), best, self.size) * (1.0 + 1e-9) + 1e-12 * self.size
         E = len(self.entities)
-        new_pt, new_ent = [], []
-        for members, half, tree in self._box_classes():  # loop over box-size classes (a few dozen at most)
-            hits = tree.query_ball_point(X, r + half)
-            cnt = np.fromiter(map(len, hits), dtype=np.int64, count=n)
-            if not cnt.any():
-                continue
-            p = np.repeat(np.arange(n), cnt)
-            e = members[np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if h])]
-            gap = np.linalg.norm(np.maximum(np.maximum(self.bbox_lo[e] - X[p], X[p] - self.bbox_hi[e]), 0.0), axis=1)
-            keep = gap <= r[p]
-            new_pt.append(p[keep])
-            new_ent.append(e[keep])
-        if not new_pt:
+        p, e = self._entity_boxes.near(X, r)
+        if p.size == 0:
             return pt, ent, params, dist
-        p, e = np.concatenate(new_pt), np.concatenate(new_ent)
         # closed form: where no seed of the point gave a result on that face; Newton: always (from the
         # face's own samples: the global ones can all lie in the basin of a farther minimum)
         fresh = ~np.isin(p * E + e, pt[ok] * E + ent[ok]) | ~self._closed_form[e]
@@ -1099,6 +1103,81 @@ class GlobalSearcher:
             return pt, ent, params, dist
         q, e, par, _, d = self._rows_on(X[p], e, k_seeds)  # every seed's result: some may be on the face
         return (np.concatenate([pt, p[q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
+                np.concatenate([dist, d]))
+
+    def _grid_cells(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The cells of surface ``i``'s search grid that may hold points of its face: ``(lo, hi)``
+        their boxes (:func:`~nagata_snap.cad.bounds.cell_boxes`, ``(c, 3)`` each), ``(a, b)``
+        their parameter rectangles' corners (``(c, 2)`` each).  A cell is kept where one of
+        its 3 x 3 points passes the sample filter or an extra sample (a loop vertex) lies in it."""
+        e = self.entities[i]
+        self.entity_samples(i)  # its grid's axes
+        u, v = self._axes[i]
+        ur, vr = _refined(u), _refined(v)
+        Pr = _grid(ur, vr)
+        lo, hi = cell_boxes(evaluate_params(e, Pr, 0).reshape(len(ur), len(vr), 3))
+        a = _grid(u[:-1], v[:-1])
+        b = _grid(u[1:], v[1:])
+        if self._filter is not None:
+            on = np.asarray(self._filter(i, Pr), dtype=bool).reshape(len(ur), len(vr))
+            win = np.lib.stride_tricks.sliding_window_view(on, (3, 3))[::2, ::2]
+            keep = win.any(axis=(2, 3)).reshape(-1)
+            extra = None if self._extra is None else self._extra[i]
+            if extra is not None and len(extra):
+                Pe = normalize_params(e, np.asarray(extra, dtype=float).reshape(-1, 2))
+                iu = np.clip(np.searchsorted(u, Pe[:, 0], side="right") - 1, 0, len(u) - 2)
+                iv = np.clip(np.searchsorted(v, Pe[:, 1], side="right") - 1, 0, len(v) - 2)
+                keep[iu * (len(v) - 1) + iv] = True
+            if keep.any():  # as the samples: an entity keeps at least its unfiltered grid
+                lo, hi, a, b = lo[keep], hi[keep], a[keep], b[keep]
+        return lo, hi, a, b
+
+    def _all_cells(self) -> tuple[BoxClasses, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The grid cells of every surface that does not project in closed form, for ball
+        queries: ``(boxes, entity (c,), a (c, 2), b (c, 2), centre (c, 2))`` (:meth:`_grid_cells`;
+        ``centre`` the middle of the parameter rectangle); None if there is none."""
+        if self._cells is None:
+            todo = [i for i in range(len(self.entities)) if not self._closed_form[i]]
+            if self.param_dim != 2 or not todo:
+                return None
+            cells = [self._grid_cells(i) for i in todo]
+            owner = np.repeat(todo, [len(c[0]) for c in cells])
+            lo, hi, a, b = (np.concatenate([c[k] for c in cells]) for k in range(4))
+            self._cells = (BoxClasses(lo, hi), owner, a, b, 0.5 * (a + b))
+        return self._cells
+
+    def _nearer_cells(self, X: np.ndarray, pt: np.ndarray, ent: np.ndarray, params: np.ndarray, dist: np.ndarray,
+                      accept) -> tuple[np.ndarray, ...]:
+        """The results ``(pt, ent, params, dist)``, with a Newton run from the centre of every
+        grid cell of a surface that is not closed-form whose box is nearer to a point than the
+        point's best (accepted) result (:mod:`~nagata_snap.cad.bounds`), but the cell that holds
+        that result.  A point with no accepted result is bounded by its nearest sample (a
+        point of a face).
+
+        The seeds of a point are its nearest samples; where another sheet's samples are
+        much denser near it than those of the sheet its closest point lies on, they all
+        seed the farther minimum.  The boxes of the cells decide instead which pieces of the
+        surfaces compete."""
+        cells = self._all_cells()
+        n = len(X)
+        if cells is None or n == 0:
+            return pt, ent, params, dist
+        boxes, owner, a, b, centre = cells
+        ok = np.ones(len(pt), dtype=bool) if accept is None else np.asarray(accept(ent, params), dtype=bool)
+        lead = best_per_group(pt, (~ok, dist), n)
+        has = (lead >= 0) & ok[np.maximum(lead, 0)]
+        best = np.where(has, dist[np.maximum(lead, 0)], np.inf)
+        if not has.all():
+            best[~has] = self._all_samples()[3].query(X[~has])[0]
+        p, c = boxes.near(X, best * (1.0 - CELL_MARGIN))
+        # not the cell that holds the point's best result already
+        lp = lead[p]
+        held = has[p] & (owner[c] == ent[lp]) & np.all((a[c] <= params[lp]) & (params[lp] <= b[c]), axis=1)
+        p, c = p[~held], c[~held]
+        if p.size == 0:
+            return pt, ent, params, dist
+        par, _, d, _, _ = self.refine(p, owner[c], centre[c], X)
+        return (np.concatenate([pt, p]), np.concatenate([ent, owner[c]]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
 
     def search_all(

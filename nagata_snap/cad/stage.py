@@ -76,6 +76,9 @@ class CadTopology:
         curve_closed: ``(nc,)`` the curve is closed (periodic).
         searcher: closest points on given edges (closed form / Newton); None without curves.
         lo, hi: ``(nc, 3)`` bounding boxes of the curves.
+        faces: the model's faces (their surfaces, loops' p-curves and ``uv_map``).
+        pcurves: the curves the faces' p-curves trace on their surfaces, built by
+            :mod:`~nagata_snap.cad.boundary` where first needed (None before).
     """
 
     def __init__(self, model: CadModel):
@@ -88,6 +91,8 @@ class CadTopology:
                 self.curves.append(e.curve)
         self.curve_of_edge = np.array(curve_of_edge, dtype=np.int64)
         self.points = model.vertices
+        self.faces = model.faces
+        self.pcurves: Any = None
         ends = [e.vertices for e in edges]
         face_curves, face_vertices = [], []
         for f in model.faces:  # loop over CAD faces (set-up)

@@ -82,6 +82,8 @@ class Loop:
         uses: ``(k,)`` the edge of each edge use of the wire, in wire order
             (default: :attr:`edges`, one use per segment).
         use_senses: ``(k,)`` the sense of each use (default: :attr:`senses`).
+        pcurves: per use its p-curve's description (``read_shape``'s ``"pcurve"``, in the
+            file's parameters: a face's ``uv_map`` maps them), or None.
 
     The polygon (:attr:`points`, :attr:`edges`, :attr:`band`, :attr:`senses`)
     of a planar 2D model's faces is sampled when one of them is first read,
@@ -91,8 +93,9 @@ class Loop:
 
     def __init__(self, points: np.ndarray | None, edges: np.ndarray | None, band: np.ndarray | None,
                  senses: np.ndarray | None, outer: bool = False, uses: np.ndarray | None = None,
-                 use_senses: np.ndarray | None = None):
+                 use_senses: np.ndarray | None = None, pcurves: Sequence[dict] | None = None):
         self._polygon = None if points is None else (points, edges, band, senses)
+        self.pcurves = None if pcurves is None else list(pcurves)
         self.outer = outer
         uses, use_senses = edges if uses is None else uses, senses if use_senses is None else use_senses
         assert uses is not None and use_senses is not None, "a loop without a polygon has its uses"
@@ -774,7 +777,7 @@ class _Wires:
         for w, (i, outer) in enumerate(self.wires):  # loop over wires (Loop objects)
             sl = slice(ends[w], ends[w + 1])
             P, E, band, S = (None, None, None, None) if polygons is None else polygons[w]
-            loops[i].append(Loop(P, E, band, S, outer, self.edge[sl], senses[sl]))
+            loops[i].append(Loop(P, E, band, S, outer, self.edge[sl], senses[sl], self.descs[sl]))
         return loops
 
 

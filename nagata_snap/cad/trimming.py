@@ -621,7 +621,9 @@ class TrimLoops:
         """Per loop of face ``e``, ``(k,)`` the side of each segment the face is not on: +1 its
         left (the segment's direction turned by +90 degrees in ``(u, v)``), -1 its right, 0
         both or neither (a seam, used twice); from :meth:`inside` (no band) a millionth of
-        the segment's length either side of its midpoint.  Built once per face."""
+        the segment's length either side of its midpoint, or, where that puts both on one
+        side (a segment on the end of an open direction, where the test point beyond it is
+        clamped), from the polygons' own even-odd test.  Built once per face."""
         if not hasattr(self, "_side_cache"):
             self._side_cache: dict[int, list[np.ndarray]] = {}
         if e not in self._side_cache:
@@ -633,6 +635,14 @@ class TrimLoops:
             ent = np.full(2 * len(P), e)
             inl, inr = np.split(self.inside(ent, np.concatenate([mid + left, mid - left]), band=False), 2)
             side = np.where(inr & ~inl, 1, np.where(inl & ~inr, -1, 0)).astype(np.int64)
+            # a segment on the end of an open parameter direction: the test point beyond it is
+            # clamped onto it; the polygons' own even-odd test (no wrapping, no clamping) tells
+            zero = np.flatnonzero(side == 0)
+            if zero.size:
+                q = np.concatenate([mid[zero] + left[zero], mid[zero] - left[zero]])
+                raw = sum(_crossings(Q, q, slabs) for Q, _, _, slabs in loops) % 2 == 1
+                inl, inr = np.split(raw, 2)
+                side[zero] = np.where(inr & ~inl, 1, np.where(inl & ~inr, -1, 0))
             self._side_cache[e] = np.split(side, np.cumsum([len(lp[0]) for lp in loops])[:-1])
         return self._side_cache[e]
 
