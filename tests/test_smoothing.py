@@ -434,8 +434,11 @@ def test_bad_inputs():
 #: apart; a check's count, and every decision taken from it, can then change only where a
 #: checked cell is that close to the floor of the volume, the mean ratio or the poor ratio.
 MARGIN = 1e-4
-#: Coordinates of a serial and a parallel repair that took the same decisions (size 1 meshes).
-SAME = 1e-10
+#: Coordinates of a serial and a parallel repair that took the same decisions (size 1 meshes):
+#: round-off times the conditioning of the optimiser's Newton systems (the mean-ratio energy
+#: can be nearly flat along some directions: its converged minimum is then fixed only to
+#: round-off / curvature; tests/mpi/untangle_mpi.py measures 1e-9 on a 10 x 10 square).
+SAME = 1e-8
 
 
 def _kept(a: dict) -> bool:
