@@ -478,8 +478,7 @@ class _Problem:
         self.size, self.size_all = self.n_own * d, self.moving.size * d
         self.lo, self.hi = -lim[: self.size], lim[: self.size]
         self.bounded = anywhere(self.comm, bool(np.isfinite(lim).any()))  # (sliding nodes)
-        self.dead_all = lim == 0.0  # variables that never move (slide dims without tangent)
-        self.dead = self.dead_all[: self.size]
+        self.dead = lim[: self.size] == 0.0  # variables that never move (slide dims without tangent)
         self.z0 = np.zeros(self.size)
         self.count = 0
         self._exchange_plan(layout)
@@ -604,14 +603,14 @@ class _Problem:
     def solve(self, hv: np.ndarray, mu: float, rhs: np.ndarray, held: np.ndarray) -> np.ndarray:
         """Solve ``(H + mu diag(H)) p = rhs`` (dead and ``held`` variables: identity rows; collective)."""
         d = self.d
-        fixed_all = self.dead_all.copy()
-        fixed_all[: self.size] |= held
+        held_all = np.zeros(self.size_all, dtype=bool)
+        held_all[: self.size] = held
         if self.halo.parallel and self.bounded:  # the owners' held variables, on their ghost copies
-            fb = fixed_all.reshape(-1, d).view(np.int8)
-            fb[self._recv] |= self.halo.exchange(fb[self._send])
-        if fixed_all.any():
-            hv = np.where(fixed_all[self._r] | fixed_all[self._c], 0.0, hv)
-        fixed = fixed_all[: self.size]
+            hb = held_all.reshape(-1, d).view(np.int8)
+            hb[self._recv] = self.halo.exchange(hb[self._send])
+        if held_all.any():  # (a dead variable's entries are 0 already: its tangent column is)
+            hv = np.where(held_all[self._r] | held_all[self._c], 0.0, hv)
+        fixed = self.dead | held
         extra = fixed.astype(np.float64)
         if mu > 0:  # Levenberg: mu diag(H) (the owners' sums of the diagonal entries)
             diag = np.bincount(self._diag_pos, weights=hv[self._diag_src], minlength=self.size_all)
