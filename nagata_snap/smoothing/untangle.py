@@ -61,7 +61,11 @@ onto the geometry and calls again (:func:`optimise` with ``slide``).
 Distributed (owner computes): each process evaluates the energy, gradient
 and cell Hessians of the cells it owns; a node's variables belong to the
 process that owns the node (the rows of a distributed PETSc AIJ matrix,
-numbered by owner, factorised by MUMPS on all processes), ghost copies of
+numbered by owner, factorised by MUMPS on all processes; when no cell
+couples two processes' variables, i.e. no process has a ghost moving node,
+the matrix is block diagonal by process and each process factorises its
+block alone, sequential MUMPS in a block-Jacobi preconditioner: exact, and
+without the messages of the distributed factorisation), ghost copies of
 the moving nodes get their owner's variables every evaluation and send
 their gradient and Hessian-diagonal contributions back to it
 (:class:`~nagata_snap.smoothing.halo.Halo`: only the problem's shared
@@ -540,12 +544,31 @@ class _Problem:
         ksp = PETSc.KSP().create(comm)
         ksp.setOperators(A)
         ksp.setType("preonly")
-        ksp.setErrorIfNotConverged(True)  # (a failed factorisation raises, on every process)
         pc = ksp.getPC()
-        pc.setType("cholesky")
-        pc.setFactorSolverType("mumps")
+        # no ghost moving node on any process: no cell couples two processes' variables, the
+        # matrix is block diagonal by process and each block is factorised where it lives
+        self._blocks = self.comm.size > 1 and not anywhere(self.comm, bool(self.halo.recv_nodes.size))
+        self._sub: Any = None
+        if self._blocks:
+            pc.setType("bjacobi")  # (one block per process; set up at the first solve)
+        else:
+            ksp.setErrorIfNotConverged(True)  # (a failed factorisation raises, on every process)
+            pc.setType("cholesky")
+            pc.setFactorSolverType("mumps")
         self._A, self._ksp = A, ksp
         self._b, self._x = A.createVecRight(), A.createVecLeft()
+
+    def _block_solver(self) -> None:
+        """The process's diagonal block factorised by sequential MUMPS (LDL^T), set up once."""
+        assert self._ksp is not None
+        self._ksp.setUp()
+        (sub,) = self._ksp.getPC().getBJacobiSubKSP()
+        sub.setType("preonly")
+        spc = sub.getPC()
+        spc.setType("cholesky")
+        spc.setFactorSolverType("mumps")
+        sub.getOperators()[0].setOption(PETSc.Mat.Option.SYMMETRIC, True)  # type: ignore[arg-type]
+        self._sub = spc
 
     def with_ghosts(self, z: np.ndarray) -> np.ndarray:
         """``z_all``: this process's variables, then its ghost moving nodes' (from their owners; collective)."""
@@ -623,7 +646,11 @@ class _Problem:
         self._b.setArray(rhs)  # type: ignore[arg-type]
         try:
             self._ksp.setOperators(self._A)
+            if self._blocks and self._sub is None:
+                self._block_solver()
             self._ksp.solve(self._b, self._x)
+            if self._blocks and int(self._sub.getFailedReason()) != 0:  # (a local failure:
+                return np.full(self.size, np.nan)  # the caller's collective test sees it)
         except PETSc.Error:
             return np.full(self.size, np.nan)
         return self._x.getArray().copy()
