@@ -29,10 +29,10 @@ and stops at the first that leaves no bad cell:
     shrinks, :data:`OPTIMISE_PASSES`), each kept if it helps.  Not with
     ``method='none'`` (no interior motion unless a cell is bad).
 ``untangle`` (:func:`_untangle`)
-    The neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
+    The interior nodes of the neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
     vertex layers, wider while that helps, within a size budget;
-    :class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`) has its interior
-    nodes are moved by the simultaneous untangling and shape optimisation
+    :class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`)
+    are moved by the simultaneous untangling and shape optimisation
     of :mod:`nagata_snap.smoothing.untangle` (a regularised mean-ratio objective that
     accepts an inverted start; a linear extension of the boundary
     displacement cannot untangle).  Skipped for the slide stage when a bad
