@@ -53,7 +53,12 @@ from nagata_snap.smoothing.repair import InvertedCellsError, RepairResult, repai
 from nagata_snap.smoothing.slide import SlidingBoundary
 from nagata_snap.transfer import TransferInfo, transfer
 
-__all__ = ["Snapper", "Refined", "SnapReport", "InvertedCellsError", "LineageError"]
+__all__ = ["Snapper", "Refined", "SnapReport", "InvertedCellsError", "LineageError", "MOVED_RTOL"]
+
+#: A snapped vertex counts as moved (``SnapReport.boundary_vertices_moved``) if
+#: its move exceeds this fraction of the model size (the coarse mesh's
+#: bounding-box diagonal): the tolerance to which serial and MPI runs agree.
+MOVED_RTOL = 1e-12
 
 
 @dataclass
@@ -63,7 +68,10 @@ class SnapReport:
     Attributes:
         level: refinement level reached (1 after the first call).
         num_cells, num_vertices: size of the refined mesh.
-        boundary_vertices_moved: snapped vertices that moved off their straight position.
+        boundary_vertices_moved: snapped vertices that moved off their straight position
+            by more than :data:`MOVED_RTOL` of the model size (a vertex the geometry
+            puts where it already was, up to round-off, is not counted: its
+            round-off depends on the order of the facets, i.e. on the partition).
         max_displacement: largest snapping move (length unit).
         inverted_before_smoothing: cells inverted or degenerate with the boundary
             snapped and the interior not yet smoothed.
@@ -216,6 +224,7 @@ class Snapper:
         self.comm = mesh.comm
         warm_up()  # the guard's compiled kernels, loaded once per process, not in a level
         self._level = self._coarse_level(mesh, facet_tags)
+        self.model_size = _model_size(mesh)
         self._last: _LastRefine | None = None
         self.level = 0
         #: the stage :meth:`refine` is in (a key of ``report.times``, or ``"report"``), None
@@ -428,7 +437,7 @@ class Snapper:
         imap = mesh1.geometry.index_map()
         n_own = imap.size_local
         disp = np.linalg.norm(x[:n_own] - x_ref[:n_own], axis=1)
-        moved_owned = moved[:n_own] & (disp > 0)
+        moved_owned = moved[:n_own] & (disp > MOVED_RTOL * self.model_size)
         short = np.zeros(len(x))
         short[np.flatnonzero(moved)] = res.shortfall
         short = short[:n_own]
@@ -530,6 +539,14 @@ def _check_options(smoothing: str, min_fraction: float, min_quality: float,
     if quality_report not in (True, False, "changed", "all"):
         raise ValueError(
             f"quality_report must be True, False, 'changed' or 'all', not {quality_report!r}")
+
+
+def _model_size(mesh: dolfinx.mesh.Mesh) -> float:
+    """Bounding-box diagonal of ``mesh``'s nodes over all processes (length unit; collective)."""
+    x = mesh.geometry.x
+    box = np.r_[-x.min(axis=0, initial=np.inf), x.max(axis=0, initial=-np.inf)]
+    mesh.comm.Allreduce(MPI.IN_PLACE, box, op=MPI.MAX)
+    return float(np.linalg.norm(box[3:] + box[:3]))
 
 
 def _check_cells(mesh: dolfinx.mesh.Mesh) -> None:

@@ -55,17 +55,23 @@ def test_slide_repairs_an_overtaken_boundary_vertex(mode):
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("mode", ["nagata", "cad"])
-def test_slide_mpi_same_as_serial(mode):
+@pytest.mark.parametrize("mode, split", [("nagata", False), ("cad", False), ("nagata", True),
+                                         ("cad", True)])
+def test_slide_mpi_same_as_serial(mode, split):
+    """Sliding under ``mpiexec -n 2`` as serially; with ``split`` the disk is partitioned
+    through the sliding region, so that the processes exchange the facets at the sliding
+    vertices they share (``SlideFacets``)."""
     mpiexec = pathlib.Path(sys.executable).parent / "mpiexec"
     env = dict(os.environ)
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     proc = subprocess.run([str(mpiexec), "-n", "2", sys.executable,
-                           str(REPO / "tests" / "mpi" / "slide_mpi.py"), mode],
+                           str(REPO / "tests" / "mpi" / "slide_mpi.py"), mode] + (["split"] if split else []),
                           capture_output=True, text=True, timeout=600, env=env, cwd=REPO)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     out = json.loads([ln for ln in proc.stdout.splitlines() if ln.startswith("{")][-1])
     assert out["size"] == 2
+    if split:
+        assert out["par"]["slide"]["received_facets"] > 0
     check(out["par"])
     check(out["ser"])
     for k in ("stage", "slid", "n_short"):

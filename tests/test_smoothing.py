@@ -424,8 +424,86 @@ def test_bad_inputs():
         repair(msh, x_ref, msh.geometry.x.copy(), left, fixed)
 
 
+#: How close to a threshold of the check (relative to the straight cell) a cell must be for a
+#: serial and a parallel repair to be allowed to decide differently.  Their coordinates differ
+#: by the order of floating-point sums (the band solve's parallel reductions; the optimiser's
+#: gradient and Hessian entries at nodes shared by processes, its energy's partial sums,
+#: MUMPS's distributed factorisation): round-off times the conditioning of the solves.  The
+#: optimiser stops at a relative decrease of its energy of 1e-9 (untangle.FTOL_FINAL), so a
+#: stopping test that the round-off tips can leave the nodes up to about sqrt(1e-9) x (scale)
+#: apart; a check's count, and every decision taken from it, can then change only where a
+#: checked cell is that close to the floor of the volume, the mean ratio or the poor ratio.
+MARGIN = 1e-4
+#: Coordinates of a serial and a parallel repair that took the same decisions (size 1 meshes):
+#: round-off times the conditioning of the optimiser's Newton systems (the mean-ratio energy
+#: can be nearly flat along some directions: its converged minimum is then fixed only to
+#: round-off / curvature; tests/mpi/untangle_mpi.py measures 1e-9 on a 10 x 10 square).
+SAME = 1e-8
+
+
+def _kept(a: dict) -> bool:
+    """Whether an attempt's result could be taken (a partial trial: if valid)."""
+    return a["n_bad"] == 0 if a["stage"] == "partial" else a.get("kept") is not False
+
+
+def _decisions(attempts: list[dict]) -> list[tuple[tuple, int]]:
+    """``(decision, index)`` of every attempt whose outcome steers the repair: what it is
+    (stage, round, t, layers) and what it decided (its bad cells if taken, a partial trial's
+    validity).  A discarded attempt changes nothing, and its own count is no decision."""
+    out = []
+    for i, a in enumerate(attempts):
+        if a["stage"] != "partial" and not _kept(a):
+            continue
+        outcome = a["n_bad"] == 0 if a["stage"] == "partial" else a["n_bad"]
+        out.append(((a["stage"], a["round"], a["t"], a["layers"], outcome), i))
+    return out
+
+
+def _excused(attempts: list[dict], i: int) -> bool:
+    """Whether round-off may decide attempt ``i``: its check is marginal (``MARGIN``), or a
+    result it depends on did not converge (its own, a taken one before it, or, for the
+    untangle and slide stages, whose loop reads every untangle attempt, a discarded untangle
+    attempt): an optimisation stopped by its iteration limit depends on the round-off of
+    every iteration, not only on its input's."""
+    a = attempts[i]
+    if a["margin"] < MARGIN:
+        return True
+    for j, b in enumerate(attempts[: i + 1]):
+        if b.get("converged") is not False:
+            continue
+        if j == i or _kept(b) or (b["stage"] == "untangle" and a["stage"] in ("untangle", "slide")):
+            return True
+    return False
+
+
+def first_divergence(ser: list[dict], par: list[dict]) -> int | None:
+    """Index (among the steering decisions) of the first one a serial and a parallel repair
+    took differently, None if they took the same throughout; asserts that round-off could
+    decide it (:func:`_excused`)."""
+    ds, dp = _decisions(ser), _decisions(par)
+    for k, ((a, i), (b, j)) in enumerate(zip(ds, dp, strict=False)):
+        if a != b:
+            assert _excused(ser, i) or _excused(par, j), (k, ser[i], par[j])
+            return k
+    assert len(ds) == len(dp), (ser, par)
+    return None
+
+
 @pytest.mark.mpi
 def test_mpi_matches_serial():
+    """``smooth`` and ``repair`` under ``mpiexec -n 2`` against serial runs (``tests/mpi/smooth_mpi.py``).
+
+    The smoothers (one linear solve) agree with serial to round-off.  The repair
+    (``repair_partial``: the left side pushed through the right one, ending in
+    the partial stage's bisections, after untangle attempts that cannot succeed
+    and are discarded) is compared by its decisions: the serial and the
+    parallel run must take the same decisions (:func:`first_divergence`), and
+    then their nodes agree to round-off; they may part only where round-off can
+    decide (a check within ``MARGIN`` of a threshold, or an optimisation that did
+    not converge: then the runs continue differently and only the robust facts
+    are compared: the stage, valid results, the cells and moved vertices, and
+    vertices left short on both).
+    """
     script = REPO / "tests" / "mpi" / "smooth_mpi.py"
     bindir = pathlib.Path(sys.executable).parent
     mpiexec = bindir / "mpiexec"
@@ -446,26 +524,14 @@ def test_mpi_matches_serial():
         assert out["ghost_ok"], out
         assert out["n_inverted"] == 0, out
         if "report_par" in out:
-            # The same repair up to what round-off may change, by design rather than by
-            # the luck of summation order.  The distributed band solve (CG, PETSc's
-            # parallel sums) gives the serial result to round-off only; the partial
-            # stage's bisection on t decides valid / invalid per trial from the
-            # nonlinear optimiser's result on that input, and in this extreme case
-            # (the left side pushed through the right one) a trial at the edge of
-            # validity may go either way.  So: the same stage, the same counts of
-            # cells, inversions before / after (0) and moved vertices; vertices left
-            # short on both; each moved vertex's fraction, and the largest
-            # shortfall, within one bisection step (2^-6 of the push, the default
-            # bisection_steps=6) of the serial run's; the interior only valid.
             par, ser = dict(out["report_par"]), dict(out["report_ser"])
+            assert out["stage"] == ["partial", "partial"]
             assert par.pop("n_shortfall") > 0 and ser.pop("n_shortfall") > 0
             assert par == ser
-            step = 1.3 * 2.0 ** -6
-            assert out["report_maxdiff"] <= step + 1e-12, out
-            assert out["stage"] == ["partial", "partial"]
-            assert out["maxdiff_moved"] <= step + 1e-12, out
+            if first_divergence(out["attempts_ser"], out["attempts_par"]) is None:
+                assert out["maxdiff"] < SAME, out
         else:
-            assert out["maxdiff"] < 1e-10, out
+            assert out["maxdiff"] < SAME, out
 
 
 SNAPPER_CASES = {  # case -> number of JSON lines per smoother (levels)
@@ -483,7 +549,8 @@ def test_mpi_snapper_unghosted_gmsh(nprocs, cases):
 
     See tests/mpi/snapper_smooth_mpi.py. For every level and smoother:
     * the parallel result equals a serial ``repair`` on the very same
-      (gathered) mesh to round-off -- smoothing and repair are MPI-exact;
+      (gathered) mesh to round-off, unless a marginal check let the two
+      decide differently (:func:`first_divergence`);
     * when the serial and the parallel pipeline produced the same refined
       mesh (2D; 3D without tied face edges), the coordinates agree too.
     3D meshes with equally long face edges (``sphere``) are refined by
@@ -507,8 +574,9 @@ def test_mpi_snapper_unghosted_gmsh(nprocs, cases):
         assert out["size"] == nprocs
         assert out["ghosts_coarse"] == [0] * nprocs, out  # unghosted gmsh distribution
         assert out["ghost_ok"] and out["n_inverted"] == 0, out
-        assert out["same_mesh_maxdiff"] < 1e-12, out
         assert out["stage_serial_rerun"] == out["stage"], out
+        if first_divergence(out["attempts_serial_rerun"], out["attempts"]) is None:
+            assert out["same_mesh_maxdiff"] < SAME, out
         if out["case"].startswith("direct"):
             assert out["n_smoothed"] > 0, out
             if out["case"] == "direct3d_hard":
@@ -517,6 +585,8 @@ def test_mpi_snapper_unghosted_gmsh(nprocs, cases):
         assert out["n_inverted_serial"] == 0, out
         if out["cells_differ"] == 0:
             assert out["serial_maxdiff"] < 1e-12, out
+            # the same snapped vertices moved (by more than 1e-12 of the size)
+            assert out["moved"] == out["moved_serial"], out
         if out["case"] in ("sphere_tiefree", "dfg"):
             assert out["ref_matched"] and out["cells_differ"] == 0, out
             assert out["serial_maxdiff"] < 1e-12 and out["pointset_maxdiff"] < 1e-12, out

@@ -6,7 +6,8 @@
 * :mod:`~nagata_snap.smoothing.band` -- the band of cells around the moved
   vertices that the smoothers work on, and ghost-consistent node masks;
 * :mod:`~nagata_snap.smoothing.neighbourhood` -- the few layers around bad
-  cells, gathered alike on every process;
+  cells, distributed like the mesh (:mod:`~nagata_snap.smoothing.halo`: the
+  exchanges between the copies of its shared nodes);
 * :mod:`~nagata_snap.smoothing.smooth` -- the interior smoother;
 * :mod:`~nagata_snap.smoothing.untangle` -- Escobar's regularised mean-ratio
   optimisation that untangles inverted cells;

@@ -9,7 +9,7 @@ agree to rounding; ``tests/test_kernels.py``).  ``benchmarks/guard_kernels.py``
 prints microseconds per cell for both.
 
 Why numba rather than UFL forms compiled by FFCx: the energy is a sum over a
-small, gathered set of cells (the neighbourhood of the bad cells) with
+small set of cells (each process's part of the neighbourhood of the bad cells) with
 per-cell targets ``W^-1`` and a regularisation ``delta`` that changes
 between rounds; assembling it with DOLFINx would need a sub-mesh of the
 neighbourhood and a function space on it per problem, whose set-up costs

@@ -1,26 +1,36 @@
-"""The neighbourhood of a few bad cells, gathered on every process in a canonical order.
+"""The neighbourhood of a few bad cells, distributed like the mesh.
 
 The repair (:mod:`nagata_snap.smoothing.repair`) fixes the cells that a linear
 smoother left inverted or degenerate by a nonlinear optimisation
-(:mod:`nagata_snap.smoothing.untangle`) over the nodes near them.  That neighbourhood
-is small (the cost of a repair follows the trouble, not the mesh), so
-instead of a distributed nonlinear solve it is gathered whole on every
-process and solved there serially, identically:
+(:mod:`nagata_snap.smoothing.untangle`) over the nodes near them.  That
+neighbourhood is small (the cost of a repair follows the trouble, not the
+mesh), and it is distributed like the mesh: nothing is gathered.
 
-* the cells within ``layers`` vertex layers of the seed cells are marked
-  with ghost-consistent node masks (collective);
-* each process contributes its owned cells (as global node numbers) and its
-  owned nodes (global number, reference coordinates, values);
-* nodes are ordered by their reference coordinates (lexicographically),
-  cells by their sorted canonical vertices, and each cell's vertices
-  ascending (the shape measure ``S = A W^-1`` does not depend on the vertex
-  order).  The local problem is therefore the same arrays in the same order
-  whatever the partition, so every process gets bitwise the same result
-  from the same input, and a parallel run the serial one up to the
-  round-off of its input (the linear band solve before it).
+* The cells within ``layers`` vertex layers of the seed cells are marked
+  with ghost-consistent node masks (:func:`~nagata_snap.smoothing.band.expand`,
+  collective); each process keeps the marked cells it has (owned and ghost)
+  and, for the optimiser, the ones it owns: every cell of the
+  neighbourhood is evaluated by exactly one process.
+* A :class:`~nagata_snap.smoothing.halo.Halo` connects the ghost nodes of
+  the neighbourhood to their owners; per-node data the repair needs from
+  all cells of a node (its shortest edge, the layer distance from the bad
+  cells, marks) are combined there, so every copy of a node holds the
+  same value, the one a serial run computes.
+* The optimiser then works on each process's local nodes and owned cells
+  (:func:`~nagata_snap.smoothing.untangle.optimise` with this
+  neighbourhood's :class:`~nagata_snap.smoothing.halo.Layout`): each
+  process evaluates its cells, gradient and Hessian are summed onto the
+  nodes' owners (a distributed PETSc matrix, factorised by MUMPS), and the
+  ghost copies of the moving nodes get their owners' values every
+  iteration.
 
-Results are written back into every local copy (owned and ghost) of the
-neighbourhood's nodes, so no scatter is needed.
+So a parallel run makes the serial run's decisions and iterations up to the
+order of floating-point sums (the gradient and Hessian entries of a node
+shared by processes, the energy's partial sums, MUMPS's distributed
+factorisation): its nodes agree with the serial ones to round-off times the
+conditioning of the Newton solves wherever no decision (a line-search
+acceptance, a stopping test, a bisection's validity) lies within that
+round-off of its threshold.
 """
 
 from __future__ import annotations
@@ -31,19 +41,13 @@ from mpi4py import MPI
 
 from nagata_snap.mesh.simplex import cell_columns, cells_touching, edge_length_range
 from nagata_snap.smoothing.band import NodeSync, expand
+from nagata_snap.smoothing.halo import Halo, Layout, anywhere
 
-__all__ = ["Neighbourhood", "layer_distance"]
-
-
-def _allgather(comm: MPI.Comm, a: np.ndarray) -> np.ndarray:
-    """Concatenation of ``a`` of every process, in rank order (collective)."""
-    if comm.size == 1:
-        return np.asarray(a)
-    return np.concatenate(comm.allgather(np.asarray(a)))
+__all__ = ["Neighbourhood"]
 
 
 class Neighbourhood:
-    """Cells within ``layers`` vertex layers of the seed cells, on every process (collective).
+    """Cells within ``layers`` vertex layers of the seed cells, distributed (collective).
 
     Args:
         mesh: the mesh (topology and parallel layout).
@@ -55,14 +59,14 @@ class Neighbourhood:
 
     Attributes:
         local_cells: ``(m,)`` local cells (owned and ghost) of the neighbourhood.
-        local_nodes: ``(k,)`` local nodes of those cells; ``local_pos`` their
-            canonical positions.
-        x_ref: ``(N, d)`` canonical reference coordinates.
-        cells: ``(M, d + 1)`` canonical cells.
-        gid: ``(N,)`` global node numbers (of this partition).
-        complete: ``(N,)`` bool, nodes all of whose cells are in the
+        cells: ``(k, d + 1)`` local nodes of the owned ones (the optimiser's cells).
+        nodes: ``(n,)`` bool, local nodes of the neighbourhood's cells.
+        complete: ``(n,)`` bool, nodes all of whose cells are in the
             neighbourhood (only these may move).
-        scale: ``(N,)`` shortest reference edge at each node (length unit).
+        scale: ``(n,)`` shortest reference edge at each node over all its
+            neighbourhood cells, on every process (length unit; 0 outside).
+        layout: the geometry nodes' :class:`~nagata_snap.smoothing.halo.Layout`.
+        halo: :class:`~nagata_snap.smoothing.halo.Halo` of the neighbourhood's ghost nodes.
         n_cells, n_nodes: sizes (global, equal on all processes).
     """
 
@@ -79,72 +83,62 @@ class Neighbourhood:
         if layers < 1:
             raise ValueError(f"a neighbourhood has at least one layer, got {layers}")
         # the last layer's nodes are the nodes of the cells touching the layer before
-        in_nodes, inner, cin = expand(dofmap, mark, layers, sync, cols)
+        self.nodes, self.complete, cin = expand(dofmap, mark, layers, sync, cols)
+        self.layers = layers
         self.local_cells = np.flatnonzero(cin).astype(np.int32)
-        l2g = mesh.geometry.index_map().local_to_global(np.arange(sync.n, dtype=np.int32))
-        l2g = np.asarray(l2g, dtype=np.int64)
-        own = np.flatnonzero(in_nodes[: sync.n_owned])
-        self._own = own
-        gid = _allgather(comm, l2g[own])
-        xr = _allgather(comm, x_ref[own, :d])
-        order = np.lexsort(xr.T[::-1])  # canonical: by reference coordinates
-        self._to_canon = np.empty(order.size, dtype=np.int64)
-        self._to_canon[order] = np.arange(order.size)
-        self.gid = gid[order]
-        self.x_ref = xr[order]
-        self._by_gid = np.argsort(self.gid)
-        self.n_nodes = int(self.gid.size)
-        self.complete = self.gather(inner.astype(np.float64)) > 0.5
-        oc = self.local_cells[self.local_cells < n_own_cells]
-        cells = self.canonical(l2g[dofmap[oc]])
-        cells = np.sort(_allgather(comm, cells).reshape(-1, d + 1), axis=1)
-        self.cells = cells[np.lexsort(cells.T[::-1])]
-        self.local_nodes = np.flatnonzero(in_nodes)
-        self.local_pos = self.canonical(l2g[self.local_nodes])
-        self.n_cells = int(self.cells.shape[0])
-        hmin, _ = edge_length_range(np.c_[self.x_ref, np.zeros((self.n_nodes, 3 - d))],
-                                    self.cells, d)
-        scale = np.full(self.n_nodes, np.inf)
+        self._dofs = dofmap[self.local_cells]
+        self._cols = cell_columns(self._dofs)
+        self.cells = np.ascontiguousarray(self._dofs[self.local_cells < n_own_cells], dtype=np.int64)
+        self.layout = Layout.of(mesh.geometry.index_map())
+        self.halo = Halo(self.layout, sync.n_owned + np.flatnonzero(self.nodes[sync.n_owned:]))
+        self.n_cells = int(comm.allreduce(self.cells.shape[0]))
+        self.n_nodes = int(comm.allreduce(int(np.count_nonzero(self.nodes[: sync.n_owned]))))
+        hmin, _ = edge_length_range(x_ref, self.cells, d)
+        scale = np.full(sync.n, np.inf)
         for k in range(d + 1):
             np.minimum.at(scale, self.cells[:, k], hmin)
+        self.halo.reverse(scale, np.minimum)
+        self.halo.forward(scale)
         self.scale = np.where(np.isfinite(scale), scale, 0.0)
 
-    def canonical(self, gids: np.ndarray) -> np.ndarray:
-        """Canonical positions of global node numbers (all must be in the neighbourhood)."""
-        g = np.asarray(gids, dtype=np.int64)
-        return self._by_gid[np.searchsorted(self.gid, g, sorter=self._by_gid)]
+    def any(self, mask: np.ndarray) -> np.ndarray:
+        """``(n,)`` bool: the neighbourhood's nodes marked on any process's copy (collective).
 
-    def gather(self, a: np.ndarray) -> np.ndarray:
-        """Canonical ``(N, ...)`` copy of a local node array ``(n, ...)`` (owners' values; collective)."""
-        a = np.asarray(a)
-        vals = _allgather(self.comm, a[self._own])
-        out = np.empty((self.n_nodes, *a.shape[1:]), dtype=a.dtype)
-        out[self._to_canon] = vals
-        return out
+        ``mask (n,)`` is a local mark (e.g. the nodes of this process's bad
+        cells); nodes outside the neighbourhood are False in the result.
+        """
+        m = (np.asarray(mask, dtype=bool) & self.nodes).astype(np.int8)
+        self.halo.reverse(m, np.maximum)
+        self.halo.forward(m)
+        return m > 0
 
-    def scatter(self, x: np.ndarray, values: np.ndarray) -> None:
-        """Write canonical ``values (N, d)`` into the local coordinates ``x (n, 3)`` in place."""
-        d = values.shape[1]
-        x[self.local_nodes, :d] = values[self.local_pos]
+    def distance(self, seeds: np.ndarray) -> np.ndarray:
+        """Vertex-layer distance ``(n,)`` of the nodes from the seed nodes (collective).
 
+        ``seeds (n,)`` bool, ghost-consistent on the neighbourhood's nodes
+        (:meth:`any`).  0 on the seeds, ``k`` on nodes of neighbourhood cells
+        touching a node at distance ``k - 1``; ``layers + 1`` beyond (and
+        outside the neighbourhood).
+        """
+        mark = np.asarray(seeds, dtype=bool) & self.nodes
+        dist = np.where(mark, 0, self.layers + 1)
+        for k in range(1, self.layers + 1):
+            new = np.zeros_like(mark)
+            new[self._dofs[cells_touching(mark, self._cols)].reshape(-1)] = True
+            new = self.any(new)
+            dist[new & ~mark] = k
+            mark |= new
+        return dist
 
-def layer_distance(cells: np.ndarray, seeds: np.ndarray, layers: int) -> np.ndarray:
-    """Vertex-layer distance ``(n,)`` from the seed nodes (``layers + 1`` beyond).
+    def cells_moving(self, moving: np.ndarray) -> int:
+        """Global number of neighbourhood cells with a node of ``moving (n,)`` (collective)."""
+        return int(self.comm.allreduce(int(np.count_nonzero(moving[self.cells].any(axis=1)))))
 
-    Args:
-        cells: ``(M, d + 1)`` cells; seeds: ``(n,)`` bool over the nodes.
-        layers: largest distance to compute.
+    def reach(self, bad_nodes: np.ndarray, dist: np.ndarray) -> int:
+        """Largest ``dist`` on the nodes ``bad_nodes (n,)`` (local marks) (collective).
 
-    Returns:
-        ``(n,)`` int: 0 on the seeds, ``k`` on nodes of cells touching a node
-        at distance ``k - 1``; ``layers + 1`` for nodes farther away.
-    """
-    mark = np.asarray(seeds, dtype=bool).copy()
-    dist = np.where(mark, 0, layers + 1)
-    cols = cell_columns(cells)
-    for k in range(1, layers + 1):
-        new = np.zeros_like(mark)
-        new[cells[cells_touching(mark, cols)].reshape(-1)] = True
-        dist[new & ~mark] = k
-        mark |= new
-    return dist
+        ``layers + 1`` if one of them is outside the neighbourhood.
+        """
+        if anywhere(self.comm, bool(np.any(bad_nodes & ~self.nodes))):
+            return self.layers + 1
+        return int(self.comm.allreduce(int(dist[bad_nodes].max(initial=0)), op=MPI.MAX))

@@ -29,10 +29,10 @@ and stops at the first that leaves no bad cell:
     shrinks, :data:`OPTIMISE_PASSES`), each kept if it helps.  Not with
     ``method='none'`` (no interior motion unless a cell is bad).
 ``untangle`` (:func:`_untangle`)
-    The neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
-    vertex layers, wider while that helps, within a size budget) is gathered
-    (:class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`) and its interior
-    nodes are moved by the simultaneous untangling and shape optimisation
+    The interior nodes of the neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
+    vertex layers, wider while that helps, within a size budget;
+    :class:`~nagata_snap.smoothing.neighbourhood.Neighbourhood`)
+    are moved by the simultaneous untangling and shape optimisation
     of :mod:`nagata_snap.smoothing.untangle` (a regularised mean-ratio objective that
     accepts an inverted start; a linear extension of the boundary
     displacement cannot untangle).  Skipped for the slide stage when a bad
@@ -57,17 +57,24 @@ and stops at the first that leaves no bad cell:
     If ``min_fraction`` forbids the moves that would be needed.
 
 Each stage works on the cells it can change only: the band, or the
-neighbourhood of the bad cells, whose set-up (gather, targets, scales) is
+neighbourhood of the bad cells, whose set-up (marks, halo, targets, scales) is
 reused by the attempts of the untangle and slide stages.  The check
 (:class:`_Guard.check`) looks only at cells that a stage could have changed,
 so it is O(band) too.  ``RepairResult.attempts`` lists every attempt (stage,
 cells, moving nodes, seconds, bad cells left).
 
-MPI: the band solve is distributed (PETSc); the neighbourhood problems are
-gathered in a canonical order and solved identically on every process (see
-:mod:`nagata_snap.smoothing.neighbourhood`), so decisions (bad-cell counts, stages)
-are collective and the result does not depend on the partition beyond the
-round-off of the band solve.
+MPI: the band solve is distributed (PETSc), and so are the neighbourhood
+problems (:mod:`nagata_snap.smoothing.neighbourhood`): each process
+optimises the part it owns, with the ghost copies of its shared nodes
+updated from their owners every iteration (:mod:`nagata_snap.smoothing.untangle`).
+Every decision (bad-cell counts, keeping an attempt, the stages, the
+bisections) is taken from collective reductions, so all processes take the
+same path.  A parallel run takes the serial run's decisions, and its nodes
+agree with the serial ones to round-off, except where round-off can decide:
+a checked cell within round-off of a threshold of the check (each attempt
+records the check's ``margin``), or a kept optimisation that stopped at its
+iteration limit (``converged``); ``tests/test_smoothing.py`` compares serial
+and parallel runs by these rules.
 """
 
 from __future__ import annotations
@@ -83,6 +90,7 @@ import mpi4py.MPI
 import numpy as np
 
 from nagata_snap.errors import InvertedCellsError
+from nagata_snap.mesh.parallel import collective
 from nagata_snap.mesh.simplex import (
     cell_columns,
     cells_touching,
@@ -90,8 +98,9 @@ from nagata_snap.mesh.simplex import (
     local_facet_vertices,
 )
 from nagata_snap.smoothing.band import auto_layers, expand, max_layers, prepare
+from nagata_snap.smoothing.halo import anywhere, minimum
 from nagata_snap.smoothing.kernels import volume_mean_ratio
-from nagata_snap.smoothing.neighbourhood import Neighbourhood, layer_distance
+from nagata_snap.smoothing.neighbourhood import Neighbourhood
 from nagata_snap.smoothing.quality import QualityReport, inverted_mask
 from nagata_snap.smoothing.slide import SlideFacets, SlidingBoundary
 from nagata_snap.smoothing.smooth import Smoother, add_time, smooth_options
@@ -101,7 +110,7 @@ __all__ = ["repair", "RepairResult", "InvertedCellsError", "UNTANGLE_LAYERS", "S
            "TAPER_LAYERS", "FIRST_SWEEPS", "ELASTIC_NEAR"]
 
 #: Neighbourhood widths (vertex layers around the bad cells) of the untangle
-#: attempts; the slide stage reuses the last neighbourhood gathered.
+#: attempts; the slide stage reuses the last neighbourhood set up.
 UNTANGLE_LAYERS = (3, 6, 12)
 #: Largest neighbourhood of a wider untangle attempt: this fraction of the
 #: mesh's cells, or this many cells if more.
@@ -151,7 +160,12 @@ class RepairResult:
             stage (the sweeps, and the elastic solve near the cells they left bad or poor).
         attempts: one dict per attempt: ``stage``, ``layers``, ``cells`` and
             ``nodes`` (global number of cells it worked on and of nodes it
-            moved), ``seconds``, ``n_bad`` (bad cells left), and per stage
+            moved), ``seconds``, ``n_bad`` (bad cells left), ``margin`` (how
+            close the checked cells came to a threshold of the check, see
+            ``_Guard._margin``: where it is within round-off, a serial and a
+            parallel run may decide differently), ``converged`` (stages that
+            optimise: see :class:`~nagata_snap.smoothing.untangle.OptimiseResult`),
+            ``kept`` (the result was taken), and per stage
             ``method`` / ``exponent`` (smooth), ``slid`` (slide), ``round``,
             ``t`` (partial).
         timings: stage -> seconds on this rank.
@@ -212,6 +226,7 @@ class _Guard:
         self.timings: dict[str, float] = {}
         self.attempts: list[dict] = []
         self.slid = 0
+        self.margin = np.inf
 
     @property
     def disp(self) -> np.ndarray:
@@ -253,6 +268,7 @@ class _Guard:
         if self.min_quality > 0:
             badc |= q < self._q_floor[cand]
         ratio = q / np.maximum(self._q_ref[cand], 1e-300)
+        self._margin(vol, q, ratio, cand)
         bad = np.zeros(self.cells.shape[0], dtype=bool)
         bad[cand[badc]] = True
         self.poor = np.zeros_like(bad)
@@ -264,6 +280,25 @@ class _Guard:
         self.worst = self.comm.allreduce(float(ratio[own_c].min(initial=1.0)), op=mpi4py.MPI.MIN)
         add_time(self.timings, "check", time.perf_counter() - t0)
         return bad, int(nbad)
+
+    def _margin(self, vol: np.ndarray, q: np.ndarray, ratio: np.ndarray, cand: np.ndarray) -> None:
+        """``margin``: how close the examined cells ``cand`` are to a threshold of the check (collective).
+
+        The smallest of ``|vol / |v_ref| - rel_floor|`` (volume ratio against
+        the inversion floor), ``|q - q_floor| / q_ref`` (mean ratio against its
+        floor) and ``|q / q_ref - POOR_RATIO|`` over the owned examined cells, all
+        relative to the straight cell, over all processes.  A count of bad or
+        poor cells, and every decision taken from it, can differ between two
+        runs whose coordinates differ by round-off only if the margin is
+        within that round-off's effect (``RepairResult.attempts`` record it).
+        """
+        own = cand < self.n_own_cells
+        v_ref, q_ref = self._v_ref[cand[own]], np.maximum(self._q_ref[cand[own]], 1e-300)
+        m = np.abs(vol[own] * np.sign(v_ref) / np.maximum(np.abs(v_ref), 1e-300) - self.rel_floor)
+        if self.min_quality > 0:
+            m = np.minimum(m, np.abs(q[own] - self._q_floor[cand[own]]) / q_ref)
+        m = np.minimum(m, np.abs(ratio[own] - POOR_RATIO))
+        self.margin = float(self.comm.allreduce(float(m.min(initial=np.inf)), op=mpi4py.MPI.MIN))
 
     def _measures(self, x: np.ndarray, xn: np.ndarray, pool: np.ndarray, pcols: list[np.ndarray],
                   nodes: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -295,7 +330,8 @@ class _Guard:
     def log(self, stage: str, t0: float, n_bad: int, **info: Any) -> None:
         """Record one attempt (``seconds``: wall time since ``t0``, max over processes)."""
         dt = self.comm.allreduce(time.perf_counter() - t0, op=mpi4py.MPI.MAX)
-        self.attempts.append({"stage": stage, **info, "seconds": dt, "n_bad": n_bad})
+        self.attempts.append({"stage": stage, **info, "seconds": dt, "n_bad": n_bad,
+                              "margin": self.margin})
 
     def positions(self, alpha: np.ndarray) -> np.ndarray:
         """Targets with the moved nodes at fractions ``alpha (n,)`` of their displacement."""
@@ -385,47 +421,50 @@ def _elastic_near(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, o: dict[
 
 
 class _Local:
-    """A gathered neighbourhood with what the optimiser needs (set up once, reused)."""
+    """A neighbourhood with what the optimiser needs (set up once, reused; collective)."""
 
     def __init__(self, g: _Guard, bad: np.ndarray, layers: int):
         self.nbh = Neighbourhood(g.mesh, g.sync, g.cols, bad, layers, g.x_ref)
         self.layers = layers
-        self.winv = targets(self.nbh.x_ref, self.nbh.cells)
-        flags = self.nbh.gather(np.column_stack([g.moved_mask, g.fixed_mask]).astype(np.int8))
-        self.constrained = (flags.any(axis=1)) | ~self.nbh.complete
+        self.winv = collective(g.comm, targets, g.x_ref[:, : g.gdim], self.nbh.cells)
+        self.constrained = g.moved_mask | g.fixed_mask | ~self.nbh.complete
         g.pool[self.nbh.local_cells] = True
 
+    def seeds(self, g: _Guard, bad: np.ndarray) -> np.ndarray:
+        """``(n,)`` bool: the neighbourhood's nodes of the bad cells of any process (collective)."""
+        return self.nbh.any(_cell_nodes(g, bad))
+
     def distance(self, g: _Guard, bad: np.ndarray) -> np.ndarray:
-        """Vertex-layer distance of the canonical nodes from the bad cells (collective)."""
-        mark = np.zeros(g.sync.n, dtype=bool)
-        mark[g.cells[bad].reshape(-1)] = True
-        seed = self.nbh.gather(g.sync.any(mark).astype(np.int8)) > 0
-        return layer_distance(self.nbh.cells, seed, self.layers)
+        """Vertex-layer distance ``(n,)`` of the local nodes from the bad cells (collective)."""
+        return self.nbh.distance(self.seeds(g, bad))
 
     def run(self, g: _Guard, x: np.ndarray, free: np.ndarray, **kw) -> tuple[np.ndarray, Any]:
-        """Optimise the canonical nodes ``free`` from ``x (n, 3)``; new local coordinates."""
+        """Optimise the nodes ``free (n,)`` from ``x (n, 3)`` (collective); new local coordinates."""
         d = g.gdim
-        res = optimise(self.nbh.gather(x[:, :d]), self.nbh.cells, self.winv, free,
-                       self.nbh.scale, **kw)
+        res = optimise(x[:, :d], self.nbh.cells, self.winv, free, self.nbh.scale,
+                       layout=self.nbh.layout, **kw)
         xn = x.copy()
-        self.nbh.scatter(xn, res.x)
+        xn[:, :d] = res.x
         return xn, res
 
     def reach(self, g: _Guard, bad: np.ndarray, dist: np.ndarray) -> int:
-        """Largest ``dist`` (canonical, e.g. from the seeds) on the nodes of the bad cells (collective)."""
-        mark = np.zeros(g.sync.n, dtype=bool)
-        mark[g.cells[bad].reshape(-1)] = True
-        on = self.nbh.gather(g.sync.any(mark).astype(np.int8)) > 0
-        far = g.comm.allreduce(bool(np.any(mark & ~self._in_region(g))), op=mpi4py.MPI.LOR)
-        return self.layers + 1 if far else int(dist[on].max(initial=0))
-
-    def _in_region(self, g: _Guard) -> np.ndarray:
-        inside = np.zeros(g.sync.n, dtype=bool)
-        inside[self.nbh.local_nodes] = True
-        return inside
+        """Largest ``dist`` (e.g. from the seeds) on the nodes of the bad cells (collective)."""
+        return self.nbh.reach(_cell_nodes(g, bad), dist)
 
     def cells_moving(self, moving: np.ndarray) -> int:
-        return int(np.count_nonzero(moving[self.nbh.cells].any(axis=1)))
+        return self.nbh.cells_moving(moving)
+
+
+def _count(g: _Guard, nodes: np.ndarray) -> int:
+    """Global number of the nodes ``nodes (n,)`` (bool; counted by their owners; collective)."""
+    return int(g.comm.allreduce(int(np.count_nonzero(nodes[: g.sync.n_owned]))))
+
+
+def _cell_nodes(g: _Guard, cells: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: the nodes of the local cells ``cells (nc,)`` (bool)."""
+    mark = np.zeros(g.sync.n, dtype=bool)
+    mark[g.cells[cells].reshape(-1)] = True
+    return mark
 
 
 def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -450,12 +489,13 @@ def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
         worst, n_poor = before[2], before[1]
         loc = _Local(g, seeds, OPTIMISE_LAYERS + 1)
         free = (loc.distance(g, seeds) < OPTIMISE_LAYERS) & ~loc.constrained
-        xn, _ = loc.run(g, x, free)
+        xn, res = loc.run(g, x, free)
         _, nb = g.check(xn)
         keep = (nb == 0 and g.worst >= worst and g.n_poor <= n_poor
                 and (g.worst > worst or g.n_poor < n_poor))
         g.log("optimise", t0, nb, layers=OPTIMISE_LAYERS, cells=loc.cells_moving(free),
-              nodes=int(free.sum()), worst=g.worst, poor=int(g.n_poor), kept=bool(keep))
+              nodes=_count(g, free), worst=g.worst, poor=int(g.n_poor), kept=bool(keep),
+              converged=res.converged)
         if not keep:
             g.restore(before)  # (poor, n_poor and worst of x)
             break
@@ -492,7 +532,7 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: b
     """Stage ``untangle``: optimise the interior nodes near the bad cells, wider and wider.
 
     Each attempt keeps its result if it leaves no more bad cells than before;
-    the gathered neighbourhood is reused while it is wide enough.  A wider
+    the neighbourhood is reused while it is wide enough.  A wider
     attempt follows if the last one lowered the count of bad cells or if the
     cells still bad reach the edge of its moving region (the trouble needs
     room); otherwise, with ``can_slide``, more interior nodes will not help
@@ -512,10 +552,10 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: b
             loc = wider
         dist = loc.distance(g, seeds)
         free = (dist < layers) & ~loc.constrained
-        xn, _ = loc.run(g, x, free)
+        xn, res = loc.run(g, x, free)
         bn, nb = g.check(xn)
         g.log("untangle", t0, nb, layers=layers, cells=loc.cells_moving(free),
-              nodes=int(free.sum()))
+              nodes=_count(g, free), kept=nb <= nbad, converged=res.converged)
         progress = nb < nbad
         if nb <= nbad:  # keep an improvement (or an equal count: better shapes)
             x, bad, nbad = xn, bn, nb
@@ -524,7 +564,7 @@ def _untangle(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, can_slide: b
         if can_slide and not progress and loc.reach(g, bn, dist) < layers - 1:
             break  # pinned by the boundary: sliding is the next step
     add_time(g.timings, "untangle", time.perf_counter() - t_stage)
-    assert loc is not None  # the first attempt always gathers its neighbourhood
+    assert loc is not None  # the first attempt always sets up its neighbourhood
     return x, bad, nbad, loc
 
 
@@ -535,52 +575,48 @@ def _slide(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, loc: _Local,
     d = g.gdim
     nbh = loc.nbh
     dist = loc.distance(g, bad)
-    eligible = nbh.gather(boundary.eligible(g.sync).astype(np.int8)) > 0
-    sl = np.flatnonzero(eligible & nbh.complete & (dist <= SLIDE_LAYERS))
-    free = (dist < UNTANGLE_LAYERS[0]) & ~loc.constrained
-    free[sl] = False
-    facets = SlideFacets(boundary, nbh, sl) if sl.size else None
-    if facets is not None and facets.corner.any():  # corners stay (the same on every process)
-        sl = sl[~facets.corner]
-        facets = SlideFacets(boundary, nbh, sl) if sl.size else None
-    if facets is None:  # (the neighbourhood is the same on every process)
+    sl = boundary.eligible(g.sync) & nbh.complete & (dist <= SLIDE_LAYERS)
+    free = (dist < UNTANGLE_LAYERS[0]) & ~loc.constrained & ~sl
+    facets = SlideFacets(boundary, nbh, sl, g.x_ref, x) if anywhere(g.comm, bool(sl.any())) else None
+    if facets is not None and anywhere(g.comm, bool(facets.corner.any())):  # corners stay (alike on every copy)
+        sl[facets.slide[facets.corner]] = False
+        facets = SlideFacets(boundary, nbh, sl, g.x_ref, x) if anywhere(g.comm, bool(sl.any())) else None
+    if facets is None:
         g.log("slide", t0, nbad, layers=loc.layers - 1, cells=0, nodes=0, slid=0)
         return x, bad, nbad
-    xc = nbh.gather(x[:, :d])
-    x0 = xc[sl].copy()
-    best = -np.inf
+    si = facets.slide
+    xc = x[:, :d].copy()
+    x0 = xc[si].copy()
+    best, converged = -np.inf, True
     for _ in range(SLIDE_ROUNDS):
         p, basis = facets.tangents(xc, nbh.scale)
-        xc[sl] = p
-        res = optimise(xc, nbh.cells, loc.winv, free, nbh.scale, slide=sl, basis=basis)
-        xc = res.x
-        xc[sl] = facets.project(xc, xc[sl])
-        smin = volume_ratio_min(xc, nbh.cells, loc.winv)
+        xc[si] = p
+        res = optimise(xc, nbh.cells, loc.winv, free, nbh.scale, slide=si, basis=basis,
+                       layout=nbh.layout)
+        xc, converged = res.x, converged and res.converged
+        xc[si] = facets.project(xc, xc[si])
+        smin = minimum(g.comm, volume_ratio_min(xc, nbh.cells, loc.winv))
         if smin <= best:
             break  # sliding no longer helps
         best = smin
         if smin > 0:
             break
-    slid = np.any(xc[sl] != x0, axis=1)
+    slid = np.any(xc[si] != x0, axis=1)
     xn = x.copy()
-    nbh.scatter(xn, xc)
+    xn[:, :d] = xc
     bn, nb = g.check(xn)
-    moving = free.copy()
-    moving[sl] = True
-    n_slid = int(np.count_nonzero(slid))
+    moving = free | sl
+    n_slid = int(g.comm.allreduce(int(np.count_nonzero(slid[si < g.sync.n_owned]))))
     g.log("slide", t0, nb, layers=loc.layers - 1, cells=loc.cells_moving(moving),
-          nodes=int(moving.sum()), slid=n_slid)
+          nodes=_count(g, moving), slid=n_slid, kept=nb <= nbad, converged=converged)
     add_time(g.timings, "slide", g.attempts[-1]["seconds"])
     if nb > nbad:
         return x, bad, nbad
     facets.commit(slid)
     g.slid += n_slid
     # slid vertices: at their new target (on the geometry), now "moved"
-    mark = np.zeros(nbh.n_nodes, dtype=bool)
-    mark[sl[slid]] = True
-    loc_slid = nbh.local_nodes[mark[nbh.local_pos]]
-    g.x_tgt[loc_slid] = xn[loc_slid]
-    g.moved_mask[loc_slid] = True
+    g.x_tgt[si[slid]] = xn[si[slid]]
+    g.moved_mask[si[slid]] = True
     return xn, bn, nb
 
 
@@ -604,10 +640,10 @@ def _partial_trial(g: _Guard, loc: _Local, free: np.ndarray, alpha: np.ndarray, 
     t0 = time.perf_counter()
     a_t = alpha - (1.0 - t) * w_loc * (alpha - fmin)
     xt = np.where(g.moved_mask[:, None], g.positions(a_t), base_x)
-    xn, _ = loc.run(g, xt, free)
+    xn, res = loc.run(g, xt, free)
     bn, nb = g.check(xn)
     g.log("partial", t0, nb, round=rnd, t=t, layers=loc.layers,
-          cells=loc.cells_moving(free), nodes=int(free.sum()))
+          cells=loc.cells_moving(free), nodes=_count(g, free), converged=res.converged)
     return xn, a_t, bn, nb
 
 
@@ -642,12 +678,8 @@ def _partial(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, sm: Smoother,
         loc = _Local(g, bad, radius + TAPER_LAYERS + 3)
         nbh = loc.nbh
         dist = loc.distance(g, bad)
-        moved_c = nbh.gather(g.moved_mask.astype(np.int8)) > 0
-        a_c = nbh.gather(alpha)
-        w = _blame(dist, moved_c, radius, TAPER_LAYERS) * (a_c > fmin)
+        w_loc = _blame(dist, g.moved_mask & nbh.nodes, radius, TAPER_LAYERS) * (alpha > fmin)
         free = ~loc.constrained & (dist <= radius + TAPER_LAYERS + 2)
-        w_loc = np.zeros(g.sync.n)
-        w_loc[nbh.local_nodes] = w[nbh.local_pos]
         good = _bisect(functools.partial(_partial_trial, g, loc, free, alpha, w_loc, base_x, fmin, rnd),
                        int(bisection_steps))
         if good[3] == 0:

@@ -3,8 +3,10 @@
 The repair (:mod:`nagata_snap.smoothing.repair`) hands this module the neighbourhood
 of the cells that a linear smoother left inverted or degenerate, as plain
 arrays (coordinates, cells, which nodes may move); it returns new
-coordinates.  There is no MPI in here: the neighbourhood is gathered on
-every process and solved identically there.
+coordinates.  Under MPI the arrays are each process's part of the
+neighbourhood (its local nodes and the cells it owns, with the
+:class:`~nagata_snap.smoothing.halo.Layout` of the nodes): see
+"Distributed" below.
 
 Objective (Escobar, Rodriguez, Montenegro, Montero, Gonzalez-Yuste,
 "Simultaneous untangling and smoothing of tetrahedral meshes", CMAME 192
@@ -46,18 +48,39 @@ permutation symbol), and ``d S_cj / d x_vc = B_vj`` (``B_vj = W^-1_(v-1)j``,
 is ``B H_S B^T`` per pair of components.
 
 Minimiser: Newton's method over all moving nodes at once (the sparse
-Hessian assembled from the cells into a sequential PETSc matrix and
-factorised by MUMPS, LDL^T), with Levenberg
-damping where the Hessian is not positive definite and an Armijo line
-search; near the minimum it converges quadratically, so the result is the
-minimum to round-off (and a parallel run, whose input differs from the
-serial one by the round-off of the band solve, gets the same result to
-about that size).  Variables are scaled by each node's shortest reference
-edge (cells of very different sizes, e.g. boundary layers, then weigh
-alike).  Nodes that slide on the geometry enter through a tangent basis
-``T`` (``x = p + s T t``, ``|t| <=`` :data:`SLIDE_STEP` edge lengths); the
-caller projects them back onto the geometry and calls again
-(:func:`optimise` with ``slide``).
+Hessian assembled from the cells into a PETSc matrix and factorised by
+MUMPS, LDL^T), with Levenberg damping where the Hessian is not positive
+definite and an Armijo line search; near the minimum it converges
+quadratically, so the result is the minimum to round-off.  Variables are
+scaled by each node's shortest reference edge (cells of very different
+sizes, e.g. boundary layers, then weigh alike).  Nodes that slide on the
+geometry enter through a tangent basis ``T`` (``x = p + s T t``,
+``|t| <=`` :data:`SLIDE_STEP` edge lengths); the caller projects them back
+onto the geometry and calls again (:func:`optimise` with ``slide``).
+
+Distributed (owner computes): each process evaluates the energy, gradient
+and cell Hessians of the cells it owns; a node's variables belong to the
+process that owns the node (the rows of a distributed PETSc AIJ matrix,
+numbered by owner, factorised by MUMPS on all processes; when no cell
+couples two processes' variables, i.e. no process has a ghost moving node,
+the matrix is block diagonal by process and each process factorises its
+block alone, sequential MUMPS in a block-Jacobi preconditioner: exact, and
+without the messages of the distributed factorisation), ghost copies of
+the moving nodes get their owner's variables every evaluation and send
+their gradient and Hessian-diagonal contributions back to it
+(:class:`~nagata_snap.smoothing.halo.Halo`: only the problem's shared
+nodes are exchanged).  Every decision (gradient tolerance, Levenberg
+damping, descent test, Armijo acceptance, relative decrease, the rounds of
+``delta``) is taken from collective reductions that give the same bits on
+every process (:mod:`nagata_snap.smoothing.halo`), so every process takes
+the same branch and a parallel run performs the serial run's iterations up
+to the order of floating-point sums (a node's contributions from cells on
+different processes, the energy's partial sums, MUMPS's distributed
+factorisation).  A converged result therefore agrees with the serial one
+to round-off times the conditioning of the Newton systems; a result that
+stopped at the iteration limit (:attr:`OptimiseResult.converged` False:
+e.g. cells that cannot be untangled) depends on the round-off of every
+iteration and may differ by more.
 """
 
 from __future__ import annotations
@@ -71,6 +94,17 @@ from petsc4py import PETSc
 
 from nagata_snap.mesh.simplex import cell_columns, edge_matrices, inverse_small
 from nagata_snap.smoothing import kernels
+from nagata_snap.smoothing.halo import (
+    Halo,
+    Layout,
+    anywhere,
+    first_index,
+    gathered,
+    in_rank_order,
+    maximum,
+    minimum,
+    total,
+)
 
 __all__ = ["targets", "energy", "energy_numpy", "optimise", "OptimiseResult", "volume_ratio_min", "EPS",
            "DELTA_MIN", "SLIDE_STEP"]
@@ -270,22 +304,42 @@ class OptimiseResult:
     """What :func:`optimise` did.
 
     Attributes:
-        x: ``(n, d)`` new coordinates (fixed nodes bit-for-bit unchanged).
-        sigma_min: smallest volume ratio of the active cells at ``x``.
+        x: ``(n, d)`` new coordinates (fixed nodes bit-for-bit unchanged; with a
+            :class:`~nagata_snap.smoothing.halo.Layout`, every local copy of a
+            moving node, owned or ghost, holds its owner's value).
+        sigma_min: smallest volume ratio of the active cells at ``x`` (over all processes).
         evaluations: objective evaluations; rounds: regularisation rounds.
+        converged: the final round (valid cells, ``delta = DELTA_MIN``) ended at a
+            minimum (a tolerance of Newton's method met, or no descent step left),
+            not at the iteration limit.  A result that did not converge depends on
+            the round-off of every iteration (a serial and a parallel run may
+            differ by more than round-off); a converged one only on its input's.
     """
 
     x: np.ndarray
     sigma_min: float
     evaluations: int
     rounds: int
+    converged: bool = True
 
 
 def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarray,
              scale: np.ndarray, *, slide: np.ndarray | None = None,
              basis: np.ndarray | None = None, max_rounds: int = 6,
-             max_iterations: int = 40) -> OptimiseResult:
+             max_iterations: int = 40, layout: Layout | None = None) -> OptimiseResult:
     """Minimise ``F`` over the free (and sliding) nodes, from an invalid start if need be.
+
+    Serial (``layout`` None): the arrays are the whole problem.  Distributed
+    (collective on ``layout.comm``): the arrays are this process's local
+    nodes (owned and ghost, as numbered by ``layout``) and the cells it
+    owns (each cell of the problem on exactly one process); node arrays
+    (``x``, ``free``, ``scale``, the sliding nodes and their bases) must
+    agree on every copy of a node.  Each process evaluates its cells, the
+    gradient and the Hessian are summed onto the owners of the nodes (a
+    distributed PETSc matrix, factorised by MUMPS), and every decision is
+    taken from collective reductions (:mod:`nagata_snap.smoothing.halo`), so
+    every process takes the same branches and a parallel run the serial
+    run's iterations, up to the order of the sums.
 
     Args:
         x: ``(n, d)`` start coordinates.
@@ -300,68 +354,77 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
             round no longer raises it: the cells cannot be untangled here).
         max_iterations: Newton iterations of the final (valid, ``delta =
             DELTA_MIN``) round; the untangling rounds get half as many.
+        layout: owned and ghost nodes of a distributed problem (None: serial).
 
     Returns:
         :class:`OptimiseResult`; the result is a deterministic function of
-        the inputs (same arrays, same result on every process).
+        the inputs (and of the partition).
     """
     x = np.array(x, dtype=float)
-    pb = _Problem(x, cells, winv, free, scale, slide, basis)
-    if pb.size == 0:
-        return OptimiseResult(x, pb.sigma_min(pb.z0), 0, 0)
-    z, rounds, smin = pb.z0, 0, pb.sigma_min(pb.z0)
-    while rounds < max_rounds:
-        rounds += 1
-        delta = max(np.sqrt(EPS * (EPS - smin)) if smin < EPS else 0.0, DELTA_MIN)
-        z = _newton(pb, z, delta, max_iterations if delta == DELTA_MIN else max_iterations // 2)
-        prev, smin = smin, pb.sigma_min(z)
-        if smin > 0 and delta == DELTA_MIN:
-            break  # valid and converged
-        if smin < 0 and smin <= prev + 0.05 * abs(prev):
-            break  # no progress on the worst cell
-    pb.destroy()
-    x[pb.nodes] = pb.coords(z)
-    return OptimiseResult(x, smin, pb.count, rounds)
+    layout = Layout.serial(len(x)) if layout is None else layout
+    pb = _Problem(x, cells, winv, free, scale, slide, basis, layout)
+    try:
+        if pb.total_size == 0:
+            return OptimiseResult(x, pb.sigma_min(pb.z0), 0, 0)
+        z, rounds, smin, converged = pb.z0, 0, pb.sigma_min(pb.z0), False
+        while rounds < max_rounds:
+            rounds += 1
+            delta = max(np.sqrt(EPS * (EPS - smin)) if smin < EPS else 0.0, DELTA_MIN)
+            z, done = _newton(pb, z, delta, max_iterations if delta == DELTA_MIN else max_iterations // 2)
+            prev, smin = smin, pb.sigma_min(z)
+            if smin > 0 and delta == DELTA_MIN:
+                converged = done
+                break  # valid and converged
+            if smin < 0 and smin <= prev + 0.05 * abs(prev):
+                break  # no progress on the worst cell
+        x[pb.nodes] = pb.coords(pb.with_ghosts(z))
+    finally:
+        pb.destroy()
+    return OptimiseResult(x, smin, pb.count, rounds, converged)
 
 
-def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> np.ndarray:
+def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> tuple[np.ndarray, bool]:
     """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps).
 
     Stops at a gradient below ``GTOL`` (scaled variables), or when an
     iteration lowers ``F`` by less than ``ftol`` relative: :data:`FTOL_FINAL`
     in the final round (``delta = DELTA_MIN``), :data:`FTOL_UNTANGLE` in an
-    untangling round, whose minimum is only a step towards the next ``delta``.
+    untangling round, whose minimum is only a step towards the next ``delta``;
+    or when no damping gives a descent step.  ``z`` is this process's
+    variables; every test is a collective reduction.  Returns ``(z, stopped)``:
+    ``stopped`` unless the iterations ran out.
     """
     ftol = FTOL_FINAL if delta == DELTA_MIN else FTOL_UNTANGLE
     F, g, hv = pb.evaluate(z, delta)
     mu = 0.0
-    for _ in range(max_iterations):
+    for _ in range(max_iterations):  # (a stop is a return)
         # projected Newton: variables at a bound that the gradient pushes out stay there
         held = ((z <= pb.lo) & (g > 0)) | ((z >= pb.hi) & (g < 0))
         g = np.where(held, 0.0, g)
-        if np.abs(g).max() <= GTOL:
-            break
+        if pb.max_abs(g) <= GTOL:
+            return z, True
         step = None
         for _ in range(12):  # damping until a descent direction with an Armijo step
             p = pb.solve(hv, mu, -g, held)
-            big = np.abs(p).max() if p.size else 0.0
-            if big > MAX_STEP:  # at most MAX_STEP edge lengths per node and iteration
-                p *= MAX_STEP / big
-            slope = float(g @ p)
-            if np.all(np.isfinite(p)) and slope < 0:
-                step = _armijo(pb, z, p, F, slope, delta)
-                if step is not None:
-                    break
+            finite, big, slope = pb.step_stats(g, p)
+            if finite:
+                if big > MAX_STEP:  # at most MAX_STEP edge lengths per node and iteration
+                    p *= MAX_STEP / big
+                    slope *= MAX_STEP / big
+                if slope < 0:
+                    step = _armijo(pb, z, p, F, slope, delta)
+                    if step is not None:
+                        break
             mu = max(10.0 * mu, 1e-6)
         if step is None:
-            break
+            return z, True
         z, F_new = step
         done = F - F_new <= ftol * abs(F)
         mu = mu / 10.0 if mu > 1e-6 else 0.0
-        F, g, hv = pb.evaluate(z, delta)
         if done:
-            break
-    return z
+            return z, True
+        F, g, hv = pb.evaluate(z, delta)
+    return z, False
 
 
 def _armijo(pb: _Problem, z: np.ndarray, p: np.ndarray, F: float, slope: float, delta: float
@@ -378,109 +441,204 @@ def _armijo(pb: _Problem, z: np.ndarray, p: np.ndarray, F: float, slope: float, 
 
 
 class _Problem:
-    """The cells with a moving node, renumbered compactly, and the scaled variables ``z``.
+    """This process's cells with a moving node, renumbered compactly, and the scaled variables ``z``.
 
     Every moving node has ``d`` variables: ``x = x0 + E z_node`` with ``E = s I``
     (free nodes, ``s`` their scale) or ``s T`` (sliding nodes; unused
-    columns are zero, their variables stay 0).
+    columns are zero, their variables stay 0).  The problem's nodes are the
+    nodes of its cells and every local moving node; the moving ones (its
+    variable blocks, ``z_all``) are the owned ones first (this process's
+    variables ``z``, in the distributed matrix's rows), then the ghost ones
+    (their owners' values, :meth:`with_ghosts`).
     """
 
     def __init__(self, x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarray,
-                 scale: np.ndarray, slide: np.ndarray | None, basis: np.ndarray | None):
+                 scale: np.ndarray, slide: np.ndarray | None, basis: np.ndarray | None,
+                 layout: Layout):
         d = x.shape[1]
+        self.d, self.comm = d, layout.comm
         si = np.zeros(0, np.int64) if slide is None else np.asarray(slide, dtype=np.int64)
         moving = np.asarray(free, dtype=bool).copy()
         moving[si] = True
+        if self.comm.size == 1:  # (distributed: the caller's cells hold every moving node somewhere)
+            in_cells = np.zeros(moving.size, dtype=bool)
+            in_cells[cells.reshape(-1)] = True
+            moving &= in_cells
         act = moving[cells].any(axis=1)
-        self.nodes, local = np.unique(cells[act], return_inverse=True)
+        self.nodes = np.union1d(cells[act], np.flatnonzero(moving))  # sorted: owned nodes first
+        local = np.searchsorted(self.nodes, cells[act])
         self.cells = _Cells(local.reshape(-1, cells.shape[1]), winv[act], self.nodes.size)
-        self.d = d
         self.x0 = x[self.nodes]
         mv = moving[self.nodes]
-        self.var = np.where(mv, np.cumsum(mv) - 1, -1)  # variable block of each node
+        self.var = np.where(mv, np.cumsum(mv) - 1, -1)  # variable block of each node (in z_all)
         self.moving = np.flatnonzero(mv)
-        E = np.zeros((self.nodes.size, d, d))
-        E[self.moving] = np.eye(d)
-        self.lim = np.full((self.nodes.size, d), np.inf)
-        if si.size:
-            if basis is None:
-                raise ValueError("sliding nodes need their tangent basis (basis=)")
-            pos = np.searchsorted(self.nodes, si)
-            T = np.zeros((si.size, d, d))
-            T[:, :, : basis.shape[2]] = basis
-            E[pos] = T
-            live = np.linalg.norm(T, axis=1) > 0.5
-            self.lim[pos] = np.where(live, SLIDE_STEP, 0.0)
-        self.R, self.s = E, scale[self.nodes]  # x = x0 + s R z
-        self.E = E * self.s[:, None, None]
+        self.n_own = int(np.count_nonzero(self.nodes[self.moving] < layout.n_owned))
+        self._tangents(si, basis)
+        self.s = scale[self.nodes]
+        self.E = self.R * self.s[:, None, None]  # x = x0 + s R z
         self._sv = np.ascontiguousarray(self.s[self.cells.cells], dtype=np.float64)  # (m, d + 1)
         self.Em = self.E[self.moving]
-        is_slide = np.zeros(self.nodes.size, dtype=bool)
-        if si.size:
-            is_slide[np.searchsorted(self.nodes, si)] = True
-        self.rot = np.flatnonzero(is_slide[self.cells.cells].any(axis=1))
-        self.lo, self.hi = -self.lim[self.moving].ravel(), self.lim[self.moving].ravel()
-        self.size = self.moving.size * d if act.any() else 0
-        self.dead = (self.hi == 0.0)  # variables that never move (slide dims without tangent)
+        lim = self.lim[self.moving].ravel()
+        self.size, self.size_all = self.n_own * d, self.moving.size * d
+        self.lo, self.hi = -lim[: self.size], lim[: self.size]
+        self.bounded = anywhere(self.comm, bool(np.isfinite(lim).any()))  # (sliding nodes)
+        self.dead = lim[: self.size] == 0.0  # variables that never move (slide dims without tangent)
         self.z0 = np.zeros(self.size)
         self.count = 0
-        # sparsity of the Hessian: (cell vertex, cell vertex) pairs of moving nodes
+        self._exchange_plan(layout)
+        self.total_size = int(total(self.comm, float(self.size)))
+        self._matrix()
+
+    def _tangents(self, si: np.ndarray, basis: np.ndarray | None) -> None:
+        """``R (nodes, d, d)`` (identity or tangent basis of the moving nodes), bounds, rotated cells."""
+        d = self.d
+        self.R = np.zeros((self.nodes.size, d, d))
+        self.R[self.moving] = np.eye(d)
+        self.lim = np.full((self.nodes.size, d), np.inf)
+        self.rot = np.zeros(0, np.int64)
+        if not si.size:
+            return
+        if basis is None:
+            raise ValueError("sliding nodes need their tangent basis (basis=)")
+        pos = np.searchsorted(self.nodes, si)
+        T = np.zeros((si.size, d, d))
+        T[:, :, : basis.shape[2]] = basis
+        self.R[pos] = T
+        live = np.linalg.norm(T, axis=1) > 0.5
+        self.lim[pos] = np.where(live, SLIDE_STEP, 0.0)
+        is_slide = np.zeros(self.nodes.size, dtype=bool)
+        is_slide[pos] = True
+        self.rot = np.flatnonzero(is_slide[self.cells.cells].any(axis=1))
+
+    def _exchange_plan(self, layout: Layout) -> None:
+        """The halo of the ghost moving nodes and the global number of every variable."""
+        d = self.d
+        self.halo = Halo(layout, self.nodes[self.moving[self.n_own:]])
+        self._recv = self.var[np.searchsorted(self.nodes, self.halo.recv_nodes)]
+        self._send = self.var[np.searchsorted(self.nodes, self.halo.send_nodes)]
+        block = np.empty(self.moving.size, dtype=np.int64)
+        block[: self.n_own] = first_index(self.comm, self.n_own) + np.arange(self.n_own)
+        block[self._recv] = self.halo.exchange(block[self._send])
+        self.gidx = (block[:, None] * d + np.arange(d)).ravel()  # global index of each z_all entry
+
+    def _matrix(self) -> None:
+        """The Hessian's pattern (cell blocks, then the owned diagonal) and its MUMPS solver."""
+        d = self.d
         cv = np.ascontiguousarray(self.var[self.cells.cells], dtype=np.int64)  # (m, d + 1)
         # (flat positions into the cell Hessians: take is faster than a mask)
         self._hidx, self._r, self._c = kernels.hessian_pattern(cv, d)
         on_diag = self._r == self._c
         self._diag_src, self._diag_pos = np.flatnonzero(on_diag), self._r[on_diag]
-        diag = np.arange(self.size)
         self._ksp = None
-        if self.size:  # COO pattern: cell blocks, then the diagonal (damping, dead variables)
-            A = PETSc.Mat().create(PETSc.COMM_SELF)
-            A.setSizes((self.size, self.size))
-            A.setType(PETSc.Mat.Type.AIJ)
-            A.setPreallocationCOO(np.r_[self._r, diag].astype(PETSc.IntType),
-                                  np.r_[self._c, diag].astype(PETSc.IntType))
-            # (petsc4py's stub types the option as Mat.Option, but its members are typed int)
-            A.setOption(PETSc.Mat.Option.SYMMETRIC, True)  # type: ignore[arg-type]
-            ksp = PETSc.KSP().create(PETSc.COMM_SELF)
-            ksp.setOperators(A)
-            ksp.setType("preonly")
-            pc = ksp.getPC()
+        if not self.total_size:
+            return
+        own = self.gidx[: self.size]
+        comm: Any = PETSc.COMM_SELF if self.comm.size == 1 else self.comm  # (petsc4py takes mpi4py's)
+        A = PETSc.Mat().create(comm)
+        A.setSizes(((self.size, self.total_size), (self.size, self.total_size)))
+        A.setType(PETSc.Mat.Type.AIJ)
+        A.setPreallocationCOO(np.r_[self.gidx[self._r], own].astype(PETSc.IntType),
+                              np.r_[self.gidx[self._c], own].astype(PETSc.IntType))
+        # (petsc4py's stub types the option as Mat.Option, but its members are typed int)
+        A.setOption(PETSc.Mat.Option.SYMMETRIC, True)  # type: ignore[arg-type]
+        ksp = PETSc.KSP().create(comm)
+        ksp.setOperators(A)
+        ksp.setType("preonly")
+        pc = ksp.getPC()
+        # no ghost moving node on any process: no cell couples two processes' variables, the
+        # matrix is block diagonal by process and each block is factorised where it lives
+        self._blocks = self.comm.size > 1 and not anywhere(self.comm, bool(self.halo.recv_nodes.size))
+        self._sub: Any = None
+        if self._blocks:
+            pc.setType("bjacobi")  # (one block per process; set up at the first solve)
+        else:
+            ksp.setErrorIfNotConverged(True)  # (a failed factorisation raises, on every process)
             pc.setType("cholesky")
             pc.setFactorSolverType("mumps")
-            self._A, self._ksp = A, ksp
-            self._b, self._x = A.createVecRight(), A.createVecLeft()
+        self._A, self._ksp = A, ksp
+        self._b, self._x = A.createVecRight(), A.createVecLeft()
 
-    def coords(self, z: np.ndarray) -> np.ndarray:
+    def _block_solver(self) -> None:
+        """The process's diagonal block factorised by sequential MUMPS (LDL^T), set up once."""
+        assert self._ksp is not None
+        self._ksp.setUp()
+        (sub,) = self._ksp.getPC().getBJacobiSubKSP()
+        sub.setType("preonly")
+        spc = sub.getPC()
+        spc.setType("cholesky")
+        spc.setFactorSolverType("mumps")
+        sub.getOperators()[0].setOption(PETSc.Mat.Option.SYMMETRIC, True)  # type: ignore[arg-type]
+        self._sub = spc
+
+    def with_ghosts(self, z: np.ndarray) -> np.ndarray:
+        """``z_all``: this process's variables, then its ghost moving nodes' (from their owners; collective)."""
+        d = self.d
+        za = np.empty(self.size_all)
+        za[: self.size] = z
+        if self.halo.parallel:
+            zb = za.reshape(-1, d)
+            zb[self._recv] = self.halo.exchange(zb[self._send])
+        return za
+
+    def _to_owners(self, a: np.ndarray) -> np.ndarray:
+        """Owned rows of ``a (moving, ...)`` plus their ghost copies' rows on the other processes."""
+        if self.halo.parallel:
+            np.add.at(a, self._send, self.halo.exchange_back(a[self._recv]))
+        return a[: self.n_own]
+
+    def coords(self, za: np.ndarray) -> np.ndarray:
         xx = self.x0.copy()
-        xx[self.moving] += np.einsum("kcd,kd->kc", self.Em, z.reshape(-1, self.d))
+        xx[self.moving] += np.einsum("kcd,kd->kc", self.Em, za.reshape(-1, self.d))
         return xx
 
     def clip(self, z: np.ndarray) -> np.ndarray:
         return np.clip(z, self.lo, self.hi)
 
+    def max_abs(self, a: np.ndarray) -> float:
+        return maximum(self.comm, float(np.abs(a).max(initial=0.0)))
+
+    def step_stats(self, g: np.ndarray, p: np.ndarray) -> tuple[bool, float, float]:
+        """``(p finite everywhere, max |p|, g . p)`` over all processes (one collective)."""
+        finite = bool(np.all(np.isfinite(p)))
+        loc = np.array([0.0 if finite else 1.0, float(np.abs(p).max(initial=0.0)) if finite else 0.0,
+                        float(g @ p) if finite else 0.0])
+        parts = gathered(self.comm, loc)
+        return (not parts[:, 0].any(), float(parts[:, 1].max()), float(in_rank_order(parts[:, 2])))
+
     def value(self, z: np.ndarray, delta: float) -> float:
         self.count += 1
-        return energy(self.coords(z), None, None, delta, grad=False, prepared=self.cells)[0]
+        F = energy(self.coords(self.with_ghosts(z)), None, None, delta, grad=False, prepared=self.cells)[0]
+        return float(total(self.comm, F))
 
     def evaluate(self, z: np.ndarray, delta: float) -> tuple[float, np.ndarray, np.ndarray]:
         """``(F, gradient (size,), Hessian values)`` in the variables ``z`` (values for :meth:`solve`)."""
         self.count += 1
         cc = self.cells
-        F, g, _, Hz = kernels.energy_terms(self.coords(z), cc.cells64, cc.B, float(delta), True,
-                                           self._sv)  # Hessian blocks times s_v s_w
-        gz = np.einsum("kcd,kc->kd", self.Em, g[self.moving]).ravel()
+        F, g, _, Hz = kernels.energy_terms(self.coords(self.with_ghosts(z)), cc.cells64, cc.B,
+                                           float(delta), True, self._sv)  # Hessian blocks times s_v s_w
+        gz = self._to_owners(np.einsum("kcd,kc->kd", self.Em, g[self.moving])).ravel()
         if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
             kernels.rotate_hessians(Hz, self.R[self.cells.cells[self.rot]], self.rot)
         hv = Hz.reshape(-1).take(self._hidx)
         gz[self.dead] = 0.0
-        return F, gz, hv
+        return float(total(self.comm, F)), gz, hv
 
     def solve(self, hv: np.ndarray, mu: float, rhs: np.ndarray, held: np.ndarray) -> np.ndarray:
-        """Solve ``(H + mu diag(H)) p = rhs`` (dead and ``held`` variables: identity rows)."""
-        diag = np.bincount(self._diag_pos, weights=hv[self._diag_src], minlength=self.size)
+        """Solve ``(H + mu diag(H)) p = rhs`` (dead and ``held`` variables: identity rows; collective)."""
+        d = self.d
+        held_all = np.zeros(self.size_all, dtype=bool)
+        held_all[: self.size] = held
+        if self.halo.parallel and self.bounded:  # the owners' held variables, on their ghost copies
+            hb = held_all.reshape(-1, d).view(np.int8)
+            hb[self._recv] = self.halo.exchange(hb[self._send])
+        if held_all.any():  # (a dead variable's entries are 0 already: its tangent column is)
+            hv = np.where(held_all[self._r] | held_all[self._c], 0.0, hv)
         fixed = self.dead | held
-        if held.any():
-            hv = np.where(fixed[self._r] | fixed[self._c], 0.0, hv)
-        extra = mu * np.maximum(diag, 1e-12) * ~fixed + fixed
+        extra = fixed.astype(np.float64)
+        if mu > 0:  # Levenberg: mu diag(H) (the owners' sums of the diagonal entries)
+            diag = np.bincount(self._diag_pos, weights=hv[self._diag_src], minlength=self.size_all)
+            diag = self._to_owners(diag.reshape(-1, d)).ravel()
+            extra += mu * np.maximum(diag, 1e-12) * ~fixed
         assert self._ksp is not None  # solve is only called on a problem with variables
         # (petsc4py's stub: addv typed InsertMode but its members int; arrays where it says Sequence)
         self._A.setValuesCOO(np.r_[hv, extra], addv=PETSc.InsertMode.INSERT_VALUES)  # type: ignore[arg-type]
@@ -488,7 +646,11 @@ class _Problem:
         self._b.setArray(rhs)  # type: ignore[arg-type]
         try:
             self._ksp.setOperators(self._A)
+            if self._blocks and self._sub is None:
+                self._block_solver()
             self._ksp.solve(self._b, self._x)
+            if self._blocks and int(self._sub.getFailedReason()) != 0:  # (a local failure:
+                return np.full(self.size, np.nan)  # the caller's collective test sees it)
         except PETSc.Error:
             return np.full(self.size, np.nan)
         return self._x.getArray().copy()
@@ -500,10 +662,12 @@ class _Problem:
             self._ksp = None
 
     def sigma_min(self, z: np.ndarray) -> float:
-        if self.cells.cols[0].size == 0:
-            return np.inf
-        x = np.ascontiguousarray(self.coords(z))
-        return float(kernels.energy_value(x, self.cells.cells64, self.cells.B, DELTA_MIN)[1].min())
+        """Smallest volume ratio of the problem's cells (over all processes; inf without cells)."""
+        x = np.ascontiguousarray(self.coords(self.with_ghosts(z)))
+        s = np.inf
+        if self.cells.cols[0].size:
+            s = float(kernels.energy_value(x, self.cells.cells64, self.cells.B, DELTA_MIN)[1].min())
+        return minimum(self.comm, s)
 
 
 def volume_ratio_min(x: np.ndarray, cells: np.ndarray, winv: np.ndarray) -> float:

@@ -179,6 +179,7 @@ def run(name, fmt, size_factor, curvature):
             "inverted": comm.allreduce(inv) if comm.allreduce(int(inv < 0)) == 0 else -1,
             "inverted_after_smoothing": int(report.inverted_after_smoothing),
             "partially_moved": int(getattr(report, "partially_moved", 0) or 0),
+            "moved": int(report.boundary_vertices_moved),
             "unresolved": int(g.n_unresolved), "fallback": comm.allreduce(int(g.n_fallback)),
             "max_edge_gap": comm.allreduce(float(g.max_edge_gap), op=MPI.MAX) / size,
             "seconds": comm.allreduce(t_level, op=MPI.MAX),

@@ -9,9 +9,11 @@ boundary edge between them turns over, and no interior motion can repair
 the cell on it.  ``repair`` is called on the level-2 mesh with and without a
 :class:`~nagata_snap.smoothing.slide.SlidingBoundary`.
 
-Run serially (by the tests) or under ``mpiexec -n N [mode]``: rank 0 prints
-one JSON line, the result of the distributed run and, for comparison, of
-the same problem solved on rank 0 alone (``COMM_SELF``).
+Run serially (by the tests) or under ``mpiexec -n N [mode] [split]``: rank 0
+prints one JSON line, the result of the distributed run and, for comparison,
+of the same problem solved on rank 0 alone (``COMM_SELF``).  ``split``
+partitions the coarse disk along the ray at 45 degrees (see :func:`problem`),
+so that sliding vertices lie on a process boundary.
 """
 
 from __future__ import annotations
@@ -33,14 +35,46 @@ from nagata_snap.cad import CadGeometry
 from nagata_snap.smoothing.quality import inverted_cells
 from nagata_snap.mesh.records import Records
 from nagata_snap.smoothing.repair import repair
-from nagata_snap.smoothing.slide import SlidingBoundary
+from nagata_snap.smoothing.slide import SlideFacets, SlidingBoundary
 
 ANGLE_FROM, ANGLE_TO = np.radians(22.5), np.radians(36.0)
 
 
-def problem(comm, mode):
-    """(mesh, geometry, snapped facet nodes, records, x, x_target, moved, boundary nodes)."""
-    md = generate.unit_disk(comm, n=8)
+def sector_partitioner(start_deg, stop_deg):
+    """A cell partitioner for the gmsh disk: cells whose centroid angle lies in
+    ``[start_deg, stop_deg)`` to rank 1, the others to rank 0 (no ghost cells).
+
+    The cells arrive in gmsh's node numbering (tag - 1) on the rank that meshed;
+    their coordinates are read from gmsh, which still holds the model then.
+    """
+    import gmsh
+
+    import dolfinx.graph
+
+    def partition(comm, nparts, cell_types, cells):
+        c = np.asarray(cells[0], dtype=np.int64).reshape(-1, 3)
+        dest = np.zeros(len(c), dtype=np.int32)
+        if len(c):
+            tags, pts, _ = gmsh.model.mesh.getNodes()
+            xyz = np.zeros((int(tags.max()), 3))
+            xyz[tags.astype(np.int64) - 1] = pts.reshape(-1, 3)
+            mid = xyz[c].mean(axis=1)
+            ang = np.degrees(np.arctan2(mid[:, 1], mid[:, 0])) % 360.0
+            dest[(ang >= start_deg) & (ang < stop_deg)] = min(1, nparts - 1)
+        return dolfinx.graph.adjacencylist(dest, np.arange(len(c) + 1, dtype=np.int32))._cpp_object
+
+    return partition
+
+
+def problem(comm, mode, split=False):
+    """(mesh, geometry, snapped facet nodes, records, x, x_target, moved, boundary nodes).
+
+    ``split``: the coarse disk partitioned along the ray at 45 degrees (the cells in
+    the half turn from 45 to 225 degrees on rank 1), so that the coarse vertex at 45
+    degrees, two level-2 boundary edges from the pushed vertex, is on a process
+    boundary: its facets are on two processes and only both say that it is a corner.
+    """
+    md = generate.unit_disk(comm, n=8, partitioner=sector_partitioner(45.0, 225.0) if split else None)
     if mode == "cad":
         geo = CadGeometry([make_iges.circle_curve((0.0, 0.0, 0.0), 1.0)])
     else:
@@ -68,13 +102,28 @@ def problem(comm, mode):
     return m, geo, nodes, records, x, x_t, moved, np.unique(lv.boundary.nodes).astype(np.int32)
 
 
-def run(comm, with_slide: bool, mode: str = "nagata") -> dict:
-    m, geo, nodes, records, x, x_t, moved, bnd = problem(comm, mode)
+#: facets of other processes that SlideFacets took in (at sliding vertices they share)
+RECEIVED = [0]
+_with_shared = SlideFacets._with_shared
+
+
+def _counting(self, fn, *args):
+    out = _with_shared(self, fn, *args)
+    RECEIVED[0] += len(out[0]) - len(fn)
+    return out
+
+
+SlideFacets._with_shared = _counting
+
+
+def run(comm, with_slide: bool, mode: str = "nagata", split: bool = False) -> dict:
+    m, geo, nodes, records, x, x_t, moved, bnd = problem(comm, mode, split)
     slide = SlidingBoundary(nodes, records, geo, np.zeros(0, np.int32)) if with_slide else None
+    RECEIVED[0] = 0
     res = repair(m, x, x_t, moved, bnd, slide=slide)
     n_own = m.geometry.index_map().size_local
     cells = m.geometry.dofmaps[0][: m.topology.index_map(2).size_local]
-    out = {"stage": res.stage, "slid": res.slid,
+    out = {"stage": res.stage, "slid": res.slid, "received_facets": comm.allreduce(RECEIVED[0]),
            "n_short": comm.allreduce(int(np.count_nonzero(res.shortfall > 0))),
            "n_inverted": comm.allreduce(int(inverted_cells(res.x, x, cells, 2).size))}
     if with_slide:
@@ -103,7 +152,8 @@ def run(comm, with_slide: bool, mode: str = "nagata") -> dict:
 def main():
     comm = MPI.COMM_WORLD
     mode = sys.argv[1] if len(sys.argv) > 1 else "nagata"
-    par = {"slide": run(comm, True, mode), "no_slide": run(comm, False, mode)}
+    split = "split" in sys.argv[2:]
+    par = {"slide": run(comm, True, mode, split), "no_slide": run(comm, False, mode, split)}
     ser = None
     if comm.rank == 0 and comm.size > 1:
         ser = {"slide": run(MPI.COMM_SELF, True, mode), "no_slide": run(MPI.COMM_SELF, False, mode)}

@@ -82,6 +82,12 @@ def run_case(msh, x_ref, left, fixed, case):
     raise ValueError(case)
 
 
+def decisions(res):
+    """The repair's attempts as the decisions they record, with the check's margin."""
+    return [{k: a.get(k) for k in ("stage", "round", "t", "layers", "n_bad", "kept", "margin")}
+            for a in res.attempts]
+
+
 def main():
     comm = MPI.COMM_WORLD
     cases = [("elastic", 1.5 * H), ("harmonic_cg", 1.5 * H), ("laplace", 1.5 * H),
@@ -128,6 +134,8 @@ def main():
                     out["report_mean_ratio_diff"] = abs(
                         rep_par["mean_ratio"]["min"] - rs["mean_ratio"]["min"])
                     out["stage"] = [r_par.stage, r_ser.stage]
+                    out["attempts_par"] = decisions(r_par)
+                    out["attempts_ser"] = decisions(r_ser)
                 print(json.dumps(out), flush=True)
     # refined mesh (the situation of the refinement hook), both smoothers
     for case in ("elastic", "laplace"):

@@ -17,7 +17,9 @@ Two comparisons per case, smoother and level:
     (the distributed refined mesh, reference and target coordinates, moved
     nodes, options) are gathered on rank 0, rebuilt as a serial mesh
     (``COMM_SELF``, the same cells) and ``repair`` is rerun there. The owned
-    parallel result must equal the serial one to round-off for any partition.
+    parallel result must equal the serial one to round-off for any partition,
+    unless the two runs decided a marginal check differently (the attempts
+    of both are printed; ``tests/test_smoothing.py`` judges them).
 
 ``serial`` (``serial_maxdiff``, ``cells_differ``)
     The whole pipeline is also run serially on rank 0. Nodes are matched by
@@ -69,11 +71,17 @@ def _spy(mesh, x_ref, x_target, moved, fixed, **kw):
     res = _repair(mesh, x_ref, x_target, moved, fixed, **kw)
     _calls.append({"mesh": mesh, "x_ref": np.array(x_ref), "x_target": np.array(x_target),
                    "moved": np.array(moved), "fixed": np.array(fixed), "kw": kw, "x": res.x.copy(),
-                   "stage": res.stage})
+                   "stage": res.stage, "attempts": decisions(res)})
     return res
 
 
 hook.repair = _spy
+
+
+def decisions(res):
+    """The repair's attempts as the decisions they record, with the check's margin."""
+    return [{k: a.get(k) for k in ("stage", "round", "t", "layers", "n_bad", "kept", "margin")}
+            for a in res.attempts]
 
 
 # -- meshes ----------------------------------------------------------------------
@@ -135,7 +143,7 @@ def same_mesh_diff(call):
     inv[order] = np.arange(N)
     res = repair(smesh, x_ref[order], x_tgt[order], inv[moved].astype(np.int32),
                  inv[fixed].astype(np.int32), **call["kw"])
-    return float(np.abs(res.x[inv] - x_par).max()), res.stage
+    return float(np.abs(res.x[inv] - x_par).max()), res.stage, decisions(res)
 
 
 def level_data(mesh, call):
@@ -165,13 +173,14 @@ def run_snapper(comm, case, method):
     out = []
     for _ in range(levels):
         _calls.clear()
-        mesh = snapper.refine(mesh).mesh
+        mesh, *_, rep = snapper.refine(mesh)
         (call,) = _calls
         x = mesh.geometry.x
         n_inv = comm.allreduce(int(inverted_cells(x, call["x_ref"], owned_cells(mesh),
                                                   mesh.geometry.dim).size))
         same = same_mesh_diff(call) if comm.size > 1 else None
         out.append({"data": level_data(mesh, call), "same": same, "ghost_ok": ghost_ok(mesh, x),
+                    "attempts": call["attempts"], "moved": rep.boundary_vertices_moved,
                     "n_inverted": n_inv, "stage": call["stage"], "ghosts_coarse": ghosts,
                     "ghosts_refined": comm.allgather(
                         mesh.topology.index_map(mesh.topology.dim).num_ghosts)})
@@ -197,12 +206,13 @@ def run_direct(comm, case, method):
     fixed = np.zeros(0, np.int32)
     res = repair(mesh, x_ref, x_t, moved, fixed, method=method)
     call = {"mesh": mesh, "x_ref": x_ref, "x_target": x_t, "moved": moved, "fixed": fixed,
-            "kw": {"method": method}, "x": res.x, "stage": res.stage}
+            "kw": {"method": method}, "x": res.x, "stage": res.stage, "attempts": decisions(res)}
     n_inv = comm.allreduce(int(inverted_cells(res.x, x_ref, owned_cells(mesh), tdim).size))
     n_changed = comm.allreduce(int(np.count_nonzero(
         np.any(res.x != x_t, axis=1)[: mesh.geometry.index_map().size_local])))
     same = same_mesh_diff(call) if comm.size > 1 else None
     return [{"same": same, "ghost_ok": ghost_ok(mesh, res.x), "n_inverted": n_inv,
+             "attempts": call["attempts"],
              "stage": res.stage, "ghosts_coarse": ghosts, "n_smoothed": n_changed}]
 
 
@@ -252,8 +262,10 @@ def main():
                 out = {"case": case, "method": method, "level": k + 1, "size": WORLD.size,
                        "ghosts_coarse": lev["ghosts_coarse"], "stage": lev["stage"],
                        "ghost_ok": lev["ghost_ok"], "n_inverted": lev["n_inverted"]}
+                out["attempts"] = lev["attempts"]
                 if lev["same"] is not None:
-                    out["same_mesh_maxdiff"], out["stage_serial_rerun"] = lev["same"]
+                    (out["same_mesh_maxdiff"], out["stage_serial_rerun"],
+                     out["attempts_serial_rerun"]) = lev["same"]
                 if "n_smoothed" in lev:
                     out["n_smoothed"] = lev["n_smoothed"]
                 if ser is not None:
@@ -262,6 +274,7 @@ def main():
                     (out["ref_matched"], out["serial_maxdiff"], out["cells_differ"],
                      out["pointset_maxdiff"]) = compare(lev["data"], ser[k]["data"])
                     out["n_inverted_serial"] = ser[k]["n_inverted"]
+                    out["moved"], out["moved_serial"] = lev["moved"], ser[k]["moved"]
                 print(json.dumps(out), flush=True)
 
 
