@@ -99,23 +99,35 @@ def test_band_blocks_match_numpy(d: int, model: str) -> None:
 
 
 @pytest.mark.parametrize("d", [2, 3])
-def test_hessian_pattern_matches_broadcast(d: int) -> None:
-    # some vertices move (variable blocks >= 0), the others not (-1)
+def test_hessian_blocks_sum_to_dense_assembly(d: int) -> None:
+    # some vertices move (variable blocks >= 0), the others not (-1); random cell Hessians
     _, cells = _mesh(d)
     rng = np.random.default_rng(5)
     n = int(cells.max()) + 1
-    var_node = np.where(rng.random(n) < 0.5, np.arange(n), -1)
-    cv = var_node[cells]
-    pos, rows, cols = kernels.hessian_pattern(np.ascontiguousarray(cv), d)
-    # the numpy broadcast over (m, v, c, w, e) that the kernel replaces
-    ii = cv[:, :, None, None, None] * d + np.arange(d)[None, None, :, None, None]
-    jj = cv[:, None, None, :, None] * d + np.arange(d)[None, None, None, None, :]
-    ok = (cv[:, :, None, None, None] >= 0) & (cv[:, None, None, :, None] >= 0)
-    ii, jj = np.broadcast_arrays(ii, jj)
-    ok = np.broadcast_to(ok, ii.shape)
-    assert np.array_equal(pos, np.flatnonzero(ok.ravel()))
-    assert np.array_equal(rows, ii[ok]) and np.array_equal(cols, jj[ok])
-    assert pos.size > 0 and pos.size < ok.size
+    moves = rng.random(n) < 0.5
+    var_node = np.where(moves, np.cumsum(moves) - 1, -1)
+    nb = int(moves.sum())
+    cv = np.ascontiguousarray(var_node[cells])
+    m, nv = cv.shape
+    H = rng.standard_normal((m, nv, d, nv, d))
+    slot, brow, bcol = kernels.hessian_blocks(cv, nb)
+    vals = kernels.sum_hessians(H, slot, brow.size)
+    # the dense matrix of the moving variables, one cell entry at a time
+    ref = np.zeros((nb * d, nb * d))
+    for k in range(m):
+        for v in range(nv):
+            for w in range(nv):
+                if cv[k, v] >= 0 and cv[k, w] >= 0:
+                    ref[cv[k, v] * d:(cv[k, v] + 1) * d, cv[k, w] * d:(cv[k, w] + 1) * d] += H[k, v, :, w, :]
+    got = np.zeros_like(ref)
+    for b in range(brow.size):
+        got[brow[b] * d:(brow[b] + 1) * d, bcol[b] * d:(bcol[b] + 1) * d] += vals[b]
+    _close(got, ref)
+    # each block once; a pair of moving vertices of a cell has a block, a pair with a fixed one none
+    assert np.unique(brow * nb + bcol).size == brow.size
+    both = (cv[:, :, None] >= 0) & (cv[:, None, :] >= 0)
+    assert np.array_equal(slot >= 0, both) and both.any() and not both.all()
+    assert np.all(np.diff(brow) >= 0)
 
 
 @pytest.mark.parametrize("d", [2, 3])

@@ -31,8 +31,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_pattern",
-           "graph_sums", "tet_shapes", "rotate_hessians", "warm_up"]
+__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_blocks",
+           "sum_hessians", "graph_sums", "tet_shapes", "rotate_hessians", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: per-cell helpers, inlined into their callers (numba IR), so that a call with a
@@ -361,49 +361,79 @@ def band_blocks(G: np.ndarray, w: np.ndarray, row: np.ndarray, col: np.ndarray, 
 
 
 @_jit
-def hessian_pattern(var: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where the cell Hessians of :func:`energy_terms` land in the matrix of the moving variables.
+def hessian_blocks(var: np.ndarray, nb: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The matrix pattern of the moving variables' Hessian, by ``d x d`` blocks, duplicates merged.
 
     Args:
         var: ``(m, nv)`` variable block of each cell vertex (-1: the vertex does not move).
-        d: components per vertex.
+        nb: number of variable blocks (moving nodes).
 
     Returns:
-        ``(pos, rows, cols)`` (each ``(p,)`` int64): for every entry
-        ``[k, v, c, w, e]`` of the ``(m, nv, d, nv, d)`` Hessian array whose
-        vertices ``v`` and ``w`` both move, in C order, its flat position in
-        that array and its matrix row ``d var[k, v] + c`` and column
-        ``d var[k, w] + e`` (the numpy broadcast it replaces needed five
-        ``(m, nv, d, nv, d)`` temporaries).
+        ``(slot, brow, bcol)``: ``slot (m, nv, nv)`` the matrix block of each
+        vertex pair of each cell (-1 where a vertex does not move), and
+        ``brow, bcol (q,)`` the block row and column of each of the ``q``
+        distinct blocks (block rows in order, the columns of a row in order of
+        first appearance).  One pass over the cells of each moving node, no
+        sort: :func:`sum_hessians` then adds the cell Hessians into the
+        ``q d^2`` distinct entries in cell order.
     """
     m, nv = var.shape
-    p = 0
+    cnt = np.zeros(nb + 1, dtype=np.int64)  # the cells of each block (CSR)
     for k in range(m):
-        cnt = 0
         for v in range(nv):
             if var[k, v] >= 0:
-                cnt += 1
-        p += cnt * cnt * d * d
-    pos = np.empty(p, dtype=np.int64)
-    rows = np.empty(p, dtype=np.int64)
-    cols = np.empty(p, dtype=np.int64)
-    t = 0
+                cnt[var[k, v] + 1] += 1
+    for i in range(nb):
+        cnt[i + 1] += cnt[i]
+    fill = cnt[:-1].copy()
+    cell_of = np.empty(cnt[nb], dtype=np.int64)
+    vert_of = np.empty(cnt[nb], dtype=np.int64)
     for k in range(m):
         for v in range(nv):
-            rv = var[k, v]
-            if rv < 0:
-                continue
-            for c in range(d):
-                for w in range(nv):
-                    rw = var[k, w]
-                    if rw < 0:
-                        continue
+            i = var[k, v]
+            if i >= 0:
+                cell_of[fill[i]], vert_of[fill[i]] = k, v
+                fill[i] += 1
+    slot = np.full((m, nv, nv), -1, dtype=np.int64)
+    seen = np.full(nb, -1, dtype=np.int64)  # the row that last met each column block
+    at = np.empty(nb, dtype=np.int64)  # its block number in that row
+    brow = np.empty(cnt[nb] * nv, dtype=np.int64)
+    bcol = np.empty(cnt[nb] * nv, dtype=np.int64)
+    q = 0
+    for i in range(nb):
+        for t in range(cnt[i], cnt[i + 1]):
+            k, v = cell_of[t], vert_of[t]
+            for w in range(nv):
+                j = var[k, w]
+                if j < 0:
+                    continue
+                if seen[j] != i:
+                    seen[j], at[j] = i, q
+                    brow[q], bcol[q] = i, j
+                    q += 1
+                slot[k, v, w] = at[j]
+    return slot, brow[:q].copy(), bcol[:q].copy()
+
+
+@_jit
+def sum_hessians(H: np.ndarray, slot: np.ndarray, nblocks: int) -> np.ndarray:
+    """``(nblocks, d, d)``: the cell Hessians ``H (m, nv, d, nv, d)`` added into their matrix blocks.
+
+    ``slot (m, nv, nv)`` from :func:`hessian_blocks`; cells are added in
+    order, so the sums do not depend on anything but the cells' order.
+    """
+    m, nv, d = H.shape[0], H.shape[1], H.shape[2]
+    out = np.zeros((nblocks, d, d))
+    for k in range(m):
+        for v in range(nv):
+            for w in range(nv):
+                b = slot[k, v, w]
+                if b < 0:
+                    continue
+                for c in range(d):
                     for e in range(d):
-                        pos[t] = (((k * nv + v) * d + c) * nv + w) * d + e
-                        rows[t] = rv * d + c
-                        cols[t] = rw * d + e
-                        t += 1
-    return pos, rows, cols
+                        out[b, c, e] += H[k, v, c, w, e]
+    return out
 
 
 @_jit
@@ -550,7 +580,8 @@ def warm_up() -> None:
         x3 = np.zeros((nv, 3))
         x3[:, :d] = x
         volume_mean_ratio(x3, cells.astype(np.int32), d)
-        hessian_pattern(cells, d)
+        slot, brow, _ = hessian_blocks(cells, nv)
+        sum_hessians(np.zeros((1, nv, d, nv, d)), slot, brow.size)
         graph_sums(cells, x)
         rotate_hessians(np.zeros((1, nv, d, nv, d)), np.zeros((1, nv, d, d)), np.zeros(1, np.int64))
         if d == 3:

@@ -226,6 +226,7 @@ class SlideFacets:
         """
         d = x.shape[1]
         p = self.project(x, x[self.slide])
+        params = self._params  # (the parameters of p, for commit)
         h = TANGENT_STEP * scale[self.slide]
         J = np.empty((self.slide.size, d, d))
         for j in range(d):  # d projections of all sliding vertices at once
@@ -234,7 +235,7 @@ class SlideFacets:
             J[:, :, j] = (self.project(x, q) - p) / h[:, None]
         U, s, _ = np.linalg.svd(J)
         basis = U[:, :, : d - 1] * (s[:, None, : d - 1] > 0.5)
-        self.project(x, p)  # leave the parameters of p for commit
+        self._params = params
         return p, self._owners(basis)
 
     def commit(self, slid: np.ndarray) -> None:

@@ -496,6 +496,7 @@ class _Problem:
         self.R[self.moving] = np.eye(d)
         self.lim = np.full((self.nodes.size, d), np.inf)
         self.rot = np.zeros(0, np.int64)
+        self.rot_R = np.zeros((0, self.cells.cells.shape[1], d, d))
         if not si.size:
             return
         if basis is None:
@@ -509,6 +510,7 @@ class _Problem:
         is_slide = np.zeros(self.nodes.size, dtype=bool)
         is_slide[pos] = True
         self.rot = np.flatnonzero(is_slide[self.cells.cells].any(axis=1))
+        self.rot_R = np.ascontiguousarray(self.R[self.cells.cells[self.rot]])  # (the same every evaluation)
 
     def _exchange_plan(self, layout: Layout) -> None:
         """The halo of the ghost moving nodes and the global number of every variable."""
@@ -525,8 +527,13 @@ class _Problem:
         """The Hessian's pattern (cell blocks, then the owned diagonal) and its MUMPS solver."""
         d = self.d
         cv = np.ascontiguousarray(self.var[self.cells.cells], dtype=np.int64)  # (m, d + 1)
-        # (flat positions into the cell Hessians: take is faster than a mask)
-        self._hidx, self._r, self._c = kernels.hessian_pattern(cv, d)
+        # (the distinct d x d blocks, each entry once: the cell Hessians are summed into them by
+        # a compiled pass per evaluation, so PETSc's COO assembly sees no duplicates)
+        self._slot, brow, bcol = kernels.hessian_blocks(cv, self.moving.size)
+        self._nblocks = brow.size
+        cd = np.arange(d)
+        self._r = (brow[:, None, None] * d + cd[None, :, None] + 0 * cd[None, None, :]).ravel()
+        self._c = (bcol[:, None, None] * d + 0 * cd[None, :, None] + cd[None, None, :]).ravel()
         on_diag = self._r == self._c
         self._diag_src, self._diag_pos = np.flatnonzero(on_diag), self._r[on_diag]
         self._ksp = None
@@ -618,8 +625,8 @@ class _Problem:
                                            float(delta), True, self._sv)  # Hessian blocks times s_v s_w
         gz = self._to_owners(np.einsum("kcd,kc->kd", self.Em, g[self.moving])).ravel()
         if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
-            kernels.rotate_hessians(Hz, self.R[self.cells.cells[self.rot]], self.rot)
-        hv = Hz.reshape(-1).take(self._hidx)
+            kernels.rotate_hessians(Hz, self.rot_R, self.rot)
+        hv = kernels.sum_hessians(Hz, self._slot, self._nblocks).reshape(-1)
         gz[self.dead] = 0.0
         return float(total(self.comm, F)), gz, hv
 
