@@ -126,6 +126,11 @@ MAX_STEP = 4.0
 #: minimum, far below the quality differences that matter.
 FTOL_FINAL = 1e-9
 FTOL_UNTANGLE = 1e-10
+#: Newton: a step whose predicted decrease ``-g^T p`` is below this fraction of
+#: ``|F|`` ends the round as converged: Armijo's test (a decrease of ``1e-4 t
+#: g^T p``) would compare differences below the round-off of ``F`` (a sum
+#: over up to 1e5 cells), and its 20 halvings fail or pass by round-off.
+SLOPE_RTOL = 1e-12
 #: Largest tangential move of a sliding node per call, in units of its
 #: shortest edge (the tangent plane is a good model of the surface there).
 SLIDE_STEP = 0.3
@@ -386,7 +391,8 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
 def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> tuple[np.ndarray, bool]:
     """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps).
 
-    Stops at a gradient below ``GTOL`` (scaled variables), or when an
+    Stops at a gradient below ``GTOL`` (scaled variables), at a Newton step
+    that predicts a decrease below :data:`SLOPE_RTOL` relative, or when an
     iteration lowers ``F`` by less than ``ftol`` relative: :data:`FTOL_FINAL`
     in the final round (``delta = DELTA_MIN``), :data:`FTOL_UNTANGLE` in an
     untangling round, whose minimum is only a step towards the next ``delta``;
@@ -411,6 +417,8 @@ def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> t
                 if big > MAX_STEP:  # at most MAX_STEP edge lengths per node and iteration
                     p *= MAX_STEP / big
                     slope *= MAX_STEP / big
+                if -SLOPE_RTOL * abs(F) <= slope <= 0.0:  # (a descent too small for F to resolve)
+                    return z, True
                 if slope < 0:
                     step = _armijo(pb, z, p, F, slope, delta)
                     if step is not None:
