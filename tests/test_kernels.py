@@ -171,16 +171,17 @@ def test_tet_shapes_match_numpy(amp: float) -> None:
 
 
 @pytest.mark.parametrize("d", [2, 3])
-def test_rotate_hessians_match_einsum(d: int) -> None:
-    # R_v^T H_vw R_w on some cells, the others untouched
+def test_rotate_blocks_match_einsum(d: int) -> None:
+    # R_i^T H_b R_j on some blocks (row i, column j), the others untouched
     rng = np.random.default_rng(13)
-    m, nv = 40, d + 1
-    H = rng.standard_normal((m, nv, d, nv, d))
-    rows = np.arange(1, m, 3, dtype=np.int64)
-    R = rng.standard_normal((rows.size, nv, d, d))
-    ref = H.copy()
-    ref[rows] = np.einsum("mvca,mvcwe,mweb->mvawb", R, H[rows], R)
-    got = H.copy()
-    kernels.rotate_hessians(got, R, rows)
+    q, nb = 40, 9
+    Hb = rng.standard_normal((q, d, d))
+    brow, bcol = rng.integers(0, nb, q), rng.integers(0, nb, q)
+    sel = np.arange(1, q, 3, dtype=np.int64)
+    R = rng.standard_normal((nb, d, d))
+    ref = Hb.copy()
+    ref[sel] = np.einsum("qca,qce,qef->qaf", R[brow[sel]], Hb[sel], R[bcol[sel]])
+    got = Hb.copy()
+    kernels.rotate_blocks(got, R, brow, bcol, sel)
     _close(got, ref)
-    assert np.array_equal(got[0], H[0])
+    assert np.array_equal(got[0], Hb[0])

@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 __all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_blocks",
-           "sum_hessians", "graph_sums", "tet_shapes", "rotate_hessians", "warm_up"]
+           "sum_hessians", "graph_sums", "tet_shapes", "rotate_blocks", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: per-cell helpers, inlined into their callers (numba IR), so that a call with a
@@ -533,32 +533,33 @@ def tet_shapes(x: np.ndarray, cells: np.ndarray
 
 
 @_jit
-def rotate_hessians(H: np.ndarray, R: np.ndarray, rows: np.ndarray) -> None:
-    """``H[k, v, :, w, :] <- R_v^T H[k, v, :, w, :] R_w`` for the cells ``rows`` (in place).
+def rotate_blocks(Hb: np.ndarray, R: np.ndarray, brow: np.ndarray, bcol: np.ndarray,
+                  sel: np.ndarray) -> None:
+    """``Hb[b] <- R[brow[b]]^T Hb[b] R[bcol[b]]`` for the blocks ``sel (k,)`` (in place).
 
-    ``H (m, nv, d, nv, d)`` cell Hessians, ``R (k, nv, d, d)`` the variable
-    basis of each vertex of the cells ``rows (k,)`` (``R[q, v, c, a]``:
-    component ``c`` of basis vector ``a``): the Hessians in the tangent
-    variables of sliding vertices.
+    ``Hb (q, d, d)`` the matrix blocks of :func:`sum_hessians`, ``R (nb, d,
+    d)`` the variable basis of each block row / column (``R[i, c, a]``:
+    component ``c`` of basis vector ``a``): the Hessian in the tangent
+    variables of sliding nodes.  The basis is a node's, not a cell's, so the
+    summed blocks are rotated (fewer than the cells' vertex pairs).
     """
-    nv, d = H.shape[1], H.shape[2]
+    d = Hb.shape[1]
     T = np.empty((d, d))
-    for q in range(rows.shape[0]):
-        Hk = H[rows[q]]
-        for v in range(nv):
-            for w in range(nv):
-                for a in range(d):  # T = R_v^T H_vw
-                    for e in range(d):
-                        t = 0.0
-                        for c in range(d):
-                            t += R[q, v, c, a] * Hk[v, c, w, e]
-                        T[a, e] = t
-                for a in range(d):  # H_vw = T R_w
-                    for b in range(d):
-                        t = 0.0
-                        for e in range(d):
-                            t += T[a, e] * R[q, w, e, b]
-                        Hk[v, a, w, b] = t
+    for q in range(sel.shape[0]):
+        b = sel[q]
+        i, j = brow[b], bcol[b]
+        for a in range(d):  # T = R_i^T H_b
+            for e in range(d):
+                t = 0.0
+                for c in range(d):
+                    t += R[i, c, a] * Hb[b, c, e]
+                T[a, e] = t
+        for a in range(d):  # H_b = T R_j
+            for f in range(d):
+                t = 0.0
+                for e in range(d):
+                    t += T[a, e] * R[j, e, f]
+                Hb[b, a, f] = t
 
 
 def warm_up() -> None:
@@ -580,10 +581,10 @@ def warm_up() -> None:
         x3 = np.zeros((nv, 3))
         x3[:, :d] = x
         volume_mean_ratio(x3, cells.astype(np.int32), d)
-        slot, brow, _ = hessian_blocks(cells, nv)
-        sum_hessians(np.zeros((1, nv, d, nv, d)), slot, brow.size)
+        slot, brow, bcol = hessian_blocks(cells, nv)
+        Hb = sum_hessians(np.zeros((1, nv, d, nv, d)), slot, brow.size)
+        rotate_blocks(Hb, np.zeros((nv, d, d)), brow, bcol, np.zeros(1, np.int64))
         graph_sums(cells, x)
-        rotate_hessians(np.zeros((1, nv, d, nv, d)), np.zeros((1, nv, d, d)), np.zeros(1, np.int64))
         if d == 3:
             tet_shapes(x3, cells)
         G = np.ascontiguousarray(B.transpose(0, 1, 2))

@@ -498,13 +498,12 @@ class _Problem:
         self._matrix()
 
     def _tangents(self, si: np.ndarray, basis: np.ndarray | None) -> None:
-        """``R (nodes, d, d)`` (identity or tangent basis of the moving nodes), bounds, rotated cells."""
+        """``R (nodes, d, d)`` (identity or tangent basis of the moving nodes), bounds, sliding nodes."""
         d = self.d
         self.R = np.zeros((self.nodes.size, d, d))
         self.R[self.moving] = np.eye(d)
         self.lim = np.full((self.nodes.size, d), np.inf)
-        self.rot = np.zeros(0, np.int64)
-        self.rot_R = np.zeros((0, self.cells.cells.shape[1], d, d))
+        self.sliding = np.zeros(self.nodes.size, dtype=bool)
         if not si.size:
             return
         if basis is None:
@@ -515,10 +514,7 @@ class _Problem:
         self.R[pos] = T
         live = np.linalg.norm(T, axis=1) > 0.5
         self.lim[pos] = np.where(live, SLIDE_STEP, 0.0)
-        is_slide = np.zeros(self.nodes.size, dtype=bool)
-        is_slide[pos] = True
-        self.rot = np.flatnonzero(is_slide[self.cells.cells].any(axis=1))
-        self.rot_R = np.ascontiguousarray(self.R[self.cells.cells[self.rot]])  # (the same every evaluation)
+        self.sliding[pos] = True
 
     def _exchange_plan(self, layout: Layout) -> None:
         """The halo of the ghost moving nodes and the global number of every variable."""
@@ -538,7 +534,11 @@ class _Problem:
         # (the distinct d x d blocks, each entry once: the cell Hessians are summed into them by
         # a compiled pass per evaluation, so PETSc's COO assembly sees no duplicates)
         self._slot, brow, bcol = kernels.hessian_blocks(cv, self.moving.size)
-        self._nblocks = brow.size
+        self._nblocks, self._brow, self._bcol = brow.size, brow, bcol
+        # blocks with a sliding node's row or column: rotated into its tangent basis
+        slid = self.sliding[self.moving]
+        self._rot = np.flatnonzero(slid[brow] | slid[bcol])
+        self._Rm = np.ascontiguousarray(self.R[self.moving])
         cd = np.arange(d)
         self._r = (brow[:, None, None] * d + cd[None, :, None] + 0 * cd[None, None, :]).ravel()
         self._c = (bcol[:, None, None] * d + 0 * cd[None, :, None] + cd[None, None, :]).ravel()
@@ -632,9 +632,10 @@ class _Problem:
         F, g, _, Hz = kernels.energy_terms(self.coords(self.with_ghosts(z)), cc.cells64, cc.B,
                                            float(delta), True, self._sv)  # Hessian blocks times s_v s_w
         gz = self._to_owners(np.einsum("kcd,kc->kd", self.Em, g[self.moving])).ravel()
-        if self.rot.size:  # cells with a sliding vertex: rotate into its tangent basis
-            kernels.rotate_hessians(Hz, self.rot_R, self.rot)
-        hv = kernels.sum_hessians(Hz, self._slot, self._nblocks).reshape(-1)
+        Hb = kernels.sum_hessians(Hz, self._slot, self._nblocks)
+        if self._rot.size:  # blocks of sliding nodes: into their tangent bases
+            kernels.rotate_blocks(Hb, self._Rm, self._brow, self._bcol, self._rot)
+        hv = Hb.reshape(-1)
         gz[self.dead] = 0.0
         return float(total(self.comm, F)), gz, hv
 
