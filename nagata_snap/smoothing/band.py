@@ -29,7 +29,8 @@ import numpy.typing as npt
 from mpi4py import MPI
 
 from nagata_snap.mesh.boundary import check_p1_simplex
-from nagata_snap.mesh.simplex import cell_columns, cells_touching, edge_length_range
+from nagata_snap.mesh.simplex import edge_length_range
+from nagata_snap.smoothing.kernels import grow_layer
 
 __all__ = ["NodeSync", "node_mask", "AUTO_LAYERS", "AUTO_LAYERS_MAX", "auto_layers", "expand",
            "max_layers", "exterior_nodes", "prepare", "Band"]
@@ -160,8 +161,8 @@ def auto_layers(x_ref: np.ndarray, disp: np.ndarray, cells: np.ndarray,
     return out
 
 
-def expand(cells: np.ndarray, mark: np.ndarray, layers: Layers, sync: NodeSync,
-           cols: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def expand(cells: np.ndarray, mark: np.ndarray, layers: Layers, sync: NodeSync
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Grow a node mask by ``layers`` cell layers (collective).
 
     Args:
@@ -170,13 +171,11 @@ def expand(cells: np.ndarray, mark: np.ndarray, layers: Layers, sync: NodeSync,
         layers: an int, or ``(n,)`` ints per node of ``mark`` (each such
             node grows by its own number of layers: the widest start first,
             the others join when as many steps remain as they need).
-        cols: :func:`~nagata_snap.mesh.simplex.cell_columns` of ``cells`` (computed if None).
 
     Returns:
         ``(mark_k (n,), mark_{k-1} (n,), cells_in (nc,))`` bool, with
         ``cells_in`` the cells touching a node of ``mark_{k-1}``.
     """
-    cols = cell_columns(cells) if cols is None else cols
     per_node = np.ndim(layers) > 0
     total = max_layers(layers, sync.comm)
     if per_node:
@@ -187,9 +186,7 @@ def expand(cells: np.ndarray, mark: np.ndarray, layers: Layers, sync: NodeSync,
     for step in range(total):
         if per_node:
             mark = mark | (need >= total - step)
-        cin = cells_touching(mark, cols)
-        new = mark.copy()
-        new[cells[cin].reshape(-1)] = True
+        new, cin = grow_layer(cells, mark)  # (one compiled pass over the cells)
         new = sync.any(new)
         prev, mark = mark, new
     return mark, prev, cin
@@ -271,12 +268,12 @@ class Band:
     """
 
     def __init__(self, mesh: dolfinx.mesh.Mesh, moved_mask: np.ndarray, fixed_mask: np.ndarray,
-                 sync: NodeSync, layers: Layers, cols: list[np.ndarray] | None = None):
+                 sync: NodeSync, layers: Layers):
         if np.ndim(layers) == 0 and layers < 1:
             raise ValueError("layers must be >= 1")
         comm = mesh.comm
         cells = mesh.geometry.dofmaps[0]
-        mark, prev, cin = expand(cells, moved_mask, layers, sync, cols)
+        mark, prev, cin = expand(cells, moved_mask, layers, sync)
         self.cells = np.flatnonzero(cin).astype(np.int32)
         n_own_cells = mesh.topology.index_map(mesh.topology.dim).size_local
         self.own_cells = self.cells[self.cells < n_own_cells]

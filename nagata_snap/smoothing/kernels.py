@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 __all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_blocks",
-           "sum_hessians", "graph_sums", "tet_shapes", "rotate_blocks", "warm_up"]
+           "sum_hessians", "grow_layer", "graph_sums", "tet_shapes", "rotate_blocks", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: per-cell helpers, inlined into their callers (numba IR), so that a call with a
@@ -437,6 +437,24 @@ def sum_hessians(H: np.ndarray, slot: np.ndarray, nblocks: int) -> np.ndarray:
 
 
 @_jit
+def grow_layer(cells: np.ndarray, mark: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One layer of a node mask: ``(mark plus the nodes of every cell touching it (n,), those
+    cells (nc,))``, one pass over ``cells (nc, nv)`` (no ``(nc,)`` temporaries per column)."""
+    nc, nv = cells.shape
+    new = mark.copy()
+    touch = np.zeros(nc, dtype=np.bool_)
+    for k in range(nc):
+        for v in range(nv):
+            if mark[cells[k, v]]:
+                touch[k] = True
+                break
+        if touch[k]:
+            for v in range(nv):
+                new[cells[k, v]] = True
+    return new, touch
+
+
+@_jit
 def graph_sums(cells: np.ndarray, u: np.ndarray) -> np.ndarray:
     """``(k, g)``: at each node, the sum over its cells of their other vertices' ``u``.
 
@@ -585,6 +603,7 @@ def warm_up() -> None:
         Hb = sum_hessians(np.zeros((1, nv, d, nv, d)), slot, brow.size)
         rotate_blocks(Hb, np.zeros((nv, d, d)), brow, bcol, np.zeros(1, np.int64))
         graph_sums(cells, x)
+        grow_layer(cells.astype(np.int32), np.ones(nv, dtype=bool))
         if d == 3:
             tet_shapes(x3, cells)
         G = np.ascontiguousarray(B.transpose(0, 1, 2))

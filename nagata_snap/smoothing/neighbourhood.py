@@ -52,7 +52,6 @@ class Neighbourhood:
     Args:
         mesh: the mesh (topology and parallel layout).
         sync: :class:`~nagata_snap.smoothing.band.NodeSync` of its geometry nodes.
-        cols: :func:`~nagata_snap.mesh.simplex.cell_columns` of the geometry dofmap.
         seeds: ``(nc,)`` bool over local cells (owned and ghost).
         layers: vertex layers around the seeds (>= 1).
         x_ref: ``(n, 3)`` reference coordinates of the local nodes.
@@ -70,8 +69,8 @@ class Neighbourhood:
         n_cells, n_nodes: sizes (global, equal on all processes).
     """
 
-    def __init__(self, mesh: dolfinx.mesh.Mesh, sync: NodeSync, cols: list[np.ndarray],
-                 seeds: np.ndarray, layers: int, x_ref: np.ndarray):
+    def __init__(self, mesh: dolfinx.mesh.Mesh, sync: NodeSync, seeds: np.ndarray, layers: int,
+                 x_ref: np.ndarray):
         comm = mesh.comm
         self.comm = comm
         d = mesh.geometry.dim
@@ -83,7 +82,7 @@ class Neighbourhood:
         if layers < 1:
             raise ValueError(f"a neighbourhood has at least one layer, got {layers}")
         # the last layer's nodes are the nodes of the cells touching the layer before
-        self.nodes, self.complete, cin = expand(dofmap, mark, layers, sync, cols)
+        self.nodes, self.complete, cin = expand(dofmap, mark, layers, sync)
         self.layers = layers
         self.local_cells = np.flatnonzero(cin).astype(np.int32)
         self._dofs = dofmap[self.local_cells]

@@ -367,8 +367,7 @@ def _linear(g: _Guard, method: str, o: dict[str, Any], stiffen: tuple[tuple[floa
         t0 = time.perf_counter()
         if sm is not None:
             sm.destroy()
-        sm = Smoother(g.mesh, g.x_ref, g.moved_mask, g.fixed_mask, g.sync, meth, oo, g.timings,
-                       g.cols)
+        sm = Smoother(g.mesh, g.x_ref, g.moved_mask, g.fixed_mask, g.sync, meth, oo, g.timings)
         x = sm.run(g.x_tgt)
         g.pool[sm.cells] = True
         bad, nbad = g.check(x)
@@ -398,11 +397,11 @@ def _elastic_near(g: _Guard, x: np.ndarray, bad: np.ndarray, nbad: int, o: dict[
     t0 = time.perf_counter()
     mark = np.zeros(g.sync.n, dtype=bool)
     mark[g.cells[bad].reshape(-1)] = True
-    near, _, _ = expand(g.cells, g.sync.any(mark), ELASTIC_NEAR, g.sync, g.cols)
+    near, _, _ = expand(g.cells, g.sync.any(mark), ELASTIC_NEAR, g.sync)
     moved = g.moved_mask & near
     fixed = g.fixed_mask | (g.moved_mask & ~near)
     worst, before = g.worst, g.state()
-    sm = Smoother(g.mesh, g.x_ref, moved, fixed, g.sync, "elastic", o, g.timings, g.cols)
+    sm = Smoother(g.mesh, g.x_ref, moved, fixed, g.sync, "elastic", o, g.timings)
     try:
         xn = sm.run(x)
     finally:
@@ -424,7 +423,7 @@ class _Local:
     """A neighbourhood with what the optimiser needs (set up once, reused; collective)."""
 
     def __init__(self, g: _Guard, bad: np.ndarray, layers: int):
-        self.nbh = Neighbourhood(g.mesh, g.sync, g.cols, bad, layers, g.x_ref)
+        self.nbh = Neighbourhood(g.mesh, g.sync, bad, layers, g.x_ref)
         self.layers = layers
         self.winv = collective(g.comm, targets, g.x_ref[:, : g.gdim], self.nbh.cells)
         self.constrained = g.moved_mask | g.fixed_mask | ~self.nbh.complete

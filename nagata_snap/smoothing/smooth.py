@@ -445,7 +445,6 @@ class Smoother:
         opts: options as returned by :func:`smooth_options` (``layers`` an
             int or ``(n,)`` per-node ints, not ``'auto'``).
         timings: stage -> seconds, accumulated into (``band``, ``setup``, ``solve``).
-        cols: :func:`~nagata_snap.mesh.simplex.cell_columns` of the dofmap (computed if None).
 
     Attributes:
         band: the :class:`~nagata_snap.smoothing.band.Band` (None if nothing moves
@@ -454,7 +453,7 @@ class Smoother:
 
     def __init__(self, mesh: dolfinx.mesh.Mesh, x_ref: np.ndarray, moved_mask: np.ndarray,
                  fixed_mask: np.ndarray, sync: NodeSync, method: str, opts: dict[str, Any],
-                 timings: dict[str, float], cols: list[np.ndarray] | None = None):
+                 timings: dict[str, float]):
         self.mesh = mesh
         self.x_ref = x_ref
         self.sync = sync
@@ -471,7 +470,7 @@ class Smoother:
         if method == "none" or not any_moved:
             return
         t0 = time.perf_counter()
-        self.band = Band(mesh, moved_mask, fixed_mask, sync, opts["layers"], cols)
+        self.band = Band(mesh, moved_mask, fixed_mask, sync, opts["layers"])
         t1 = time.perf_counter()
         add_time(timings, "band", t1 - t0)
         if self.band.n_free_global == 0:
