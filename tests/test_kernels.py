@@ -185,3 +185,19 @@ def test_rotate_blocks_match_einsum(d: int) -> None:
     kernels.rotate_blocks(got, R, brow, bcol, sel)
     _close(got, ref)
     assert np.array_equal(got[0], Hb[0])
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_grow_layer_matches_cell_columns(d: int) -> None:
+    # one layer grown from a few nodes, against the column-wise numpy formulation
+    _, cells = _mesh(d)
+    cells = np.ascontiguousarray(cells, dtype=np.int32)
+    n = int(cells.max()) + 1
+    mark = np.zeros(n, dtype=bool)
+    mark[[0, n // 2]] = True
+    new, touch = kernels.grow_layer(cells, mark)
+    ref_touch = mark[cells].any(axis=1)
+    ref_new = mark.copy()
+    ref_new[cells[ref_touch].reshape(-1)] = True
+    assert np.array_equal(touch, ref_touch) and np.array_equal(new, ref_new)
+    assert mark.sum() < new.sum() < n

@@ -11,6 +11,7 @@ from nagata_snap.mesh.simplex import (
     barycentric,
     cell_columns,
     cells_touching,
+    compact_nodes,
     edge_length_range,
     edge_lengths,
     facet_measures,
@@ -123,3 +124,14 @@ def test_cells_touching():
     assert cells_touching(mask, cell_columns(cells)).tolist() == [True, True, False]
     mask[:] = False
     assert not cells_touching(mask, cell_columns(cells)).any()
+
+
+def test_compact_nodes_equal_unique_inverse() -> None:
+    # a few cells over a sparse set of node ids (some unused, repeated, the largest id last)
+    rng = np.random.default_rng(3)
+    cells = rng.choice(np.arange(0, 200, 7), size=(30, 4))
+    nodes, local = compact_nodes(cells, 200)
+    ref_nodes, ref_inv = np.unique(cells, return_inverse=True)
+    assert np.array_equal(nodes, ref_nodes)
+    assert np.array_equal(local, ref_inv.reshape(cells.shape))
+    assert np.array_equal(nodes[local], cells)

@@ -53,6 +53,7 @@ __all__ = [
     "cell_dim",
     "cell_columns",
     "cells_touching",
+    "compact_nodes",
     "vertex_components",
     "gathered_components",
     "edge_components",
@@ -134,6 +135,16 @@ def cell_dim(cells: np.ndarray, gdim: int) -> int:
 def cell_columns(cells: np.ndarray) -> list[np.ndarray]:
     """Contiguous copies of the ``nv`` columns of a ``(nc, nv)`` cell array (for :func:`cells_touching`)."""
     return [np.ascontiguousarray(cells[:, k]) for k in range(cells.shape[1])]
+
+
+def compact_nodes(cells: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(nodes (k,), local (nc, nv))``: the distinct nodes of ``cells`` (ids below ``n``), sorted,
+    and the cells in their positions, as ``np.unique(cells, return_inverse=True)`` without a sort
+    (a mask over the ``n`` nodes and its running count)."""
+    on = np.zeros(n, dtype=bool)
+    on[np.asarray(cells).reshape(-1)] = True
+    num = np.cumsum(on) - 1
+    return np.flatnonzero(on), num[cells]
 
 
 def cells_touching(mask: np.ndarray, cols: Sequence[np.ndarray]) -> np.ndarray:

@@ -94,6 +94,7 @@ from nagata_snap.mesh.parallel import collective
 from nagata_snap.mesh.simplex import (
     cell_columns,
     cells_touching,
+    compact_nodes,
     facet_normal_vectors,
     local_facet_vertices,
 )
@@ -256,7 +257,7 @@ class _Guard:
             self._pool_key = self.pool.copy()
             pool = np.flatnonzero(self.pool)
             pc = self.cells[pool]
-            self._pool = (pool, cell_columns(pc), np.unique(pc))
+            self._pool = (pool, cell_columns(pc), compact_nodes(pc, self.x_ref.shape[0])[0])
         pool, pcols, nodes = self._pool
         xn = x[nodes]
         changed = np.zeros(x.shape[0], dtype=bool)

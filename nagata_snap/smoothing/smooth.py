@@ -79,7 +79,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from nagata_snap.mesh.simplex import cell_columns, cells_touching, p1_gradients
+from nagata_snap.mesh.simplex import cell_columns, cells_touching, compact_nodes, p1_gradients
 from nagata_snap.smoothing.band import Band, NodeSync, auto_layers, max_layers, prepare
 from nagata_snap.smoothing.kernels import band_blocks, graph_sums
 
@@ -401,8 +401,8 @@ class _GraphSweeps:
         free = band.gid >= 0  # (n,) free nodes, owned and ghost
         cells = cells[free[cells].any(axis=1)]
         # band nodes numbered compactly (the sweeps work on the band, not the mesh)
-        self.nodes, local = np.unique(cells, return_inverse=True)
-        self.cells = local.reshape(cells.shape).astype(np.int64)
+        self.nodes, local = compact_nodes(cells, sync.n)
+        self.cells = local.astype(np.int64)
         nv = cells.shape[1]
         deg = (nv - 1.0) * np.bincount(self.cells.reshape(-1), minlength=self.nodes.size)
         self.deg = self._total(deg)
