@@ -102,7 +102,8 @@ def _occ() -> SimpleNamespace:
     """The OpenCASCADE classes used once per face, edge or edge use, imported once (lazily:
     importing this module does not load OpenCASCADE), and the integer values of the enums
     compared there (comparing pybind11 enums costs several times more than their ints), with
-    the surface types' names by their values."""
+    the surface types' names by their values and the classifier's states (``IN``, ``OUT``) by
+    :func:`_checks`' codes (0, 1; any other state: 2)."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d, BRepAdaptor_Surface
     from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
@@ -121,7 +122,7 @@ def _occ() -> SimpleNamespace:
     from OCP.GeomAbs import GeomAbs_CurveType as C
     from OCP.GeomAbs import GeomAbs_SurfaceType as S
     from OCP.GeomConvert import GeomConvert, GeomConvert_ApproxSurface, GeomConvert_SurfToAnaSurf
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_Orientation, TopAbs_VERTEX, TopAbs_WIRE
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_Orientation, TopAbs_State, TopAbs_VERTEX, TopAbs_WIRE
     from OCP.TopExp import TopExp, TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
@@ -138,6 +139,7 @@ def _occ() -> SimpleNamespace:
                     ("sphere", Geom_SphericalSurface), ("torus", Geom_ToroidalSurface)),
         TopoDS=TopoDS, WIRE=TopAbs_WIRE, EDGE=TopAbs_EDGE, VERTEX=TopAbs_VERTEX, FACE=TopAbs_FACE,
         REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
+        STATES={int(TopAbs_State.TopAbs_IN): 0, int(TopAbs_State.TopAbs_OUT): 1},  # face classifier -> ours
         LINE=int(C.GeomAbs_Line), CIRCLE=int(C.GeomAbs_Circle), BSPLINE_CURVE=int(C.GeomAbs_BSplineCurve),
         BSPLINE_SURFACE=int(S.GeomAbs_BSplineSurface), BEZIER_SURFACE=int(S.GeomAbs_BezierSurface),
         ANALYTIC={int(getattr(S, f"GeomAbs_{kind.capitalize()}")): kind for kind in _ANALYTIC_FIELDS},
@@ -656,7 +658,6 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     """
     from OCP.gp import gp_Pnt, gp_Pnt2d, gp_Vec, gp_Vec2d
     from OCP.IntTools import IntTools_FClass2d
-    from OCP.TopAbs import TopAbs_State
 
     t0 = time.perf_counter()
     o = _occ()
@@ -699,8 +700,11 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
         D += sv.Coord()
         if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
             continue
-        nu, nv = -d2.Y(), d2.X()
-        length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
+        nv, nu = d2.Coord()
+        nu = -nu
+        # |S_u nu + S_v nv| from the numbers just read (not by gp_Vec arithmetic: five calls)
+        x, y, z = (a_ * nu + b_ * nv for a_, b_ in zip(D[-6:-3], D[-3:], strict=True))
+        length = math.sqrt(x * x + y * y + z * z)
         if not length > 0:
             continue
         off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
@@ -712,14 +716,15 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
             D += su.Coord()
             D += sv.Coord()
     cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
-    IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
+    code = o.STATES
     state = []
+    q = gp_Pnt2d()
     for (u, v), kd in zip(params, kind, strict=True):  # the classifier's states
         if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
             state.append(2)
             continue
-        st = cls.Perform(gp_Pnt2d(u, v))
-        state.append(0 if st == IN else 1 if st == OUT else 2)
+        q.SetCoord(u, v)
+        state.append(code.get(int(cls.Perform(q)), 2))
     k = len(params)
     return {"uv": np.array(params, dtype=float).reshape(k, 2), "d1": np.array(D).reshape(k, 3, 3),
             "state": np.array(state, dtype=np.int8), "kind": np.array(kind, dtype=np.int8), "offset": offset,
