@@ -612,7 +612,7 @@ CHECK_OFFSET = 1e-3
 
 
 def _check_uses(wires: Sequence[Sequence[tuple]]) -> list[tuple]:
-    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor)`` pairs of each
+    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor, first, last)`` of each
     wire's non-degenerate uses (as :func:`_wires` walked them): the first one of every wire
     (every loop is checked), then others spread over the face's uses, up to
     :data:`CHECK_USES` in all."""
@@ -642,8 +642,8 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     description's p-curves), OpenCASCADE's point and first derivatives and face
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
-    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor)`` pairs of
-    every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
+    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor, its first and last
+    parameters)`` of every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
     grid over the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
     per sample; the arithmetic on the samples is :mod:`~nagata_snap.cad.verify`'s, on all
     faces' at once.)
@@ -689,8 +689,8 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     extent = extent if math.isfinite(extent) else 0.0
     p2, d2 = gp_Pnt2d(), gp_Vec2d()
     offset = CHECK_OFFSET * extent
-    for e, c in _check_uses(uses):  # loop over a few edge uses (their p-curves)
-        c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
+    for e, c, t0_, t1_ in _check_uses(uses):  # loop over a few edge uses (their p-curves)
+        c.D1(0.5 * (t0_ + t1_), p2, d2)
         u, v = p2.Coord()
         params.append((u, v))
         kind.append(1)
@@ -775,16 +775,16 @@ def _curve3d(edge, adaptor: tuple | None = None) -> dict | None:
     return _described(adaptor[0], 3, other, adaptor[1:])
 
 
-def _curve2d(edge, face, adaptor=None) -> dict:
+def _curve2d(edge, face, adaptor=None, known: tuple[float, float, int] | None = None) -> dict:
     """Description of the p-curve of an (oriented) edge on a face, with its range
-    (``adaptor``: its ``BRepAdaptor_Curve2d``, if made already)."""
+    (``adaptor``: its ``BRepAdaptor_Curve2d``, if made already; ``known``: as :func:`_described`'s)."""
     o = _occ()
 
     def other(t0, t1):
         geo = o.BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
         return o.Geom2dConvert.CurveToBSplineCurve_s(o.Geom2d_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve2d(edge, face) if adaptor is None else adaptor, 2, other)
+    return _described(o.BRepAdaptor_Curve2d(edge, face) if adaptor is None else adaptor, 2, other, known)
 
 
 # ----------------------------------------------------------------------
@@ -794,8 +794,9 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
            uses_out: list | None = None) -> list[dict]:
     """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
 
-    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor)`` pairs of each wire's
-    non-degenerate uses are appended, one list per wire (the uses :func:`_checks` samples).
+    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor, first, last parameter)``
+    of each wire's non-degenerate uses are appended, one list per wire (the uses
+    :func:`_checks` samples).
 
     ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
     faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
@@ -823,15 +824,16 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
             deg = tool.Degenerated_s(e) if degenerate is None else degenerate[i]
             pe = edge_of(e)
             a = o.BRepAdaptor_Curve2d(pe, pface)
+            known = (a.FirstParameter(), a.LastParameter(), int(a.GetType()))
             uses.append({
                 "edge": i,
                 "reversed": int(e.Orientation()) == o.REVERSED,
                 "seam": tool.IsClosed_s(e, face) if degenerate is None or deg else False,
                 "degenerate": deg,
-                "pcurve": _curve2d(pe, pface, a),
+                "pcurve": _curve2d(pe, pface, a, known),
             })
             if not deg:
-                mine.append((pe, a))
+                mine.append((pe, a, known[0], known[1]))
             we.Next()
         wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
         if uses_out is not None:
