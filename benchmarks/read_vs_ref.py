@@ -9,7 +9,7 @@ this checkout's are timed interleaved, ``--rounds`` rounds, and the best time of
 the ratios comparable on a shared machine, where one run of each at different moments is not.
 
     python benchmarks/read_vs_ref.py [--ref main] [--parts a,b] [--formats step,iges] [--rounds 15] [--wall]
-                                     [--stages]
+                                     [--stages] [--isolate]
 
 Printed per part and format: the three times [ms] and the ratios of the revision and of this
 checkout to OpenCASCADE's import, and this checkout's verification of the faces against
@@ -18,7 +18,9 @@ rounds): OpenCASCADE's samples (``times["check"]``, in the reader), our side of 
 (``times["verify"]``) and their sum over OpenCASCADE's import.  ``--files``: CAD files
 (e.g. of meshes/corpus) instead of the parts.  ``--stages``: also ``read_shape`` of the revision and of this
 checkout, interleaved likewise, and the best time of each of its stages (``times``: ``read``,
-``heal``, ``convert``; measured with the same clock) and of the whole call.
+``heal``, ``convert``; measured with the same clock) and of the whole call.  ``--isolate``: both
+read through their reader process (``isolate=True``, each revision's own server, started before
+the timing), as the CLI reads; then time it with ``--wall`` (the CPU clock sees this process only).
 """
 
 from __future__ import annotations
@@ -70,6 +72,8 @@ def main() -> None:
     ap.add_argument("--files", default="", help="comma-separated CAD files instead of --parts")
     ap.add_argument("--stages", action="store_true",
                     help="also read_shape's stage times, the revision's and this checkout's")
+    ap.add_argument("--isolate", action="store_true",
+                    help="read through the reader process (isolate=True), as the CLI does; use with --wall")
     args = ap.parse_args()
     sys.path[:0] = [export_ref(args.ref), ROOT, os.path.join(ROOT, "meshes")]
     out = os.fdopen(os.dup(1), "w")
@@ -98,7 +102,7 @@ def main() -> None:
     tmp = tempfile.mkdtemp(prefix="read_vs_ref_parts_")
     print(f"{'part':20s} {'format':9s} {'OCC':>7s} {args.ref:>7s} {'this':>7s}   ratio {args.ref:>5s} {'this':>5s}"
           f"   verify: {'OCC':>7s} {'ours':>7s} {'/OCC':>5s}   ({'wall' if args.wall else 'CPU'} ms, best of "
-          f"{args.rounds}; verification: wall)", file=out, flush=True)
+          f"{args.rounds}; verification: wall; then the medians of OCC, {args.ref}, this)", file=out, flush=True)
     if args.files:
         cases = [(os.path.basename(p), os.path.splitext(p)[1][1:], p) for p in args.files.split(",")]
     else:
@@ -111,25 +115,29 @@ def main() -> None:
         checks = {"check": float("inf"), "verify": float("inf")}
 
         def this(p=path, checks=checks):
-            t = new.CadGeometry.from_file(p, isolate=False).model.times
+            t = new.CadGeometry.from_file(p, isolate=args.isolate).model.times
             for k in checks:
                 checks[k] = min(checks[k], t.get(k, float("nan")))
 
-        runs = {"occ": lambda p=path: occ(p), "ref": lambda p=path: ref.CadGeometry.from_file(p, isolate=False),
+        runs = {"occ": lambda p=path: occ(p),
+                "ref": lambda p=path: ref.CadGeometry.from_file(p, isolate=args.isolate),
                 "this": this}
         best = dict.fromkeys(runs, float("inf"))
+        every: dict[str, list[float]] = {k: [] for k in runs}
         for g in runs.values():
             g()  # first calls (imports, caches) are not timed
         for _ in range(args.rounds):
             for k, g in runs.items():
                 t0 = clock()
                 g()
-                best[k] = min(best[k], clock() - t0)
+                every[k].append(clock() - t0)
+                best[k] = min(best[k], every[k][-1])
         o = best["occ"]
         ver = checks["check"] + checks["verify"]
         print(f"{name:20s} {f:9s} {1e3 * o:7.2f} {1e3 * best['ref']:7.2f} {1e3 * best['this']:7.2f}   "
               f"      {best['ref'] / o:5.2f} {best['this'] / o:5.2f}           {1e3 * checks['check']:7.2f} "
-              f"{1e3 * checks['verify']:7.2f} {ver / o:5.2f}", file=out, flush=True)
+              f"{1e3 * checks['verify']:7.2f} {ver / o:5.2f}   median "
+              + " ".join(f"{1e3 * sorted(every[k])[len(every[k]) // 2]:.1f}" for k in runs), file=out, flush=True)
         if args.stages:
             reads = {"ref": lambda p=path: ref_read.read_shape(p), "this": lambda p=path: new_read.read_shape(p)}
             st = {k: dict.fromkeys(stages, float("inf")) for k in reads}

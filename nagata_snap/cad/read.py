@@ -102,7 +102,8 @@ def _occ() -> SimpleNamespace:
     """The OpenCASCADE classes used once per face, edge or edge use, imported once (lazily:
     importing this module does not load OpenCASCADE), and the integer values of the enums
     compared there (comparing pybind11 enums costs several times more than their ints), with
-    the surface types' names by their values."""
+    the surface types' names by their values and the classifier's states (``IN``, ``OUT``) by
+    :func:`_checks`' codes (0, 1; any other state: 2)."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepAdaptor import BRepAdaptor_Curve, BRepAdaptor_Curve2d, BRepAdaptor_Surface
     from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
@@ -121,7 +122,7 @@ def _occ() -> SimpleNamespace:
     from OCP.GeomAbs import GeomAbs_CurveType as C
     from OCP.GeomAbs import GeomAbs_SurfaceType as S
     from OCP.GeomConvert import GeomConvert, GeomConvert_ApproxSurface, GeomConvert_SurfToAnaSurf
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_Orientation, TopAbs_VERTEX, TopAbs_WIRE
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_Orientation, TopAbs_State, TopAbs_VERTEX, TopAbs_WIRE
     from OCP.TopExp import TopExp, TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
@@ -138,6 +139,7 @@ def _occ() -> SimpleNamespace:
                     ("sphere", Geom_SphericalSurface), ("torus", Geom_ToroidalSurface)),
         TopoDS=TopoDS, WIRE=TopAbs_WIRE, EDGE=TopAbs_EDGE, VERTEX=TopAbs_VERTEX, FACE=TopAbs_FACE,
         REVERSED=int(TopAbs_Orientation.TopAbs_REVERSED),
+        STATES={int(TopAbs_State.TopAbs_IN): 0, int(TopAbs_State.TopAbs_OUT): 1},  # face classifier -> ours
         LINE=int(C.GeomAbs_Line), CIRCLE=int(C.GeomAbs_Circle), BSPLINE_CURVE=int(C.GeomAbs_BSplineCurve),
         BSPLINE_SURFACE=int(S.GeomAbs_BSplineSurface), BEZIER_SURFACE=int(S.GeomAbs_BezierSurface),
         ANALYTIC={int(getattr(S, f"GeomAbs_{kind.capitalize()}")): kind for kind in _ANALYTIC_FIELDS},
@@ -610,7 +612,7 @@ CHECK_OFFSET = 1e-3
 
 
 def _check_uses(wires: Sequence[Sequence[tuple]]) -> list[tuple]:
-    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor)`` pairs of each
+    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor, first, last)`` of each
     wire's non-degenerate uses (as :func:`_wires` walked them): the first one of every wire
     (every loop is checked), then others spread over the face's uses, up to
     :data:`CHECK_USES` in all."""
@@ -640,8 +642,8 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     description's p-curves), OpenCASCADE's point and first derivatives and face
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
-    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor)`` pairs of
-    every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
+    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor, its first and last
+    parameters)`` of every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
     grid over the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
     per sample; the arithmetic on the samples is :mod:`~nagata_snap.cad.verify`'s, on all
     faces' at once.)
@@ -656,7 +658,6 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     """
     from OCP.gp import gp_Pnt, gp_Pnt2d, gp_Vec, gp_Vec2d
     from OCP.IntTools import IntTools_FClass2d
-    from OCP.TopAbs import TopAbs_State
 
     t0 = time.perf_counter()
     o = _occ()
@@ -688,8 +689,8 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     extent = extent if math.isfinite(extent) else 0.0
     p2, d2 = gp_Pnt2d(), gp_Vec2d()
     offset = CHECK_OFFSET * extent
-    for e, c in _check_uses(uses):  # loop over a few edge uses (their p-curves)
-        c.D1(0.5 * (c.FirstParameter() + c.LastParameter()), p2, d2)
+    for e, c, t0_, t1_ in _check_uses(uses):  # loop over a few edge uses (their p-curves)
+        c.D1(0.5 * (t0_ + t1_), p2, d2)
         u, v = p2.Coord()
         params.append((u, v))
         kind.append(1)
@@ -699,8 +700,11 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
         D += sv.Coord()
         if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
             continue
-        nu, nv = -d2.Y(), d2.X()
-        length = su.Multiplied(nu).Added(sv.Multiplied(nv)).Magnitude()
+        nv, nu = d2.Coord()
+        nu = -nu
+        # |S_u nu + S_v nv| from the numbers just read (not by gp_Vec arithmetic: five calls)
+        x, y, z = (a_ * nu + b_ * nv for a_, b_ in zip(D[-6:-3], D[-3:], strict=True))
+        length = math.sqrt(x * x + y * y + z * z)
         if not length > 0:
             continue
         off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
@@ -712,14 +716,15 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
             D += su.Coord()
             D += sv.Coord()
     cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
-    IN, OUT = TopAbs_State.TopAbs_IN, TopAbs_State.TopAbs_OUT
+    code = o.STATES
     state = []
+    q = gp_Pnt2d()
     for (u, v), kd in zip(params, kind, strict=True):  # the classifier's states
         if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
             state.append(2)
             continue
-        st = cls.Perform(gp_Pnt2d(u, v))
-        state.append(0 if st == IN else 1 if st == OUT else 2)
+        q.SetCoord(u, v)
+        state.append(code.get(int(cls.Perform(q)), 2))
     k = len(params)
     return {"uv": np.array(params, dtype=float).reshape(k, 2), "d1": np.array(D).reshape(k, 3, 3),
             "state": np.array(state, dtype=np.int8), "kind": np.array(kind, dtype=np.int8), "offset": offset,
@@ -770,16 +775,16 @@ def _curve3d(edge, adaptor: tuple | None = None) -> dict | None:
     return _described(adaptor[0], 3, other, adaptor[1:])
 
 
-def _curve2d(edge, face, adaptor=None) -> dict:
+def _curve2d(edge, face, adaptor=None, known: tuple[float, float, int] | None = None) -> dict:
     """Description of the p-curve of an (oriented) edge on a face, with its range
-    (``adaptor``: its ``BRepAdaptor_Curve2d``, if made already)."""
+    (``adaptor``: its ``BRepAdaptor_Curve2d``, if made already; ``known``: as :func:`_described`'s)."""
     o = _occ()
 
     def other(t0, t1):
         geo = o.BRep_Tool.CurveOnSurface_s(edge, face, t0, t1)
         return o.Geom2dConvert.CurveToBSplineCurve_s(o.Geom2d_TrimmedCurve(geo, t0, t1))
 
-    return _described(o.BRepAdaptor_Curve2d(edge, face) if adaptor is None else adaptor, 2, other)
+    return _described(o.BRepAdaptor_Curve2d(edge, face) if adaptor is None else adaptor, 2, other, known)
 
 
 # ----------------------------------------------------------------------
@@ -789,8 +794,9 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
            uses_out: list | None = None) -> list[dict]:
     """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
 
-    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor)`` pairs of each wire's
-    non-degenerate uses are appended, one list per wire (the uses :func:`_checks` samples).
+    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor, first, last parameter)``
+    of each wire's non-degenerate uses are appended, one list per wire (the uses
+    :func:`_checks` samples).
 
     ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
     faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
@@ -818,15 +824,16 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
             deg = tool.Degenerated_s(e) if degenerate is None else degenerate[i]
             pe = edge_of(e)
             a = o.BRepAdaptor_Curve2d(pe, pface)
+            known = (a.FirstParameter(), a.LastParameter(), int(a.GetType()))
             uses.append({
                 "edge": i,
                 "reversed": int(e.Orientation()) == o.REVERSED,
                 "seam": tool.IsClosed_s(e, face) if degenerate is None or deg else False,
                 "degenerate": deg,
-                "pcurve": _curve2d(pe, pface, a),
+                "pcurve": _curve2d(pe, pface, a, known),
             })
             if not deg:
-                mine.append((pe, a))
+                mine.append((pe, a, known[0], known[1]))
             we.Next()
         wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
         if uses_out is not None:

@@ -827,6 +827,41 @@ def _to_global(local: np.ndarray, c: np.ndarray, s: np.ndarray, X: np.ndarray, Y
     return out
 
 
+def revolution_tangents(surfaces: Sequence, face: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``(n, 3)`` and tangents ``(n, 2, 3)`` (``S_u``, ``S_v``) of the surfaces of revolution
+    ``surfaces[face[r]]`` (cylinders, cones, spheres, tori: any classes) at their parameters
+    ``params (n, 2)`` (in their domains, as :func:`~nagata_snap.cad.projection.normalize_params`
+    gives them), all at once.
+
+    Per class one :meth:`AnalyticSurface._local` of a surface whose shape fields are the
+    per-sample arrays of the samples' surfaces (as :meth:`AnalyticSurface._sample_boxes`), and
+    one :func:`_to_global` with per-sample frames: the same numbers, to the bit, as each
+    surface's own ``_eval_soa(params, 1)``, without a call per surface.
+    """
+    n = len(face)
+    P, T = np.empty((n, 3)), np.empty((n, 2, 3))
+    cls = [type(sf) for sf in surfaces]
+    for c in dict.fromkeys(cls[i] for i in np.unique(face).tolist()):  # loop over classes (their formulas)
+        mine = np.array([k is c for k in cls])
+        rows = np.flatnonzero(mine[face])
+        f = face[rows]
+        stack = c.__new__(c)
+        idx = np.flatnonzero(mine)
+        for name in c._shape_fields:  # per sample: its surface's value
+            field = np.zeros(len(surfaces))
+            field[idx] = [getattr(surfaces[i], name) for i in idx.tolist()]
+            setattr(stack, name, field[f])
+        frames = np.zeros((len(surfaces), 4, 3))
+        frames[idx] = [(surfaces[i].X, surfaces[i].Y, surfaces[i].Z, surfaces[i].origin) for i in idx.tolist()]
+        X, Y, Z, O = frames[f].transpose(1, 2, 0)  # (3, k) each
+        u, v = params[rows, 0], params[rows, 1]
+        cu, su = np.cos(u), np.sin(u)
+        D = _to_global(stack._local(u, v, cu, su, 1), cu, su, X, Y, Z, O)  # (3, 3, k)
+        P[rows] = D[0].T
+        T[rows] = D[1:].transpose(2, 0, 1)
+    return P, T
+
+
 def fill_boxes(surfaces: Sequence) -> None:
     """Compute the bounding boxes of the analytic surfaces among ``surfaces`` that have none yet:
     the planes' together, those of all surfaces of revolution together

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -41,6 +42,27 @@ TRIM_RTOL = 1e-6
 CORNER_ANGLE = 0.35
 #: work-array budget (entries) of the vectorised loop tests
 CHUNK = 400_000
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _segment_distances(Q: np.ndarray, first: np.ndarray, cnt: np.ndarray, su: np.ndarray, sv: np.ndarray,
+                       P: np.ndarray, seg: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """``(m,)``: per query ``Q[r] (2,)`` the least distance, through the metric ``(su[r], sv[r])``,
+    from the segments ``P[j] + t seg[j]`` (``t`` in ``[0, 1]``) ``j`` in ``first[r] ..
+    first[r] + cnt[r]``, less their ``band[j]`` (``inf`` for none); the arithmetic of
+    :meth:`TrimLoops._distance_all`'s arrays, one query at a time (no work arrays)."""
+    out = np.empty(len(Q))
+    for r in range(len(Q)):  # loop over queries
+        a, b = su[r], sv[r]
+        best = np.inf
+        for j in range(first[r], first[r] + cnt[r]):  # loop over the segments of its loops
+            qx, qy = (Q[r, 0] - P[j, 0]) * a, (Q[r, 1] - P[j, 1]) * b
+            sx, sy = seg[j, 0] * a, seg[j, 1] * b
+            t = min(max((qx * sx + qy * sy) / max(sx * sx + sy * sy, 1e-300), 0.0), 1.0)
+            rx, ry = qx - t * sx, qy - t * sy
+            best = min(best, np.sqrt(rx * rx + ry * ry) - band[j])
+        out[r] = best
+    return out
 
 
 def _crossings(poly: np.ndarray, pts: np.ndarray, slabs: _Slabs | None = None) -> np.ndarray:
@@ -576,31 +598,14 @@ class TrimLoops:
     def _distance_all(self, ent: np.ndarray, q: np.ndarray, su: np.ndarray, sv: np.ndarray) -> np.ndarray:
         """``(n,)`` :meth:`loop_distance` (every shift tested) of the wrapped parameters ``q (n, 2)``
         on the trimmed entities ``ent``, through the metric ``su, sv (n,)``: the distance from every
-        segment of the entity's loops less its band, all queries at once (in chunks of
-        :data:`CHUNK` (query, segment) pairs)."""
+        segment of the entity's loops less its band, all queries at once (compiled:
+        :func:`_segment_distances`)."""
         qi, Q = self._shifted(ent, q)
         off, start = self._table.off, self._loop_start
         assert start is not None  # (the caller's condition)
         first = off[start[ent[qi]]]
         cnt = off[start[ent[qi] + 1]] - first  # the entity's loop vertices: contiguous
-        best = np.empty(len(Q))
-        work = np.cumsum(cnt)
-        cuts = np.searchsorted(work, np.arange(CHUNK, int(work[-1]), CHUNK)) if len(work) else np.zeros(0, np.int64)
-        for rows in np.split(np.arange(len(Q)), cuts):  # chunks bound the (pair, 2) work arrays
-            if rows.size == 0:
-                continue
-            c = cnt[rows]
-            pair = np.repeat(np.arange(len(rows)), c)
-            j = np.repeat(first[rows], c) + ramp(c)
-            k = qi[rows][pair]
-            S = np.stack([su[k], sv[k]], axis=1)  # the metric
-            qq = (Q[rows][pair] - self._table.P[j]) * S
-            ss = self._seg[j] * S
-            L2 = np.maximum(np.einsum("kj,kj->k", ss, ss), 1e-300)
-            t = np.clip(np.einsum("kj,kj->k", qq, ss) / L2, 0.0, 1.0)
-            r = qq - t[:, None] * ss
-            d = np.sqrt(np.einsum("kj,kj->k", r, r)) - self._band[j]
-            best[rows] = np.minimum.reduceat(d, np.cumsum(c) - c)
+        best = _segment_distances(Q, first, cnt, su[qi], sv[qi], self._table.P, self._seg, self._band)
         return np.minimum.reduceat(best, np.flatnonzero(np.r_[True, qi[1:] != qi[:-1]]))
 
     def _inside_all(self, ent: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -135,9 +135,12 @@ def _mapped(model: CadModel, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
 def _ours(model: CadModel, face: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, ...]:
     """Our points ``(n, 3)``, outward unit normals ``(n, 3)`` (NaN where undefined) and
     ``|S_u|, |S_v|`` ``(n,)`` of faces ``face`` at our parameters ``params (n, 2)``: the planes'
-    all at once (their affine frames, :class:`~nagata_snap.cad.projection.AffineBatch`), every
-    other face by one evaluation of all its samples."""
+    all at once (their affine frames, :class:`~nagata_snap.cad.projection.AffineBatch`), the
+    other analytic faces' all at once
+    (:func:`~nagata_snap.cad.surfaces.revolution_tangents`), every other face by one
+    evaluation of all its samples."""
     from nagata_snap.cad.projection import AffineBatch
+    from nagata_snap.cad.surfaces import AnalyticSurface, revolution_tangents
 
     T = np.empty((len(face), 2, 3))
     P = np.empty((len(face), 3))
@@ -148,9 +151,13 @@ def _ours(model: CadModel, face: np.ndarray, params: np.ndarray) -> tuple[np.nda
         e = face[flat]
         P[flat] = aff.origin[e] + np.einsum("nd,ndc->nc", params[flat], aff.axes[e])
         T[flat] = aff.axes[e]
-    rows = np.flatnonzero(~flat)
+    rev = np.array([isinstance(s, AnalyticSurface) for s in surfaces] + [False])[face] & ~flat
+    if rev.any():
+        r = np.flatnonzero(rev)
+        P[r], T[r] = revolution_tangents(surfaces, face[r], _normalized(surfaces, face[r], params[r]))
+    rows = np.flatnonzero(~flat & ~rev)
     g = Groups(face[rows])
-    for i, sl in g:  # loop over the other faces (each a different surface)
+    for i, sl in g:  # loop over the other faces (NURBS: each a different surface)
         r = rows[g.order[sl]]
         s = surfaces[i]
         P[r], T[r] = evaluate_params(s, normalize_params(s, params[r]), 1)
@@ -161,6 +168,29 @@ def _ours(model: CadModel, face: np.ndarray, params: np.ndarray) -> tuple[np.nda
         n = np.where((m > 1e-12 * su * sv)[:, None] & (m > 0)[:, None], n / m[:, None], np.nan)
     flip = np.array([f.reversed for f in model.faces] + [False])[face]
     return P, np.where(flip[:, None], -n, n), su, sv
+
+
+def _normalized(surfaces: list, face: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """``(n, 2)``: :func:`~nagata_snap.cad.projection.normalize_params` of the samples of
+    ``surfaces[face]`` at ``params (n, 2)``, for all at once (the surfaces' bounds, periods and
+    limits gathered per sample)."""
+    from nagata_snap.cad.projection import entity_limits, entity_periods
+
+    used = np.unique(face).tolist()
+    lo = np.zeros((len(surfaces), 2))
+    per = np.full((len(surfaces), 2), np.nan)
+    lim = np.zeros((len(surfaces), 2, 2))
+    for i in used:  # loop over the faces sampled (their domains)
+        lo[i] = surfaces[i].bounds[:, 0]
+        per[i] = entity_periods(surfaces[i])
+        lim[i] = entity_limits(surfaces[i])
+    lo, per, lim = lo[face], per[face], lim[face]
+    p = np.array(params, dtype=float)
+    wrap = np.isfinite(per)
+    out = wrap & ((p < lo) | (p > lo + per))
+    p[out] = lo[out] + np.mod(p[out] - lo[out], per[out])
+    np.copyto(p, p.clip(lim[..., 0], lim[..., 1]), where=~wrap)
+    return p
 
 
 def check_faces(model: CadModel, data: dict) -> list[FaceCheck]:
