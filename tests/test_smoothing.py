@@ -476,6 +476,17 @@ def _excused(attempts: list[dict], i: int) -> bool:
     return False
 
 
+def steered_by_unconverged(attempts: list[dict]) -> bool:
+    """Whether the repair's result depends on an optimisation stopped by its iteration limit:
+    a taken attempt that did not converge, or an untangle attempt that did not (taken or not:
+    the untangle loop reads every attempt, and the partial stage blames the vertices around the
+    cells the untangle stage left bad, so which vertices it pulls back, and how far, follows
+    those cells).  Round-off of every iteration of such an optimisation reaches the nodes even
+    when the recorded decisions agree."""
+    return any(a.get("converged") is False and (_kept(a) or a["stage"] == "untangle")
+               for a in attempts if a["stage"] != "partial")
+
+
 def first_divergence(ser: list[dict], par: list[dict]) -> int | None:
     """Index (among the steering decisions) of the first one a serial and a parallel repair
     took differently, None if they took the same throughout; asserts that round-off could
@@ -500,9 +511,13 @@ def test_mpi_matches_serial():
     parallel run must take the same decisions (:func:`first_divergence`), and
     then their nodes agree to round-off; they may part only where round-off can
     decide (a check within ``MARGIN`` of a threshold, or an optimisation that did
-    not converge: then the runs continue differently and only the robust facts
-    are compared: the stage, valid results, the cells and moved vertices, and
-    vertices left short on both).
+    not converge, :func:`steered_by_unconverged`: then the runs continue differently
+    and only the robust facts are compared: the stage, valid results, the cells and
+    moved vertices, and vertices left short on both).  In this case the untangle
+    attempts stop at their iteration limit (the left side cannot be untangled) and
+    the partial stage's blame follows the cells they leave bad (184-186 in one run,
+    186 in the other), so its nodes part by up to 0.12 in some runs with the same
+    recorded decisions; the nodes are compared where every optimisation converged.
     """
     script = REPO / "tests" / "mpi" / "smooth_mpi.py"
     bindir = pathlib.Path(sys.executable).parent
@@ -528,7 +543,9 @@ def test_mpi_matches_serial():
             assert out["stage"] == ["partial", "partial"]
             assert par.pop("n_shortfall") > 0 and ser.pop("n_shortfall") > 0
             assert par == ser
-            if first_divergence(out["attempts_ser"], out["attempts_par"]) is None:
+            same = first_divergence(out["attempts_ser"], out["attempts_par"]) is None
+            if same and not (steered_by_unconverged(out["attempts_ser"])
+                             or steered_by_unconverged(out["attempts_par"])):
                 assert out["maxdiff"] < SAME, out
         else:
             assert out["maxdiff"] < SAME, out

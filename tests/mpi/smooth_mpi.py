@@ -84,7 +84,7 @@ def run_case(msh, x_ref, left, fixed, case):
 
 def decisions(res):
     """The repair's attempts as the decisions they record, with the check's margin."""
-    return [{k: a.get(k) for k in ("stage", "round", "t", "layers", "n_bad", "kept", "margin")}
+    return [{k: a.get(k) for k in ("stage", "round", "t", "layers", "n_bad", "kept", "margin", "converged")}
             for a in res.attempts]
 
 
