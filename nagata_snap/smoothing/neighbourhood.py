@@ -39,9 +39,10 @@ import dolfinx.mesh
 import numpy as np
 from mpi4py import MPI
 
-from nagata_snap.mesh.simplex import cell_columns, cells_touching, edge_length_range
+from nagata_snap.mesh.simplex import edge_length_range
 from nagata_snap.smoothing.band import NodeSync, expand
 from nagata_snap.smoothing.halo import Halo, Layout, anywhere
+from nagata_snap.smoothing.kernels import grow_layer
 
 __all__ = ["Neighbourhood"]
 
@@ -86,7 +87,6 @@ class Neighbourhood:
         self.layers = layers
         self.local_cells = np.flatnonzero(cin).astype(np.int32)
         self._dofs = dofmap[self.local_cells]
-        self._cols = cell_columns(self._dofs)
         self.cells = np.ascontiguousarray(self._dofs[self.local_cells < n_own_cells], dtype=np.int64)
         self.layout = Layout.of(mesh.geometry.index_map())
         self.halo = Halo(self.layout, sync.n_owned + np.flatnonzero(self.nodes[sync.n_owned:]))
@@ -122,9 +122,7 @@ class Neighbourhood:
         mark = np.asarray(seeds, dtype=bool) & self.nodes
         dist = np.where(mark, 0, self.layers + 1)
         for k in range(1, self.layers + 1):
-            new = np.zeros_like(mark)
-            new[self._dofs[cells_touching(mark, self._cols)].reshape(-1)] = True
-            new = self.any(new)
+            new = self.any(grow_layer(self._dofs, mark)[0])  # mark and the next layer
             dist[new & ~mark] = k
             mark |= new
         return dist
