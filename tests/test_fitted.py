@@ -118,8 +118,10 @@ def test_torus_converges_at_order_five_and_beats_nagata():
 
 def test_degree_three():
     """Degree 3: far below Nagata on the ellipsoid (a quadric is in the model); on the torus, where the
-    cubic fits are about as accurate as the patches at these sizes, the guard keeps it near Nagata's."""
-    for kind, bound in (("ellipsoid", 0.1), ("torus", 1.5)):
+    cubic fits are about as accurate as the patches at these sizes, the guard keeps the fits that
+    improve on the patches and no worse than Nagata's (measured 0.65; 1.31 before the guard compared
+    the fits' disagreement with their correction of the patch)."""
+    for kind, bound in (("ellipsoid", 0.1), ("torus", 1.0)):
         p, t, exact, _ = gmsh_surface(kind, 0.05)
         fit = fitted_error(FittedGeometry.from_surface(p, t, degree=3, crease_angle=80), exact.distance)
         nagata = fitted_error(NagataGeometry.from_surface(p, t, crease_angle=80), exact.distance)
@@ -160,10 +162,14 @@ def test_cylinder_rims_stay_sharp_and_converge():
     assert orders(surf)[-1] >= 4.5, surf
 
 
-def test_filleted_plate_beats_nagata(tmp_path):
+@pytest.mark.parametrize("curvature, bound", [(12, 0.9), (16, 1.0), (20, 1.0)])
+def test_filleted_plate_beats_nagata(tmp_path, curvature, bound):
     """The filleted plate's coarse mesh against the CAD (OpenCASCADE's closest point on each facet's face):
     quarter-arc rims of 3 segments between corners are fitted (Hermite data: both faces' normals), the
-    largest distance below Nagata's; nothing bounded."""
+    largest distance below Nagata's; nothing bounded.  Finer sizings (4 and 5 segments per 90 degrees):
+    where the pocket-corner tori's fits disagree by as much as they correct the patches the guard keeps
+    the patches, so the fitted surface is never farther from the CAD than Nagata's (it was 2.5x and 1.7x
+    before the guard compared the two)."""
     import parts
     from occ_reference import gmsh_face_distance
 
@@ -173,7 +179,7 @@ def test_filleted_plate_beats_nagata(tmp_path):
     g = barycentric_grid(3, 4)
     with gmsh_session("plate"):
         import_cad(path)
-        cm = mesh_cad_file(path, MPI.COMM_SELF, curvature=12)
+        cm = mesh_cad_file(path, MPI.COMM_SELF, curvature=curvature)
         errs = []
         for geo in (FittedGeometry(cm.mesh, cm.facet_tags), NagataGeometry(cm.mesh, cm.facet_tags)):
             x = geo.evaluate(np.arange(geo.num_patches), np.broadcast_to(g, (geo.num_patches, *g.shape)))
@@ -181,7 +187,7 @@ def test_filleted_plate_beats_nagata(tmp_path):
                             for t in np.unique(geo.tag)))
             if isinstance(geo, FittedGeometry):
                 assert geo.n_clipped == 0
-    assert errs[0] <= 0.9 * errs[1], errs
+    assert errs[0] <= bound * errs[1], errs
 
 
 def test_p3_poisson_on_the_fitted_torus():

@@ -70,12 +70,12 @@ FIT_BOUND = 0.5
 
 #: A sector's fit is refused (its corners use the Nagata patch) where it
 #: disagrees with a neighbouring corner's fit by more than ``GUARD`` times the
-#: patch's departure from the straight facet (:meth:`FittedGeometry._guard`); a
-#: crease's fitted curve where it differs from the Nagata crease curve by more
-#: than ``GUARD`` times that curve's departure from the chord.  On gmsh torus
-#: meshes (r = 0.4) it refuses 145 of 474 sectors at h = 0.2 (the fits are no
-#: better than the patches there), 15 of 1904 at h = 0.1 and none at 0.05; 1.0
-#: let through crease curves 40x less accurate than Nagata's on the filleted plate.
+#: smaller of the patch's departure from the straight facet and the fits'
+#: correction of the patch there (:meth:`FittedGeometry._guard`): fits that
+#: disagree by as much as they move the patch are no evidence of doing better
+#: than it.  A crease's fitted curve is refused where it differs from the
+#: Nagata crease curve by more than ``GUARD`` times that curve's departure from
+#: the chord.
 GUARD = 0.5
 
 #: Barycentric samples of the guard, per facet size (2D: segments, 3D: triangles).
@@ -400,9 +400,15 @@ class FittedGeometry(NagataGeometry):
         Nagata's; a fit from a stencil too coarse or too ragged for its degree
         (a face a few facets wide, a coarse mesh of a strongly curved surface)
         departs from its neighbours'.  Where the disagreement exceeds ``GUARD``
-        times the Nagata patch's departure from the straight facet (plus
-        ``1e-9`` of the vertex's mean edge length), both sectors use the Nagata
-        patch point instead of their fit (the blend stays C0: the patches are).
+        times the Nagata patch's departure from the straight facet, or
+        ``GUARD`` times the larger of the two fits' distances from the patch
+        point (their correction of it; plus ``1e-9`` of the vertex's mean edge
+        length), both sectors use the Nagata patch point instead of their fit
+        (the blend stays C0: the patches are).  The second bound refuses fits
+        that agree with each other only to about their own correction: on a
+        coarse face a few facets wide, fits from one stencil spanning the face
+        can agree within the departure bound and still be farther from the
+        surface than the patch.
         Facets whose corners all have planar fits (:attr:`_flat`: tangent
         planes of stencils within ``FLAT`` of them, so of each other) agree to
         rounding and are not measured.
@@ -414,7 +420,8 @@ class FittedGeometry(NagataGeometry):
         lam = np.broadcast_to(grid, (F, *grid.shape))
         x0 = self.x[act]
         X = np.matmul(lam, x0)
-        dep = np.linalg.norm(patches.evaluate(x0, self.coef[act], lam) - X, axis=2)
+        nag = patches.evaluate(x0, self.coef[act], lam)
+        dep = np.linalg.norm(nag - X, axis=2)
         sec, vid = self.corners.sector[act], self.corners.vertex[act]
         frames, h = self._frame_s[sec], self._hv[vid]
         coef = self._coef_s[sec]
@@ -430,13 +437,14 @@ class FittedGeometry(NagataGeometry):
             return out
 
         q = [X + along(X, i) for i in range(nfv)]
+        gain = [np.linalg.norm(qi - nag, axis=2) for qi in q]  # each fit's correction of the patch
         bad = np.zeros(len(self._coef_s), dtype=bool)
         for i in range(nfv):
             for j in range(nfv):
                 if i == j:
                     continue
                 r = np.linalg.norm(along(q[i], j), axis=2)
-                tol = GUARD * dep + 1e-9 * h[:, j, None]
+                tol = GUARD * np.minimum(dep, np.maximum(gain[i], gain[j])) + 1e-9 * h[:, j, None]
                 far = ((r > tol) & (grid[None, :, i] >= 0.25)).any(axis=1)
                 np.logical_or.at(bad, sec[:, i], far)
                 np.logical_or.at(bad, sec[:, j], far)
