@@ -7,8 +7,11 @@ onto the wrong surface without a word.  So the reader (:mod:`nagata_snap.cad.rea
 where the OpenCASCADE shape exists) samples every face
 (:func:`~nagata_snap.cad.read._checks`: a grid over its ``(u, v)`` box, 4 x 4, or 3 x 3
 and 2 x 2 on OpenCASCADE's own analytic primitives and planes, which those fix; a point
-on a p-curve of every wire and of a few more and two beside each, across the p-curve), and
-:func:`check_faces` compares, on all samples of all faces at once:
+on a p-curve of every wire and of a few more and two beside each, across the p-curve; the
+placed instances of one face in an assembly share these samples, moved by their locations and
+spot-checked against OpenCASCADE's own evaluation of each instance,
+:func:`~nagata_snap.cad.read._placed_checks`), and :func:`check_faces` compares, on all
+samples of all faces at once (every instance against its own conversion):
 
 * **points** (on the face: the grid samples, those on the p-curves and those
   beside them that OpenCASCADE puts inside): our surface at OpenCASCADE's parameters (through the face's
@@ -272,7 +275,8 @@ def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = 
         "fallbacks" {description: faces}, "failed", "failed_faces", "worst_point",
         "worst_normal", "passes", "time"}`` (``time``: seconds of our side of the checks
         and of the re-reads and rebuilds for fallbacks; OpenCASCADE's samples of the first
-        read are its ``times["check"]``).
+        read are its ``times["check"]``; the model's trimming loops, which the checks use
+        and the geometry built from the model reuses, are built before the clock starts).
 
     Raises:
         CadError: the file cannot be read (:func:`~nagata_snap.cad.worker.read_cad`),
@@ -296,6 +300,7 @@ def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = 
         except ValueError as e:
             msg = str(e)
             raise CadError(msg if data["path"] in msg else f"{data['path']}: {msg}") from None
+        model.trim_loops()  # (the geometry's, built anyway: not the verification's cost)
         t1 = time.perf_counter()
         checks = check_faces(model, data)
         if not passes:
