@@ -50,6 +50,7 @@ from nagata_snap.cad.errors import CadError
 from nagata_snap.cad.projection import evaluate_params, normalize_params
 from nagata_snap.cad.topology import CadModel
 from nagata_snap.mesh.arrays import Groups
+from nagata_snap.mesh.simplex import cross
 
 __all__ = ["FaceCheck", "check_faces", "read_verified", "POINT_RTOL", "NORMAL_TOL", "FALLBACKS"]
 
@@ -113,7 +114,7 @@ def _samples(data: dict) -> tuple[np.ndarray, ...]:
     gap = np.concatenate([np.asarray(c.get("gap", np.zeros(len(c["uv"]))), dtype=float) for c in checks]
                          + [np.zeros(0)])
     D = cat("d1", (3, 3))
-    N = np.cross(D[:, 1], D[:, 2])
+    N = np.stack(cross(list(D[:, 1].T), list(D[:, 2].T)), axis=1)  # (np.cross: the same numbers, slower)
     m = np.linalg.norm(N, axis=1)
     ok = (m > 1e-12 * np.linalg.norm(D[:, 1], axis=1) * np.linalg.norm(D[:, 2], axis=1)) & (m > 0)
     sign = np.where(np.array([bool(f["reversed"]) for f in data["faces"]] + [False]), -1.0, 1.0)[face]
@@ -164,7 +165,7 @@ def _ours(model: CadModel, face: np.ndarray, params: np.ndarray) -> tuple[np.nda
         r = rows[g.order[sl]]
         s = surfaces[i]
         P[r], T[r] = evaluate_params(s, normalize_params(s, params[r]), 1)
-    n = np.cross(T[:, 0], T[:, 1])
+    n = np.stack(cross(list(T[:, 0].T), list(T[:, 1].T)), axis=1)
     m = np.linalg.norm(n, axis=1)
     su, sv = np.linalg.norm(T[:, 0], axis=1), np.linalg.norm(T[:, 1], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
