@@ -14,8 +14,9 @@ the ratios comparable on a shared machine, where one run of each at different mo
 Printed per part and format: the three times [ms] and the ratios of the revision and of this
 checkout to OpenCASCADE's import, and this checkout's verification of the faces against
 OpenCASCADE (:mod:`nagata_snap.cad.verify`, part of its time; the best of each side over the
-rounds): OpenCASCADE's samples (``times["check"]``, in the reader), our side of the checks
-(``times["verify"]``) and their sum over OpenCASCADE's import.  ``--files``: CAD files
+rounds, timed with the same clock unless ``--isolate``): OpenCASCADE's samples (``times["check"]``,
+in the reader), our side of the checks (``times["verify"]``) and their sum over OpenCASCADE's
+import, and the revision's sum over the import.  ``--files``: CAD files
 (e.g. of meshes/corpus) instead of the parts.  ``--stages``: also ``read_shape`` of the revision and of this
 checkout, interleaved likewise, and the best time of each of its stages (``times``: ``read``,
 ``heal``, ``convert``; measured with the same clock) and of the whole call.  ``--isolate``: both
@@ -94,15 +95,21 @@ def main() -> None:
         r.TransferRoots()
         r.OneShape()
 
+    import nagata_snap.cad.verify as new_verify
+    import nagata_snap_ref.cad.verify as ref_verify
+
     clock = time.perf_counter if args.wall else time.process_time
-    if args.stages:  # read_shape times its stages with time.perf_counter: the clock chosen instead
-        for mod in (ref_read, new_read):
+    if args.stages or not args.isolate:  # read_shape times its stages and the verification its
+        # side with time.perf_counter: the clock chosen instead (in this process only)
+        for mod in (ref_read, new_read, ref_verify, new_verify):
             mod.time = SimpleNamespace(perf_counter=clock)
     stages = ("read", "heal", "convert", "total")
     tmp = tempfile.mkdtemp(prefix="read_vs_ref_parts_")
     print(f"{'part':20s} {'format':9s} {'OCC':>7s} {args.ref:>7s} {'this':>7s}   ratio {args.ref:>5s} {'this':>5s}"
-          f"   verify: {'OCC':>7s} {'ours':>7s} {'/OCC':>5s}   ({'wall' if args.wall else 'CPU'} ms, best of "
-          f"{args.rounds}; verification: wall; then the medians of OCC, {args.ref}, this)", file=out, flush=True)
+          f"   verify: {'OCC':>7s} {'ours':>7s} {'/OCC':>5s} {args.ref + '/OCC':>9s}   "
+          f"({'wall' if args.wall else 'CPU'} ms, best of {args.rounds}; verification: "
+          f"{'wall' if args.isolate or args.wall else 'CPU'}; then the medians of OCC, {args.ref}, this)",
+          file=out, flush=True)
     if args.files:
         cases = [(os.path.basename(p), os.path.splitext(p)[1][1:], p) for p in args.files.split(",")]
     else:
@@ -113,15 +120,16 @@ def main() -> None:
                 cases.append((name, f, str(parts.write_part(name, tmp, (f,))[f])))
     for name, f, path in cases:
         checks = {"check": float("inf"), "verify": float("inf")}
+        checks_ref = dict(checks)
 
-        def this(p=path, checks=checks):
-            t = new.CadGeometry.from_file(p, isolate=args.isolate).model.times
+        def read(mod, checks, p=path):
+            t = mod.CadGeometry.from_file(p, isolate=args.isolate).model.times
             for k in checks:
                 checks[k] = min(checks[k], t.get(k, float("nan")))
 
         runs = {"occ": lambda p=path: occ(p),
-                "ref": lambda p=path: ref.CadGeometry.from_file(p, isolate=args.isolate),
-                "this": this}
+                "ref": lambda c=checks_ref: read(ref, c),
+                "this": lambda c=checks: read(new, c)}
         best = dict.fromkeys(runs, float("inf"))
         every: dict[str, list[float]] = {k: [] for k in runs}
         for g in runs.values():
@@ -136,7 +144,7 @@ def main() -> None:
         ver = checks["check"] + checks["verify"]
         print(f"{name:20s} {f:9s} {1e3 * o:7.2f} {1e3 * best['ref']:7.2f} {1e3 * best['this']:7.2f}   "
               f"      {best['ref'] / o:5.2f} {best['this'] / o:5.2f}           {1e3 * checks['check']:7.2f} "
-              f"{1e3 * checks['verify']:7.2f} {ver / o:5.2f}   median "
+              f"{1e3 * checks['verify']:7.2f} {ver / o:5.2f} {sum(checks_ref.values()) / o:9.2f}   median "
               + " ".join(f"{1e3 * sorted(every[k])[len(every[k]) // 2]:.1f}" for k in runs), file=out, flush=True)
         if args.stages:
             reads = {"ref": lambda p=path: ref_read.read_shape(p), "this": lambda p=path: new_read.read_shape(p)}

@@ -309,3 +309,73 @@ def test_spindle_torus_closest_point_on_its_face_box():
     brute, _ = cKDTree(t.evaluate(uu.ravel(), vv.ravel())[0]).query(X)
     assert (d <= brute + 1e-12).all()
     assert (t._in_box(uv[:, 0], uv[:, 1]) | (d < brute - 1e-3)).all()
+
+
+def _instances(path) -> tuple[list, list[int]]:
+    """The faces of a file as the reader numbers them, and for each the index of the first
+    face that is the same OpenCASCADE face (``TShape``) under another location (itself if none)."""
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.TopoDS import TopoDS
+
+    from nagata_snap.cad import read as cad_read
+
+    shape, _ = cad_read.load_shape(path)
+    fmap = cad_read.shape_maps(shape)[0]
+    faces = [TopoDS.Face(fmap.FindKey(i)) for i in range(1, fmap.Extent() + 1)]
+    first: list[int] = []
+    for i, f in enumerate(faces):  # (a few hundred faces: pairwise IsSame at the identity location)
+        here = f.Located(TopLoc_Location())
+        first.append(next(j for j in range(i + 1) if faces[j].Located(TopLoc_Location()).IsSame(here)))
+    return faces, first
+
+
+def test_placed_instances_have_occs_own_samples():
+    """An assembly's placed instances of one face share its check samples, moved by their
+    locations (``read._placed_checks``): on every face of such a file, every sample's point and
+    derivatives are OpenCASCADE's own evaluation of that face (its ``BRepAdaptor_Surface``, with
+    its location) to 1e-12, and every classified sample has the state OpenCASCADE's classifier
+    of that face gives it."""
+    from OCP.gp import gp_Pnt, gp_Pnt2d, gp_Vec
+    from OCP.IntTools import IntTools_FClass2d
+
+    from nagata_snap.cad import read as cad_read
+
+    path = _corpus("as1_assembly_proengineer_wf4_cax_if.stp")
+    faces, first = _instances(path)
+    assert sum(j != i for i, j in enumerate(first)) > 50  # instances of shared faces: the case tested
+    data = cad_read.read_shape(path)
+    o = cad_read._occ()
+    p, su, sv, q = gp_Pnt(), gp_Vec(), gp_Vec(), gp_Pnt2d()
+    for face, f in zip(faces, data["faces"], strict=True):
+        c = f["check"]
+        a = o.BRepAdaptor_Surface(face, False)
+        ulo, uhi, vlo, vhi = cad_read._clamp_box(a)
+        own = []
+        for u, v in c["uv"].tolist():
+            a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+            own.append([p.Coord(), su.Coord(), sv.Coord()])
+        own = np.array(own)
+        scale = np.maximum(np.abs(own).max(axis=(0, 2)), [data["size"], 1e-300, 1e-300])
+        assert (np.abs(own - c["d1"]).max(axis=(0, 2)) <= 1e-12 * scale).all()
+        cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * data["size"]))
+        for (u, v), kind, state in zip(c["uv"].tolist(), c["kind"].tolist(), c["state"].tolist(), strict=True):
+            if kind != 1:
+                q.SetCoord(u, v)
+                assert o.STATES.get(int(cls.Perform(q)), 2) == state
+
+
+def test_corrupted_placed_instance_is_caught():
+    """A placed instance of a shared face converted wrongly (its surface moved by 1e-6 of the
+    model size) fails its check though its samples were moved from the first instance's; the
+    first instance and the other faces pass."""
+    from nagata_snap.cad.topology import CadModel
+
+    path = _corpus("as1_assembly_proengineer_wf4_cax_if.stp")
+    _, first = _instances(path)
+    data = cad_worker.read_cad(path, isolate=False)
+    i = next(i for i, j in enumerate(first) if j != i and data["faces"][i]["surface"]["type"] == "plane")
+    s = data["faces"][i]["surface"]
+    s["origin"] = list(np.asarray(s["origin"]) + 1e-6 * data["size"] * np.asarray(s["z"]))
+    checks = cad_verify.check_faces(CadModel.from_data(data), data)
+    assert [c.face for c in checks if not c.ok] == [i]
+    assert checks[i].point > cad_verify.POINT_RTOL

@@ -636,6 +636,103 @@ def _check_grid(surface: dict, convert: bool, fallback: str | None) -> int:
     return 2 if surface["type"] == "plane" else 3
 
 
+def _clamp_box(a) -> tuple[float, float, float, float]:
+    """``(u0, u1, v0, v1)`` into which :func:`_checks` clamps its parameters on the surface of the
+    adaptor ``a``: a B-spline's (or Bezier's) knots in its open directions (a p-curve may leave
+    them by its tolerance; both sides clamp there), infinite elsewhere (other surfaces
+    extrapolate, as ours do)."""
+    o = _occ()
+    ulo, uhi, vlo, vhi = (-math.inf, math.inf) * 2
+    if int(a.GetType()) in (o.BSPLINE_SURFACE, o.BEZIER_SURFACE):
+        if not a.IsUPeriodic():
+            ulo, uhi = a.FirstUParameter(), a.LastUParameter()
+        if not a.IsVPeriodic():
+            vlo, vhi = a.FirstVParameter(), a.LastVParameter()
+    return ulo, uhi, vlo, vhi
+
+
+class _Placed:
+    """OpenCASCADE's samples (:func:`_checks`) of faces that are placed instances of one face
+    (an assembly's parts: one ``TopoDS_TShape`` under several ``TopLoc_Location``), taken once
+    per shared face and moved to every other instance by the rigid motion between the
+    instances' locations (:func:`_placed_checks`).
+
+    Attributes:
+        keys: the faces seen, each at the identity location (an indexed map: instances of
+            one face have one index).
+        first: per ``(index, grid, uv box)`` the first instance's samples, the inverse of its
+            location's transformation, :func:`_clamp_box` of its surface and its spot samples
+            (their rows and ``(u, v)``).
+    """
+
+    def __init__(self) -> None:
+        from OCP.OCP.collections import IndexedMap_TopoDS_Shape_TopTools_ShapeMapHasher as IMap
+        from OCP.TopLoc import TopLoc_Location
+
+        self.keys = IMap()
+        self.identity = TopLoc_Location()
+        self.first: dict[tuple, tuple[dict, Any, tuple[float, float, float, float], tuple[list[int], list]]] = {}
+
+
+#: largest difference, relative to the model size or the point's largest coordinate (points)
+#: or to the derivatives' largest component, between OpenCASCADE's own point and derivatives
+#: at an instance's spot samples and the first instance's moved there
+#: (:func:`_placed_checks`): rounding of the motion only
+PLACED_RTOL = 1e-12
+
+
+def _placed_checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: int, size: float,
+                   placed: _Placed) -> dict:
+    """:func:`_checks` of a face, shared between the placed instances of one face (``placed``).
+
+    The first instance is sampled as :func:`_checks` samples it.  Another instance, placed
+    by a rigid motion ``M`` from the first (``T_i T_1^-1``, scale 1; any other
+    transformation is sampled on its own), gets the first's samples with points
+    ``M p`` and derivatives ``R S_u``, ``R S_v`` (``R`` the rotation of ``M``): the same
+    parameters, classifier states (``IntTools_FClass2d`` classifies in the face's parameter
+    plane, forward oriented) and offset.  Each such instance is also evaluated by
+    OpenCASCADE itself (its own ``BRepAdaptor_Surface``, with its location) at its first
+    grid sample and its first sample on a p-curve, whose values replace the moved ones; if
+    they differ from them by more than :data:`PLACED_RTOL`, the instance is sampled in full.
+    So every face is compared (by :mod:`nagata_snap.cad.verify`) with OpenCASCADE's points,
+    derivatives and classification of that face.
+    """
+    from OCP.gp import gp_Pnt, gp_Vec
+
+    trsf = face.Location().Transformation()
+    key = (placed.keys.Add(face.Located(placed.identity)), grid, tuple(uv))
+    first = placed.first.get(key)
+    if first is None:
+        c = _checks(face, uv, uses, grid)
+        a = _occ().BRepAdaptor_Surface(face, False)
+        rows = [0, *np.flatnonzero(c["kind"] == 1)[:1].tolist()]  # (a grid sample comes first)
+        placed.first[key] = (c, trsf.Inverted(), _clamp_box(a), (rows, c["uv"][rows].tolist()))
+        return c
+    t0 = time.perf_counter()
+    c1, inverse, (ulo, uhi, vlo, vhi), spots = first
+    m = trsf.Multiplied(inverse)
+    if m.ScaleFactor() != 1.0:
+        return _checks(face, uv, uses, grid)
+    M = np.array([[m.Value(i, j) for j in range(1, 5)] for i in range(1, 4)])
+    d1 = np.dot(c1["d1"], M[:, :3].T)
+    d1[:, 0] += M[:, 3]
+    a = _occ().BRepAdaptor_Surface(face, False)
+    p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
+    own: list[tuple] = []
+    for u, v in spots[1]:  # OpenCASCADE's own point and derivatives at the spot samples
+        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+        own += (p.Coord(), su.Coord(), sv.Coord())
+    at = np.array(own).reshape(-1, 3, 3)
+    dev = np.abs(at - d1[spots[0]]).max(axis=2)  # (spot, point / S_u / S_v)
+    scale = np.abs(at).max(axis=2)
+    scale[:, 0] = np.maximum(scale[:, 0], size)
+    scale[:, 1:] = scale[:, 1:].max(axis=1, keepdims=True)
+    if not (dev <= PLACED_RTOL * scale).all():
+        return _checks(face, uv, uses, grid)
+    d1[spots[0]] = at
+    return {**c1, "d1": d1, "time": time.perf_counter() - t0}
+
+
 def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: int = CHECK_GRID) -> dict:
     """OpenCASCADE's samples of a face, against which :mod:`nagata_snap.cad.verify`
     checks its conversion: parameters in the face's own ``(u, v)`` (those of its
@@ -667,15 +764,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     params = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
     kind = [0] * len(params)
     p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
-    # a B-spline's points inside its knots in its open directions (a p-curve may leave them
-    # by its tolerance; both sides clamp there), classified where they are; other surfaces
-    # extrapolate, as ours do
-    ulo, uhi, vlo, vhi = (-math.inf, math.inf) * 2
-    if int(a.GetType()) in (o.BSPLINE_SURFACE, o.BEZIER_SURFACE):
-        if not a.IsUPeriodic():
-            ulo, uhi = a.FirstUParameter(), a.LastUParameter()
-        if not a.IsVPeriodic():
-            vlo, vhi = a.FirstVParameter(), a.LastVParameter()
+    ulo, uhi, vlo, vhi = _clamp_box(a)
     D: list[float] = []  # per sample its point, S_u and S_v (flat)
     for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
         a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
@@ -842,7 +931,7 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
 
 
 def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | None = None,
-          fallback: str | None = None, check: bool = True) -> dict:
+          fallback: str | None = None, check: bool = True, placed: _Placed | None = None) -> dict:
     """Surface, bounds, orientation and wires of one face (converting it if needed);
     ``degenerate``: see :func:`_wires`.
 
@@ -852,7 +941,8 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
     where the one asked for does not apply, ``"nurbs"`` (the face's ``fallback`` says which
     was used); asked for by :mod:`nagata_snap.cad.verify` for a face whose first
     description failed its check.  ``check``: add OpenCASCADE's samples of the face
-    (``"check"``, :func:`_checks`).
+    (``"check"``, :func:`_checks`; shared with the other placed instances of the face in
+    ``placed``, :func:`_placed_checks`, unless converted).
     """
     o = _occ()
     uv = o.BRepTools.UVBounds_s(face)
@@ -895,7 +985,10 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
     if fallback is not None:
         out["fallback"] = "nurbs" if basis is None else fallback
     if check:
-        out["check"] = c = _checks(pface, uv, checked, _check_grid(surface, convert, fallback))
+        grid = _check_grid(surface, convert, fallback)
+        out["check"] = c = _checks(pface, uv, checked, grid) \
+            if convert or placed is None or face.Location().IsIdentity() else \
+            _placed_checks(face, uv, checked, grid, size, placed)
         if convert:  # the converted face's points against the face's own surface
             t0 = time.perf_counter()
             c["gap"] = _gaps(face, c["d1"][:, 0], (c["kind"] != 2) | (c["state"] == 0))
@@ -1084,7 +1177,8 @@ def _walk(shape, size: float, fallback: dict[int, str] | None = None, check: boo
             "source": i,
         })
     fb = fallback or {}
-    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size, None, fb.get(i - 1), check)
+    placed = _Placed() if check else None
+    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size, None, fb.get(i - 1), check, placed)
              for i in range(1, fmap.Extent() + 1)]
     solids = _ancestors(TopAbs_FACE, fmap, smap)
     for f, s in zip(faces, solids, strict=True):
@@ -1211,7 +1305,8 @@ def _walk_joined(shape, size: float, times: dict, fallback: dict[int, str] | Non
     occ_faces = [TopoDS.Face(fmap.FindKey(i)) for i in range(1, fmap.Extent() + 1)]
     degenerate = copies.degenerate.tolist()
     fb = fallback or {}
-    faces = [_face(f, i, emap, size, degenerate, fb.get(i), check) for i, f in enumerate(occ_faces)]
+    placed = _Placed() if check else None
+    faces = [_face(f, i, emap, size, degenerate, fb.get(i), check, placed) for i, f in enumerate(occ_faces)]
     t2 = time.perf_counter()
     j = sewing.join_faces(joined, _face_uses(faces, occ_faces), ~copies.degenerate)
     t3 = time.perf_counter()

@@ -96,7 +96,8 @@ class _Slabs:
     """Horizontal slabs of a polygon: the edges spanning each slab (CSR), for crossing tests.
 
     A query point's ray ``+x`` can only cross edges whose ``y`` range holds the
-    point's ``y``: those listed for its slab (``k / 2`` slabs for ``k`` edges).
+    point's ``y``: those listed for its slab (``k / 2`` slabs for ``k`` edges; horizontal
+    edges, which no such ray crosses, in none).
 
     Attributes:
         y0, dy, n: the slabs ``[y0 + i dy, y0 + (i + 1) dy)``, ``i < n``.
@@ -189,7 +190,9 @@ class _SlabTable:
         s = ((ends - y0[lid]) / dy[lid]).astype(np.int64)
         np.maximum(s, 0, out=s)
         np.minimum(s, (n - 1)[lid], out=s)
-        cnt = s[1] - s[0] + 1
+        # (a horizontal edge, or one with a NaN end, is listed in no slab: the ray +x from a
+        # point crosses an edge where exactly one of its ends is above the point, never there)
+        cnt = np.where(ends[0] < ends[1], s[1] - s[0] + 1, 0)
         first = np.zeros(len(n) + 1, dtype=np.int64)  # global number of each polygon's first slab
         n.cumsum(out=first[1:])
         seg = (np.arange(len(P)) - off[lid]).repeat(cnt)

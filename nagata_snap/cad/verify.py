@@ -7,8 +7,11 @@ onto the wrong surface without a word.  So the reader (:mod:`nagata_snap.cad.rea
 where the OpenCASCADE shape exists) samples every face
 (:func:`~nagata_snap.cad.read._checks`: a grid over its ``(u, v)`` box, 4 x 4, or 3 x 3
 and 2 x 2 on OpenCASCADE's own analytic primitives and planes, which those fix; a point
-on a p-curve of every wire and of a few more and two beside each, across the p-curve), and
-:func:`check_faces` compares, on all samples of all faces at once:
+on a p-curve of every wire and of a few more and two beside each, across the p-curve; the
+placed instances of one face in an assembly share these samples, moved by their locations and
+spot-checked against OpenCASCADE's own evaluation of each instance,
+:func:`~nagata_snap.cad.read._placed_checks`), and :func:`check_faces` compares, on all
+samples of all faces at once (every instance against its own conversion):
 
 * **points** (on the face: the grid samples, those on the p-curves and those
   beside them that OpenCASCADE puts inside): our surface at OpenCASCADE's parameters (through the face's
@@ -47,6 +50,7 @@ from nagata_snap.cad.errors import CadError
 from nagata_snap.cad.projection import evaluate_params, normalize_params
 from nagata_snap.cad.topology import CadModel
 from nagata_snap.mesh.arrays import Groups
+from nagata_snap.mesh.simplex import cross
 
 __all__ = ["FaceCheck", "check_faces", "read_verified", "POINT_RTOL", "NORMAL_TOL", "FALLBACKS"]
 
@@ -110,7 +114,7 @@ def _samples(data: dict) -> tuple[np.ndarray, ...]:
     gap = np.concatenate([np.asarray(c.get("gap", np.zeros(len(c["uv"]))), dtype=float) for c in checks]
                          + [np.zeros(0)])
     D = cat("d1", (3, 3))
-    N = np.cross(D[:, 1], D[:, 2])
+    N = np.stack(cross(list(D[:, 1].T), list(D[:, 2].T)), axis=1)  # (np.cross: the same numbers, slower)
     m = np.linalg.norm(N, axis=1)
     ok = (m > 1e-12 * np.linalg.norm(D[:, 1], axis=1) * np.linalg.norm(D[:, 2], axis=1)) & (m > 0)
     sign = np.where(np.array([bool(f["reversed"]) for f in data["faces"]] + [False]), -1.0, 1.0)[face]
@@ -161,7 +165,7 @@ def _ours(model: CadModel, face: np.ndarray, params: np.ndarray) -> tuple[np.nda
         r = rows[g.order[sl]]
         s = surfaces[i]
         P[r], T[r] = evaluate_params(s, normalize_params(s, params[r]), 1)
-    n = np.cross(T[:, 0], T[:, 1])
+    n = np.stack(cross(list(T[:, 0].T), list(T[:, 1].T)), axis=1)
     m = np.linalg.norm(n, axis=1)
     su, sv = np.linalg.norm(T[:, 0], axis=1), np.linalg.norm(T[:, 1], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -272,7 +276,8 @@ def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = 
         "fallbacks" {description: faces}, "failed", "failed_faces", "worst_point",
         "worst_normal", "passes", "time"}`` (``time``: seconds of our side of the checks
         and of the re-reads and rebuilds for fallbacks; OpenCASCADE's samples of the first
-        read are its ``times["check"]``).
+        read are its ``times["check"]``; the model's trimming loops, which the checks use
+        and the geometry built from the model reuses, are built before the clock starts).
 
     Raises:
         CadError: the file cannot be read (:func:`~nagata_snap.cad.worker.read_cad`),
@@ -296,6 +301,7 @@ def read_verified(path, *, unit: str = "MM", heal: bool = True, isolate: bool = 
         except ValueError as e:
             msg = str(e)
             raise CadError(msg if data["path"] in msg else f"{data['path']}: {msg}") from None
+        model.trim_loops()  # (the geometry's, built anyway: not the verification's cost)
         t1 = time.perf_counter()
         checks = check_faces(model, data)
         if not passes:
