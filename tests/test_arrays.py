@@ -95,3 +95,26 @@ def test_ragged_rows_are_the_lists():
     assert vals.tolist() == [v for i in pick for v in lists[i].tolist()]
     empty = Ragged([])
     assert empty.flat.shape == (0,) and empty.ptr.tolist() == [0]
+
+
+@pytest.mark.parametrize("clash", [False, True])
+def test_unique_rows_of_floats_by_hash(monkeypatch, clash):
+    """Float rows (found by a hash of each row, ``clash``: every row given the same hash, so
+    the columns are sorted instead): ``unique_rows`` as ``np.unique(axis=0)`` on rows without
+    signed zeros or NaN, and by hand on rows with them (``-0.0 == 0.0``; a row with NaN is a
+    group of its own, ranked after the equal rows without)."""
+    from nagata_snap.mesh import arrays
+
+    if clash:
+        monkeypatch.setattr(arrays, "_mix64", lambda x: np.multiply(x, 0, out=x))
+    rng = np.random.default_rng(11)
+    values = rng.normal(size=(40, 6))
+    rows = values[rng.integers(0, 40, 500)]
+    rows[:, 2] = np.round(rows[:, 2])  # columns that tie
+    first, inverse, distinct = unique_rows(rows)
+    want, want_first, want_inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    assert np.array_equal(first, want_first) and np.array_equal(distinct, want)
+    assert np.array_equal(inverse, want_inverse.reshape(-1))
+    rows = np.array([[1.0, np.nan], [0.0, 2.0], [-0.0, 2.0], [1.0, np.nan], [1.0, 3.0], [0.0, 2.0]])
+    first, inverse, _ = unique_rows(rows)
+    assert first.tolist() == [1, 4, 0, 3] and inverse.tolist() == [2, 0, 0, 3, 1, 0]

@@ -341,3 +341,28 @@ def test_invalid_edge_curve_is_named(tmp_path):
     data["edges"][bad]["curve"]["direction"] = [0.0, 0.0, 0.0]
     with pytest.raises(ValueError, match=rf"edge {bad} \(line curve\): line direction must be non-zero"):
         CadModel.from_data(data)
+
+
+def test_band_test_of_all_faces_at_once_is_excess_face_by_face(part):
+    """``inside`` (with the band: all faces' queries at once, through the loop table) says
+    what the face-by-face ``excess <= 0`` says, on points of every face's box, on its loops,
+    within and just beyond their bands, and a period away."""
+    geo, _ = part
+    trims = geo.trims
+    ent, q = [], []
+    for e, face in enumerate(geo.model.faces):
+        P = np.concatenate([lp.points for lp in face.loops])
+        lo, hi = P.min(axis=0), P.max(axis=0)
+        span = np.maximum(hi - lo, 1e-9)
+        pts = [lo - 0.05 * span + RNG.random((200, 2)) * 1.1 * span, P]
+        for scale in (1e-7, 1e-5, 1e-3):  # about the bands' widths, either side of the loops
+            pts.append(P + scale * span * RNG.normal(size=P.shape))
+        per = entity_periods(face.surface)
+        pts.append(pts[0] + np.where(np.isfinite(per), per, 0.0))
+        pts = np.concatenate(pts)
+        ent.append(np.full(len(pts), e))
+        q.append(pts)
+    ent, q = np.concatenate(ent), np.concatenate(q)
+    ours = trims.inside(ent, q)
+    assert np.array_equal(ours, trims.excess(ent, q) <= 0.0)
+    assert 0 < ours.sum() < len(ours)

@@ -65,6 +65,29 @@ def _segment_distances(Q: np.ndarray, first: np.ndarray, cnt: np.ndarray, su: np
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _slab_crossings(x: np.ndarray, y: np.ndarray, loop: np.ndarray, y0: np.ndarray, dy: np.ndarray,
+                    n: np.ndarray, first: np.ndarray, seg: np.ndarray, ptr: np.ndarray, P: np.ndarray,
+                    off: np.ndarray, nxt: np.ndarray) -> np.ndarray:
+    """``(m,)`` :meth:`_SlabTable.crossings` of the queries ``(x[i], y[i])`` with polygon
+    ``loop[i]``, one query at a time (the table's arrays: no work arrays per (query, edge))."""
+    out = np.zeros(len(x), dtype=np.int64)
+    for i in range(len(x)):  # loop over queries
+        lp, yq = loop[i], y[i]
+        t = (yq - y0[lp]) / dy[lp]
+        if not (t > -1.0 and t < n[lp]):  # the slabs trunc(t) in 0..n-1; NaN is outside
+            continue
+        s = first[lp] + np.int64(t)
+        c = 0
+        for k in range(ptr[s], ptr[s + 1]):  # loop over the edges spanning the slab
+            e = off[lp] + seg[k]
+            ay, by = P[e, 1], P[nxt[e], 1]
+            if (ay > yq) != (by > yq) and x[i] < P[e, 0] + (yq - ay) * (P[nxt[e], 0] - P[e, 0]) / (by - ay):
+                c += 1
+        out[i] = c
+    return out
+
+
 def _crossings(poly: np.ndarray, pts: np.ndarray, slabs: _Slabs | None = None) -> np.ndarray:
     """Number of polygon edges crossed by the ray ``+x`` from each point, ``(m,)``.
 
@@ -213,20 +236,10 @@ class _SlabTable:
     def crossings(self, loop: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """``(m,)``: edges of polygon ``loop[i]`` crossed by the ray ``+x`` from ``pts[i]``
         (``pts (m, 2)``), as :func:`_crossings` with the polygon's slabs, for all at once."""
-        x, y = pts[:, 0], pts[:, 1]
-        t = (y - self.y0[loop]) / self.dy[loop]
-        inside = (t > -1.0) & (t < self.n[loop])  # the slabs trunc(t) in 0..n-1; NaN is outside
-        s = self.first[loop] + np.where(inside, t, 0.0).astype(np.int64)
-        cnt = np.where(inside, self.ptr[s + 1] - self.ptr[s], 0)
-        pt = np.repeat(np.arange(len(pts)), cnt)
-        edge = self.off[loop[pt]] + self.seg[np.repeat(self.ptr[s], cnt) + ramp(cnt)]
-        a, b = self.P[edge], self.P[self.nxt[edge]]
-        yq = y[pt]
-        ay, by = a[:, 1], b[:, 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xint = a[:, 0] + (yq - ay) * (b[:, 0] - a[:, 0]) / (by - ay)
-        hit = ((ay > yq) != (by > yq)) & (x[pt] < xint)
-        return np.bincount(pt[hit], minlength=len(pts))
+        pts = np.asarray(pts, dtype=float)
+        return _slab_crossings(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                               np.asarray(loop, dtype=np.int64), self.y0, self.dy, self.n, self.first,
+                               self.seg, self.ptr, self.P, self.off, self.nxt)
 
 
 #: the parameter shifts of :meth:`TrimLoops._shifts`, in periods: 0 and one either way in each direction
@@ -561,12 +574,12 @@ class TrimLoops:
         ``band``: inside the polygons, even-odd, at the wrapped parameter or one period
         either side, as the band test: a face's loops may cross the period's end, as those
         of a periodic B-spline face whose parameters run past its knots' period do)."""
-        if band:
-            return self.excess(ent, params) <= 0.0
         from nagata_snap.cad.projection import normalize_params
 
         ent = np.asarray(ent, dtype=np.int64).reshape(-1)
         params = np.asarray(params, dtype=float).reshape(len(ent), -1)[:, :2]
+        if band:
+            return self._within_band(ent, params)
         out = np.ones(len(ent), dtype=bool)
         rows = np.flatnonzero(self.trimmed[ent])
         if self._loop_start is not None and self._domain.ok:
@@ -587,6 +600,27 @@ class TrimLoops:
                 if todo.size == 0:
                     break
             out[sel] = res
+        return out
+
+    def _within_band(self, ent: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """:meth:`inside` with the band: ``excess <= 0``, i.e. inside the polygons at some shift
+        or within a loop's band at some shift; with every face's loops in one table, all
+        queries at once (:meth:`inside` without the band, then :meth:`loop_distance` of the
+        queries outside the polygons: the arithmetic of :meth:`_excess` per shift), not face
+        by face."""
+        if self._loop_start is None or not self._domain.ok:
+            return self.excess(ent, params) <= 0.0
+        out = np.ones(len(ent), dtype=bool)
+        rows = np.flatnonzero(self.trimmed[ent])
+        ins = np.zeros(rows.size, dtype=bool)
+        for i in range(0, len(rows), CHUNK // 8):  # chunks bound the (query, edge) work arrays
+            sel = rows[i:i + CHUNK // 8]  # inside at the wrapped parameter (most points) first
+            ins[i:i + CHUNK // 8] = self._inside_all(ent[sel], self._domain.normalize(ent[sel], params[sel]),
+                                                     shift=False)
+        rest = rows[~ins]
+        if rest.size:
+            near = rest[~self.inside(ent[rest], params[rest], band=False)]
+            out[near] = self.loop_distance(ent[near], params[near]) <= 0.0
         return out
 
     def _shifted(self, ent: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -611,11 +645,12 @@ class TrimLoops:
         best = _segment_distances(Q, first, cnt, su[qi], sv[qi], self._table.P, self._seg, self._band)
         return np.minimum.reduceat(best, np.flatnonzero(np.r_[True, qi[1:] != qi[:-1]]))
 
-    def _inside_all(self, ent: np.ndarray, q: np.ndarray) -> np.ndarray:
+    def _inside_all(self, ent: np.ndarray, q: np.ndarray, shift: bool = True) -> np.ndarray:
         """``(n,)`` :meth:`inside` (no band) of the wrapped parameters ``q (n, 2)`` on the trimmed
         entities ``ent (n,)``: the even-odd test of every query at every shift of
-        :meth:`_shifts` against its entity's loops, all at once (one :meth:`_SlabTable.crossings`)."""
-        qi, Q = self._shifted(ent, q)
+        :meth:`_shifts` (without ``shift``: at ``q`` only) against its entity's loops, all at
+        once (one :meth:`_SlabTable.crossings`)."""
+        qi, Q = self._shifted(ent, q) if shift else (np.arange(len(q)), q)
         # every (shifted query, loop of its entity) pair
         assert self._loop_start is not None  # (the caller's condition)
         start = self._loop_start[ent[qi]]

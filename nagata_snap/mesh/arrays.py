@@ -108,6 +108,10 @@ def _first_inverse(a: np.ndarray, stable: bool = True) -> tuple[np.ndarray, np.n
     if n == 0:
         return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
     key = _packed(a)
+    if key is None and a.dtype.kind == "f":
+        hashed = _float_first_inverse(a)
+        if hashed is not None:
+            return hashed
     new = np.empty(n, dtype=bool)
     new[0] = True
     if key is None:
@@ -121,6 +125,49 @@ def _first_inverse(a: np.ndarray, stable: bool = True) -> tuple[np.ndarray, np.n
     inverse = np.empty(n, dtype=np.intp)
     inverse[order] = new.cumsum() - 1
     return order[new], inverse
+
+
+def _mix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser of ``uint64`` values (in place: every input bit reaches every output bit)."""
+    x ^= x >> np.uint64(30)
+    x *= np.uint64(0xBF58476D1CE4E5B9)
+    x ^= x >> np.uint64(27)
+    x *= np.uint64(0x94D049BB133111EB)
+    x ^= x >> np.uint64(31)
+    return x
+
+
+def _float_first_inverse(a: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_first_inverse` of float rows ``a (n, k)`` by one sort of a 64-bit hash of each
+    row instead of a ``lexsort`` of its ``k`` columns, the same ``(first, inverse)``: equal rows
+    (``-0.0 == 0.0``) share a hash, so they are contiguous after the sort; the distinct rows
+    found (few) are then ranked by a ``lexsort`` of their own, ties (rows with NaN, their own
+    groups) by their first row, as the stable sort of all rows would.  None where two
+    different rows without NaN share a hash (the caller then sorts the columns)."""
+    n = a.shape[0]
+    canon = a + 0.0  # -0.0 -> 0.0: the same bits for equal values
+    bits = canon.view(np.uint64)
+    h = _mix64(bits[:, 0].copy())
+    for c in range(1, a.shape[1]):  # loop over the columns
+        h ^= bits[:, c]
+        _mix64(h)
+    order = h.argsort(kind="stable")
+    srt = np.take(canon, order, axis=0)  # (faster than canon[order] for rows)
+    new = np.empty(n, dtype=bool)
+    new[0] = True
+    new[1:] = (srt[1:] != srt[:-1]).any(axis=1)  # (a row with NaN differs from every row)
+    hs = h[order]
+    clash = np.flatnonzero(new[1:] & (hs[1:] == hs[:-1])) + 1
+    if clash.size and not np.isnan(srt[clash]).any(axis=1).all():
+        return None
+    first = order[new]  # the first row of each group (the sort is stable)
+    rank = np.empty(first.size, dtype=np.intp)
+    rank[np.lexsort((first, *np.take(a, first, axis=0).T[::-1]))] = np.arange(first.size)
+    inverse = np.empty(n, dtype=np.intp)
+    inverse[order] = rank[new.cumsum() - 1]
+    out = np.empty(first.size, dtype=np.intp)
+    out[rank] = first
+    return out, inverse
 
 
 def row_index(rows: np.ndarray) -> np.ndarray:
