@@ -612,7 +612,7 @@ CHECK_OFFSET = 1e-3
 
 
 def _check_uses(wires: Sequence[Sequence[tuple]]) -> list[tuple]:
-    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor, first, last)`` of each
+    """The edge uses :func:`_checks` samples, of the ``(edge, p-curve adaptor, first, last, seam)`` of each
     wire's non-degenerate uses (as :func:`_wires` walked them): the first one of every wire
     (every loop is checked), then others spread over the face's uses, up to
     :data:`CHECK_USES` in all."""
@@ -740,7 +740,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
     which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor, its first and last
-    parameters)`` of every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
+    parameters, seam or None)`` of every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
     grid over the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
     per sample; the arithmetic on the samples is :mod:`~nagata_snap.cad.verify`'s, on all
     faces' at once.)
@@ -764,13 +764,17 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     params = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
     kind = [0] * len(params)
     p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
+    pc, sc, vc, d1 = p.Coord, su.Coord, sv.Coord, a.D1
     ulo, uhi, vlo, vhi = _clamp_box(a)
+    clamp = math.isfinite(ulo) or math.isfinite(vlo)  # (else min and max give u and v themselves)
     D: list[float] = []  # per sample its point, S_u and S_v (flat)
     for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
-        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
-        D += p.Coord()
-        D += su.Coord()
-        D += sv.Coord()
+        if clamp:
+            u, v = min(max(u, ulo), uhi), min(max(v, vlo), vhi)
+        d1(u, v, p, su, sv)
+        D += pc()
+        D += sc()
+        D += vc()
     # the face's extent, roughly: the grid's, scaled to the span of a CHECK_GRID grid's
     xs, ys, zs = D[0::9], D[1::9], D[2::9]
     span = (CHECK_GRID - 1) / CHECK_GRID / ((grid - 1) / grid) if grid > 1 else 1.0
@@ -778,16 +782,19 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     extent = extent if math.isfinite(extent) else 0.0
     p2, d2 = gp_Pnt2d(), gp_Vec2d()
     offset = CHECK_OFFSET * extent
-    for e, c, t0_, t1_ in _check_uses(uses):  # loop over a few edge uses (their p-curves)
+    for e, c, t0_, t1_, seam in _check_uses(uses):  # loop over a few edge uses (their p-curves)
         c.D1(0.5 * (t0_ + t1_), p2, d2)
         u, v = p2.Coord()
         params.append((u, v))
         kind.append(1)
-        a.D1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
-        D += p.Coord()
-        D += su.Coord()
-        D += sv.Coord()
-        if o.BRep_Tool.IsClosed_s(e, face):  # a seam: the face on both sides
+        if clamp:
+            d1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+        else:
+            d1(u, v, p, su, sv)
+        D += pc()
+        D += sc()
+        D += vc()
+        if o.BRep_Tool.IsClosed_s(e, face) if seam is None else seam:  # a seam: the face on both sides
             continue
         nv, nu = d2.Coord()
         nu = -nu
@@ -798,22 +805,26 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
             continue
         off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
         for s in (off, -off):
-            params.append((u + s * nu, v + s * nv))
+            u_, v_ = u + s * nu, v + s * nv
+            params.append((u_, v_))
             kind.append(2)
-            a.D1(min(max(u + s * nu, ulo), uhi), min(max(v + s * nv, vlo), vhi), p, su, sv)
-            D += p.Coord()
-            D += su.Coord()
-            D += sv.Coord()
+            if clamp:
+                u_, v_ = min(max(u_, ulo), uhi), min(max(v_, vlo), vhi)
+            d1(u_, v_, p, su, sv)
+            D += pc()
+            D += sc()
+            D += vc()
     cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
     code = o.STATES
-    state = []
     q = gp_Pnt2d()
+    at, perform = q.SetCoord, cls.Perform
+    state = []
     for (u, v), kd in zip(params, kind, strict=True):  # the classifier's states
         if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
             state.append(2)
             continue
-        q.SetCoord(u, v)
-        state.append(code.get(int(cls.Perform(q)), 2))
+        at(u, v)
+        state.append(code.get(int(perform(q)), 2))
     k = len(params)
     return {"uv": np.array(params, dtype=float).reshape(k, 2), "d1": np.array(D).reshape(k, 3, 3),
             "state": np.array(state, dtype=np.int8), "kind": np.array(kind, dtype=np.int8), "offset": offset,
@@ -883,9 +894,10 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
            uses_out: list | None = None) -> list[dict]:
     """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
 
-    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor, first, last parameter)``
-    of each wire's non-degenerate uses are appended, one list per wire (the uses
-    :func:`_checks` samples).
+    ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor, first, last parameter,
+    seam)`` of each wire's non-degenerate uses are appended, one list per wire (the uses
+    :func:`_checks` samples; ``seam``: ``BRep_Tool::IsClosed`` of the edge on ``pface``, None
+    where not asked here).
 
     ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
     faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
@@ -896,6 +908,8 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
     """
     o = _occ()
     tool = o.BRep_Tool
+    find, adaptor, degenerated, closed = edge_map.FindIndex, o.BRepAdaptor_Curve2d, tool.Degenerated_s, tool.IsClosed_s
+    same = pface is face  # the walked edges are the p-curves' own (not a converted face's)
     ws = []
     ex = o.TopExp_Explorer(face, o.WIRE)
     while ex.More():
@@ -909,20 +923,21 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
         we = o.BRepTools_WireExplorer(w, face)
         while we.More():
             e = we.Current()
-            i = edge_map.FindIndex(e) - 1
-            deg = tool.Degenerated_s(e) if degenerate is None else degenerate[i]
+            i = find(e) - 1
+            deg = degenerated(e) if degenerate is None else degenerate[i]
+            seam = closed(e, face) if degenerate is None or deg else False
             pe = edge_of(e)
-            a = o.BRepAdaptor_Curve2d(pe, pface)
+            a = adaptor(pe, pface)
             known = (a.FirstParameter(), a.LastParameter(), int(a.GetType()))
             uses.append({
                 "edge": i,
                 "reversed": int(e.Orientation()) == o.REVERSED,
-                "seam": tool.IsClosed_s(e, face) if degenerate is None or deg else False,
+                "seam": seam,
                 "degenerate": deg,
                 "pcurve": _curve2d(pe, pface, a, known),
             })
-            if not deg:
-                mine.append((pe, a, known[0], known[1]))
+            if not deg:  # (whether it is a seam, where asked of these edge and face already)
+                mine.append((pe, a, known[0], known[1], seam if same and degenerate is None else None))
             we.Next()
         wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
         if uses_out is not None:
