@@ -728,6 +728,7 @@ class _Wires:
         reverses: ``(n,)`` the use traverses its p-curve backwards.
         opposed: ``(n,)`` its p-curve is parametrised against the edge's 3D curve (a joined
             copy: :mod:`nagata_snap.cad.sewing`).
+        seam: ``(n,)`` the use is on a seam (the face on both sides of its edge).
         wires: per wire ``(face, outer)``.
     """
 
@@ -737,30 +738,33 @@ class _Wires:
     edge: np.ndarray
     reverses: np.ndarray
     opposed: np.ndarray
+    seam: np.ndarray
     wires: list[tuple[int, bool]]
 
     @classmethod
     def gather(cls, faces: Sequence[dict]) -> _Wires:
         """The uses of the wires of ``faces`` (``read_shape``'s face descriptions); empty wires skipped."""
-        descs: list[dict] = []
-        face, wire, edge = [], [], []
-        rev: list[bool] = []
-        opp: list[bool] = []
-        wires: list[tuple[int, bool]] = []
-        for i, fd in enumerate(faces):  # loop over faces and their wires (gathering the uses)
-            for w in fd["wires"]:
-                if not w["uses"]:
-                    continue
-                for u in w["uses"]:
-                    descs.append(u["pcurve"])
-                    face.append(i)
-                    wire.append(len(wires))
-                    edge.append(u["edge"])
-                    rev.append(bool(u["reversed"]))
-                    opp.append(bool(u.get("opposed", False)))
-                wires.append((i, bool(w["outer"])))
-        return cls(descs, np.array(face, dtype=np.int64), np.array(wire, dtype=np.int64),
-                   np.array(edge, dtype=np.int64), np.array(rev, dtype=bool), np.array(opp, dtype=bool), wires)
+        ws = [(i, w) for i, fd in enumerate(faces) for w in fd["wires"] if w["uses"]]
+        uses = [u for _, w in ws for u in w["uses"]]  # (one pass per field: no append per use and field)
+        wire = np.repeat(np.arange(len(ws), dtype=np.int64), [len(w["uses"]) for _, w in ws])
+        return cls([u["pcurve"] for u in uses], np.array([i for i, _ in ws], dtype=np.int64)[wire], wire,
+                   np.array([u["edge"] for u in uses], dtype=np.int64),
+                   np.array([u["reversed"] for u in uses], dtype=bool),
+                   np.array([u.get("opposed", False) for u in uses], dtype=bool),
+                   np.array([u["seam"] for u in uses], dtype=bool), [(i, bool(w["outer"])) for i, w in ws])
+
+    def face_edges(self, curved: np.ndarray, n_faces: int) -> tuple[list[np.ndarray], list[tuple[int, ...]]]:
+        """Per face the sorted edges of its uses that are not on a seam and whose edge has a 3D
+        curve (``curved (n_edges,)``; :attr:`Face.edges`), and per edge the sorted faces having
+        it so (:attr:`Edge.faces`): of the uses' (face, edge) pairs, made unique at once."""
+        ne = len(curved)
+        keep = ~self.seam & curved[self.edge]
+        f, e = np.divmod(np.unique(self.face[keep] * ne + self.edge[keep]), ne)  # by face, then edge
+        per_face = np.split(e, np.searchsorted(f, np.arange(1, n_faces))) if n_faces else []
+        by_edge = np.lexsort((f, e))
+        ends = np.searchsorted(e[by_edge], np.arange(ne + 1)).tolist()
+        users = f[by_edge].tolist()
+        return per_face, [tuple(users[a:b]) for a, b in pairwise(ends)]
 
     @property
     def senses(self) -> np.ndarray:
@@ -1024,23 +1028,15 @@ class CadModel:
                     raise bad
             except _FaceError as err:
                 raise ValueError(_face_message(path, fdata, err)) from None
+        own, users = wires.face_edges(np.array([e.curve is not None for e in edges], dtype=bool), len(fdata))
         faces = []
-        face_edges: list[set] = []
-        for f, surface, uv_map, lp in zip(fdata, surfaces, maps, loops, strict=True):
+        for f, surface, uv_map, lp, fe in zip(fdata, surfaces, maps, loops, own, strict=True):
             # a map that flips the parameter plane (negative determinant) flips S_u x S_v
             flip = uv_map is not None and bool(uv_map[0, 0] * uv_map[1, 1] < uv_map[0, 1] * uv_map[1, 0])
-            own = {u["edge"] for w in f["wires"] for u in w["uses"]
-                   if not u["seam"] and edges[u["edge"]].curve is not None}
-            face_edges.append(own)
-            faces.append(Face(surface, lp, bool(f["reversed"]) != flip, bool(f["converted"]),
-                              np.array(sorted(own), dtype=np.int64), tuple(f.get("solids", ())),
-                              uv_map))
-        users: list[list[int]] = [[] for _ in edges]
-        for i, own in enumerate(face_edges):
-            for e in own:
-                users[e].append(i)
+            faces.append(Face(surface, lp, bool(f["reversed"]) != flip, bool(f["converted"]), fe,
+                              tuple(f.get("solids", ())), uv_map))
         for e, u in zip(edges, users, strict=True):
-            e.faces = tuple(sorted(u))
+            e.faces = u
         times = dict(data.get("times", {}))
         times["build"] = time.perf_counter() - t0
         model = cls(faces, edges, data["vertices"], path=path, format=data.get("format", ""),
