@@ -891,7 +891,7 @@ def _curve2d(edge, face, adaptor=None, known: tuple[float, float, int] | None = 
 # topology
 # ----------------------------------------------------------------------
 def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = None,
-           uses_out: list | None = None) -> list[dict]:
+           uses_out: list | None = None, joined: bool = False) -> list[dict]:
     """Wires of ``face`` with the p-curves of ``pface`` (the face itself or its NURBS twin).
 
     ``uses_out``: a list to which the ``(edge of pface, p-curve adaptor, first, last parameter,
@@ -899,9 +899,9 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
     :func:`_checks` samples; ``seam``: ``BRep_Tool::IsClosed`` of the edge on ``pface``, None
     where not asked here).
 
-    ``degenerate``: the degenerate flags of the edges of ``edge_map``, given where the
-    faces walked are to be joined (:mod:`nagata_snap.cad.sewing`): they are not asked of
-    OpenCASCADE again, and a use's ``seam`` is left False for
+    ``degenerate``: the degenerate flags of the edges of ``edge_map`` (asked of OpenCASCADE
+    once per edge, not per use), else asked here.  ``joined``: the faces walked are to be
+    joined (:mod:`nagata_snap.cad.sewing`): a use's ``seam`` is left False for
     :func:`~nagata_snap.cad.sewing.relabel` to set, but on a degenerate edge (which
     stays with its face).  The outer wire is ``BRepTools::OuterWire``'s, asked only of a face
     with several wires (a face's only wire is its outer wire).
@@ -925,7 +925,7 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
             e = we.Current()
             i = find(e) - 1
             deg = degenerated(e) if degenerate is None else degenerate[i]
-            seam = closed(e, face) if degenerate is None or deg else False
+            seam = closed(e, face) if not joined or deg else False
             pe = edge_of(e)
             a = adaptor(pe, pface)
             known = (a.FirstParameter(), a.LastParameter(), int(a.GetType()))
@@ -937,7 +937,7 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
                 "pcurve": _curve2d(pe, pface, a, known),
             })
             if not deg:  # (whether it is a seam, where asked of these edge and face already)
-                mine.append((pe, a, known[0], known[1], seam if same and degenerate is None else None))
+                mine.append((pe, a, known[0], known[1], seam if same and not joined else None))
             we.Next()
         wires.append({"outer": outer is None or w.IsSame(outer), "uses": uses})
         if uses_out is not None:
@@ -946,9 +946,10 @@ def _wires(face, pface, edge_map, edge_of, degenerate: Sequence[bool] | None = N
 
 
 def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | None = None,
-          fallback: str | None = None, check: bool = True, placed: _Placed | None = None) -> dict:
+          fallback: str | None = None, check: bool = True, placed: _Placed | None = None,
+          joined: bool = False) -> dict:
     """Surface, bounds, orientation and wires of one face (converting it if needed);
-    ``degenerate``: see :func:`_wires`.
+    ``degenerate``, ``joined``: see :func:`_wires`.
 
     ``fallback``: ``"basis"`` describes the surface the face's own one trims or offsets
     (:func:`_basis`), ``"nurbs"`` converts the face with ``BRepBuilderAPI_NurbsConvert``
@@ -995,7 +996,7 @@ def _face(face, index: int, edge_map, size: float, degenerate: Sequence[bool] | 
         "uv": tuple(uv),
         "reversed": int(face.Orientation()) == o.REVERSED,
         "converted": convert,
-        "wires": _wires(face, pface, edge_map, edge_of, degenerate, checked),
+        "wires": _wires(face, pface, edge_map, edge_of, degenerate, checked, joined),
     }
     if fallback is not None:
         out["fallback"] = "nurbs" if basis is None else fallback
@@ -1182,18 +1183,19 @@ def _walk(shape, size: float, fallback: dict[int, str] | None = None, check: boo
     vertices, vtol = _vertices(vmap)
     occ_edges = [TopoDS.Edge(emap.FindKey(i)) for i in range(1, emap.Extent() + 1)]
     ends, tolerances = _ends(occ_edges, vmap), _tolerances(occ_edges, _occ().EDGE)
+    degenerate = [BRep_Tool.Degenerated_s(e) for e in occ_edges]  # (asked once per edge, not per use)
     edges = []
     for i, (e, ve, tol) in enumerate(zip(occ_edges, ends, tolerances, strict=True)):  # loop over CAD edges
         edges.append({
             "curve": _curve3d(e),
             "vertices": ve,
             "tolerance": tol,
-            "degenerate": BRep_Tool.Degenerated_s(e),
+            "degenerate": degenerate[i],
             "source": i,
         })
     fb = fallback or {}
     placed = _Placed() if check else None
-    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size, None, fb.get(i - 1), check, placed)
+    faces = [_face(TopoDS.Face(fmap.FindKey(i)), i - 1, emap, size, degenerate, fb.get(i - 1), check, placed)
              for i in range(1, fmap.Extent() + 1)]
     solids = _ancestors(TopAbs_FACE, fmap, smap)
     for f, s in zip(faces, solids, strict=True):
@@ -1321,7 +1323,8 @@ def _walk_joined(shape, size: float, times: dict, fallback: dict[int, str] | Non
     degenerate = copies.degenerate.tolist()
     fb = fallback or {}
     placed = _Placed() if check else None
-    faces = [_face(f, i, emap, size, degenerate, fb.get(i), check, placed) for i, f in enumerate(occ_faces)]
+    faces = [_face(f, i, emap, size, degenerate, fb.get(i), check, placed, joined=True)
+             for i, f in enumerate(occ_faces)]
     t2 = time.perf_counter()
     j = sewing.join_faces(joined, _face_uses(faces, occ_faces), ~copies.degenerate)
     t3 = time.perf_counter()
