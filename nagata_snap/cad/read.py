@@ -739,9 +739,10 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     description's p-curves), OpenCASCADE's point and first derivatives and face
     classifier state at each (``IntTools_FClass2d``, formerly ``BRepTopAdaptor_FClass2d``:
     built once per face, it answers ~35 times faster than ``BRepClass_FaceClassifier``, to
-    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor, its first and last
-    parameters, seam or None)`` of every wire's non-degenerate uses (:func:`_wires`); ``grid``: samples per direction of the
-    grid over the face's ``(u, v)`` box (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
+    which it defers near the boundary).  ``uses``: the ``(edge, p-curve adaptor, its first and
+    last parameters, seam or None)`` of every wire's non-degenerate uses (:func:`_wires`);
+    ``grid``: samples per direction of the grid over the face's ``(u, v)`` box
+    (:func:`_check_grid`).  (Only OpenCASCADE's calls here, one
     per sample; the arithmetic on the samples is :mod:`~nagata_snap.cad.verify`'s, on all
     faces' at once.)
 
