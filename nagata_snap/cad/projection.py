@@ -68,7 +68,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from nagata_snap.cad import basis as _kernels
 from nagata_snap.cad.bounds import BoxClasses, cell_boxes
+from nagata_snap.cad.nurbs import NurbsSurface
 from nagata_snap.mesh.arrays import Groups, best_per_group, dot, norms
 
 __all__ = [
@@ -559,6 +561,25 @@ def _backtrack(entity: Entity, a: _Active, s: _Step, tols: _Tolerances, max_halv
     return E, r, dist, stalled
 
 
+def _surface_newton(entity: NurbsSurface, X: np.ndarray, out: _Output, max_iter: int, tols: _Tolerances,
+                    max_halvings: int) -> None:
+    """The iteration of :func:`project_newton` on a NURBS surface by the compiled kernel
+    :func:`nagata_snap.cad.basis.surface_newton` (the same operations per point, so the same
+    iterates), from the seeds in ``out.P (2, k)`` for the points ``X (3, k)``; fills ``out``.
+
+    The vectorised loop pays a few array operations per iteration whatever the number of
+    points still iterating: a few points that run to ``max_iter`` with step halvings (on a
+    face's boundary, where the clamped Newton step converges linearly) cost milliseconds per
+    iteration; here microseconds.
+    """
+    e = entity
+    tv = np.array([tols.step, tols.zero, tols.cos, tols.acc, tols.slack])
+    _kernels.surface_newton(e.knots_u, e.knots_v, e.degree_u, e.degree_v, e.n_ctrl[1], e._pwT, e._spans_u,
+                            e._spans_v, np.ascontiguousarray(e.bounds, dtype=float), entity_periods(e),
+                            np.ascontiguousarray(entity_limits(e), dtype=float), X, out.P, int(max_iter), tv,
+                            int(max_halvings), out.S, out.dist, out.iters, out.conv)
+
+
 def project_newton(
     entity: Entity,
     points: npt.ArrayLike,
@@ -613,6 +634,11 @@ def project_newton(
     P0 = np.ascontiguousarray(normalize_params(entity, _params_2d(entity, seeds, k)).T)  # (d, k)
     out = _Output(P0, np.empty((3, k)), np.empty(k), np.zeros(k, dtype=np.int64), np.zeros(k, dtype=bool))
     Xa = np.ascontiguousarray(X.T)  # (3, k)
+    if type(entity) is NurbsSurface:  # the same iteration, compiled, one point at a time
+        _surface_newton(entity, Xa, out, max_iter, tols, max_halvings)
+        if _escape:
+            _escape_collapsed_edges(entity, X, out, max_iter, tols)
+        return out.result(d)
     E = _eval_soa(entity, P0, 2)
     r = E[0] - Xa
     a = _Active(np.arange(k), Xa, P0.copy(), E, r, np.sqrt(dot(r, r)), np.full(k, np.inf))
