@@ -70,6 +70,7 @@ from scipy.spatial import cKDTree
 
 from nagata_snap.cad import basis as _kernels
 from nagata_snap.cad.bounds import BoxClasses, cell_boxes
+from nagata_snap.cad.curves import ArcBatch
 from nagata_snap.cad.nurbs import NurbsSurface
 from nagata_snap.mesh.arrays import Groups, best_per_group, dot, norms
 
@@ -879,6 +880,8 @@ class GlobalSearcher:
         diag = hi.max(axis=0) - lo.min(axis=0)
         self.size = math.sqrt(diag.dot(diag))  # its norm (as np.linalg.norm computes it)
         self.affine = AffineBatch(entities)
+        #: the circles among the entities, stacked (their closed form for all points at once)
+        self.arcs = ArcBatch(entities)
 
     def entity_samples(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """``(params (s, d), points (s, 3))``: the search grid of entity ``i`` (built once)."""
@@ -979,6 +982,15 @@ class GlobalSearcher:
             _check_finite(X, "points")
             params[rows], proj[rows], dist[rows] = self.affine.closest(ent[rows], X)
             conv[rows] = True
+        arc = self.arcs.has[ent]
+        if arc.any():  # circular arcs: all at once
+            rows = arc.nonzero()[0]
+            X = points[pt[rows]]
+            _check_finite(X, "points")
+            sd = np.asarray(seeds, dtype=float).reshape(n, d)[rows, 0]
+            params[rows], proj[rows], dist[rows] = self.arcs.closest(ent[rows], X, sd)
+            conv[rows] = True
+            aff = aff | arc
         rows = (~aff).nonzero()[0]  # the other entities, one sort
         g = Groups(ent[rows])
         rows = rows[g.order]
@@ -1090,6 +1102,11 @@ class GlobalSearcher:
         q, e, par, _, d = self._rows_on(X[pt[rows]], ent[rows], k)
         return (np.concatenate([pt, pt[rows][q]]), np.concatenate([ent, e]), np.concatenate([params, par]),
                 np.concatenate([dist, d]))
+
+    @functools.cached_property
+    def _analytic(self) -> np.ndarray:
+        """``(n_entities,)`` bool: the entity is analytic (:func:`is_analytic`)."""
+        return np.array([is_analytic(e) for e in self.entities], dtype=bool)
 
     @functools.cached_property
     def _closed_form(self) -> np.ndarray:
@@ -1262,22 +1279,23 @@ class GlobalSearcher:
         """Every Newton result of :meth:`search_on` of points ``X (n, 3)`` on entities
         ``ent (n,)``: ``(pt, ent, params, proj, dist)``, one row per (point, seed) pair."""
         kk = self.k_seeds if k_seeds is None else int(k_seeds)
-        pts, ents, seeds = [], [], []
         g = Groups(ent)
-        for e, sl in g:  # loop over entities
-            sel = g.order[sl]
-            if is_analytic(self.entities[e]):  # closed form: one projection, no seeds
-                pts.append(sel)
-                ents.append(np.full(len(sel), e))
-                seeds.append(np.full((len(sel), self.param_dim), np.nan))
+        # closed form: one projection per point, no seeds (all such entities at once)
+        sel = g.order[self._analytic[ent[g.order]]]
+        pts, ents, seeds = [sel], [ent[sel]], [np.full((len(sel), self.param_dim), np.nan)]
+        for e, sl in g:  # loop over the entities that need Newton's seeds
+            if self._analytic[e]:
                 continue
+            sel = g.order[sl]
             Pe = self.entity_samples(e)[0]
             ke = min(kk, len(Pe))
             _, idx = self._entity_tree(e).query(X[sel], k=ke)
             pts.append(np.repeat(sel, ke))
             ents.append(np.full(len(sel) * ke, e))
             seeds.append(Pe[idx.reshape(len(sel), ke).ravel()])
-        pt, en, sd = np.concatenate(pts), np.concatenate(ents), np.concatenate(seeds)
+        en = np.concatenate(ents)
+        order = np.argsort(en, kind="stable")  # grouped by entity, as they were found
+        pt, en, sd = np.concatenate(pts)[order], en[order], np.concatenate(seeds)[order]
         params, proj, dist, _, _ = self.refine(pt, en, sd, X)
         return pt, en, params, proj, dist
 
