@@ -50,6 +50,10 @@ of a sphere, where ``S_v = 0`` and ``v`` cannot be corrected by Newton) with
 no descent into the domain is restarted from the ``v`` of steepest descent
 (:func:`_escape_collapsed_edges`).
 
+On a :class:`~nagata_snap.cad.nurbs.NurbsSurface` the same iteration runs compiled, one
+point at a time (:func:`nagata_snap.cad.basis.surface_newton`: the same operations in the
+same order, so the same iterates); curves and other entities run the vectorised loop.
+
 :func:`global_search` finds seeds without brute force: each entity is sampled
 once on a modest parameter grid, a KD-tree (``scipy.spatial.cKDTree``) of all
 samples gives the ``k_seeds`` nearest samples of every query point, Newton
