@@ -284,6 +284,42 @@ def test_planes_and_segments_project_at_once_as_each_alone():
             assert np.all((P >= -0.5) & (P <= 1.5)) and np.any(P == 1.5) and np.any(P == -0.5)
 
 
+def test_arcs_project_at_once_as_each_alone():
+    """``ArcBatch`` (all circles of a part in one call) gives each arc's own closest points to
+    the bit (full circles and partial arcs, points beyond an arc's ends, on an axis: the
+    seed) and OCC's distances."""
+    from nagata_snap.cad.curves import ArcBatch
+
+    rng = np.random.default_rng(5)
+    frames = [np.eye(3)] + [np.linalg.qr(rng.normal(size=(3, 3)))[0].T for _ in range(4)]
+    centers = rng.normal(size=(5, 3))
+    ranges = [(0.0, 2 * np.pi), (0.3, 2.0), (-1.0, 4.5), (1.0, 7.0), (2.0, 2.5)]
+    arcs = [Circle(c, f[0], f[1], 0.4 + 0.2 * i, *r)
+            for i, (c, f, r) in enumerate(zip(centers, frames, ranges, strict=True))]
+    ents = [Line(O, Z, 0.0, 1.0), *arcs]  # a line among them: not the batch's
+    batch = ArcBatch(ents)
+    assert batch.has.tolist() == [False] + [True] * 5
+    which = rng.integers(1, 6, 600)
+    Xq = centers[which - 1] + rng.normal(scale=0.8, size=(600, 3))
+    Xq[:5] = centers + 2.0 * np.stack([f[2] for f in frames])  # on the axes (the first exactly)
+    which[:5] = np.arange(1, 6)
+    seeds = rng.uniform(-1.0, 7.0, 600)
+    seeds[5:300] = np.nan
+    P, S, d = batch.closest(which, Xq, seeds)
+    assert np.isfinite(P).all()
+    for i, e in enumerate(arcs, start=1):
+        sel = which == i
+        Pi, Si, di = e.closest(Xq[sel], seeds[sel])
+        np.testing.assert_array_equal(P[sel], Pi)
+        np.testing.assert_array_equal(S[sel], Si)
+        np.testing.assert_array_equal(d[sel], di)
+        occ = Geom_Circle(gp_Circ(gp_Ax2(gp_Pnt(*centers[i - 1]), gp_Dir(*frames[i - 1][2]),
+                                         gp_Dir(*frames[i - 1][0])), 0.4 + 0.2 * (i - 1)))
+        off = sel & (np.arange(600) >= 5)
+        np.testing.assert_allclose(d[off], occ_curve_project(occ, *ranges[i - 1], Xq[off]), rtol=0, atol=1e-13)
+    assert P[0, 0] == seeds[0]  # on the full circle's axis: the seed
+
+
 # ----------------------------------------------------------------------
 # curves and surfaces built together (a file's edges and faces)
 # ----------------------------------------------------------------------

@@ -361,3 +361,39 @@ def test_search_grids_are_built_on_first_use_and_agree_with_the_eager_ones():
     np.testing.assert_array_equal(gs.sample_params[n0:], P1)
     np.testing.assert_array_equal(gs.sample_points[n0:], X1)
     np.testing.assert_array_equal(gs.sample_entity, np.repeat([0, 1], [n0, len(P1)]))
+
+
+class _Vectorised(NurbsSurface):
+    """A NURBS surface that :func:`project_newton` iterates with its vectorised numpy loop
+    (the compiled kernel serves :class:`NurbsSurface` itself only)."""
+
+
+@pytest.mark.parametrize("which", ["sphere", "cylinder", "torus", "bspline"])
+@pytest.mark.parametrize("max_iter", [3, 20])
+def test_compiled_surface_newton_follows_the_vectorised_iteration(which, max_iter):
+    # the compiled per-point Newton must give the vectorised loop's iterates to the bit:
+    # near and far points, random seeds (Gauss-Newton steps, halvings, clamping at the open
+    # directions' bounds, poles, wrapping), and points stopped by the iteration limit
+    rng = np.random.default_rng(11)
+    if which == "sphere":
+        surf = sphere(np.array([0.3, -0.2, 0.1]), 1.3)
+    elif which == "cylinder":
+        surf = cylinder(np.array([0.5, 0.5, 0.0]), 0.3, 0.4)
+    elif which == "torus":
+        surf = torus(np.array([0.0, 0.0, 1.0]), 2.0, 1.0)
+    else:  # a wavy open patch of degree (3, 2)
+        u, v = np.meshgrid(np.linspace(0, 1, 6), np.linspace(0, 1, 5), indexing="ij")
+        net = np.stack([u, v, 0.2 * rng.standard_normal(u.shape)], axis=-1)
+        surf = NurbsSurface(3, 2, [0, 0, 0, 0, 0.4, 0.7, 1, 1, 1, 1], [0, 0, 0, 0.3, 0.6, 1, 1, 1], net,
+                            np.ones(u.shape))
+    vec = _Vectorised(surf.degree_u, surf.degree_v, surf.knots_u, surf.knots_v, surf.control_points,
+                      surf.weights)
+    lo, hi = surf.bbox
+    P = rng.uniform(lo - 0.5 * (hi - lo), hi + 0.5 * (hi - lo), (600, 3))
+    b = surf.bounds
+    seeds = rng.uniform(b[:, 0], b[:, 1], (600, 2))
+    seeds[:50, 1] = b[1, 0]  # on a bound of the second direction (a pole of the sphere)
+    fast, ref = project_newton(surf, P, seeds, max_iter), project_newton(vec, P, seeds, max_iter)
+    assert (~ref.converged).any() or max_iter == 20  # the limit is reached with 3 iterations
+    for name in ("params", "points", "distance", "iterations", "converged"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name), err_msg=name)
