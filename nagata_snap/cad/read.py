@@ -769,13 +769,18 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     ulo, uhi, vlo, vhi = _clamp_box(a)
     clamp = math.isfinite(ulo) or math.isfinite(vlo)  # (else min and max give u and v themselves)
     D: list[float] = []  # per sample its point, S_u and S_v (flat)
-    for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
+
+    def sample(u: float, v: float) -> None:
+        """OpenCASCADE's point and derivatives at ``(u, v)`` (clamped where it clamps) onto ``D``."""
         if clamp:
             u, v = min(max(u, ulo), uhi), min(max(v, vlo), vhi)
         d1(u, v, p, su, sv)
-        D += pc()
-        D += sc()
-        D += vc()
+        D.extend(pc())
+        D.extend(sc())
+        D.extend(vc())
+
+    for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
+        sample(u, v)
     # the face's extent, roughly: the grid's, scaled to the span of a CHECK_GRID grid's
     xs, ys, zs = D[0::9], D[1::9], D[2::9]
     span = (CHECK_GRID - 1) / CHECK_GRID / ((grid - 1) / grid) if grid > 1 else 1.0
@@ -788,13 +793,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
         u, v = p2.Coord()
         params.append((u, v))
         kind.append(1)
-        if clamp:
-            d1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
-        else:
-            d1(u, v, p, su, sv)
-        D += pc()
-        D += sc()
-        D += vc()
+        sample(u, v)
         if o.BRep_Tool.IsClosed_s(e, face) if seam is None else seam:  # a seam: the face on both sides
             continue
         nv, nu = d2.Coord()
@@ -809,12 +808,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
             u_, v_ = u + s * nu, v + s * nv
             params.append((u_, v_))
             kind.append(2)
-            if clamp:
-                u_, v_ = min(max(u_, ulo), uhi), min(max(v_, vlo), vhi)
-            d1(u_, v_, p, su, sv)
-            D += pc()
-            D += sc()
-            D += vc()
+            sample(u_, v_)
     cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
     code = o.STATES
     q = gp_Pnt2d()
