@@ -1115,7 +1115,7 @@ class GlobalSearcher:
     @functools.cached_property
     def _closed_form(self) -> np.ndarray:
         """``(n_entities,)`` bool: the entity projects in closed form (analytic or affine)."""
-        return np.array([is_analytic(e) or self.affine.has[i] for i, e in enumerate(self.entities)], dtype=bool)
+        return self._analytic | self.affine.has
 
     @functools.cached_property
     def _entity_boxes(self) -> BoxClasses:
