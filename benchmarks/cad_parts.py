@@ -72,11 +72,11 @@ from occ_reference import OccShape  # noqa: E402
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import CadGeometry, mesh_cad  # noqa: E402
 from nagata_snap.cad.projection import project_points  # noqa: E402
+from nagata_snap.mesh import bisect  # noqa: E402
 from nagata_snap.meshing import gmsh_session, import_cad  # noqa: E402
 from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
 from nagata_snap.mesh.records import Records  # noqa: E402
 
-import dolfinx.mesh  # noqa: E402
 
 #: part -> (gmsh size factor, curvature): the sizes of tests/test_cad_parts.py (coarse, but fine
 #: enough that the current smoother needs no partial moves: coarser, the thin blade and the torus
@@ -144,7 +144,7 @@ def snap_part(name: str, fmt: str, path: str) -> dict:
         mesh, *_, rep = snapper.refine(mesh)
         place_us.append(1e6 * rep.times["place"] / max(rep.geometry.n_points, 1))
         prev.topology.create_entities(1)
-        straight, *_ = dolfinx.mesh.refine(prev, None, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
+        straight, *_ = bisect.refine(prev, None)  # the snapper's refinement, not snapped
         inverted += inverted_cells(mesh.geometry.x, straight.geometry.x, mesh.geometry.dofmaps[0], tdim).size
     lv = snapper._level
     sel = np.flatnonzero(lv.snapped)

@@ -35,6 +35,7 @@ from mpi4py import MPI
 
 from nagata_snap.curved import CurvedInfo, curved_mesh
 from nagata_snap.geometry import PlaceReport, SnapGeometry
+from nagata_snap.mesh import bisect
 from nagata_snap.mesh.boundary import (
     BoundaryFacets,
     boundary_facets,
@@ -280,7 +281,9 @@ class Snapper:
     ) -> Refined:
         """Refine ``mesh`` (all cells, or the given edges) and snap its new boundary vertices.
 
-        The stages, each a method: :meth:`_bisect` (``dolfinx.mesh.refine``),
+        The stages, each a method: :meth:`_bisect` (``dolfinx.mesh.refine``, its ties
+        among equally long edges broken by position, so that the cells are the same on
+        any number of processes: :mod:`nagata_snap.mesh.bisect`),
         :meth:`_lineage` (child facets and their records), :meth:`_place`
         (new boundary vertices onto the geometry), :meth:`_guard` (smoothing,
         check and repair of the cells), :meth:`_facet_tags` and
@@ -350,14 +353,11 @@ class Snapper:
     @staticmethod
     def _bisect(mesh: dolfinx.mesh.Mesh, edges: npt.ArrayLike | None
                 ) -> tuple[dolfinx.mesh.Mesh, npt.NDArray[np.int32], npt.NDArray[np.int8]]:
-        """``dolfinx.mesh.refine`` of ``mesh`` (marked ``edges`` checked first), with parent maps."""
+        """``dolfinx.mesh.refine`` of ``mesh`` (marked ``edges`` checked first), with parent maps,
+        its ties among longest edges broken by position (:func:`nagata_snap.mesh.bisect.refine`)."""
         mesh.topology.create_entities(1)
         marked = None if edges is None else _check_edges(mesh, edges)
-        mesh1, parent_cell, parent_facet = dolfinx.mesh.refine(
-            mesh, marked, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet
-        )
-        assert parent_cell is not None and parent_facet is not None  # asked for by the option
-        return mesh1, parent_cell, parent_facet
+        return bisect.refine(mesh, marked)
 
     def _lineage(self, prev: _Level, mesh1: dolfinx.mesh.Mesh, parent_cell: npt.NDArray[np.int32]
                  ) -> tuple[_Level, np.ndarray]:

@@ -29,6 +29,7 @@ import generate
 
 from nagata_snap import Snapper
 from nagata_snap.cad import CadGeometry
+from nagata_snap.mesh import bisect
 from nagata_snap.smoothing.quality import inverted_cells
 
 SIZE = math.sqrt(3.0)  # model size: the box diagonal
@@ -194,9 +195,7 @@ def test_occ_part_snapping_matches_occ(occ, part):
 
         # no inverted cells relative to the straight refinement of the previous level
         prev.topology.create_entities(1)
-        straight, *_ = dolfinx.mesh.refine(
-            prev, None, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet
-        )
+        straight, *_ = bisect.refine(prev, None)  # the snapper's refinement, not snapped
         cells = mesh.geometry.dofmaps[0]
         np.testing.assert_array_equal(straight.geometry.dofmaps[0], cells)
         assert inverted_cells(x, straight.geometry.x, cells, 3).size == 0

@@ -2,6 +2,8 @@
 
 * :mod:`~nagata_snap.mesh.boundary` -- boundary facets of a DOLFINx mesh and
   their tags, facet normals, writing moved nodes back;
+* :mod:`~nagata_snap.mesh.bisect` -- ``dolfinx.mesh.refine`` with ties among
+  longest edges broken by position, so the cells do not depend on the partition;
 * :mod:`~nagata_snap.mesh.lineage` -- parent maps of a refinement: which
   coarse facet or cell each new vertex came from, and where in it;
 * :mod:`~nagata_snap.mesh.records` -- the per-vertex record (coarse facet,

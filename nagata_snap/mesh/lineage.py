@@ -102,7 +102,8 @@ def point_weights(m: int) -> np.ndarray:
     return W
 
 
-def match_points(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def match_points(y: np.ndarray, X: np.ndarray, slack: np.ndarray | float = 0.0
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Which vertex or edge midpoint of simplex ``X[i]`` each point ``y[i, j]`` is.
 
     Each point is matched to the nearest of the simplex's vertices and edge
@@ -113,6 +114,8 @@ def match_points(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Args:
         y: ``(n, k, 3)`` points.
         X: ``(n, m, 3)`` simplex vertices, ``m = 2, 3`` or ``4``.
+        slack: absolute distance added to the tolerance (``(n, 1)`` or a scalar):
+            points known to be off by more than round-off.
 
     Returns:
         ``(code (n, k), off (n, k))``: index of the point matched (a row of
@@ -139,7 +142,7 @@ def match_points(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         np.copyto(code, q, where=closer)
     dist = np.sqrt(best)
     h = np.max(edge_lengths(X), axis=1)[:, None]
-    tol = TOL * h + _ULPS * np.max(np.abs(X), axis=(1, 2))[:, None]
+    tol = TOL * h + _ULPS * np.max(np.abs(X), axis=(1, 2))[:, None] + slack
     code[~(dist <= tol)] = -1
     with np.errstate(invalid="ignore", divide="ignore"):
         return code, dist / h

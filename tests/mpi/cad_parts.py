@@ -45,6 +45,7 @@ import dolfinx.mesh  # noqa: E402
 
 from nagata_snap import Snapper  # noqa: E402
 from nagata_snap.cad import mesh_cad  # noqa: E402
+from nagata_snap.mesh import bisect  # noqa: E402
 from nagata_snap.smoothing.quality import inverted_cells  # noqa: E402
 
 comm = MPI.COMM_WORLD
@@ -162,7 +163,7 @@ def run(name, fmt, size_factor, curvature):
         de, de_tol, dc, ne, nc = feature_distances(geo, occ, nodes, root, x, tdim)
         # inverted cells against the straight refinement of the previous level
         prev.topology.create_entities(1)
-        straight, *_ = dolfinx.mesh.refine(prev, edges, option=dolfinx.mesh.RefinementOption.parent_cell_and_facet)
+        straight, *_ = bisect.refine(prev, edges)  # the snapper's refinement, not snapped
         cells = mesh.geometry.dofmaps[0][: mesh.topology.index_map(tdim).size_local]
         same = np.array_equal(straight.geometry.dofmaps[0][: len(cells)], cells)
         inv = inverted_cells(x, straight.geometry.x, cells, tdim).size if same else -1
