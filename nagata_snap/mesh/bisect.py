@@ -34,12 +34,14 @@ True
 from __future__ import annotations
 
 import dolfinx.mesh
+import numba
 import numpy as np
 import numpy.typing as npt
 
 from nagata_snap.errors import LineageError
-from nagata_snap.mesh.lineage import match_points, parent_cells, point_weights
+from nagata_snap.mesh.lineage import TOL, ULPS, parent_cells
 from nagata_snap.mesh.parallel import collective
+from nagata_snap.mesh.simplex import local_edges
 
 __all__ = ["JITTER_BITS", "jitter", "refine"]
 
@@ -109,24 +111,67 @@ def refine(
 def _restore(mesh1: dolfinx.mesh.Mesh, mesh0: dolfinx.mesh.Mesh, parent_cell: npt.NDArray[np.int32]) -> None:
     """Put every node of ``mesh1`` exactly on the vertex or edge midpoint of its parent cell that it is.
 
-    Midpoints as DOLFINx computes them, ``a / 2 + b / 2`` (the rows of
-    :func:`~nagata_snap.mesh.lineage.point_weights` applied to the parent's vertices).
+    Midpoints as DOLFINx computes them, ``a / 2 + b / 2``; a node is matched to the
+    nearest of its parent's vertices and edge midpoints as in
+    :func:`~nagata_snap.mesh.lineage.match_points`, within its tolerance plus the jitter.
     """
     tdim = mesh1.topology.dim
     n0 = mesh0.topology.index_map(tdim).size_local
     P = parent_cells(mesh1, mesh0, parent_cell, np.ones(n0, dtype=bool))
     g1 = mesh1.geometry.dofmaps[0][: len(P)]
-    x1, x0 = mesh1.geometry.x, mesh0.geometry.x
-    cell_of = np.full(len(x1), -1, dtype=np.int64)  # one owned cell of each node
-    cell_of[g1.ravel()] = np.repeat(np.arange(len(g1)), g1.shape[1])
-    nodes = np.flatnonzero(cell_of >= 0)
-    X = x0[mesh0.geometry.dofmaps[0][P[cell_of[nodes]]]]  # (n, nv, 3) parent vertices
-    slack = 2.0 ** (JITTER_BITS + 2) * np.finfo(float).eps * np.max(np.abs(X), axis=(1, 2))
-    code = match_points(x1[nodes][:, None, :], X, slack[:, None])[0][:, 0]
-    if np.any(code < 0):
-        bad = np.flatnonzero(code < 0)
+    slack = ULPS + 2.0 ** (JITTER_BITS + 2) * np.finfo(float).eps
+    bad = _snap_to_parents(g1, P, mesh0.geometry.dofmaps[0], mesh0.geometry.x, mesh1.geometry.x,
+                           local_edges(g1.shape[1]), TOL, slack)
+    if bad.size:
         raise LineageError(
             f"{bad.size} vertices of the refined mesh are neither a vertex nor an edge midpoint of "
-            f"their parent cell (first at {x1[nodes[bad[0]]].round(6).tolist()}): "
+            f"their parent cell (first at {mesh1.geometry.x[bad[0]].round(6).tolist()}): "
             "dolfinx.mesh.refine did not return a refinement of the mesh")
-    x1[nodes] = np.einsum("nk,nkd->nd", point_weights(X.shape[1])[code], X)
+
+
+@numba.njit(cache=True, nogil=True)
+def _snap_to_parents(g1: np.ndarray, P: np.ndarray, g0: np.ndarray, x0: np.ndarray, x1: np.ndarray,
+                     edges: np.ndarray, tol: float, slack: float) -> np.ndarray:
+    """Set each node of the cells ``g1`` to the nearest vertex or edge midpoint of its parent
+    cell ``P`` (in place in ``x1``), once per node; the nodes farther than ``tol`` x the
+    parent's longest edge + ``slack`` x its largest coordinate are returned."""
+    nv = g1.shape[1]
+    done = np.zeros(x1.shape[0], dtype=np.bool_)
+    C = np.empty((nv + edges.shape[0], 3))
+    bad = []
+    for c in range(g1.shape[0]):
+        p = P[c]
+        filled = False
+        for k in range(nv):
+            node = g1[c, k]
+            if done[node]:
+                continue
+            if not filled:  # the parent's vertices, then its edge midpoints as DOLFINx computes them
+                big, h2 = 0.0, 0.0
+                for q in range(nv):
+                    for d in range(3):
+                        C[q, d] = x0[g0[p, q], d]
+                        big = max(big, abs(C[q, d]))
+                for e in range(edges.shape[0]):
+                    a, b = edges[e, 0], edges[e, 1]
+                    le = 0.0
+                    for d in range(3):
+                        C[nv + e, d] = (0.0 + C[a, d] * 0.5) + C[b, d] * 0.5  # (signed zeros too)
+                        le += (C[a, d] - C[b, d]) ** 2
+                    h2 = max(h2, le)
+                lim = tol * np.sqrt(h2) + slack * big
+                filled = True
+            best, q_best = np.inf, 0
+            for q in range(C.shape[0]):
+                d2 = 0.0
+                for d in range(3):
+                    d2 += (x1[node, d] - C[q, d]) ** 2
+                if d2 < best:
+                    best, q_best = d2, q
+            done[node] = True
+            if np.sqrt(best) > lim:
+                bad.append(node)
+                continue
+            for d in range(3):
+                x1[node, d] = C[q_best, d]
+    return np.array(bad, dtype=np.int64)

@@ -65,7 +65,7 @@ TOL = 1e-9
 
 #: Round-off allowance added to the tolerance, relative to the largest
 #: coordinate of the parent (cells far from the origin).
-_ULPS = 64 * np.finfo(float).eps
+ULPS = 64 * np.finfo(float).eps
 
 #: Children checked by :func:`parent_cells` with ``select`` to pick the indexing.
 SAMPLE = 4096
@@ -102,8 +102,7 @@ def point_weights(m: int) -> np.ndarray:
     return W
 
 
-def match_points(y: np.ndarray, X: np.ndarray, slack: np.ndarray | float = 0.0
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def match_points(y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which vertex or edge midpoint of simplex ``X[i]`` each point ``y[i, j]`` is.
 
     Each point is matched to the nearest of the simplex's vertices and edge
@@ -114,8 +113,6 @@ def match_points(y: np.ndarray, X: np.ndarray, slack: np.ndarray | float = 0.0
     Args:
         y: ``(n, k, 3)`` points.
         X: ``(n, m, 3)`` simplex vertices, ``m = 2, 3`` or ``4``.
-        slack: absolute distance added to the tolerance (``(n, 1)`` or a scalar):
-            points known to be off by more than round-off.
 
     Returns:
         ``(code (n, k), off (n, k))``: index of the point matched (a row of
@@ -142,7 +139,7 @@ def match_points(y: np.ndarray, X: np.ndarray, slack: np.ndarray | float = 0.0
         np.copyto(code, q, where=closer)
     dist = np.sqrt(best)
     h = np.max(edge_lengths(X), axis=1)[:, None]
-    tol = TOL * h + _ULPS * np.max(np.abs(X), axis=(1, 2))[:, None] + slack
+    tol = TOL * h + ULPS * np.max(np.abs(X), axis=(1, 2))[:, None]
     code[~(dist <= tol)] = -1
     with np.errstate(invalid="ignore", divide="ignore"):
         return code, dist / h
