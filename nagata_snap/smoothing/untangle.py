@@ -629,10 +629,10 @@ class _Problem:
         """``(F, gradient (size,), Hessian values)`` in the variables ``z`` (values for :meth:`solve`)."""
         self.count += 1
         cc = self.cells
-        F, g, _, Hz = kernels.energy_terms(self.coords(self.with_ghosts(z)), cc.cells64, cc.B,
-                                           float(delta), True, self._sv)  # Hessian blocks times s_v s_w
+        # (the cell Hessians times s_v s_w, summed into the matrix blocks in cell order)
+        F, g, Hb = kernels.energy_blocks(self.coords(self.with_ghosts(z)), cc.cells64, cc.B,
+                                         float(delta), self._sv, self._slot, self._nblocks)
         gz = self._to_owners(np.einsum("kcd,kc->kd", self.Em, g[self.moving])).ravel()
-        Hb = kernels.sum_hessians(Hz, self._slot, self._nblocks)
         if self._rot.size:  # blocks of sliding nodes: into their tangent bases
             kernels.rotate_blocks(Hb, self._Rm, self._brow, self._bcol, self._rot)
         hv = Hb.reshape(-1)
