@@ -487,7 +487,7 @@ def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
         t0 = time.perf_counter()
         before = g.state()
         worst, n_poor = before[2], before[1]
-        loc = _Local(g, seeds, OPTIMISE_LAYERS + 1)
+        loc = _Local(g, seeds, OPTIMISE_LAYERS)  # (its nodes within OPTIMISE_LAYERS - 1 are complete)
         free = (loc.distance(g, seeds) < OPTIMISE_LAYERS) & ~loc.constrained
         xn, res = loc.run(g, x, free)
         _, nb = g.check(xn)
