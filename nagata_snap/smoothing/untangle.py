@@ -401,7 +401,7 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
             its = max_iterations if final else max_iterations // 2
             z, done, active = _newton(pb, z, delta, its, SHRINK_STEP if shrink and final else 0.0)
             written = active is not None
-            if written:  # the final round goes on over the nodes still moving
+            if active is not None:  # the final round goes on over the nodes still moving
                 x[pb.nodes] = pb.coords(pb.with_ghosts(z))
                 done, n, k = _shrinking(pb, x, active, cells, winv, scale, layout, delta, its)
                 z, shrinks, extra = pb.variables(x), shrinks + n, extra + k
@@ -431,14 +431,15 @@ def _shrinking(pb: _Problem, x: np.ndarray, active: np.ndarray, cells: np.ndarra
     """
     shrinks, count = 0, 0
     sub = pb
-    while active is not None:
+    nxt: np.ndarray | None = active
+    while nxt is not None:
         moving = np.zeros(x.shape[0], dtype=bool)
-        moving[sub.nodes[sub.moving]] = active
+        moving[sub.nodes[sub.moving]] = nxt
         if sub is not pb:
             count += sub.count
             sub.destroy()
         sub, shrinks = _Problem(x, cells, winv, moving, scale, None, None, layout), shrinks + 1
-        z, done, active = _newton(sub, sub.z0, delta, max_iterations, SHRINK_STEP)
+        z, done, nxt = _newton(sub, sub.z0, delta, max_iterations, SHRINK_STEP)
         x[sub.nodes] = sub.coords(sub.with_ghosts(z))
     count += sub.count
     sub.destroy()
