@@ -10,7 +10,11 @@ each; some cells inverted) it times, best of ``--repeat``:
 * the check's signed volumes + mean ratios (``signed_volumes`` +
   ``mean_ratio`` against :func:`~nagata_snap.smoothing.kernels.volume_mean_ratio`);
 * the band matrix blocks summed per node pair (argsort + ``_summed_blocks``
-  against :func:`~nagata_snap.smoothing.kernels.band_blocks`).
+  against :func:`~nagata_snap.smoothing.kernels.band_blocks`);
+* the optimiser's evaluation, the cell Hessians added into the Newton matrix
+  blocks: :func:`~nagata_snap.smoothing.kernels.energy_terms` then
+  :func:`~nagata_snap.smoothing.kernels.sum_hessians` against the fused
+  :func:`~nagata_snap.smoothing.kernels.energy_blocks`.
 
 It also prints the first call's time in this process (import of the
 cached machine code, or its compilation on a machine without the cache:
@@ -102,6 +106,16 @@ def main() -> None:
     print(f"{'kernel':32s} {'numpy us/tet':>13s} {'compiled us/tet':>16s} {'speed-up':>9s}")
     for name, a, b in rows:
         print(f"{name:32s} {a * us:13.3f} {b * us:16.3f} {a / b:9.1f}")
+    # the optimiser's evaluation: the cell Hessians added into the Newton matrix blocks
+    # (every node moving), as two passes with the (m, 4, 3, 4, 3) array between them or fused
+    B, sv = prep.B, np.ones(cells.shape)
+    slot, brow, _ = kernels.hessian_blocks(cells, x.shape[0])
+    kernels.energy_blocks(xp, cells, B, 1e-3, sv, slot, brow.size)
+    t_two = best(lambda: kernels.sum_hessians(kernels.energy_terms(xp, cells, B, 1e-3, True, sv)[3],
+                                              slot, brow.size), args.repeat)
+    t_one = best(lambda: kernels.energy_blocks(xp, cells, B, 1e-3, sv, slot, brow.size), args.repeat)
+    print(f"energy + gradient + Hessian into the matrix blocks: cell Hessians then sum_hessians "
+          f"{t_two * us:.3f} us/tet, fused (energy_blocks) {t_one * us:.3f} us/tet")
     print(f"guard_kernel_us_per_tet {t_nb * us:.3f}")
 
 

@@ -102,6 +102,23 @@ def test_optimise_untangles_scrambled_interior(d, n):
     np.testing.assert_array_equal(again.x, res.x)  # deterministic
 
 
+def test_shrinking_active_set_reaches_the_same_minimum():
+    """Few disturbed nodes among many free ones: the final round shrinks onto the nodes still
+    moving, and ends where the whole problem's Newton does (within the shrink step)."""
+    x_ref, cells, inner = unit_mesh(3, 8)
+    x = x_ref.copy()
+    centre = np.flatnonzero(inner & (np.linalg.norm(x_ref - 0.5, axis=1) < 0.15))
+    x[centre] += (0.5 / 8) * np.random.default_rng(1).uniform(-1, 1, size=x[centre].shape)
+    winv = untangle.targets(x_ref, cells)
+    scale = np.full(len(x), 1.0 / 8)
+    whole = untangle.optimise(x, cells, winv, inner, scale)
+    res = untangle.optimise(x, cells, winv, inner, scale, shrink=True)
+    assert whole.shrinks == 0 and res.shrinks > 0 and res.converged and whole.converged
+    assert res.sigma_min > 0 and abs(res.sigma_min - whole.sigma_min) < 1e-6
+    np.testing.assert_array_equal(res.x[~inner], x[~inner])  # fixed nodes bit for bit
+    assert np.abs(res.x - whole.x).max() < 10 * untangle.SHRINK_STEP * scale[0]
+
+
 def test_optimise_keeps_anisotropic_targets():
     """A graded (boundary-layer like) mesh is already optimal: the target is the straight cell."""
     x_ref, cells, inner = unit_mesh(2, 8)
@@ -242,8 +259,12 @@ def test_distributed_optimise_matches_serial(nprocs):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "DONE" in proc.stdout
     lines = [json.loads(ln) for ln in proc.stdout.splitlines() if ln.startswith("{")]
-    assert len(lines) == 6 and {(o["d"], o["blocks"]) for o in lines} == {
+    assert len(lines) == 8 and {(o["d"], o["blocks"]) for o in lines} == {
         (2, False), (3, False), (2, True), (3, True)}
+    # the final round's shrinking active set: the same set-ups in both runs, and one at least
+    shrinking = [o for o in lines if o["shrink"]]
+    assert len(shrinking) == 2 and max(o["shrinks"][0] for o in shrinking) > 0
+    assert all(o["shrinks"][0] == o["shrinks"][1] for o in lines), lines
     for out in lines:
         assert out["size"] == nprocs
         # moving nodes on process boundaries: the distributed factorisation; none: the

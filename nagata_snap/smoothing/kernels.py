@@ -31,7 +31,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["energy_terms", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_blocks",
+__all__ = ["energy_terms", "energy_blocks", "energy_value", "volume_mean_ratio", "band_blocks", "hessian_blocks",
            "sum_hessians", "grow_layer", "graph_sums", "tet_shapes", "rotate_blocks", "warm_up"]
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -162,9 +162,17 @@ def _cell_hessian(S: np.ndarray, C: np.ndarray, sigma: float, r: float, a: float
 
 @_inline
 def _terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float, hessian: bool,
-           scale: np.ndarray, d: int, g: np.ndarray, sig: np.ndarray, Hx: np.ndarray) -> float:
-    """The loop of :func:`energy_terms` over the cells; returns ``F``."""
+           scale: np.ndarray, d: int, g: np.ndarray, sig: np.ndarray, Hx: np.ndarray,
+           slot: np.ndarray, Hb: np.ndarray) -> float:
+    """The loop of :func:`energy_terms` over the cells; returns ``F``.
+
+    With ``slot`` of ``m`` rows (:func:`hessian_blocks`) each cell Hessian is
+    added into its matrix blocks ``Hb`` (as :func:`sum_hessians`, in cell
+    order) instead of being stored into ``Hx``.
+    """
     nv = d + 1
+    summed = slot.shape[0] > 0
+    Hk = np.empty((nv, d, nv, d))
     S = np.empty((d, d))
     C = np.empty((d, d))
     dS = np.empty((d, d))
@@ -198,7 +206,17 @@ def _terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float, hessia
                 for j in range(d):
                     s += dS[c, j] * Bk[v, j]
                 g[node, c] += s
-        if hessian:
+        if hessian and summed:
+            _cell_hessian(S, C, sigma, r, a, b, Bk, scale[k], d, Sv, Cv, Bs, P, Hk)
+            for v in range(nv):
+                for w in range(nv):
+                    q = slot[k, v, w]
+                    if q < 0:
+                        continue
+                    for c in range(d):
+                        for e in range(d):
+                            Hb[q, c, e] += Hk[v, c, w, e]
+        elif hessian:
             _cell_hessian(S, C, sigma, r, a, b, Bk, scale[k], d, Sv, Cv, Bs, P, Hx[k])
     return F
 
@@ -219,11 +237,37 @@ def energy_terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float,
     g = np.zeros((n, d))
     sig = np.empty(m)
     Hx = np.empty((m if hessian else 0, nv, d, nv, d))
+    slot = np.empty((0, nv, nv), dtype=np.int64)
+    Hb = np.empty((0, d, d))
     if d == 3:  # (a literal dimension: the inlined loops have constant bounds)
-        F = _terms(x, cells, B, delta, hessian, scale, 3, g, sig, Hx)
+        F = _terms(x, cells, B, delta, hessian, scale, 3, g, sig, Hx, slot, Hb)
     else:
-        F = _terms(x, cells, B, delta, hessian, scale, 2, g, sig, Hx)
+        F = _terms(x, cells, B, delta, hessian, scale, 2, g, sig, Hx, slot, Hb)
     return F, g, sig, Hx
+
+
+@_jit
+def energy_blocks(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float,
+                  scale: np.ndarray, slot: np.ndarray, nblocks: int
+                  ) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(F, gradient (n, d), Hessian blocks (nblocks, d, d))`` in one pass over the cells.
+
+    :func:`energy_terms` followed by :func:`sum_hessians` with the same bits
+    (each block gets its cells' contributions in the same order), without
+    the ``(m, d+1, d, d+1, d)`` array of cell Hessians between them
+    (``slot (m, d+1, d+1)`` from :func:`hessian_blocks`).
+    """
+    m, n, d = cells.shape[0], x.shape[0], x.shape[1]
+    nv = d + 1
+    g = np.zeros((n, d))
+    sig = np.empty(m)
+    Hx = np.empty((0, nv, d, nv, d))
+    Hb = np.zeros((nblocks, d, d))
+    if d == 3:
+        F = _terms(x, cells, B, delta, True, scale, 3, g, sig, Hx, slot, Hb)
+    else:
+        F = _terms(x, cells, B, delta, True, scale, 2, g, sig, Hx, slot, Hb)
+    return F, g, Hb
 
 
 @_jit
@@ -601,6 +645,7 @@ def warm_up() -> None:
         volume_mean_ratio(x3, cells.astype(np.int32), d)
         slot, brow, bcol = hessian_blocks(cells, nv)
         Hb = sum_hessians(np.zeros((1, nv, d, nv, d)), slot, brow.size)
+        energy_blocks(x, cells, B, 1e-4, ones, slot, brow.size)
         rotate_blocks(Hb, np.zeros((nv, d, d)), brow, bcol, np.zeros(1, np.int64))
         graph_sums(cells, x)
         grow_layer(cells.astype(np.int32), np.ones(nv, dtype=bool))

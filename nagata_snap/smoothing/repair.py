@@ -26,7 +26,9 @@ and stops at the first that leaves no bad cell:
     below :data:`POOR_RATIO` of the straight cell's): the optimiser below
     moves the nodes near the poor cells (:data:`OPTIMISE_LAYERS`), in passes
     over the cells that became poor in the pass before (an active set that
-    shrinks, :data:`OPTIMISE_PASSES`), each kept if it helps.  Not with
+    shrinks, :data:`OPTIMISE_PASSES`), each kept if it helps; within a pass
+    the Newton iterations go on over the nodes still moving only
+    (:func:`~nagata_snap.smoothing.untangle.optimise` with ``shrink``).  Not with
     ``method='none'`` (no interior motion unless a cell is bad).
 ``untangle`` (:func:`_untangle`)
     The interior nodes of the neighbourhood of the bad cells (:data:`UNTANGLE_LAYERS`
@@ -487,9 +489,9 @@ def _optimise(g: _Guard, x: np.ndarray) -> tuple[np.ndarray, bool]:
         t0 = time.perf_counter()
         before = g.state()
         worst, n_poor = before[2], before[1]
-        loc = _Local(g, seeds, OPTIMISE_LAYERS + 1)
+        loc = _Local(g, seeds, OPTIMISE_LAYERS)  # (its nodes within OPTIMISE_LAYERS - 1 are complete)
         free = (loc.distance(g, seeds) < OPTIMISE_LAYERS) & ~loc.constrained
-        xn, res = loc.run(g, x, free)
+        xn, res = loc.run(g, x, free, shrink=True)
         _, nb = g.check(xn)
         keep = (nb == 0 and g.worst >= worst and g.n_poor <= n_poor
                 and (g.worst > worst or g.n_poor < n_poor))

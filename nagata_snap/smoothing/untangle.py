@@ -53,7 +53,11 @@ MUMPS, LDL^T), with Levenberg damping where the Hessian is not positive
 definite and an Armijo line search; near the minimum it converges
 quadratically, so the result is the minimum to round-off.  Variables are
 scaled by each node's shortest reference edge (cells of very different
-sizes, e.g. boundary layers, then weigh alike).  Nodes that slide on the
+sizes, e.g. boundary layers, then weigh alike).  With ``shrink`` (the repair's
+optimise stage) the final round's active set shrinks: the nodes whose Newton
+step fell below :data:`SHRINK_STEP` stay, and the problem is set up again on
+the others and their neighbours, so the late iterations cost what the few
+nodes near the worst cells need, not the whole neighbourhood.  Nodes that slide on the
 geometry enter through a tangent basis ``T`` (``x = p + s T t``,
 ``|t| <=`` :data:`SLIDE_STEP` edge lengths); the caller projects them back
 onto the geometry and calls again (:func:`optimise` with ``slide``).
@@ -134,6 +138,12 @@ SLOPE_RTOL = 1e-12
 #: Largest tangential move of a sliding node per call, in units of its
 #: shortest edge (the tangent plane is a good model of the surface there).
 SLIDE_STEP = 0.3
+#: Shrinking active set (:func:`optimise` with ``shrink``): a node whose last
+#: Newton step in the final round was below ``SHRINK_STEP`` edge lengths has
+#: converged; once fewer than ``SHRINK_FRACTION`` of the moving nodes are
+#: still moving, the problem is set up again on those and their neighbours.
+SHRINK_STEP = 1e-4
+SHRINK_FRACTION = 0.5
 
 
 def targets(x_ref: np.ndarray, cells: np.ndarray) -> np.ndarray:
@@ -313,7 +323,8 @@ class OptimiseResult:
             :class:`~nagata_snap.smoothing.halo.Layout`, every local copy of a
             moving node, owned or ghost, holds its owner's value).
         sigma_min: smallest volume ratio of the active cells at ``x`` (over all processes).
-        evaluations: objective evaluations; rounds: regularisation rounds.
+        evaluations: objective evaluations; rounds: regularisation rounds;
+            shrinks: times the final round's active set was set up anew (``shrink``).
         converged: the final round (valid cells, ``delta = DELTA_MIN``) ended at a
             minimum (a tolerance of Newton's method met, or no descent step left),
             not at the iteration limit.  A result that did not converge depends on
@@ -326,12 +337,14 @@ class OptimiseResult:
     evaluations: int
     rounds: int
     converged: bool = True
+    shrinks: int = 0
 
 
 def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarray,
              scale: np.ndarray, *, slide: np.ndarray | None = None,
              basis: np.ndarray | None = None, max_rounds: int = 6,
-             max_iterations: int = 40, layout: Layout | None = None) -> OptimiseResult:
+             max_iterations: int = 40, layout: Layout | None = None,
+             shrink: bool = False) -> OptimiseResult:
     """Minimise ``F`` over the free (and sliding) nodes, from an invalid start if need be.
 
     Serial (``layout`` None): the arrays are the whole problem.  Distributed
@@ -360,6 +373,13 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
         max_iterations: Newton iterations of the final (valid, ``delta =
             DELTA_MIN``) round; the untangling rounds get half as many.
         layout: owned and ghost nodes of a distributed problem (None: serial).
+        shrink: an active set that shrinks in the final round (not with
+            ``slide``): once fewer than :data:`SHRINK_FRACTION` of the moving
+            nodes took a step above :data:`SHRINK_STEP` edge lengths, only
+            those and the moving nodes sharing a cell with them move on (the
+            problem set up again on them; the decision is collective, and a
+            node's copies agree).  The others stay within about that step of
+            their minimum; the iterations cost what the nodes still moving need.
 
     Returns:
         :class:`OptimiseResult`; the result is a deterministic function of
@@ -368,27 +388,66 @@ def optimise(x: np.ndarray, cells: np.ndarray, winv: np.ndarray, free: np.ndarra
     x = np.array(x, dtype=float)
     layout = Layout.serial(len(x)) if layout is None else layout
     pb = _Problem(x, cells, winv, free, scale, slide, basis, layout)
+    shrink = shrink and slide is None
+    extra, shrinks = 0, 0  # (evaluations and set-ups of the shrunken problems)
     try:
         if pb.total_size == 0:
             return OptimiseResult(x, pb.sigma_min(pb.z0), 0, 0)
-        z, rounds, smin, converged = pb.z0, 0, pb.sigma_min(pb.z0), False
+        z, rounds, smin, converged, written = pb.z0, 0, pb.sigma_min(pb.z0), False, False
         while rounds < max_rounds:
             rounds += 1
             delta = max(np.sqrt(EPS * (EPS - smin)) if smin < EPS else 0.0, DELTA_MIN)
-            z, done = _newton(pb, z, delta, max_iterations if delta == DELTA_MIN else max_iterations // 2)
+            final = delta == DELTA_MIN
+            its = max_iterations if final else max_iterations // 2
+            z, done, active = _newton(pb, z, delta, its, SHRINK_STEP if shrink and final else 0.0)
+            written = active is not None
+            if active is not None:  # the final round goes on over the nodes still moving
+                x[pb.nodes] = pb.coords(pb.with_ghosts(z))
+                done, n, k = _shrinking(pb, x, active, cells, winv, scale, layout, delta, its)
+                z, shrinks, extra = pb.variables(x), shrinks + n, extra + k
             prev, smin = smin, pb.sigma_min(z)
-            if smin > 0 and delta == DELTA_MIN:
+            if smin > 0 and final:
                 converged = done
                 break  # valid and converged
             if smin < 0 and smin <= prev + 0.05 * abs(prev):
                 break  # no progress on the worst cell
-        x[pb.nodes] = pb.coords(pb.with_ghosts(z))
+        if not written:  # (after shrinking, x holds the result already)
+            x[pb.nodes] = pb.coords(pb.with_ghosts(z))
     finally:
         pb.destroy()
-    return OptimiseResult(x, smin, pb.count, rounds, converged)
+    return OptimiseResult(x, smin, pb.count + extra, rounds, converged, shrinks)
 
 
-def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> tuple[np.ndarray, bool]:
+def _shrinking(pb: _Problem, x: np.ndarray, active: np.ndarray, cells: np.ndarray, winv: np.ndarray,
+               scale: np.ndarray, layout: Layout, delta: float, max_iterations: int
+               ) -> tuple[bool, int, int]:
+    """The rest of a final Newton round on shrinking sets of nodes (``x (n, d)`` updated in place).
+
+    ``active`` (the mask of ``pb``'s moving nodes to go on with, from
+    :func:`_newton`): each set-up moves those from ``x``, at most
+    ``max_iterations`` Newton iterations, until Newton stops without asking
+    to shrink again (each set-up has fewer than :data:`SHRINK_FRACTION` of
+    the nodes of the one before).  Returns ``(stopped, set-ups, evaluations)``.
+    """
+    shrinks, count = 0, 0
+    sub = pb
+    nxt: np.ndarray | None = active
+    while nxt is not None:
+        moving = np.zeros(x.shape[0], dtype=bool)
+        moving[sub.nodes[sub.moving]] = nxt
+        if sub is not pb:
+            count += sub.count
+            sub.destroy()
+        sub, shrinks = _Problem(x, cells, winv, moving, scale, None, None, layout), shrinks + 1
+        z, done, nxt = _newton(sub, sub.z0, delta, max_iterations, SHRINK_STEP)
+        x[sub.nodes] = sub.coords(sub.with_ghosts(z))
+    count += sub.count
+    sub.destroy()
+    return done, shrinks, count
+
+
+def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int, shrink: float = 0.0
+            ) -> tuple[np.ndarray, bool, np.ndarray | None]:
     """Damped Newton iterations on ``F`` at fixed ``delta`` (Levenberg damping, Armijo steps).
 
     Stops at a gradient below ``GTOL`` (scaled variables), at a Newton step
@@ -397,8 +456,12 @@ def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> t
     in the final round (``delta = DELTA_MIN``), :data:`FTOL_UNTANGLE` in an
     untangling round, whose minimum is only a step towards the next ``delta``;
     or when no damping gives a descent step.  ``z`` is this process's
-    variables; every test is a collective reduction.  Returns ``(z, stopped)``:
-    ``stopped`` unless the iterations ran out.
+    variables; every test is a collective reduction.  Returns ``(z, stopped,
+    active)``: ``stopped`` unless the iterations ran out; with ``shrink > 0``,
+    Newton stops for :func:`_shrinking` once the nodes whose last step exceeded
+    ``shrink`` (scaled variables) and their neighbours are fewer than
+    :data:`SHRINK_FRACTION` of the moving nodes, ``active`` their mask
+    (:meth:`_Problem.still_moving`); else None.
     """
     ftol = FTOL_FINAL if delta == DELTA_MIN else FTOL_UNTANGLE
     F, g, hv = pb.evaluate(z, delta)
@@ -408,7 +471,7 @@ def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> t
         held = ((z <= pb.lo) & (g > 0)) | ((z >= pb.hi) & (g < 0))
         g = np.where(held, 0.0, g)
         if pb.max_abs(g) <= GTOL:
-            return z, True
+            return z, True, None
         step = None
         for _ in range(12):  # damping until a descent direction with an Armijo step
             p = pb.solve(hv, mu, -g, held)
@@ -418,21 +481,26 @@ def _newton(pb: _Problem, z: np.ndarray, delta: float, max_iterations: int) -> t
                     p *= MAX_STEP / big
                     slope *= MAX_STEP / big
                 if -SLOPE_RTOL * abs(F) <= slope <= 0.0:  # (a descent too small for F to resolve)
-                    return z, True
+                    return z, True, None
                 if slope < 0:
                     step = _armijo(pb, z, p, F, slope, delta)
                     if step is not None:
                         break
             mu = max(10.0 * mu, 1e-6)
         if step is None:
-            return z, True
-        z, F_new = step
+            return z, True, None
+        z_new, F_new = step
         done = F - F_new <= ftol * abs(F)
         mu = mu / 10.0 if mu > 1e-6 else 0.0
         if done:
-            return z, True
+            return z_new, True, None
+        if shrink > 0:
+            active = pb.still_moving(z_new - z, shrink)
+            if active is not None:
+                return z_new, True, active
+        z = z_new
         F, g, hv = pb.evaluate(z, delta)
-    return z, False
+    return z, False, None
 
 
 def _armijo(pb: _Problem, z: np.ndarray, p: np.ndarray, F: float, slope: float, delta: float
@@ -601,6 +669,35 @@ class _Problem:
             np.add.at(a, self._send, self.halo.exchange_back(a[self._recv]))
         return a[: self.n_own]
 
+    def still_moving(self, dz: np.ndarray, tol: float) -> np.ndarray | None:
+        """The moving nodes to go on with after the step ``dz (size,)`` (collective), or None.
+
+        Those whose step exceeds ``tol`` (scaled variables) and the moving
+        nodes sharing a cell with them, as a mask over the moving nodes
+        (owned and ghost, alike on every copy), if fewer than
+        :data:`SHRINK_FRACTION` of all moving nodes; else None.
+        """
+        act = np.zeros(self.moving.size, dtype=np.int8)
+        act[: self.n_own] = np.abs(dz).reshape(-1, self.d).max(axis=1, initial=0.0) > tol
+        if self.halo.parallel:
+            act[self._recv] = self.halo.exchange(act[self._send])
+        on = np.zeros(self.nodes.size, dtype=bool)
+        on[self.moving] = act > 0
+        hit = np.zeros(self.nodes.size, dtype=bool)
+        hit[self.cells.cells[on[self.cells.cells].any(axis=1)]] = True
+        mark = np.zeros(self.moving.size, dtype=np.int8)
+        mark[: self.n_own] = self._to_owners(hit[self.moving].astype(np.int8)) > 0  # (ghost marks count)
+        if self.halo.parallel:
+            mark[self._recv] = self.halo.exchange(mark[self._send])
+        n_next = total(self.comm, float(np.count_nonzero(mark[: self.n_own])))
+        return mark > 0 if 0 < n_next < SHRINK_FRACTION * self.total_size / self.d else None
+
+    def variables(self, x: np.ndarray) -> np.ndarray:
+        """This process's variables ``z`` of the coordinates ``x (n, d)`` (free nodes only)."""
+        own = self.moving[: self.n_own]
+        dx = x[self.nodes[own]] - self.x0[own]
+        return (dx / self.s[own, None]).ravel()
+
     def coords(self, za: np.ndarray) -> np.ndarray:
         xx = self.x0.copy()
         xx[self.moving] += np.einsum("kcd,kd->kc", self.Em, za.reshape(-1, self.d))
@@ -629,10 +726,10 @@ class _Problem:
         """``(F, gradient (size,), Hessian values)`` in the variables ``z`` (values for :meth:`solve`)."""
         self.count += 1
         cc = self.cells
-        F, g, _, Hz = kernels.energy_terms(self.coords(self.with_ghosts(z)), cc.cells64, cc.B,
-                                           float(delta), True, self._sv)  # Hessian blocks times s_v s_w
+        # (the cell Hessians times s_v s_w, summed into the matrix blocks in cell order)
+        F, g, Hb = kernels.energy_blocks(self.coords(self.with_ghosts(z)), cc.cells64, cc.B,
+                                         float(delta), self._sv, self._slot, self._nblocks)
         gz = self._to_owners(np.einsum("kcd,kc->kd", self.Em, g[self.moving])).ravel()
-        Hb = kernels.sum_hessians(Hz, self._slot, self._nblocks)
         if self._rot.size:  # blocks of sliding nodes: into their tangent bases
             kernels.rotate_blocks(Hb, self._Rm, self._brow, self._bcol, self._rot)
         hv = Hb.reshape(-1)

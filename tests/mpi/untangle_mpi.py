@@ -106,7 +106,7 @@ def unshared(lay, inner):
     return inner & (mark == 0)
 
 
-def run_case(comm, d, gm, blocks):
+def run_case(comm, d, gm, blocks, shrink=False):
     """One case: distributed and serial untangling compared (JSON line on rank 0)."""
     mesh = build(comm, d, gm)
     x, x_ref, cells, inner, scale = problem(mesh, d)
@@ -116,7 +116,7 @@ def run_case(comm, d, gm, blocks):
     winv = targets(x_ref, cells)
     smin0 = comm.allreduce(volume_ratio_min(x, cells, winv), op=MPI.MIN)
     BLOCK_SETUPS[0] = 0
-    res = optimise(x, cells, winv, inner, scale, layout=lay)
+    res = optimise(x, cells, winv, inner, scale, layout=lay, shrink=shrink)
     block_setups = comm.allreduce(BLOCK_SETUPS[0], op=MPI.MIN)
     fwd, back = halo_checks(mesh)
     # every copy of a node holds its owner's coordinates
@@ -137,9 +137,10 @@ def run_case(comm, d, gm, blocks):
     sfree = np.zeros(len(order), dtype=bool)
     sfree[order[gi_all]] = np.concatenate(gf)  # (the same moving nodes)
     sx, sx_ref, scells, sinner, sscale = problem(smesh, d, sfree)
-    sres = optimise(sx, scells, targets(sx_ref, scells), sinner, sscale)
+    sres = optimise(sx, scells, targets(sx_ref, scells), sinner, sscale, shrink=shrink)
     diff = float(np.abs(gx_all - sres.x[order][gi_all]).max())
     print(json.dumps({"d": d, "ghost_mode": str(gm), "blocks": blocks, "block_setups": block_setups,
+                      "shrink": shrink, "shrinks": [res.shrinks, sres.shrinks],
                       "moving": int(sinner.sum()),
                       "size": comm.size, "maxdiff": diff,
                       "sigma_min_start": smin0, "sigma_min": [res.sigma_min, sres.sigma_min],
@@ -155,6 +156,8 @@ def main():
     for d, gm, blocks in [(2, none, False), (2, shared, False), (3, none, False), (3, shared, False),
                           (2, none, True), (3, none, True)]:
         run_case(comm, d, gm, blocks)
+    for d in (2, 3):  # the final round's active set shrinking
+        run_case(comm, d, shared, False, shrink=True)
 
 
 if __name__ == "__main__":
