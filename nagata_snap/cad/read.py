@@ -762,14 +762,15 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     a = o.BRepAdaptor_Surface(face, False)
     u0, u1, v0, v1 = uv
     fr = [(i + 0.5) / grid for i in range(grid)]
-    params = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
-    kind = [0] * len(params)
+    grid_uv = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
+    kind = [0] * len(grid_uv)
+    params = [x for uv_ in grid_uv for x in uv_]  # (u, v) of every sample, flat (numpy reads it faster)
     p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
     pc, sc, vc, d1 = p.Coord, su.Coord, sv.Coord, a.D1
     ulo, uhi, vlo, vhi = _clamp_box(a)
     clamp = math.isfinite(ulo) or math.isfinite(vlo)  # (else min and max give u and v themselves)
     D: list[float] = []  # per sample its point, S_u and S_v (flat; `+=` of each tuple, no call)
-    for u, v in ([(min(max(u, ulo), uhi), min(max(v, vlo), vhi)) for u, v in params] if clamp else params):
+    for u, v in ([(min(max(u, ulo), uhi), min(max(v, vlo), vhi)) for u, v in grid_uv] if clamp else grid_uv):
         d1(u, v, p, su, sv)  # the grid (OpenCASCADE's points and derivatives)
         D += pc()
         D += sc()
@@ -785,7 +786,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     for e, c, t0_, t1_, seam in _check_uses(uses):  # loop over a few edge uses (their p-curves)
         c.D1(0.5 * (t0_ + t1_), p2, d2)
         u, v = p2.Coord()
-        params.append((u, v))
+        params += (u, v)
         kind.append(1)
         if clamp:
             d1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
@@ -807,7 +808,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
         off = max(offset, 10.0 * tool.MaxTolerance_s(e, EDGE)) / length
         for s in (off, -off):
             u_, v_ = u + s * nu, v + s * nv
-            params.append((u_, v_))
+            params += (u_, v_)
             kind.append(2)
             if clamp:
                 d1(min(max(u_, ulo), uhi), min(max(v_, vlo), vhi), p, su, sv)
@@ -821,13 +822,14 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     q = gp_Pnt2d()
     at, perform = q.SetCoord, cls.Perform
     state = []
-    for (u, v), kd in zip(params, kind, strict=True):  # the classifier's states
+    pairs = iter(params)
+    for (u, v), kd in zip(zip(pairs, pairs), kind, strict=True):  # the classifier's states
         if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
             state.append(2)
             continue
         at(u, v)
         state.append(code.get(int(perform(q)), 2))
-    k = len(params)
+    k = len(kind)
     return {"uv": np.array(params, dtype=float).reshape(k, 2), "d1": np.array(D).reshape(k, 3, 3),
             "state": np.array(state, dtype=np.int8), "kind": np.array(kind, dtype=np.int8), "offset": offset,
             "time": time.perf_counter() - t0}
