@@ -822,8 +822,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     q = gp_Pnt2d()
     at, perform = q.SetCoord, cls.Perform
     state = []
-    pairs = iter(params)
-    for (u, v), kd in zip(zip(pairs, pairs), kind, strict=True):  # the classifier's states
+    for (u, v), kd in zip(itertools.batched(params, 2), kind, strict=True):  # the classifier's states
         if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
             state.append(2)
             continue
