@@ -324,3 +324,34 @@ def test_reads_do_not_depend_on_earlier_files(sources, tmp_path):
               if forward[p] != backward[p] and timeout not in forward[p] + backward[p]}
     assert not differ, differ
     assert len({o.split(" ")[0] for o in forward.values()}) > 1  # geometries and errors both
+
+
+def test_from_file_pauses_the_collector_and_restores_it(sources, monkeypatch):
+    """``from_file`` builds with the cyclic collector off (``worker.collector_paused``) and leaves
+    it as it found it: on after a read, on after a failed read, off if it was off."""
+    import gc
+
+    from nagata_snap.cad import verify as cad_verify
+
+    seen = []
+    read = cad_verify.read_verified
+
+    def spy(*args, **kwargs):
+        seen.append(gc.isenabled())
+        return read(*args, **kwargs)
+
+    monkeypatch.setattr(cad_verify, "read_verified", spy)
+    was = gc.isenabled()
+    try:
+        gc.enable()
+        CadGeometry.from_file(sources["step"], isolate=False)
+        assert gc.isenabled()
+        with pytest.raises(CadError):
+            CadGeometry.from_file(sources["step"] + ".missing.step", isolate=False)
+        assert gc.isenabled()
+        gc.disable()
+        CadGeometry.from_file(sources["step"], isolate=False)
+        assert not gc.isenabled()
+    finally:
+        (gc.enable if was else gc.disable)()
+    assert seen == [False, False, False]

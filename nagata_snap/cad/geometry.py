@@ -316,6 +316,15 @@ class CadGeometry:
                 be converted, a crash or time-out of the reader), or holds no
                 entity of the kind needed.
         """
+        from nagata_snap.cad.worker import collector_paused
+
+        with collector_paused():
+            return cls._from_file(path, dim, unit, heal, isolate, timeout, comm, **kwargs)
+
+    @classmethod
+    def _from_file(cls, path: str | os.PathLike, dim: int | None, unit: str, heal: bool, isolate: bool,
+                   timeout: float | None, comm: Any, **kwargs: Any) -> CadGeometry:
+        """:meth:`from_file`'s work."""
         from nagata_snap.cad.topology import CadModel
         from nagata_snap.cad.verify import read_verified
 

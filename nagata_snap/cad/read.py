@@ -762,25 +762,19 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     a = o.BRepAdaptor_Surface(face, False)
     u0, u1, v0, v1 = uv
     fr = [(i + 0.5) / grid for i in range(grid)]
-    params = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
-    kind = [0] * len(params)
+    grid_uv = _pairs([u0 + t * (u1 - u0) for t in fr], [v0 + t * (v1 - v0) for t in fr])
+    kind = [0] * len(grid_uv)
+    params = [x for uv_ in grid_uv for x in uv_]  # (u, v) of every sample, flat (numpy reads it faster)
     p, su, sv = gp_Pnt(), gp_Vec(), gp_Vec()
     pc, sc, vc, d1 = p.Coord, su.Coord, sv.Coord, a.D1
     ulo, uhi, vlo, vhi = _clamp_box(a)
     clamp = math.isfinite(ulo) or math.isfinite(vlo)  # (else min and max give u and v themselves)
-    D: list[float] = []  # per sample its point, S_u and S_v (flat)
-
-    def sample(u: float, v: float) -> None:
-        """OpenCASCADE's point and derivatives at ``(u, v)`` (clamped where it clamps) onto ``D``."""
-        if clamp:
-            u, v = min(max(u, ulo), uhi), min(max(v, vlo), vhi)
-        d1(u, v, p, su, sv)
-        D.extend(pc())
-        D.extend(sc())
-        D.extend(vc())
-
-    for u, v in params:  # the grid (OpenCASCADE's points and derivatives)
-        sample(u, v)
+    D: list[float] = []  # per sample its point, S_u and S_v (flat; `+=` of each tuple, no call)
+    for u, v in ([(min(max(u, ulo), uhi), min(max(v, vlo), vhi)) for u, v in grid_uv] if clamp else grid_uv):
+        d1(u, v, p, su, sv)  # the grid (OpenCASCADE's points and derivatives)
+        D += pc()
+        D += sc()
+        D += vc()
     # the face's extent, roughly: the grid's, scaled to the span of a CHECK_GRID grid's
     xs, ys, zs = D[0::9], D[1::9], D[2::9]
     span = (CHECK_GRID - 1) / CHECK_GRID / ((grid - 1) / grid) if grid > 1 else 1.0
@@ -788,39 +782,53 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     extent = extent if math.isfinite(extent) else 0.0
     p2, d2 = gp_Pnt2d(), gp_Vec2d()
     offset = CHECK_OFFSET * extent
+    tool, EDGE = o.BRep_Tool, o.EDGE
     for e, c, t0_, t1_, seam in _check_uses(uses):  # loop over a few edge uses (their p-curves)
         c.D1(0.5 * (t0_ + t1_), p2, d2)
         u, v = p2.Coord()
-        params.append((u, v))
+        params += (u, v)
         kind.append(1)
-        sample(u, v)
-        if o.BRep_Tool.IsClosed_s(e, face) if seam is None else seam:  # a seam: the face on both sides
+        if clamp:
+            d1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
+        else:
+            d1(u, v, p, su, sv)
+        D += pc()
+        s_u, s_v = sc(), vc()
+        D += s_u
+        D += s_v
+        if tool.IsClosed_s(e, face) if seam is None else seam:  # a seam: the face on both sides
             continue
         nv, nu = d2.Coord()
         nu = -nu
         # |S_u nu + S_v nv| from the numbers just read (not by gp_Vec arithmetic: five calls)
-        x, y, z = (a_ * nu + b_ * nv for a_, b_ in zip(D[-6:-3], D[-3:], strict=True))
+        x, y, z = s_u[0] * nu + s_v[0] * nv, s_u[1] * nu + s_v[1] * nv, s_u[2] * nu + s_v[2] * nv
         length = math.sqrt(x * x + y * y + z * z)
         if not length > 0:
             continue
-        off = max(offset, 10.0 * o.BRep_Tool.MaxTolerance_s(e, o.EDGE)) / length
+        off = max(offset, 10.0 * tool.MaxTolerance_s(e, EDGE)) / length
         for s in (off, -off):
             u_, v_ = u + s * nu, v + s * nv
-            params.append((u_, v_))
+            params += (u_, v_)
             kind.append(2)
-            sample(u_, v_)
-    cls = IntTools_FClass2d(face, max(o.BRep_Tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
+            if clamp:
+                d1(min(max(u_, ulo), uhi), min(max(v_, vlo), vhi), p, su, sv)
+            else:
+                d1(u_, v_, p, su, sv)
+            D += pc()
+            D += sc()
+            D += vc()
+    cls = IntTools_FClass2d(face, max(tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
     code = o.STATES
     q = gp_Pnt2d()
     at, perform = q.SetCoord, cls.Perform
     state = []
-    for (u, v), kd in zip(params, kind, strict=True):  # the classifier's states
+    for (u, v), kd in zip(itertools.batched(params, 2), kind, strict=True):  # the classifier's states
         if kd == 1:  # on a p-curve: on the boundary (not asked: the classifier's slowest case)
             state.append(2)
             continue
         at(u, v)
         state.append(code.get(int(perform(q)), 2))
-    k = len(params)
+    k = len(kind)
     return {"uv": np.array(params, dtype=float).reshape(k, 2), "d1": np.array(D).reshape(k, 3, 3),
             "state": np.array(state, dtype=np.int8), "kind": np.array(kind, dtype=np.int8), "offset": offset,
             "time": time.perf_counter() - t0}
