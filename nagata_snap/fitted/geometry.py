@@ -48,7 +48,7 @@ from nagata_snap.fitted.fit import (
     fit_curves,
     fit_levels,
     fit_surfaces,
-    model_terms,
+    plane_value,
     surface_height,
     term_columns,
     terms,
@@ -88,6 +88,10 @@ HERMITE_RATIO = 0.1
 #: normal gives three equations, and a degree-4 fit over a torus corner 4 facets wide was no better than
 #: the patch.
 HERMITE_EXTRA = 2
+#: ... where its own residual (weighted RMS misfit over its stencil relative to the stencil's RMS
+#: height) exceeds this: fits that are not exact (quadrics: 1e-14 and less; the plate's torus corners:
+#: 1e-6 and more) ...
+HERMITE_MIN_RESIDUAL = 1e-8
 #: Weight of a point's two slope equations relative to its position's (1 and 10 were 2x and 6x less
 #: accurate on the filleted plate's torus corners than 0.3; 0.03 1.7x).
 SLOPE_WEIGHT = 0.3
@@ -236,6 +240,7 @@ class FittedGeometry(NagataGeometry):
         coef, self.fit_degree, level = fit_levels(
             levels, stencil, fit, S, lambda d: term_columns(d, top, planar), terms(top, planar))
         self._top = top
+        self.n_hermite = 0
         if not planar:
             self._hermite_refit(coef, stencil, coords, frame, centre, hv, r0)
         if int(self.fit_degree.max(initial=0)) <= self.degree < top:  # no refit above degree: drop the padding
@@ -273,66 +278,71 @@ class FittedGeometry(NagataGeometry):
         vertex (no tangency lines) are not touched.
         """
         S, q = len(centre), coef.shape[-1]
+        V = len(coords)
         c0 = coef[:, 0]
+        nsec = np.bincount(centre, minlength=V)
+        idx, mask = stencil(r0, np.arange(S))
+        # sectors that meet another at their vertex or in their stencil, and have a fit that is not planar
+        near = ((nsec[idx] >= 2) & mask).any(axis=1) | (nsec[centre] >= 2)
+        cand = np.flatnonzero(near & c0.any(axis=1))
+        if len(cand) == 0:
+            return
+        resid = np.where(self.fit_degree > 0, 0.0, np.inf)  # planar fits: 0
+        resid[cand] = self._residual(c0[cand], coords, frame[cand], centre[cand], hv, idx[cand], mask[cand])
         g = frame[:, 2] + c0[:, q - 2, None] * frame[:, 0] + c0[:, q - 1, None] * frame[:, 1]
         nfit = g / np.linalg.norm(g, axis=1, keepdims=True)
-        idx, mask = stencil(r0, np.arange(S))
-        d = coords[idx] - coords[centre][:, None]
-        loc = np.matmul(d, frame.transpose(0, 2, 1)) / hv[centre][:, None, None]
-        u, v, w = loc[..., 0], loc[..., 1], loc[..., 2]
-        F = w + np.einsum("smq,sq->sm", model_terms(u, v, w, self._top, False), c0)
-        wt = np.where(mask, 1.0 / (1.0 + (u * u + v * v + w * w)) ** 2, 0.0)
-        resid = np.sqrt((wt * F * F).sum(axis=1) / np.maximum(wt.sum(axis=1), 1e-300))
-        resid[self.fit_degree == 0] = np.inf
-        V = len(coords)
+        # each vertex's best-fitted sector, and whether all its sectors are tangent to it
         order = np.lexsort((resid, centre))
         first = np.r_[True, centre[order][1:] != centre[order][:-1]]
-        best = np.full(V, -1, dtype=np.int64)
+        best = np.zeros(V, dtype=np.int64)
         best[centre[order][first]] = order[first]
-        nsec = np.bincount(centre, minlength=V)
         cosmin = np.ones(V)
         np.minimum.at(cosmin, centre, np.einsum("si,si->s", nfit, nfit[best[centre]]))
-        ok = (nsec >= 2) & (cosmin >= np.cos(np.radians(HERMITE_ANGLE)))
-        ok &= np.isfinite(resid[np.maximum(best, 0)])
-        hn = np.where(ok[:, None], nfit[np.maximum(best, 0)], np.nan)
-        hres = np.where(ok, resid[np.maximum(best, 0)], np.inf)
+        ok = (nsec >= 2) & (cosmin >= np.cos(np.radians(HERMITE_ANGLE))) & np.isfinite(resid[best])
+        hres = np.where(ok, resid[best], np.inf)
 
         def normals_at(sel: np.ndarray, pts: np.ndarray, m: np.ndarray) -> np.ndarray:
-            good = m & (hres[pts] <= HERMITE_RATIO * resid[sel][:, None]) & (best[pts] != sel[:, None])
-            return np.where(good[..., None], hn[pts], np.nan)
+            """``(len(sel), k, 3)`` the Hermite normals of sectors ``sel`` at vertices ``pts``, NaN where none."""
+            good = m & (hres[pts] <= HERMITE_RATIO * resid[sel][:, None])
+            return np.where(good[..., None], nfit[best[pts]], np.nan)
 
-        allpts = np.c_[centre, idx]
-        allm = np.c_[np.ones(S, dtype=bool), mask]
-        has = np.isfinite(normals_at(np.arange(S), allpts, allm)).all(axis=2).any(axis=1)
-        redo = np.flatnonzero(has & coef[:, 0].any(axis=1) & (resid > 1e-9))
-        self.n_hermite = 0
+        with_c = np.c_[centre[cand], idx[cand]], np.c_[np.ones(len(cand), dtype=bool), mask[cand]]
+        has = np.isfinite(normals_at(cand, *with_c)[..., 0]).any(axis=1)
+        redo = cand[has & (resid[cand] > HERMITE_MIN_RESIDUAL)]
         if len(redo) == 0:
             return
         levels = [(d, w, False) for d in range(self._top, 1, -1) for w in (r0, r0 + 1)]
-        keep = np.zeros(S, dtype=bool)
-        keep[redo] = True
 
         def stencil2(width: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            i2, m2 = stencil(width, rows)
-            return i2, m2 & keep[:, None]
+            i2, m2 = stencil(width, redo[rows])
+            return i2[redo], m2[redo]
 
         def count(i2: np.ndarray, m2: np.ndarray) -> np.ndarray:
-            rows = np.arange(S)
-            nh = np.isfinite(normals_at(rows, np.c_[centre, i2], np.c_[np.ones(S, dtype=bool), m2])).all(axis=2)
-            return m2.sum(axis=1) + 2 * nh.sum(axis=1)
+            nh = np.isfinite(normals_at(redo, np.c_[centre[redo], i2], np.c_[np.ones(len(redo), dtype=bool), m2]))
+            return m2.sum(axis=1) + 2 * nh[..., 0].sum(axis=1)
 
         def fit2(sel: np.ndarray, i2: np.ndarray, m2: np.ndarray, dd: int, explicit: bool) -> np.ndarray:
-            c = centre[sel]
-            N = normals_at(sel, np.c_[c, i2], np.c_[np.ones(len(sel), dtype=bool), m2])
-            return fit_surfaces(coords[c], frame[sel], coords[i2], m2, hv[c], dd, False, explicit, normals=N,
+            s, c = redo[sel], centre[redo[sel]]
+            N = normals_at(s, np.c_[c, i2], np.c_[np.ones(len(sel), dtype=bool), m2])
+            return fit_surfaces(coords[c], frame[s], coords[i2], m2, hv[c], dd, False, explicit, normals=N,
                                 slope_weight=SLOPE_WEIGHT)[:, None, :]
 
-        coef2, deg2, _ = fit_levels(levels, stencil2, fit2, S, lambda d: term_columns(d, self._top, False),
+        coef2, deg2, _ = fit_levels(levels, stencil2, fit2, len(redo), lambda d: term_columns(d, self._top, False),
                                     terms(self._top, False), equations=count)
-        done = redo[deg2[redo] > 0]
-        coef[done] = coef2[done]
-        self.fit_degree[done] = deg2[done]
-        self.n_hermite = len(done)
+        done = deg2 > 0
+        coef[redo[done]] = coef2[done]
+        self.fit_degree[redo[done]] = deg2[done]
+        self.n_hermite = int(done.sum())
+
+    def _residual(self, c: np.ndarray, coords: np.ndarray, frame: np.ndarray, centre: np.ndarray, hv: np.ndarray,
+                  idx: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """``(S,)`` weighted RMS of the implicit fits ``c (S, q)`` over their stencils ``idx, mask``, relative to
+        the weighted RMS height of the stencil points (0 on the model's surfaces, planes excluded)."""
+        loc = np.matmul(coords[idx] - coords[centre][:, None], frame.transpose(0, 2, 1)) / hv[centre][:, None, None]
+        u, v, w = loc[..., 0], loc[..., 1], loc[..., 2]
+        F = w + plane_value(c, self._top, False, u, v) + (c[:, 3:4] * u + c[:, 4:5] * v + c[:, 5:6] * w) * w
+        wt = np.where(mask, 1.0 / (1.0 + (u * u + v * v + w * w)) ** 2, 0.0)
+        return np.sqrt((wt * F * F).sum(axis=1) / np.maximum((wt * w * w).sum(axis=1), 1e-300))
 
     def _fit_creases(self, coords: np.ndarray, hv: np.ndarray) -> None:
         """Curve fits at both ends of every crease edge (3D), and each facet edge's crease."""
