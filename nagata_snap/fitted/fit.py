@@ -188,20 +188,22 @@ def _model_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def blend_kernel(X: np.ndarray, lam: np.ndarray, x0: np.ndarray, frame: np.ndarray, h: np.ndarray,
-                 coef: np.ndarray, use: np.ndarray, degree: int, planar: bool,
+                 coef: np.ndarray, use: np.ndarray, degree: np.ndarray, planar: bool,
                  out: np.ndarray) -> None:  # pragma: no cover (compiled)
     """``out[p, k] += sum_i lam[p, k, i] w_i n_i`` over the corners ``i`` with ``use[p, i]``.
 
     ``X (P, k, 3)`` straight points; per facet corner ``x0 (P, nfv, 3)`` the
     vertex, ``frame (P, nfv, 3, 3)`` rows ``t1, t2, n``, ``h (P, nfv)`` the
-    length scale, ``coef (P, nfv, q)`` the fit; ``w_i`` the fit's height
+    length scale, ``coef (P, nfv, q)`` the fit (terms of the largest degree, zero above the
+    corner's own ``degree (P, nfv)``, 2 or more: its evaluation stops there); ``w_i`` the fit's height
     (:func:`surface_height`) above the point's projection into the frame, minus
     the point's own height ``w``: the fitted point is ``X + (w_i - w) n_i``.
     """
     P, K, _ = X.shape
     nfv = lam.shape[2]
-    pu = np.empty(degree + 1)
-    pv = np.empty(degree + 1)
+    top = max(int(degree.max()), 2) if degree.size else 2
+    pu = np.empty(top + 1)
+    pv = np.empty(top + 1)
     for p in range(P):
         for i in range(nfv):
             if not use[p, i]:
@@ -212,7 +214,7 @@ def blend_kernel(X: np.ndarray, lam: np.ndarray, x0: np.ndarray, frame: np.ndarr
                 u = (d0 * fr[0, 0] + d1 * fr[0, 1] + d2 * fr[0, 2]) / hh
                 v = (d0 * fr[1, 0] + d1 * fr[1, 1] + d2 * fr[1, 2]) / hh
                 w = (d0 * fr[2, 0] + d1 * fr[2, 1] + d2 * fr[2, 2]) / hh
-                dw = (_model_at(c, degree, planar, u, v, pu, pv, True) - w) * hh * lam[p, k, i]
+                dw = (_model_at(c, degree[p, i], planar, u, v, pu, pv, True) - w) * hh * lam[p, k, i]
                 for j in range(3):
                     out[p, k, j] += dw * fr[2, j]
 
@@ -285,10 +287,15 @@ def slope_rows(P: np.ndarray, z: np.ndarray, W: np.ndarray, loc: np.ndarray, wt:
     Weighted ``weight`` times the point's position weight (the vertex's: the largest).
     """
     S = len(P)
-    pts = np.concatenate([np.zeros((S, 1, 3)), loc], axis=1)
-    n = np.matmul(np.nan_to_num(normals), frame.transpose(0, 2, 1))  # local components
     known = np.isfinite(normals).all(axis=2)
-    ws = weight * np.where(known, np.concatenate([wt.max(axis=1, keepdims=True), wt], axis=1), 0.0)
+    k = max(int(known.sum(axis=1).max(initial=0)), 1)
+    keep = np.argsort(~known, axis=1, kind="stable")[:, :k]  # the points with a normal, first
+    known = np.take_along_axis(known, keep, axis=1)
+    pts = np.take_along_axis(np.concatenate([np.zeros((S, 1, 3)), loc], axis=1), keep[..., None], axis=1)
+    wk = np.take_along_axis(np.concatenate([wt.max(axis=1, keepdims=True), wt], axis=1), keep, axis=1)
+    nk = np.take_along_axis(np.nan_to_num(normals), keep[..., None], axis=1)
+    n = np.matmul(nk, frame.transpose(0, 2, 1))  # local components
+    ws = weight * np.where(known, wk, 0.0)
     du, dv, dw = _term_derivatives(pts[..., 0], pts[..., 1], pts[..., 2], degree)
     a, b, c = n[..., 0:1], n[..., 1:2], n[..., 2:3]
     rows = np.concatenate([du * c - dw * a, dv * c - dw * b], axis=1)

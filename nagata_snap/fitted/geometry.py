@@ -252,6 +252,8 @@ class FittedGeometry(NagataGeometry):
         self._planar = planar
         # planar stencils' fits (fit_surfaces' FLAT): the tangent plane, which holds their facets
         self._flat = (self.fit_degree > 0) & ~self._coef_s.any(axis=1)
+        # each sector's fit is evaluated up to its own degree (its terms above are zero)
+        self._eval_degree = np.maximum(self.fit_degree, 2).astype(np.int64)
         self.n_clipped = 0
         self._use_nagata = np.zeros(S, dtype=bool)
         self._fit_creases(coords, hv)
@@ -539,6 +541,7 @@ class FittedGeometry(NagataGeometry):
         sec, vid = self.corners.sector[act], self.corners.vertex[act]
         frames, h = self._frame_s[sec], self._hv[vid]
         coef = self._coef_s[sec]
+        deg = self._eval_degree[sec]
 
         def along(P: np.ndarray, i: int) -> np.ndarray:
             """``(F, k, 3)`` the move from ``P`` onto corner ``i``'s fit, along its normal."""
@@ -547,7 +550,7 @@ class FittedGeometry(NagataGeometry):
             lam_i = np.zeros((F, P.shape[1], nfv))
             lam_i[..., i] = 1.0
             out = np.zeros_like(P)
-            blend_kernel(P, lam_i, x0, frames, h, coef, one, self._top, self._planar, out)
+            blend_kernel(P, lam_i, x0, frames, h, coef, one, deg, self._planar, out)
             return out
 
         q = [X + along(X, i) for i in range(nfv)]
@@ -583,7 +586,7 @@ class FittedGeometry(NagataGeometry):
         use = ~nag & ~self._flat[label]
         if use.any():
             blend_kernel(out.copy(), np.ascontiguousarray(lam, dtype=float), self.x[patch], self._frame_s[label],
-                         self._hv[self.corners.vertex[patch]], self._coef_s[label], use, self._top,
+                         self._hv[self.corners.vertex[patch]], self._coef_s[label], use, self._eval_degree[label],
                          self._planar, out)
         if nag.any():
             rows = np.flatnonzero(nag.any(axis=1))
