@@ -23,6 +23,10 @@ Nagata's) and replaces the surface (after Jiao & Wang 2012, WALF):
   their own blend on that edge at ``t = lambda_b / (lambda_a + lambda_b)``,
   which vanishes on their other edges: both sides meet on the one curve,
   corners (vertices) stay fixed;
+* a sector whose fit is not exact and that meets a better-fitted sector
+  tangentially (a fillet's torus corner beside a plane or a cylinder) is
+  refitted with that sector's normals as slope equations, at up to degree
+  ``p + 2`` (:meth:`FittedGeometry._hermite_refit`);
 * a fit that disagrees with its neighbours' (a stencil too coarse or ragged
   for the degree) gives way to the Nagata patch at its corners, a crease
   chain too short for a fit of order 3 (between close corners) or a crease
@@ -527,7 +531,10 @@ class FittedGeometry(NagataGeometry):
         surface than the patch.
         Facets whose corners all have planar fits (:attr:`_flat`: tangent
         planes of stencils within ``FLAT`` of them, so of each other) agree to
-        rounding and are not measured.
+        rounding and are not measured, nor are samples on a crease edge (the
+        surface there is the crease curve; on a tangency line with a plane the
+        patch's crease curve is the chord, its departure 0, and any
+        disagreement there refused both sectors).
         """
         nfv = self.x.shape[1]
         act = np.flatnonzero(~self._flat[self.corners.sector].all(axis=1))
