@@ -43,7 +43,7 @@ import numpy as np
 from nagata_snap.nagata.jets import _basis, _weighted_lstsq
 
 __all__ = ["exponents", "monomials", "terms", "model_terms", "plane_value", "term_columns",
-           "fit_surfaces", "surface_height", "fit_levels", "fit_curves", "height", "BATCH",
+           "fit_surfaces", "slope_rows", "surface_height", "fit_levels", "fit_curves", "height", "BATCH",
            "MIN_CREASE_SINE"]
 
 #: Stencils per batch (bounds memory: ``batch * points * terms`` doubles).
@@ -188,20 +188,22 @@ def _model_kernel(coef: np.ndarray, degree: int, planar: bool, u: np.ndarray, v:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def blend_kernel(X: np.ndarray, lam: np.ndarray, x0: np.ndarray, frame: np.ndarray, h: np.ndarray,
-                 coef: np.ndarray, use: np.ndarray, degree: int, planar: bool,
+                 coef: np.ndarray, use: np.ndarray, degree: np.ndarray, planar: bool,
                  out: np.ndarray) -> None:  # pragma: no cover (compiled)
     """``out[p, k] += sum_i lam[p, k, i] w_i n_i`` over the corners ``i`` with ``use[p, i]``.
 
     ``X (P, k, 3)`` straight points; per facet corner ``x0 (P, nfv, 3)`` the
     vertex, ``frame (P, nfv, 3, 3)`` rows ``t1, t2, n``, ``h (P, nfv)`` the
-    length scale, ``coef (P, nfv, q)`` the fit; ``w_i`` the fit's height
+    length scale, ``coef (P, nfv, q)`` the fit (terms of the largest degree, zero above the
+    corner's own ``degree (P, nfv)``, 2 or more: its evaluation stops there); ``w_i`` the fit's height
     (:func:`surface_height`) above the point's projection into the frame, minus
     the point's own height ``w``: the fitted point is ``X + (w_i - w) n_i``.
     """
     P, K, _ = X.shape
     nfv = lam.shape[2]
-    pu = np.empty(degree + 1)
-    pv = np.empty(degree + 1)
+    top = max(int(degree.max()), 2) if degree.size else 2
+    pu = np.empty(top + 1)
+    pv = np.empty(top + 1)
     for p in range(P):
         for i in range(nfv):
             if not use[p, i]:
@@ -212,14 +214,14 @@ def blend_kernel(X: np.ndarray, lam: np.ndarray, x0: np.ndarray, frame: np.ndarr
                 u = (d0 * fr[0, 0] + d1 * fr[0, 1] + d2 * fr[0, 2]) / hh
                 v = (d0 * fr[1, 0] + d1 * fr[1, 1] + d2 * fr[1, 2]) / hh
                 w = (d0 * fr[2, 0] + d1 * fr[2, 1] + d2 * fr[2, 2]) / hh
-                dw = (_model_at(c, degree, planar, u, v, pu, pv, True) - w) * hh * lam[p, k, i]
+                dw = (_model_at(c, degree[p, i], planar, u, v, pu, pv, True) - w) * hh * lam[p, k, i]
                 for j in range(3):
                     out[p, k, j] += dw * fr[2, j]
 
 
 def fit_surfaces(
     x0: np.ndarray, frame: np.ndarray, pts: np.ndarray, mask: np.ndarray, h: np.ndarray, degree: int,
-    planar: bool, explicit: bool = False,
+    planar: bool, explicit: bool = False, normals: np.ndarray | None = None, slope_weight: float = 1.0,
 ) -> np.ndarray:
     """Implicit local surfaces ``w + sum_j c_j phi_j(u, v, w) = 0`` of degree ``degree`` in each vertex's frame.
 
@@ -239,6 +241,10 @@ def fit_surfaces(
             coefficients 0; the others lightly penalised): the fallback where
             the implicit fit is not a height function over the stencil
             (:func:`height_valid`).
+        normals: optional ``(S, m + 1, 3)`` (3D): unit normals of the surface at
+            ``x0`` (row 0) and at the stencil points, NaN where unknown; each
+            known one adds two slope equations ``grad F x n = 0`` (Hermite data,
+            weighted ``slope_weight`` times the point's position; :func:`slope_rows`).
 
     Returns:
         ``(S, q)`` coefficients (:func:`terms`), in coordinates scaled by ``h``;
@@ -254,16 +260,65 @@ def fit_surfaces(
     fit = np.flatnonzero((np.abs(loc[..., 2]) > FLAT).any(axis=1, where=mask))
     u, v, w = loc[fit, :, 0], loc[fit, :, 1], loc[fit, :, 2]
     P = model_terms(u, v, 0.0 * u if explicit else w, degree, planar)
+    z, W = -w, wt[fit]
+    if normals is not None and not planar and not explicit:
+        P, z, W = slope_rows(P, z, W, loc[fit], wt[fit], normals[fit], frame[fit], degree, slope_weight)
     # no ridge penalty while the design is determined (exact on its own model); the
     # solver's fallback penalises all but the linear terms where it is not (always
     # when explicit: the terms in w are zero columns)
-    cf = _weighted_lstsq(P, -w, wt[fit], np.zeros(P.shape[-1], dtype=bool), 1 if planar else 2)
+    cf = _weighted_lstsq(P, z, W, np.zeros(P.shape[-1], dtype=bool), 1 if planar else 2)
     if explicit:
         cf[:, [1, 2] if planar else [3, 4, 5]] = 0.0
     else:
         cf[~height_valid(cf, degree, planar, u, v, mask[fit])] = np.nan
     c[fit] = cf
     return c
+
+
+def slope_rows(P: np.ndarray, z: np.ndarray, W: np.ndarray, loc: np.ndarray, wt: np.ndarray, normals: np.ndarray,
+               frame: np.ndarray, degree: int, weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The design ``P (S, m, q)``, right side ``z`` and weights ``W (S, m)`` of a 3D fit with slope rows appended.
+
+    At the vertex (``normals[:, 0]``) and each stencil point ``loc (S, m, 3)``
+    (scaled local coordinates, weights ``wt``) with a known normal ``n`` (local
+    ``(a, b, c)``): ``F_u c - F_w a = 0`` and ``F_v c - F_w b = 0``, ``F`` the
+    model of :func:`fit_surfaces` (``F_w = 1 + ...``), i.e. rows
+    ``phi_u c - phi_w a`` (right side ``a``) and ``phi_v c - phi_w b`` (``b``).
+    Weighted ``weight`` times the point's position weight (the vertex's: the largest).
+    """
+    S = len(P)
+    known = np.isfinite(normals).all(axis=2)
+    k = max(int(known.sum(axis=1).max(initial=0)), 1)
+    keep = np.argsort(~known, axis=1, kind="stable")[:, :k]  # the points with a normal, first
+    known = np.take_along_axis(known, keep, axis=1)
+    pts = np.take_along_axis(np.concatenate([np.zeros((S, 1, 3)), loc], axis=1), keep[..., None], axis=1)
+    wk = np.take_along_axis(np.concatenate([wt.max(axis=1, keepdims=True), wt], axis=1), keep, axis=1)
+    nk = np.take_along_axis(np.nan_to_num(normals), keep[..., None], axis=1)
+    n = np.matmul(nk, frame.transpose(0, 2, 1))  # local components
+    ws = weight * np.where(known, wk, 0.0)
+    du, dv, dw = _term_derivatives(pts[..., 0], pts[..., 1], pts[..., 2], degree)
+    a, b, c = n[..., 0:1], n[..., 1:2], n[..., 2:3]
+    rows = np.concatenate([du * c - dw * a, dv * c - dw * b], axis=1)
+    return (np.concatenate([P, rows], axis=1), np.concatenate([z, n[..., 0], n[..., 1]], axis=1),
+            np.concatenate([W, ws, ws], axis=1))
+
+
+def _term_derivatives(u: np.ndarray, v: np.ndarray, w: np.ndarray, degree: int
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``d/du, d/dv, d/dw`` ``(..., q)`` of the 3D :func:`model_terms` (their order)."""
+    zero, one = 0.0 * u, 1.0 + 0.0 * u
+    du = [2.0 * u, v, zero, w, zero, zero]
+    dv = [zero, u, 2.0 * v, zero, w, zero]
+    dw = [zero, zero, zero, u, v, 2.0 * w]
+    for d in range(3, degree + 1):
+        for i in range(d + 1):  # u^(d-i) v^i
+            du.append((d - i) * u ** max(d - i - 1, 0) * v**i if d - i > 0 else zero)
+            dv.append(i * u ** (d - i) * v ** max(i - 1, 0) if i > 0 else zero)
+            dw.append(zero)
+    du += [one, zero]
+    dv += [zero, one]
+    dw += [zero, zero]
+    return np.stack(du, axis=-1), np.stack(dv, axis=-1), np.stack(dw, axis=-1)
 
 
 #: A stencil whose points all lie within ``FLAT`` (in units of the vertex's
@@ -315,7 +370,7 @@ def fit_levels(
     stencil: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]],
     fit: Callable[[np.ndarray, np.ndarray, np.ndarray, int, bool], np.ndarray],
     S: int, columns: Callable[[int], np.ndarray], q: int, comps: int = 1,
-    equations: Callable[[np.ndarray], np.ndarray] | None = None,
+    equations: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fits of ``S`` stencils trying ``levels = [(degree, width, variant), ...]`` in turn.
 
@@ -330,7 +385,7 @@ def fit_levels(
         ``(coef (S, comps, q), degree (S,), level (S,))``: coefficients padded to
         the ``q`` terms of the first level's degree (zeros for the terms a lower
         degree lacks), the degree each fit got (0: none, coefficients 0) and
-        the index of its level (-1: none).  ``equations(mask) -> (n,)``: the
+        the index of its level (-1: none).  ``equations(idx, mask) -> (n,)``: the
     equations per component a stencil gives (default: its points).
     """
     coef = np.zeros((S, comps, q))
@@ -346,7 +401,7 @@ def fit_levels(
         idx, mask = cache[width]
         cols = columns(degree)
         count = mask.sum(axis=1)
-        enough = (count if equations is None else equations(mask)) >= len(cols) + EXTRA_POINTS
+        enough = (count if equations is None else equations(idx, mask)) >= len(cols) + EXTRA_POINTS
         todo = np.flatnonzero(todo & enough)
         # stencils of like size together: each batch is padded to its largest (one stencil of 110
         # points among stencils of 28 on a part whose small holes sit in large faces)

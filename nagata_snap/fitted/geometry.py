@@ -23,6 +23,10 @@ Nagata's) and replaces the surface (after Jiao & Wang 2012, WALF):
   their own blend on that edge at ``t = lambda_b / (lambda_a + lambda_b)``,
   which vanishes on their other edges: both sides meet on the one curve,
   corners (vertices) stay fixed;
+* a sector whose fit is not exact and that meets a better-fitted sector
+  tangentially (a fillet's torus corner beside a plane or a cylinder) is
+  refitted with that sector's normals as slope equations, at up to degree
+  ``p + 2`` (:meth:`FittedGeometry._hermite_refit`);
 * a fit that disagrees with its neighbours' (a stencil too coarse or ragged
   for the degree) gives way to the Nagata patch at its corners, a crease
   chain too short for a fit of order 3 (between close corners) or a crease
@@ -37,7 +41,7 @@ Nagata's) and replaces the surface (after Jiao & Wang 2012, WALF):
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import dolfinx.mesh
 import numpy as np
@@ -48,6 +52,7 @@ from nagata_snap.fitted.fit import (
     fit_curves,
     fit_levels,
     fit_surfaces,
+    plane_value,
     surface_height,
     term_columns,
     terms,
@@ -77,6 +82,23 @@ FIT_BOUND = 0.5
 #: Nagata crease curve by more than ``GUARD`` times that curve's departure from
 #: the chord.
 GUARD = 0.5
+
+#: Hermite refits (:meth:`FittedGeometry._hermite_refit`): sectors at a vertex are tangent where
+#: their fitted normals agree within this angle (degrees) ...
+HERMITE_ANGLE = 10.0
+#: ... a sector takes the normal of a sector there whose residual is at most this fraction of its own ...
+HERMITE_RATIO = 0.1
+#: ... and is refitted at up to this much above the requested degree (at most 6): each point with a
+#: normal gives three equations, and a degree-4 fit over a torus corner 4 facets wide was no better than
+#: the patch.
+HERMITE_EXTRA = 2
+#: ... where its own residual (weighted RMS misfit over its stencil relative to the stencil's RMS
+#: height) exceeds this: fits that are not exact (quadrics: 1e-14 and less; the plate's torus corners:
+#: 1e-6 and more) ...
+HERMITE_MIN_RESIDUAL = 1e-8
+#: Weight of a point's two slope equations relative to its position's (1 and 10 were 2x and 6x less
+#: accurate on the filleted plate's torus corners than 0.3; 0.03 1.7x).
+SLOPE_WEIGHT = 0.3
 
 #: Barycentric samples of the guard, per facet size (2D: segments, 3D: triangles).
 GUARD_SAMPLES = {
@@ -217,18 +239,116 @@ class FittedGeometry(NagataGeometry):
             c = centre[sel]
             return fit_surfaces(coords[c], frame[sel], coords[idx], mask, hv[c], d, planar, explicit)[:, None, :]
 
+        # the evaluation degree: Hermite refits (3D) may go up to HERMITE_EXTRA above ``degree``
+        top = self.degree if planar else min(self.degree + HERMITE_EXTRA, DEGREES.stop - 1)
         coef, self.fit_degree, level = fit_levels(
-            levels, stencil, fit, S, lambda d: term_columns(d, self.degree, planar), terms(self.degree, planar))
+            levels, stencil, fit, S, lambda d: term_columns(d, top, planar), terms(top, planar))
+        self._top = top
+        self.n_hermite = 0
+        if not planar:
+            self._hermite_refit(coef, stencil, coords, frame, centre, hv, r0)
+        if int(self.fit_degree.max(initial=0)) <= self.degree < top:  # no refit above degree: drop the padding
+            coef = coef[..., term_columns(self.degree, top, planar)]
+            self._top = self.degree
         cn.rings = None  # their memory
         self.fit_explicit = (level >= 0) & np.array([e for _, _, e in levels])[np.maximum(level, 0)]
         self._coords, self._hv, self._frame_s, self._coef_s = coords, hv, frame, coef[:, 0]
         self._planar = planar
         # planar stencils' fits (fit_surfaces' FLAT): the tangent plane, which holds their facets
         self._flat = (self.fit_degree > 0) & ~self._coef_s.any(axis=1)
+        # each sector's fit is evaluated up to its own degree (its terms above are zero)
+        self._eval_degree = np.maximum(self.fit_degree, 2).astype(np.int64)
         self.n_clipped = 0
         self._use_nagata = np.zeros(S, dtype=bool)
-        self._use_nagata = self._guard()
         self._fit_creases(coords, hv)
+        self._use_nagata = self._guard()
+
+    def _hermite_refit(self, coef: np.ndarray, stencil: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]],
+                       coords: np.ndarray, frame: np.ndarray, centre: np.ndarray, hv: np.ndarray, r0: int) -> None:
+        """Refit (in ``coef (S, 1, q)``) the sectors that meet a better-fitted sector tangentially, with its normals.
+
+        A face a few facets wide between tangency (G1) lines (a fillet's torus
+        corner: 3-6 segments over 90 degrees each way) gives one-sided stencils
+        spanning the face, and fits worse than the Nagata patch.  Where such a
+        line is shared with a sector whose fit reproduces its stencil better
+        (a plane, a cylinder: exact), that sector's fitted normal is the
+        surface's normal on the line too (the faces are tangent there).  Each
+        vertex where all sectors' fitted normals agree within
+        :data:`HERMITE_ANGLE` takes the normal of its sector of least residual
+        (the weighted RMS of its implicit fit over its stencil); a sector
+        whose own residual is at least ``1 / HERMITE_RATIO`` times that gets
+        slope equations there (:func:`~nagata_snap.fitted.fit.slope_rows`: at
+        its own vertex and its stencil points), three equations per point
+        instead of one, and is refitted at up to ``degree + HERMITE_EXTRA``
+        (then lower) over the same stencil widths.  Surfaces of one sector per
+        vertex (no tangency lines) are not touched.
+        """
+        S, q = len(centre), coef.shape[-1]
+        V = len(coords)
+        c0 = coef[:, 0]
+        nsec = np.bincount(centre, minlength=V)
+        idx, mask = stencil(r0, np.arange(S))
+        # sectors that meet another at their vertex or in their stencil, and have a fit that is not planar
+        near = ((nsec[idx] >= 2) & mask).any(axis=1) | (nsec[centre] >= 2)
+        cand = np.flatnonzero(near & c0.any(axis=1))
+        if len(cand) == 0:
+            return
+        resid = np.where(self.fit_degree > 0, 0.0, np.inf)  # planar fits: 0
+        resid[cand] = self._residual(c0[cand], coords, frame[cand], centre[cand], hv, idx[cand], mask[cand])
+        g = frame[:, 2] + c0[:, q - 2, None] * frame[:, 0] + c0[:, q - 1, None] * frame[:, 1]
+        nfit = g / np.linalg.norm(g, axis=1, keepdims=True)
+        # each vertex's best-fitted sector, and whether all its sectors are tangent to it
+        order = np.lexsort((resid, centre))
+        first = np.r_[True, centre[order][1:] != centre[order][:-1]]
+        best = np.zeros(V, dtype=np.int64)
+        best[centre[order][first]] = order[first]
+        cosmin = np.ones(V)
+        np.minimum.at(cosmin, centre, np.einsum("si,si->s", nfit, nfit[best[centre]]))
+        ok = (nsec >= 2) & (cosmin >= np.cos(np.radians(HERMITE_ANGLE))) & np.isfinite(resid[best])
+        hres = np.where(ok, resid[best], np.inf)
+
+        def normals_at(sel: np.ndarray, pts: np.ndarray, m: np.ndarray) -> np.ndarray:
+            """``(len(sel), k, 3)`` the Hermite normals of sectors ``sel`` at vertices ``pts``, NaN where none."""
+            good = m & (hres[pts] <= HERMITE_RATIO * resid[sel][:, None])
+            return np.where(good[..., None], nfit[best[pts]], np.nan)
+
+        with_c = np.c_[centre[cand], idx[cand]], np.c_[np.ones(len(cand), dtype=bool), mask[cand]]
+        has = np.isfinite(normals_at(cand, *with_c)[..., 0]).any(axis=1)
+        redo = cand[has & (resid[cand] > HERMITE_MIN_RESIDUAL)]
+        if len(redo) == 0:
+            return
+        levels = [(d, w, False) for d in range(self._top, 1, -1) for w in (r0, r0 + 1)]
+
+        def stencil2(width: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            i2, m2 = stencil(width, redo[rows])
+            return i2[redo], m2[redo]
+
+        def count(i2: np.ndarray, m2: np.ndarray) -> np.ndarray:
+            nh = np.isfinite(normals_at(redo, np.c_[centre[redo], i2], np.c_[np.ones(len(redo), dtype=bool), m2]))
+            return m2.sum(axis=1) + 2 * nh[..., 0].sum(axis=1)
+
+        def fit2(sel: np.ndarray, i2: np.ndarray, m2: np.ndarray, dd: int, explicit: bool) -> np.ndarray:
+            s, c = redo[sel], centre[redo[sel]]
+            N = normals_at(s, np.c_[c, i2], np.c_[np.ones(len(sel), dtype=bool), m2])
+            return fit_surfaces(coords[c], frame[s], coords[i2], m2, hv[c], dd, False, explicit, normals=N,
+                                slope_weight=SLOPE_WEIGHT)[:, None, :]
+
+        coef2, deg2, _ = fit_levels(levels, stencil2, fit2, len(redo), lambda d: term_columns(d, self._top, False),
+                                    terms(self._top, False), equations=count)
+        done = deg2 > 0
+        coef[redo[done]] = coef2[done]
+        self.fit_degree[redo[done]] = deg2[done]
+        self.n_hermite = int(done.sum())
+
+    def _residual(self, c: np.ndarray, coords: np.ndarray, frame: np.ndarray, centre: np.ndarray, hv: np.ndarray,
+                  idx: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """``(S,)`` weighted RMS of the implicit fits ``c (S, q)`` over their stencils ``idx, mask``, relative to
+        the weighted RMS height of the stencil points (0 on the model's surfaces, planes excluded)."""
+        loc = np.matmul(coords[idx] - coords[centre][:, None], frame.transpose(0, 2, 1)) / hv[centre][:, None, None]
+        u, v, w = loc[..., 0], loc[..., 1], loc[..., 2]
+        F = w + plane_value(c, self._top, False, u, v) + (c[:, 3:4] * u + c[:, 4:5] * v + c[:, 5:6] * w) * w
+        wt = np.where(mask, 1.0 / (1.0 + (u * u + v * v + w * w)) ** 2, 0.0)
+        return np.sqrt((wt * F * F).sum(axis=1) / np.maximum((wt * w * w).sum(axis=1), 1e-300))
 
     def _fit_creases(self, coords: np.ndarray, hv: np.ndarray) -> None:
         """Curve fits at both ends of every crease edge (3D), and each facet edge's crease."""
@@ -306,7 +426,7 @@ class FittedGeometry(NagataGeometry):
         levels = [(d, w, False) for d in range(top, 1, -1) for w in (w0, d + 2)] + [(2, w0, True)]
         # per offset: a position for each point, a slope for each point and the end's own
         coef, self.curve_degree, clevel = fit_levels(levels, stencil, fit, len(a), lambda d: term_columns(d, top, True),
-                                                terms(top, True), comps=2, equations=lambda m: 2 * m.sum(axis=1) + 1)
+                                                terms(top, True), comps=2, equations=lambda _, m: 2 * m.sum(axis=1) + 1)
         self._crease_ends = np.c_[a, b]
         self._curve = (tangent, n1, n2, coef)
         # creases whose chain is too short for a fit of order 3 or more or a circle (between
@@ -411,7 +531,10 @@ class FittedGeometry(NagataGeometry):
         surface than the patch.
         Facets whose corners all have planar fits (:attr:`_flat`: tangent
         planes of stencils within ``FLAT`` of them, so of each other) agree to
-        rounding and are not measured.
+        rounding and are not measured, nor are samples on a crease edge (the
+        surface there is the crease curve; on a tangency line with a plane the
+        patch's crease curve is the chord, its departure 0, and any
+        disagreement there refused both sectors).
         """
         nfv = self.x.shape[1]
         act = np.flatnonzero(~self._flat[self.corners.sector].all(axis=1))
@@ -425,6 +548,7 @@ class FittedGeometry(NagataGeometry):
         sec, vid = self.corners.sector[act], self.corners.vertex[act]
         frames, h = self._frame_s[sec], self._hv[vid]
         coef = self._coef_s[sec]
+        deg = self._eval_degree[sec]
 
         def along(P: np.ndarray, i: int) -> np.ndarray:
             """``(F, k, 3)`` the move from ``P`` onto corner ``i``'s fit, along its normal."""
@@ -433,10 +557,16 @@ class FittedGeometry(NagataGeometry):
             lam_i = np.zeros((F, P.shape[1], nfv))
             lam_i[..., i] = 1.0
             out = np.zeros_like(P)
-            blend_kernel(P, lam_i, x0, frames, h, coef, one, self.degree, self._planar, out)
+            blend_kernel(P, lam_i, x0, frames, h, coef, one, deg, self._planar, out)
             return out
 
         q = [X + along(X, i) for i in range(nfv)]
+        # samples on a crease edge: the surface there is the crease curve, not the fits' blend
+        on_crease = np.zeros((F, len(grid)), dtype=bool)
+        if nfv == 3:
+            for k in range(3):
+                e = (grid[:, k] == 0) & (grid > 0).sum(axis=1).__eq__(2)
+                on_crease[:, e] = (self._edge_crease[act, k] >= 0)[:, None]
         gain = [np.linalg.norm(qi - nag, axis=2) for qi in q]  # each fit's correction of the patch
         bad = np.zeros(len(self._coef_s), dtype=bool)
         for i in range(nfv):
@@ -445,7 +575,7 @@ class FittedGeometry(NagataGeometry):
                     continue
                 r = np.linalg.norm(along(q[i], j), axis=2)
                 tol = GUARD * np.minimum(dep, np.maximum(gain[i], gain[j])) + 1e-9 * h[:, j, None]
-                far = ((r > tol) & (grid[None, :, i] >= 0.25)).any(axis=1)
+                far = ((r > tol) & (grid[None, :, i] >= 0.25) & ~on_crease).any(axis=1)
                 np.logical_or.at(bad, sec[:, i], far)
                 np.logical_or.at(bad, sec[:, j], far)
         return bad
@@ -463,7 +593,7 @@ class FittedGeometry(NagataGeometry):
         use = ~nag & ~self._flat[label]
         if use.any():
             blend_kernel(out.copy(), np.ascontiguousarray(lam, dtype=float), self.x[patch], self._frame_s[label],
-                         self._hv[self.corners.vertex[patch]], self._coef_s[label], use, self.degree,
+                         self._hv[self.corners.vertex[patch]], self._coef_s[label], use, self._eval_degree[label],
                          self._planar, out)
         if nag.any():
             rows = np.flatnonzero(nag.any(axis=1))
