@@ -208,14 +208,7 @@ def _terms(x: np.ndarray, cells: np.ndarray, B: np.ndarray, delta: float, hessia
                 g[node, c] += s
         if hessian and summed:
             _cell_hessian(S, C, sigma, r, a, b, Bk, scale[k], d, Sv, Cv, Bs, P, Hk)
-            for v in range(nv):
-                for w in range(nv):
-                    q = slot[k, v, w]
-                    if q < 0:
-                        continue
-                    for c in range(d):
-                        for e in range(d):
-                            Hb[q, c, e] += Hk[v, c, w, e]
+            _add_blocks(Hk, slot[k], Hb)
         elif hessian:
             _cell_hessian(S, C, sigma, r, a, b, Bk, scale[k], d, Sv, Cv, Bs, P, Hx[k])
     return F
@@ -466,18 +459,25 @@ def sum_hessians(H: np.ndarray, slot: np.ndarray, nblocks: int) -> np.ndarray:
     ``slot (m, nv, nv)`` from :func:`hessian_blocks`; cells are added in
     order, so the sums do not depend on anything but the cells' order.
     """
-    m, nv, d = H.shape[0], H.shape[1], H.shape[2]
-    out = np.zeros((nblocks, d, d))
-    for k in range(m):
-        for v in range(nv):
-            for w in range(nv):
-                b = slot[k, v, w]
-                if b < 0:
-                    continue
-                for c in range(d):
-                    for e in range(d):
-                        out[b, c, e] += H[k, v, c, w, e]
+    out = np.zeros((nblocks, H.shape[2], H.shape[2]))
+    for k in range(H.shape[0]):
+        _add_blocks(H[k], slot[k], out)
     return out
+
+
+@_inline
+def _add_blocks(Hk: np.ndarray, sk: np.ndarray, out: np.ndarray) -> None:
+    """One cell's Hessian ``Hk (nv, d, nv, d)`` added into the blocks ``out`` of its vertex
+    pairs ``sk (nv, nv)`` (-1: a pair without a block, a vertex that does not move)."""
+    nv, d = Hk.shape[0], Hk.shape[1]
+    for v in range(nv):
+        for w in range(nv):
+            b = sk[v, w]
+            if b < 0:
+                continue
+            for c in range(d):
+                for e in range(d):
+                    out[b, c, e] += Hk[v, c, w, e]
 
 
 @_jit
