@@ -305,15 +305,19 @@ class FittedGeometry(NagataGeometry):
         cosmin = np.ones(V)
         np.minimum.at(cosmin, centre, np.einsum("si,si->s", nfit, nfit[best[centre]]))
         ok = (nsec >= 2) & (cosmin >= np.cos(np.radians(HERMITE_ANGLE))) & np.isfinite(resid[best])
-        hres = np.where(ok, resid[best], np.inf)
+        hres = np.where(ok, resid[best], np.inf) / HERMITE_RATIO
+        hn = nfit[best]
+
+        def known(sel: np.ndarray, pts: np.ndarray, m: np.ndarray) -> np.ndarray:
+            """``(len(sel), k)`` whether sectors ``sel`` take a Hermite normal at vertices ``pts``."""
+            return m & (hres[pts] <= resid[sel][:, None])
 
         def normals_at(sel: np.ndarray, pts: np.ndarray, m: np.ndarray) -> np.ndarray:
             """``(len(sel), k, 3)`` the Hermite normals of sectors ``sel`` at vertices ``pts``, NaN where none."""
-            good = m & (hres[pts] <= HERMITE_RATIO * resid[sel][:, None])
-            return np.where(good[..., None], nfit[best[pts]], np.nan)
+            return np.where(known(sel, pts, m)[..., None], hn[pts], np.nan)
 
         with_c = np.c_[centre[cand], idx[cand]], np.c_[np.ones(len(cand), dtype=bool), mask[cand]]
-        has = np.isfinite(normals_at(cand, *with_c)[..., 0]).any(axis=1)
+        has = known(cand, *with_c).any(axis=1)
         redo = cand[has & (resid[cand] > HERMITE_MIN_RESIDUAL)]
         if len(redo) == 0:
             return
@@ -324,8 +328,8 @@ class FittedGeometry(NagataGeometry):
             return i2[redo], m2[redo]
 
         def count(i2: np.ndarray, m2: np.ndarray) -> np.ndarray:
-            nh = np.isfinite(normals_at(redo, np.c_[centre[redo], i2], np.c_[np.ones(len(redo), dtype=bool), m2]))
-            return m2.sum(axis=1) + 2 * nh[..., 0].sum(axis=1)
+            nh = known(redo, np.c_[centre[redo], i2], np.c_[np.ones(len(redo), dtype=bool), m2])
+            return m2.sum(axis=1) + 2 * nh.sum(axis=1)
 
         def fit2(sel: np.ndarray, i2: np.ndarray, m2: np.ndarray, dd: int, explicit: bool) -> np.ndarray:
             s, c = redo[sel], centre[redo[sel]]
