@@ -769,12 +769,21 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
     pc, sc, vc, d1 = p.Coord, su.Coord, sv.Coord, a.D1
     ulo, uhi, vlo, vhi = _clamp_box(a)
     clamp = math.isfinite(ulo) or math.isfinite(vlo)  # (else min and max give u and v themselves)
-    D: list[float] = []  # per sample its point, S_u and S_v (flat; `+=` of each tuple, no call)
-    for u, v in ([(min(max(u, ulo), uhi), min(max(v, vlo), vhi)) for u, v in grid_uv] if clamp else grid_uv):
-        d1(u, v, p, su, sv)  # the grid (OpenCASCADE's points and derivatives)
-        D += pc()
-        D += sc()
-        D += vc()
+    D: list[float] = []  # per sample its point, S_u and S_v (flat)
+
+    def sample(u: float, v: float) -> tuple[float, ...]:
+        """OpenCASCADE's point and derivatives at ``(u, v)`` (clamped where it clamps) onto ``D``;
+        returns ``S_u + S_v`` (six numbers)."""
+        if clamp:
+            u, v = min(max(u, ulo), uhi), min(max(v, vlo), vhi)
+        d1(u, v, p, su, sv)
+        s_uv = sc() + vc()
+        D.extend(pc())
+        D.extend(s_uv)
+        return s_uv
+
+    for u, v in grid_uv:  # the grid (OpenCASCADE's points and derivatives)
+        sample(u, v)
     # the face's extent, roughly: the grid's, scaled to the span of a CHECK_GRID grid's
     xs, ys, zs = D[0::9], D[1::9], D[2::9]
     span = (CHECK_GRID - 1) / CHECK_GRID / ((grid - 1) / grid) if grid > 1 else 1.0
@@ -788,20 +797,13 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
         u, v = p2.Coord()
         params += (u, v)
         kind.append(1)
-        if clamp:
-            d1(min(max(u, ulo), uhi), min(max(v, vlo), vhi), p, su, sv)
-        else:
-            d1(u, v, p, su, sv)
-        D += pc()
-        s_u, s_v = sc(), vc()
-        D += s_u
-        D += s_v
+        s_uv = sample(u, v)
         if tool.IsClosed_s(e, face) if seam is None else seam:  # a seam: the face on both sides
             continue
         nv, nu = d2.Coord()
         nu = -nu
         # |S_u nu + S_v nv| from the numbers just read (not by gp_Vec arithmetic: five calls)
-        x, y, z = s_u[0] * nu + s_v[0] * nv, s_u[1] * nu + s_v[1] * nv, s_u[2] * nu + s_v[2] * nv
+        x, y, z = s_uv[0] * nu + s_uv[3] * nv, s_uv[1] * nu + s_uv[4] * nv, s_uv[2] * nu + s_uv[5] * nv
         length = math.sqrt(x * x + y * y + z * z)
         if not length > 0:
             continue
@@ -810,13 +812,7 @@ def _checks(face, uv: Sequence[float], uses: Sequence[Sequence[tuple]], grid: in
             u_, v_ = u + s * nu, v + s * nv
             params += (u_, v_)
             kind.append(2)
-            if clamp:
-                d1(min(max(u_, ulo), uhi), min(max(v_, vlo), vhi), p, su, sv)
-            else:
-                d1(u_, v_, p, su, sv)
-            D += pc()
-            D += sc()
-            D += vc()
+            sample(u_, v_)
     cls = IntTools_FClass2d(face, max(tool.MaxTolerance_s(face, o.FACE), 1e-9 * extent))
     code = o.STATES
     q = gp_Pnt2d()
