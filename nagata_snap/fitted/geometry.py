@@ -48,6 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from nagata_snap.fitted.fit import (
+    _weights,
     blend_kernel,
     fit_curves,
     fit_levels,
@@ -351,7 +352,7 @@ class FittedGeometry(NagataGeometry):
         loc = np.matmul(coords[idx] - coords[centre][:, None], frame.transpose(0, 2, 1)) / hv[centre][:, None, None]
         u, v, w = loc[..., 0], loc[..., 1], loc[..., 2]
         F = w + plane_value(c, self._top, False, u, v) + (c[:, 3:4] * u + c[:, 4:5] * v + c[:, 5:6] * w) * w
-        wt = np.where(mask, 1.0 / (1.0 + (u * u + v * v + w * w)) ** 2, 0.0)
+        wt = _weights(u * u + v * v + w * w, np.ones(len(c)), mask)  # (lengths already in units of hv)
         return np.sqrt((wt * F * F).sum(axis=1) / np.maximum((wt * w * w).sum(axis=1), 1e-300))
 
     def _fit_creases(self, coords: np.ndarray, hv: np.ndarray) -> None:
@@ -569,7 +570,7 @@ class FittedGeometry(NagataGeometry):
         on_crease = np.zeros((F, len(grid)), dtype=bool)
         if nfv == 3:
             for k in range(3):
-                e = (grid[:, k] == 0) & (grid > 0).sum(axis=1).__eq__(2)
+                e = (grid[:, k] == 0) & ((grid > 0).sum(axis=1) == 2)
                 on_crease[:, e] = (self._edge_crease[act, k] >= 0)[:, None]
         gain = [np.linalg.norm(qi - nag, axis=2) for qi in q]  # each fit's correction of the patch
         bad = np.zeros(len(self._coef_s), dtype=bool)
